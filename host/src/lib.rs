@@ -1,0 +1,1 @@
+//! Host side of the mirror mark test.

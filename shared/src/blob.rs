@@ -1,0 +1,910 @@
+//! The model blob: everything the board needs to run the mirror test, in one versioned file.
+//!
+//! All numbers little-endian; every section starts 4-byte aligned (relative to the blob start).
+//!
+//! ```text
+//! header (HEADER_LEN = 40 bytes)
+//!   0  magic b"MSRM"          4  version u16        6  header_len u16
+//!   8  total_len u32         12  crc32 u32 (CRC-32/ISO-HDLC of bytes 16..total_len)
+//!  16  face_h u16            18  face_w u16        20  n_layers u16    22  flags u16 (bit 0: template)
+//!  24  threshold f32         28  normalisation u8  29  sided u8        30  min_area u16
+//!  32  sigma_floor f32       36  reserved u32 (0)
+//! n_layers x layer:
+//!   descriptor (LAYER_DESC_LEN = 32 bytes)
+//!     0 kind u8  1 activation u8  2 weight dtype u8  3 reserved u8 (0)
+//!     4 in_c u16  6 in_h u16  8 in_w u16  10 out_c u16  12 out_h u16  14 out_w u16
+//!    16 kernel u8  17 stride u8  18 padding u8  19 reserved u8 (0)
+//!    20 crop_top u16  22 crop_left u16
+//!    24 w_shift i8  25 in_shift i8  26 out_shift i8  27 reserved u8 (0)
+//!    28 weight_bytes u32
+//!   weights (weight_bytes, padded to 4), then bias (i32 each, count per kind; none for Crop)
+//! statistics: mu then sigma, face_h*face_w u16 each, Q8.8 grey levels (padded to 4)
+//! reach: 99 f32: w1[10][2] b1[10] w2[5][10] b2[5] in_min[2] in_max[2] out_min[5] out_max[5]
+//! template (if flags bit 0): h u16, w u16, h*w u8 grey (padded to 4)
+//! ```
+//!
+//! Fixed point: a layer's input is i16 with `in_shift` fraction bits, its weights (i8 or i16) have
+//! `w_shift` fraction bits, its bias is i32 in the accumulator's scale (`w_shift + in_shift`
+//! fraction bits), and its output is i16 with `out_shift` fraction bits:
+//! `out = sat_i16(round(act(acc * 2^-(w_shift+in_shift)) * 2^out_shift))`.
+//! The first layer's input is `[HeadYaw, HeadPitch]` in radians; the last layer's output is the
+//! predicted face, `1 x face_h x face_w`, grey/255 (so sigmoid output with `out_shift` bits).
+//!
+//! Weight layouts follow PyTorch: Dense `[out][in]` over the flattened CHW input; ConvTranspose2d
+//! `[in_c][out_c][k][k]`; UpConv (nearest upsampling by `stride`, then a stride-1 Conv2d with
+//! `padding`) `[out_c][in_c][k][k]`. Bias: Dense one per output element; the convolutions one per
+//! output channel.
+//!
+//! [`Model::parse`] checks all of it (magic, version, lengths, CRC, every shape and the chaining of
+//! layers) and borrows the tables from the input bytes, so a blob in flash costs no RAM.
+
+use core::fmt;
+use serde::{Deserialize, Serialize};
+
+pub const MAGIC: [u8; 4] = *b"MSRM";
+pub const VERSION: u16 = 1;
+pub const HEADER_LEN: usize = 40;
+pub const LAYER_DESC_LEN: usize = 32;
+/// Largest face the board handles.
+pub const MAX_FACE_H: usize = 64;
+pub const MAX_FACE_W: usize = 96;
+pub const MAX_FACE_PIXELS: usize = MAX_FACE_H * MAX_FACE_W;
+pub const MAX_LAYERS: usize = 16;
+/// Largest intermediate activation (elements) of any layer's output.
+pub const MAX_ACTIVATION_LEN: usize = 8192;
+pub const MAX_TEMPLATE_PIXELS: usize = 240 * 320;
+pub const REACH_IN: usize = 2;
+pub const REACH_HIDDEN: usize = 10;
+pub const REACH_OUT: usize = 5;
+pub const REACH_FLOATS: usize = REACH_HIDDEN * REACH_IN
+    + REACH_HIDDEN
+    + REACH_OUT * REACH_HIDDEN
+    + REACH_OUT
+    + 2 * REACH_IN
+    + 2 * REACH_OUT;
+const FLAG_TEMPLATE: u16 = 1;
+
+/// CRC of the blob body: CRC-32/ISO-HDLC (the zlib one).
+pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
+
+/// How the prediction error is normalised before the threshold.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Normalisation {
+    /// `(e - mu) / sigma`, as the published code.
+    StdDev,
+    /// `(e - mu) / sigma^2`, as the paper's text.
+    Variance,
+}
+
+/// Whether only errors above the mean count, or both directions.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum Sided {
+    /// `(e - mu) / n > t`.
+    One,
+    /// `|e - mu| / n > t`, as the published code.
+    Two,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LayerKind {
+    Dense,
+    ConvTranspose2d,
+    /// Nearest-neighbour upsampling by `stride`, then a stride-1 convolution.
+    UpConv,
+    Crop,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Activation {
+    Identity,
+    Tanh,
+    Sigmoid,
+    Relu,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WeightType {
+    I8,
+    I16,
+}
+
+impl WeightType {
+    pub const fn size(self) -> usize {
+        match self {
+            WeightType::I8 => 1,
+            WeightType::I16 => 2,
+        }
+    }
+}
+
+/// A channels x height x width shape.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Shape {
+    pub c: u16,
+    pub h: u16,
+    pub w: u16,
+}
+
+impl Shape {
+    pub const fn len(&self) -> usize {
+        self.c as usize * self.h as usize * self.w as usize
+    }
+    pub const fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+/// Why a blob was refused. [`BlobError::code`] is what the board reports over the link.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BlobError {
+    /// Fewer bytes than the header, or than `total_len` says.
+    Truncated,
+    BadMagic,
+    UnsupportedVersion(u16),
+    BadHeader,
+    /// `total_len` disagrees with the bytes given.
+    LengthMismatch,
+    Crc,
+    /// Face size zero or over [`MAX_FACE_H`] x [`MAX_FACE_W`].
+    FaceSize,
+    TooManyLayers,
+    /// A layer descriptor with an unknown kind, activation, type or reserved bits set.
+    BadLayer(u8),
+    /// A layer's sizes are inconsistent (output size, kernel, weight or bias count).
+    LayerShape(u8),
+    /// A layer's input is not the previous layer's output.
+    Chain(u8),
+    /// An intermediate output larger than [`MAX_ACTIVATION_LEN`].
+    ActivationTooLarge(u8),
+    /// The first layer does not take 2 inputs, or the last does not produce the face.
+    ModelShape,
+    /// Threshold not finite and positive, unknown normalisation or sidedness, zero min area.
+    Novelty,
+    /// Non-finite reach weights or scaling, or min >= max.
+    Reach,
+    Template,
+    /// Bytes left over after the last section.
+    TrailingBytes,
+}
+
+impl BlobError {
+    /// A stable number for the wire.
+    pub fn code(&self) -> u32 {
+        match self {
+            BlobError::Truncated => 1,
+            BlobError::BadMagic => 2,
+            BlobError::UnsupportedVersion(v) => 3 | (*v as u32) << 8,
+            BlobError::BadHeader => 4,
+            BlobError::LengthMismatch => 5,
+            BlobError::Crc => 6,
+            BlobError::FaceSize => 7,
+            BlobError::TooManyLayers => 8,
+            BlobError::BadLayer(i) => 9 | (*i as u32) << 8,
+            BlobError::LayerShape(i) => 10 | (*i as u32) << 8,
+            BlobError::Chain(i) => 11 | (*i as u32) << 8,
+            BlobError::ActivationTooLarge(i) => 12 | (*i as u32) << 8,
+            BlobError::ModelShape => 13,
+            BlobError::Novelty => 14,
+            BlobError::Reach => 15,
+            BlobError::Template => 16,
+            BlobError::TrailingBytes => 17,
+        }
+    }
+}
+
+impl fmt::Display for BlobError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            BlobError::Truncated => f.write_str("model blob is truncated"),
+            BlobError::BadMagic => f.write_str("not a model blob (bad magic)"),
+            BlobError::UnsupportedVersion(v) => {
+                write!(f, "model blob version {v}, this build reads {VERSION}")
+            }
+            BlobError::BadHeader => f.write_str("model blob header is malformed"),
+            BlobError::LengthMismatch => f.write_str("model blob length disagrees with its header"),
+            BlobError::Crc => f.write_str("model blob CRC mismatch (corrupt)"),
+            BlobError::FaceSize => write!(f, "face size must be 1..={MAX_FACE_H} x 1..={MAX_FACE_W}"),
+            BlobError::TooManyLayers => write!(f, "more than {MAX_LAYERS} layers"),
+            BlobError::BadLayer(i) => write!(f, "layer {i}: unknown kind, activation or type"),
+            BlobError::LayerShape(i) => write!(f, "layer {i}: inconsistent sizes"),
+            BlobError::Chain(i) => write!(f, "layer {i}: input is not the previous output"),
+            BlobError::ActivationTooLarge(i) => {
+                write!(f, "layer {i}: output larger than {MAX_ACTIVATION_LEN} elements")
+            }
+            BlobError::ModelShape => {
+                f.write_str("decoder must map 2 head angles to a 1 x face_h x face_w image")
+            }
+            BlobError::Novelty => f.write_str("novelty parameters out of range"),
+            BlobError::Reach => f.write_str("reach network has non-finite values or bad scaling"),
+            BlobError::Template => f.write_str("face template is malformed"),
+            BlobError::TrailingBytes => f.write_str("bytes left over after the last section"),
+        }
+    }
+}
+
+#[cfg(feature = "std")]
+impl std::error::Error for BlobError {}
+
+/// Novelty detection parameters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Novelty {
+    pub threshold: f32,
+    pub normalisation: Normalisation,
+    pub sided: Sided,
+    pub min_area: u16,
+    /// The floor applied to sigma when the statistics were made (grey levels), for reference.
+    pub sigma_floor: f32,
+}
+
+/// One decoder layer, its tables borrowed from the blob.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Layer<'a> {
+    pub kind: LayerKind,
+    pub activation: Activation,
+    pub weight_type: WeightType,
+    pub input: Shape,
+    pub output: Shape,
+    pub kernel: u8,
+    pub stride: u8,
+    pub padding: u8,
+    pub crop_top: u16,
+    pub crop_left: u16,
+    pub w_shift: i8,
+    pub in_shift: i8,
+    pub out_shift: i8,
+    /// Raw little-endian weights; see [`Layer::weight`].
+    pub weights: &'a [u8],
+    /// Raw little-endian i32 biases; see [`Layer::bias`].
+    pub bias: &'a [u8],
+}
+
+impl<'a> Layer<'a> {
+    pub fn weight_count(&self) -> usize {
+        self.weights.len() / self.weight_type.size()
+    }
+
+    /// Weight `i` as an integer. Panics if out of range, like slice indexing.
+    #[inline]
+    pub fn weight(&self, i: usize) -> i32 {
+        match self.weight_type {
+            WeightType::I8 => self.weights[i] as i8 as i32,
+            WeightType::I16 => {
+                i16::from_le_bytes([self.weights[2 * i], self.weights[2 * i + 1]]) as i32
+            }
+        }
+    }
+
+    pub fn bias_count(&self) -> usize {
+        self.bias.len() / 4
+    }
+
+    #[inline]
+    pub fn bias(&self, i: usize) -> i32 {
+        let b = &self.bias[4 * i..4 * i + 4];
+        i32::from_le_bytes([b[0], b[1], b[2], b[3]])
+    }
+
+    /// The i16 weights as a slice, when the blob sits 2-byte aligned in memory.
+    #[cfg(target_endian = "little")]
+    pub fn weights_i16(&self) -> Option<&'a [i16]> {
+        match self.weight_type {
+            WeightType::I16 => bytemuck::try_cast_slice(self.weights).ok(),
+            WeightType::I8 => None,
+        }
+    }
+
+    /// The i8 weights as a slice.
+    pub fn weights_i8(&self) -> Option<&'a [i8]> {
+        match self.weight_type {
+            WeightType::I8 => Some(bytemuck::cast_slice(self.weights)),
+            WeightType::I16 => None,
+        }
+    }
+
+    /// The biases as a slice, when the blob sits 4-byte aligned in memory.
+    #[cfg(target_endian = "little")]
+    pub fn bias_i32(&self) -> Option<&'a [i32]> {
+        bytemuck::try_cast_slice(self.bias).ok()
+    }
+
+    /// Multiply-accumulates of one inference of this layer.
+    pub fn macs(&self) -> u64 {
+        let k2 = self.kernel as u64 * self.kernel as u64;
+        match self.kind {
+            LayerKind::Dense => self.input.len() as u64 * self.output.len() as u64,
+            LayerKind::ConvTranspose2d => self.input.len() as u64 * self.output.c as u64 * k2,
+            LayerKind::UpConv => self.output.len() as u64 * self.input.c as u64 * k2,
+            LayerKind::Crop => 0,
+        }
+    }
+}
+
+/// A table of u16 values borrowed from the blob.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct U16Table<'a>(pub &'a [u8]);
+
+impl<'a> U16Table<'a> {
+    pub fn len(&self) -> usize {
+        self.0.len() / 2
+    }
+    pub fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+    #[inline]
+    pub fn get(&self, i: usize) -> u16 {
+        u16::from_le_bytes([self.0[2 * i], self.0[2 * i + 1]])
+    }
+    pub fn iter(&self) -> impl Iterator<Item = u16> + 'a {
+        self.0.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]]))
+    }
+}
+
+/// The reach network 2-10-5 (sigmoid, sigmoid) with min-max scaling on both sides. Copied out of
+/// the blob: it is small and the firmware runs it in f32.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Reach {
+    pub w1: [[f32; REACH_IN]; REACH_HIDDEN],
+    pub b1: [f32; REACH_HIDDEN],
+    pub w2: [[f32; REACH_HIDDEN]; REACH_OUT],
+    pub b2: [f32; REACH_OUT],
+    pub in_min: [f32; REACH_IN],
+    pub in_max: [f32; REACH_IN],
+    pub out_min: [f32; REACH_OUT],
+    pub out_max: [f32; REACH_OUT],
+}
+
+impl Reach {
+    fn to_floats(&self) -> [f32; REACH_FLOATS] {
+        let mut v = [0f32; REACH_FLOATS];
+        let mut i = 0;
+        let mut put = |x: f32| {
+            v[i] = x;
+            i += 1;
+        };
+        self.w1.iter().flatten().for_each(|&x| put(x));
+        self.b1.iter().for_each(|&x| put(x));
+        self.w2.iter().flatten().for_each(|&x| put(x));
+        self.b2.iter().for_each(|&x| put(x));
+        self.in_min.iter().for_each(|&x| put(x));
+        self.in_max.iter().for_each(|&x| put(x));
+        self.out_min.iter().for_each(|&x| put(x));
+        self.out_max.iter().for_each(|&x| put(x));
+        v
+    }
+
+    fn from_floats(v: &[f32; REACH_FLOATS]) -> Reach {
+        let mut it = v.iter().copied();
+        let mut next = || it.next().unwrap_or(0.0);
+        let mut r = Reach {
+            w1: [[0.0; REACH_IN]; REACH_HIDDEN],
+            b1: [0.0; REACH_HIDDEN],
+            w2: [[0.0; REACH_HIDDEN]; REACH_OUT],
+            b2: [0.0; REACH_OUT],
+            in_min: [0.0; REACH_IN],
+            in_max: [0.0; REACH_IN],
+            out_min: [0.0; REACH_OUT],
+            out_max: [0.0; REACH_OUT],
+        };
+        r.w1.iter_mut().flatten().for_each(|x| *x = next());
+        r.b1.iter_mut().for_each(|x| *x = next());
+        r.w2.iter_mut().flatten().for_each(|x| *x = next());
+        r.b2.iter_mut().for_each(|x| *x = next());
+        r.in_min.iter_mut().for_each(|x| *x = next());
+        r.in_max.iter_mut().for_each(|x| *x = next());
+        r.out_min.iter_mut().for_each(|x| *x = next());
+        r.out_max.iter_mut().for_each(|x| *x = next());
+        r
+    }
+
+    fn is_valid(&self) -> bool {
+        let v = self.to_floats();
+        v.iter().all(|x| x.is_finite())
+            && self.in_min.iter().zip(&self.in_max).all(|(a, b)| a < b)
+            && self.out_min.iter().zip(&self.out_max).all(|(a, b)| a < b)
+    }
+}
+
+/// The face template the host crops with, borrowed from the blob.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Template<'a> {
+    pub h: u16,
+    pub w: u16,
+    pub pixels: &'a [u8],
+}
+
+/// A validated model blob.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Model<'a> {
+    pub face_h: u16,
+    pub face_w: u16,
+    pub novelty: Novelty,
+    pub layers: heapless::Vec<Layer<'a>, MAX_LAYERS>,
+    /// Mean prediction error per pixel, Q8.8 grey levels, row-major.
+    pub mu: U16Table<'a>,
+    /// Its standard deviation per pixel, Q8.8 grey levels, row-major.
+    pub sigma: U16Table<'a>,
+    pub reach: Reach,
+    pub template: Option<Template<'a>>,
+    /// The CRC-32 from the header: the model's identity.
+    pub crc32: u32,
+}
+
+/// Bounds-checked little-endian reads; every failure is [`BlobError::Truncated`].
+struct Reader<'a> {
+    buf: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Result<&'a [u8], BlobError> {
+        let end = self.pos.checked_add(n).ok_or(BlobError::Truncated)?;
+        let s = self.buf.get(self.pos..end).ok_or(BlobError::Truncated)?;
+        self.pos = end;
+        Ok(s)
+    }
+    /// Takes `n` bytes and skips padding to the next multiple of 4.
+    fn take_padded(&mut self, n: usize) -> Result<&'a [u8], BlobError> {
+        let s = self.take(n)?;
+        let pad = (4 - n % 4) % 4;
+        self.take(pad)?;
+        Ok(s)
+    }
+    fn u8(&mut self) -> Result<u8, BlobError> {
+        Ok(self.take(1)?[0])
+    }
+    fn i8(&mut self) -> Result<i8, BlobError> {
+        Ok(self.u8()? as i8)
+    }
+    fn u16(&mut self) -> Result<u16, BlobError> {
+        let b = self.take(2)?;
+        Ok(u16::from_le_bytes([b[0], b[1]]))
+    }
+    fn u32(&mut self) -> Result<u32, BlobError> {
+        let b = self.take(4)?;
+        Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+    }
+    fn f32(&mut self) -> Result<f32, BlobError> {
+        Ok(f32::from_bits(self.u32()?))
+    }
+}
+
+fn checked_mul(a: usize, b: usize, e: BlobError) -> Result<usize, BlobError> {
+    a.checked_mul(b).ok_or(e)
+}
+
+impl<'a> Model<'a> {
+    /// Validates a blob and borrows its tables. Nothing in `bytes` is trusted.
+    pub fn parse(bytes: &'a [u8]) -> Result<Model<'a>, BlobError> {
+        if bytes.len() < HEADER_LEN {
+            return Err(BlobError::Truncated);
+        }
+        let mut r = Reader { buf: bytes, pos: 0 };
+        if r.take(4)? != MAGIC {
+            return Err(BlobError::BadMagic);
+        }
+        let version = r.u16()?;
+        if version != VERSION {
+            return Err(BlobError::UnsupportedVersion(version));
+        }
+        if r.u16()? as usize != HEADER_LEN {
+            return Err(BlobError::BadHeader);
+        }
+        let total = r.u32()? as usize;
+        if total > bytes.len() {
+            return Err(BlobError::Truncated);
+        }
+        if total != bytes.len() {
+            return Err(BlobError::LengthMismatch);
+        }
+        let crc = r.u32()?;
+        if CRC32.checksum(&bytes[16..]) != crc {
+            return Err(BlobError::Crc);
+        }
+        let face_h = r.u16()?;
+        let face_w = r.u16()?;
+        if face_h == 0 || face_w == 0 || face_h as usize > MAX_FACE_H || face_w as usize > MAX_FACE_W
+        {
+            return Err(BlobError::FaceSize);
+        }
+        let n_layers = r.u16()? as usize;
+        if n_layers == 0 || n_layers > MAX_LAYERS {
+            return Err(BlobError::TooManyLayers);
+        }
+        let flags = r.u16()?;
+        if flags & !FLAG_TEMPLATE != 0 {
+            return Err(BlobError::BadHeader);
+        }
+        let threshold = r.f32()?;
+        let normalisation = match r.u8()? {
+            0 => Normalisation::StdDev,
+            1 => Normalisation::Variance,
+            _ => return Err(BlobError::Novelty),
+        };
+        let sided = match r.u8()? {
+            0 => Sided::One,
+            1 => Sided::Two,
+            _ => return Err(BlobError::Novelty),
+        };
+        let min_area = r.u16()?;
+        let sigma_floor = r.f32()?;
+        if !(threshold.is_finite() && threshold > 0.0)
+            || min_area == 0
+            || !(sigma_floor.is_finite() && sigma_floor >= 0.0)
+        {
+            return Err(BlobError::Novelty);
+        }
+        if r.u32()? != 0 {
+            return Err(BlobError::BadHeader);
+        }
+
+        let mut layers = heapless::Vec::new();
+        let mut prev = Shape { c: 2, h: 1, w: 1 };
+        for i in 0..n_layers {
+            let layer = parse_layer(&mut r, i as u8)?;
+            if i == 0 {
+                if layer.input.len() != 2 || layer.kind != LayerKind::Dense {
+                    return Err(BlobError::ModelShape);
+                }
+            } else if layer.input != prev
+                && !(layer.kind == LayerKind::Dense && layer.input.len() == prev.len())
+            {
+                return Err(BlobError::Chain(i as u8));
+            }
+            let last = i + 1 == n_layers;
+            if !last && layer.output.len() > MAX_ACTIVATION_LEN {
+                return Err(BlobError::ActivationTooLarge(i as u8));
+            }
+            prev = layer.output;
+            // Cannot fail: n_layers <= MAX_LAYERS was checked.
+            let _ = layers.push(layer);
+        }
+        if prev != (Shape { c: 1, h: face_h, w: face_w }) {
+            return Err(BlobError::ModelShape);
+        }
+
+        let pixels = face_h as usize * face_w as usize;
+        let mu = U16Table(r.take_padded(2 * pixels)?);
+        let sigma = U16Table(r.take_padded(2 * pixels)?);
+
+        let mut floats = [0f32; REACH_FLOATS];
+        for f in floats.iter_mut() {
+            *f = r.f32()?;
+        }
+        let reach = Reach::from_floats(&floats);
+        if !reach.is_valid() {
+            return Err(BlobError::Reach);
+        }
+
+        let template = if flags & FLAG_TEMPLATE != 0 {
+            let h = r.u16()?;
+            let w = r.u16()?;
+            let n = h as usize * w as usize;
+            if h == 0 || w == 0 || n > MAX_TEMPLATE_PIXELS {
+                return Err(BlobError::Template);
+            }
+            Some(Template { h, w, pixels: r.take_padded(n)? })
+        } else {
+            None
+        };
+        if r.pos != bytes.len() {
+            return Err(BlobError::TrailingBytes);
+        }
+        Ok(Model {
+            face_h,
+            face_w,
+            novelty: Novelty { threshold, normalisation, sided, min_area, sigma_floor },
+            layers,
+            mu,
+            sigma,
+            reach,
+            template,
+            crc32: crc,
+        })
+    }
+
+    pub fn face_pixels(&self) -> usize {
+        self.face_h as usize * self.face_w as usize
+    }
+
+    /// Multiply-accumulates of one decoder inference.
+    pub fn decoder_macs(&self) -> u64 {
+        self.layers.iter().map(|l| l.macs()).sum()
+    }
+}
+
+fn parse_layer<'a>(r: &mut Reader<'a>, i: u8) -> Result<Layer<'a>, BlobError> {
+    let bad = BlobError::BadLayer(i);
+    let shape_err = BlobError::LayerShape(i);
+    let kind = match r.u8()? {
+        0 => LayerKind::Dense,
+        1 => LayerKind::ConvTranspose2d,
+        2 => LayerKind::UpConv,
+        3 => LayerKind::Crop,
+        _ => return Err(bad),
+    };
+    let activation = match r.u8()? {
+        0 => Activation::Identity,
+        1 => Activation::Tanh,
+        2 => Activation::Sigmoid,
+        3 => Activation::Relu,
+        _ => return Err(bad),
+    };
+    let weight_type = match r.u8()? {
+        1 => WeightType::I8,
+        2 => WeightType::I16,
+        _ => return Err(bad),
+    };
+    if r.u8()? != 0 {
+        return Err(bad);
+    }
+    let input = Shape { c: r.u16()?, h: r.u16()?, w: r.u16()? };
+    let output = Shape { c: r.u16()?, h: r.u16()?, w: r.u16()? };
+    let kernel = r.u8()?;
+    let stride = r.u8()?;
+    let padding = r.u8()?;
+    if r.u8()? != 0 {
+        return Err(bad);
+    }
+    let crop_top = r.u16()?;
+    let crop_left = r.u16()?;
+    let w_shift = r.i8()?;
+    let in_shift = r.i8()?;
+    let out_shift = r.i8()?;
+    if r.u8()? != 0 {
+        return Err(bad);
+    }
+    // Shifts outside 0..=31 would make the fixed-point arithmetic overflow or lose everything.
+    if !(0..=31).contains(&w_shift) || !(0..=31).contains(&in_shift) || !(0..=31).contains(&out_shift)
+    {
+        return Err(bad);
+    }
+    let weight_bytes = r.u32()? as usize;
+    if input.is_empty() || output.is_empty() {
+        return Err(shape_err);
+    }
+    let (k, s, p) = (kernel as usize, stride as usize, padding as usize);
+    let (weights, bias) = match kind {
+        LayerKind::Dense => (
+            checked_mul(input.len(), output.len(), shape_err)?,
+            output.len(),
+        ),
+        LayerKind::ConvTranspose2d => {
+            if input.c == 0 || k == 0 || s == 0 {
+                return Err(shape_err);
+            }
+            // (in - 1) * s - 2p + k, without going negative.
+            let want = |n: u16| ((n as usize - 1) * s + k).checked_sub(2 * p);
+            if want(input.h) != Some(output.h as usize) || want(input.w) != Some(output.w as usize)
+            {
+                return Err(shape_err);
+            }
+            (input.c as usize * output.c as usize * k * k, output.c as usize)
+        }
+        LayerKind::UpConv => {
+            if k == 0 || s == 0 {
+                return Err(shape_err);
+            }
+            // in * s + 2p - k + 1.
+            let want = |n: u16| (n as usize * s + 2 * p + 1).checked_sub(k);
+            if want(input.h) != Some(output.h as usize) || want(input.w) != Some(output.w as usize)
+            {
+                return Err(shape_err);
+            }
+            (input.c as usize * output.c as usize * k * k, output.c as usize)
+        }
+        LayerKind::Crop => {
+            if input.c != output.c
+                || crop_top as usize + output.h as usize > input.h as usize
+                || crop_left as usize + output.w as usize > input.w as usize
+                || activation != Activation::Identity
+            {
+                return Err(shape_err);
+            }
+            (0, 0)
+        }
+    };
+    if checked_mul(weights, weight_type.size(), shape_err)? != weight_bytes {
+        return Err(shape_err);
+    }
+    let weights = r.take_padded(weight_bytes)?;
+    let bias = r.take(4 * bias)?;
+    Ok(Layer {
+        kind,
+        activation,
+        weight_type,
+        input,
+        output,
+        kernel,
+        stride,
+        padding,
+        crop_top,
+        crop_left,
+        w_shift,
+        in_shift,
+        out_shift,
+        weights,
+        bias,
+    })
+}
+
+#[cfg(any(feature = "std", test))]
+pub use writer::*;
+
+#[cfg(any(feature = "std", test))]
+mod writer {
+    //! Building blobs on the host.
+    use super::*;
+
+    /// Weights of a layer being written.
+    #[derive(Clone, Debug, PartialEq)]
+    pub enum Weights {
+        I8(Vec<i8>),
+        I16(Vec<i16>),
+    }
+
+    /// A layer to write; fields as in [`Layer`].
+    #[derive(Clone, Debug, PartialEq)]
+    pub struct LayerSpec {
+        pub kind: LayerKind,
+        pub activation: Activation,
+        pub input: Shape,
+        pub output: Shape,
+        pub kernel: u8,
+        pub stride: u8,
+        pub padding: u8,
+        pub crop_top: u16,
+        pub crop_left: u16,
+        pub w_shift: i8,
+        pub in_shift: i8,
+        pub out_shift: i8,
+        pub weights: Weights,
+        pub bias: Vec<i32>,
+    }
+
+    /// Everything that goes into a blob.
+    #[derive(Clone, Debug, PartialEq)]
+    pub struct ModelSpec {
+        pub face_h: u16,
+        pub face_w: u16,
+        pub novelty: Novelty,
+        pub layers: Vec<LayerSpec>,
+        pub mu: Vec<u16>,
+        pub sigma: Vec<u16>,
+        pub reach: Reach,
+        /// (h, w, grey pixels).
+        pub template: Option<(u16, u16, Vec<u8>)>,
+    }
+
+    fn pad(out: &mut Vec<u8>) {
+        while out.len() % 4 != 0 {
+            out.push(0);
+        }
+    }
+
+    impl ModelSpec {
+        /// Serialises and then checks the result with [`Model::parse`], so a blob that this
+        /// returns is one the board accepts.
+        pub fn to_bytes(&self) -> Result<Vec<u8>, BlobError> {
+            let mut o = Vec::new();
+            o.extend_from_slice(&MAGIC);
+            o.extend_from_slice(&VERSION.to_le_bytes());
+            o.extend_from_slice(&(HEADER_LEN as u16).to_le_bytes());
+            o.extend_from_slice(&[0; 8]); // total_len, crc32: filled below
+            o.extend_from_slice(&self.face_h.to_le_bytes());
+            o.extend_from_slice(&self.face_w.to_le_bytes());
+            o.extend_from_slice(&(self.layers.len() as u16).to_le_bytes());
+            let flags = if self.template.is_some() { FLAG_TEMPLATE } else { 0 };
+            o.extend_from_slice(&flags.to_le_bytes());
+            let n = &self.novelty;
+            o.extend_from_slice(&n.threshold.to_le_bytes());
+            o.push(match n.normalisation {
+                Normalisation::StdDev => 0,
+                Normalisation::Variance => 1,
+            });
+            o.push(match n.sided {
+                Sided::One => 0,
+                Sided::Two => 1,
+            });
+            o.extend_from_slice(&n.min_area.to_le_bytes());
+            o.extend_from_slice(&n.sigma_floor.to_le_bytes());
+            o.extend_from_slice(&0u32.to_le_bytes());
+            debug_assert_eq!(o.len(), HEADER_LEN);
+
+            for l in &self.layers {
+                o.push(match l.kind {
+                    LayerKind::Dense => 0,
+                    LayerKind::ConvTranspose2d => 1,
+                    LayerKind::UpConv => 2,
+                    LayerKind::Crop => 3,
+                });
+                o.push(match l.activation {
+                    Activation::Identity => 0,
+                    Activation::Tanh => 1,
+                    Activation::Sigmoid => 2,
+                    Activation::Relu => 3,
+                });
+                o.push(match l.weights {
+                    Weights::I8(_) => 1,
+                    Weights::I16(_) => 2,
+                });
+                o.push(0);
+                for v in [l.input.c, l.input.h, l.input.w, l.output.c, l.output.h, l.output.w] {
+                    o.extend_from_slice(&v.to_le_bytes());
+                }
+                o.extend_from_slice(&[l.kernel, l.stride, l.padding, 0]);
+                o.extend_from_slice(&l.crop_top.to_le_bytes());
+                o.extend_from_slice(&l.crop_left.to_le_bytes());
+                o.extend_from_slice(&[l.w_shift as u8, l.in_shift as u8, l.out_shift as u8, 0]);
+                let w: Vec<u8> = match &l.weights {
+                    Weights::I8(v) => v.iter().map(|&x| x as u8).collect(),
+                    Weights::I16(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
+                };
+                o.extend_from_slice(&(w.len() as u32).to_le_bytes());
+                o.extend_from_slice(&w);
+                pad(&mut o);
+                for b in &l.bias {
+                    o.extend_from_slice(&b.to_le_bytes());
+                }
+            }
+            for table in [&self.mu, &self.sigma] {
+                for v in table.iter() {
+                    o.extend_from_slice(&v.to_le_bytes());
+                }
+                pad(&mut o);
+            }
+            for f in self.reach.to_floats() {
+                o.extend_from_slice(&f.to_le_bytes());
+            }
+            if let Some((h, w, px)) = &self.template {
+                o.extend_from_slice(&h.to_le_bytes());
+                o.extend_from_slice(&w.to_le_bytes());
+                o.extend_from_slice(px);
+                pad(&mut o);
+            }
+            let total = o.len() as u32;
+            o[8..12].copy_from_slice(&total.to_le_bytes());
+            let crc = CRC32.checksum(&o[16..]);
+            o[12..16].copy_from_slice(&crc.to_le_bytes());
+            Model::parse(&o)?;
+            Ok(o)
+        }
+    }
+
+    impl Reach {
+        /// Builds the reach network from flat float rows (e.g. from safetensors).
+        pub fn from_parts(
+            w1: &[f32],
+            b1: &[f32],
+            w2: &[f32],
+            b2: &[f32],
+            in_min: [f32; REACH_IN],
+            in_max: [f32; REACH_IN],
+            out_min: [f32; REACH_OUT],
+            out_max: [f32; REACH_OUT],
+        ) -> Result<Reach, BlobError> {
+            if w1.len() != REACH_HIDDEN * REACH_IN
+                || b1.len() != REACH_HIDDEN
+                || w2.len() != REACH_OUT * REACH_HIDDEN
+                || b2.len() != REACH_OUT
+            {
+                return Err(BlobError::Reach);
+            }
+            let mut v = [0f32; REACH_FLOATS];
+            let parts: [&[f32]; 8] = [w1, b1, w2, b2, &in_min, &in_max, &out_min, &out_max];
+            let mut i = 0;
+            for p in parts {
+                v[i..i + p.len()].copy_from_slice(p);
+                i += p.len();
+            }
+            let r = Reach::from_floats(&v);
+            if r.is_valid() {
+                Ok(r)
+            } else {
+                Err(BlobError::Reach)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,405 @@
+use super::*;
+use proptest::prelude::*;
+
+fn reach() -> Reach {
+    let w1: Vec<f32> = (0..20).map(|i| i as f32 * 0.1 - 1.0).collect();
+    let b1 = vec![0.5; 10];
+    let w2: Vec<f32> = (0..50).map(|i| (i as f32 * 0.37).sin()).collect();
+    let b2 = vec![-0.25; 5];
+    Reach::from_parts(
+        &w1,
+        &b1,
+        &w2,
+        &b2,
+        [130.0, 88.0],
+        [203.0, 138.0],
+        [-1.0, -0.4, -0.5, -0.3, -1.5],
+        [0.9, 0.4, 0.6, 0.3, -1.1],
+    )
+    .unwrap()
+}
+
+fn dense(input: Shape, output: Shape, act: Activation, i16w: bool) -> LayerSpec {
+    let n = input.len() * output.len();
+    LayerSpec {
+        kind: LayerKind::Dense,
+        activation: act,
+        input,
+        output,
+        kernel: 0,
+        stride: 0,
+        padding: 0,
+        crop_top: 0,
+        crop_left: 0,
+        w_shift: 12,
+        in_shift: 13,
+        out_shift: 14,
+        weights: if i16w {
+            Weights::I16((0..n).map(|i| (i as i16).wrapping_mul(77)).collect())
+        } else {
+            Weights::I8((0..n).map(|i| (i as i8).wrapping_mul(3)).collect())
+        },
+        bias: (0..output.len() as i32).map(|i| i * 1000 - 7).collect(),
+    }
+}
+
+fn sh(c: u16, h: u16, w: u16) -> Shape {
+    Shape { c, h, w }
+}
+
+/// 2 -> 5 (tanh) -> 1x3x4 (sigmoid): an MLP decoder for a 3 x 4 face.
+fn mlp_spec() -> ModelSpec {
+    ModelSpec {
+        face_h: 3,
+        face_w: 4,
+        novelty: Novelty {
+            threshold: 4.59,
+            normalisation: Normalisation::StdDev,
+            sided: Sided::One,
+            min_area: 30,
+            sigma_floor: 1.0,
+        },
+        layers: vec![
+            dense(sh(2, 1, 1), sh(5, 1, 1), Activation::Tanh, false),
+            dense(sh(5, 1, 1), sh(1, 3, 4), Activation::Sigmoid, true),
+        ],
+        mu: (0..12).map(|i| i * 300).collect(),
+        sigma: (0..12).map(|i| 256 + i).collect(),
+        reach: reach(),
+        template: Some((2, 3, vec![1, 2, 3, 4, 5, 6])),
+    }
+}
+
+/// 2 -> 2x2x2 (tanh) -> convT k4 s2 p1 -> 1x4x4 -> upconv x2 k3 p1 -> 1x8x8 -> crop 3x4 at (1,2).
+fn conv_spec() -> ModelSpec {
+    let mut s = mlp_spec();
+    s.template = None;
+    let mut convt = dense(sh(2, 2, 2), sh(1, 4, 4), Activation::Tanh, true);
+    convt.kind = LayerKind::ConvTranspose2d;
+    convt.kernel = 4;
+    convt.stride = 2;
+    convt.padding = 1;
+    convt.weights = Weights::I16((0..2 * 16).map(|i| i as i16 - 9).collect());
+    convt.bias = vec![3];
+    let mut up = convt.clone();
+    up.kind = LayerKind::UpConv;
+    up.activation = Activation::Sigmoid;
+    up.input = sh(1, 4, 4);
+    up.output = sh(1, 8, 8);
+    up.kernel = 3;
+    up.stride = 2;
+    up.weights = Weights::I8((0..9).collect());
+    up.bias = vec![-5];
+    let crop = LayerSpec {
+        kind: LayerKind::Crop,
+        activation: Activation::Identity,
+        input: sh(1, 8, 8),
+        output: sh(1, 3, 4),
+        crop_top: 1,
+        crop_left: 2,
+        weights: Weights::I16(vec![]),
+        bias: vec![],
+        ..up.clone()
+    };
+    s.layers = vec![
+        dense(sh(2, 1, 1), sh(2, 2, 2), Activation::Tanh, true),
+        convt,
+        up,
+        crop,
+    ];
+    s
+}
+
+/// Recomputes the CRC after a deliberate edit, so that a validator behind the CRC is reached.
+fn recrc(b: &mut [u8]) {
+    let crc = CRC32.checksum(&b[16..]);
+    b[12..16].copy_from_slice(&crc.to_le_bytes());
+}
+
+#[test]
+fn mlp_round_trip() {
+    let spec = mlp_spec();
+    let bytes = spec.to_bytes().unwrap();
+    assert_eq!(bytes.len() % 4, 0);
+    let m = Model::parse(&bytes).unwrap();
+    assert_eq!((m.face_h, m.face_w, m.face_pixels()), (3, 4, 12));
+    assert_eq!(m.novelty, spec.novelty);
+    assert_eq!(m.layers.len(), 2);
+    let l0 = &m.layers[0];
+    assert_eq!((l0.weight_type, l0.weight_count(), l0.bias_count()), (WeightType::I8, 10, 5));
+    assert_eq!(l0.weight(3), 9);
+    assert_eq!(l0.weight(9), 27);
+    assert_eq!(l0.bias(1), 993);
+    let l1 = &m.layers[1];
+    assert_eq!(l1.weight(59), (59i16).wrapping_mul(77) as i32);
+    assert_eq!(l1.activation, Activation::Sigmoid);
+    assert_eq!(m.mu.get(11), 3300);
+    assert_eq!(m.sigma.iter().collect::<Vec<_>>(), spec.sigma);
+    assert_eq!(m.reach, spec.reach);
+    let t = m.template.unwrap();
+    assert_eq!((t.h, t.w, t.pixels), (2, 3, &[1u8, 2, 3, 4, 5, 6][..]));
+    assert_eq!(m.decoder_macs(), 10 + 60);
+    assert_eq!(m.crc32, u32::from_le_bytes(bytes[12..16].try_into().unwrap()));
+}
+
+#[test]
+fn conv_round_trip() {
+    let bytes = conv_spec().to_bytes().unwrap();
+    let m = Model::parse(&bytes).unwrap();
+    let kinds: Vec<_> = m.layers.iter().map(|l| l.kind).collect();
+    assert_eq!(
+        kinds,
+        [LayerKind::Dense, LayerKind::ConvTranspose2d, LayerKind::UpConv, LayerKind::Crop]
+    );
+    assert_eq!(m.layers[1].weight(0), -9);
+    assert_eq!(m.layers[2].weight(8), 8);
+    assert_eq!(m.layers[3].crop_left, 2);
+    assert!(m.template.is_none());
+    // 2*8 + 8*1*16 + 64*1*9.
+    assert_eq!(m.decoder_macs(), 16 + 128 + 576);
+}
+
+#[test]
+fn literal_header() {
+    let bytes = mlp_spec().to_bytes().unwrap();
+    assert_eq!(&bytes[0..8], &[b'M', b'S', b'R', b'M', 1, 0, 40, 0]);
+    assert_eq!(&bytes[16..24], &[3, 0, 4, 0, 2, 0, 1, 0]);
+    assert_eq!(&bytes[24..28], &4.59f32.to_le_bytes());
+    assert_eq!(&bytes[28..32], &[0, 0, 30, 0]);
+    // First layer descriptor: Dense, tanh, i8.
+    assert_eq!(&bytes[40..44], &[0, 1, 1, 0]);
+}
+
+#[test]
+fn aligned_views() {
+    let bytes = conv_spec().to_bytes().unwrap();
+    // A Vec<u8> from the allocator is at least 4-aligned in practice; copy into u32s to be sure.
+    let words: Vec<u32> = bytes
+        .chunks(4)
+        .map(|c| u32::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    let aligned: &[u8] = bytemuck::cast_slice(&words);
+    let m = Model::parse(aligned).unwrap();
+    let w = m.layers[1].weights_i16().unwrap();
+    assert_eq!(w[0], -9);
+    assert_eq!(m.layers[1].bias_i32().unwrap(), &[3]);
+    assert_eq!(m.layers[2].weights_i8().unwrap()[8], 8);
+}
+
+#[test]
+fn every_truncation_is_refused() {
+    let bytes = mlp_spec().to_bytes().unwrap();
+    for n in 0..bytes.len() {
+        assert!(Model::parse(&bytes[..n]).is_err(), "accepted {n} of {} bytes", bytes.len());
+    }
+    let mut long = bytes.clone();
+    long.extend_from_slice(&[0; 4]);
+    assert_eq!(Model::parse(&long), Err(BlobError::LengthMismatch));
+}
+
+#[test]
+fn every_byte_flip_is_refused() {
+    let bytes = conv_spec().to_bytes().unwrap();
+    for i in 0..bytes.len() {
+        for bit in [0, 3, 7] {
+            let mut b = bytes.clone();
+            b[i] ^= 1 << bit;
+            assert!(Model::parse(&b).is_err(), "flip at {i}:{bit} accepted");
+        }
+    }
+}
+
+#[test]
+fn header_checks() {
+    let good = mlp_spec().to_bytes().unwrap();
+    let edit = |at: usize, v: &[u8]| {
+        let mut b = good.clone();
+        b[at..at + v.len()].copy_from_slice(v);
+        recrc(&mut b);
+        Model::parse(&b).map(|_| ())
+    };
+    assert_eq!(edit(0, b"MSRX"), Err(BlobError::BadMagic));
+    assert_eq!(edit(4, &[2, 0]), Err(BlobError::UnsupportedVersion(2)));
+    assert_eq!(edit(6, &[41, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(16, &[0, 0]), Err(BlobError::FaceSize));
+    assert_eq!(edit(16, &[65, 0]), Err(BlobError::FaceSize));
+    assert_eq!(edit(18, &[97, 0]), Err(BlobError::FaceSize));
+    assert_eq!(edit(20, &[0, 0]), Err(BlobError::TooManyLayers));
+    assert_eq!(edit(20, &[17, 0]), Err(BlobError::TooManyLayers));
+    assert_eq!(edit(22, &[2, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(24, &f32::NAN.to_le_bytes()), Err(BlobError::Novelty));
+    assert_eq!(edit(24, &(-1.0f32).to_le_bytes()), Err(BlobError::Novelty));
+    assert_eq!(edit(28, &[2]), Err(BlobError::Novelty));
+    assert_eq!(edit(29, &[9]), Err(BlobError::Novelty));
+    assert_eq!(edit(30, &[0, 0]), Err(BlobError::Novelty));
+    assert_eq!(edit(32, &f32::INFINITY.to_le_bytes()), Err(BlobError::Novelty));
+    assert_eq!(edit(36, &[1]), Err(BlobError::BadHeader));
+    let mut b = good.clone();
+    b[8..12].copy_from_slice(&(good.len() as u32 + 4).to_le_bytes());
+    assert_eq!(Model::parse(&b), Err(BlobError::Truncated));
+    let mut b = good.clone();
+    b[100] ^= 0xFF;
+    assert_eq!(Model::parse(&b), Err(BlobError::Crc));
+}
+
+#[test]
+fn layer_checks() {
+    let good = conv_spec().to_bytes().unwrap();
+    let l0 = HEADER_LEN;
+    let edit = |at: usize, v: &[u8]| {
+        let mut b = good.clone();
+        b[at..at + v.len()].copy_from_slice(v);
+        recrc(&mut b);
+        Model::parse(&b).map(|_| ())
+    };
+    assert_eq!(edit(l0, &[9]), Err(BlobError::BadLayer(0)));
+    assert_eq!(edit(l0 + 1, &[4]), Err(BlobError::BadLayer(0)));
+    assert_eq!(edit(l0 + 2, &[3]), Err(BlobError::BadLayer(0)));
+    assert_eq!(edit(l0 + 3, &[1]), Err(BlobError::BadLayer(0)));
+    assert_eq!(edit(l0 + 24, &[40]), Err(BlobError::BadLayer(0)));
+    assert_eq!(edit(l0 + 25, &[0xFF]), Err(BlobError::BadLayer(0)));
+    // The first layer must take the two head angles.
+    assert_eq!(edit(l0 + 4, &[3, 0]), Err(BlobError::LayerShape(0)));
+    // Changing the declared output without the weights is a size mismatch.
+    assert_eq!(edit(l0 + 10, &[3, 0]), Err(BlobError::LayerShape(0)));
+    // Second layer: ConvTranspose2d at l0 + 32 + 2*8*2 (i16 weights) + 8*4 (bias).
+    let l1 = l0 + 32 + 32 + 32;
+    assert_eq!(good[l1], 1, "layer 1 kind");
+    // Input channels that do not chain: the weight count changes too, so claim stride 3.
+    assert_eq!(edit(l1 + 17, &[3]), Err(BlobError::LayerShape(1)));
+    assert_eq!(edit(l1 + 16, &[0]), Err(BlobError::LayerShape(1)));
+    assert_eq!(edit(l1 + 8, &[3, 0]), Err(BlobError::LayerShape(1)));
+    // A chain break: layer 1 says its input is 2x2x2 but with h and w swapped to 1x4 it
+    // mismatches the weight count; instead break layer 2's input channel count below.
+    let l2 = l1 + 32 + 64 + 4;
+    assert_eq!(good[l2], 2, "layer 2 kind");
+    // Layer 2 input 1x4x4 -> claim 1x4x4 but output 1x9x8: shape error.
+    assert_eq!(edit(l2 + 12, &[9, 0]), Err(BlobError::LayerShape(2)));
+    let l3 = l2 + 32 + 12 + 4;
+    assert_eq!(good[l3], 3, "layer 3 kind");
+    // Crop window past the input.
+    assert_eq!(edit(l3 + 20, &[6, 0]), Err(BlobError::LayerShape(3)));
+    // Crop with an activation.
+    assert_eq!(edit(l3 + 1, &[1]), Err(BlobError::LayerShape(3)));
+    // Crop to another size than the face.
+    assert_eq!(edit(l3 + 12, &[2, 0]), Err(BlobError::ModelShape));
+}
+
+#[test]
+fn chain_and_activation_limits() {
+    let mut s = conv_spec();
+    s.layers[2].input = sh(1, 2, 8);
+    s.layers[2].output = sh(1, 4, 16);
+    s.layers[3].input = sh(1, 4, 16);
+    assert_eq!(s.to_bytes(), Err(BlobError::Chain(2)));
+
+    let mut s = mlp_spec();
+    s.layers[0] = dense(sh(2, 1, 1), sh(1, 1, MAX_ACTIVATION_LEN as u16 + 1), Activation::Tanh, false);
+    s.layers[1] =
+        dense(sh(1, 1, MAX_ACTIVATION_LEN as u16 + 1), sh(1, 3, 4), Activation::Sigmoid, false);
+    assert_eq!(s.to_bytes(), Err(BlobError::ActivationTooLarge(0)));
+
+    let mut s = mlp_spec();
+    s.layers.pop();
+    assert_eq!(s.to_bytes(), Err(BlobError::ModelShape));
+}
+
+#[test]
+fn reach_checks() {
+    let mut s = mlp_spec();
+    s.reach.b2[0] = f32::NAN;
+    assert_eq!(s.to_bytes(), Err(BlobError::Reach));
+    let mut s = mlp_spec();
+    s.reach.in_min[1] = s.reach.in_max[1];
+    assert_eq!(s.to_bytes(), Err(BlobError::Reach));
+    assert_eq!(
+        Reach::from_parts(&[0.0; 19], &[0.0; 10], &[0.0; 50], &[0.0; 5], [0.0; 2], [1.0; 2], [0.0; 5], [1.0; 5]),
+        Err(BlobError::Reach)
+    );
+}
+
+#[test]
+fn template_and_trailing_checks() {
+    let mut s = mlp_spec();
+    s.template = Some((0, 3, vec![]));
+    assert_eq!(s.to_bytes(), Err(BlobError::Template));
+    // Claim a template in the flags of a blob that has none: the reader runs off the end.
+    let mut b = conv_spec().to_bytes().unwrap();
+    b[22] = 1;
+    recrc(&mut b);
+    assert_eq!(Model::parse(&b), Err(BlobError::Truncated));
+    // Extra bytes inside total_len.
+    let mut b = conv_spec().to_bytes().unwrap();
+    b.extend_from_slice(&[0; 4]);
+    let n = b.len() as u32;
+    b[8..12].copy_from_slice(&n.to_le_bytes());
+    recrc(&mut b);
+    assert_eq!(Model::parse(&b), Err(BlobError::TrailingBytes));
+}
+
+#[test]
+fn error_codes_are_distinct() {
+    let all = [
+        BlobError::Truncated,
+        BlobError::BadMagic,
+        BlobError::UnsupportedVersion(2),
+        BlobError::BadHeader,
+        BlobError::LengthMismatch,
+        BlobError::Crc,
+        BlobError::FaceSize,
+        BlobError::TooManyLayers,
+        BlobError::BadLayer(1),
+        BlobError::LayerShape(1),
+        BlobError::Chain(1),
+        BlobError::ActivationTooLarge(1),
+        BlobError::ModelShape,
+        BlobError::Novelty,
+        BlobError::Reach,
+        BlobError::Template,
+        BlobError::TrailingBytes,
+    ];
+    let mut codes: Vec<u32> = all.iter().map(|e| e.code()).collect();
+    codes.sort();
+    codes.dedup();
+    assert_eq!(codes.len(), all.len());
+}
+
+proptest! {
+    #[test]
+    fn random_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..512)) {
+        let _ = Model::parse(&bytes);
+    }
+
+    /// Random edits behind a fixed CRC reach every validator; none may panic, and whatever
+    /// parses must have self-consistent tables.
+    #[test]
+    fn edits_behind_the_crc_never_panic(edits in proptest::collection::vec((any::<prop::sample::Index>(), any::<u8>()), 1..6)) {
+        let mut b = conv_spec().to_bytes().unwrap();
+        let n = b.len();
+        for (at, v) in edits {
+            let i = 16 + at.index(n - 16);
+            b[i] = v;
+        }
+        recrc(&mut b);
+        let parsed = Model::parse(&b);
+        if let Ok(m) = parsed {
+            for l in &m.layers {
+                let _ = (0..l.weight_count()).map(|i| l.weight(i)).sum::<i32>();
+                let _ = (0..l.bias_count()).map(|i| l.bias(i)).sum::<i32>();
+            }
+            prop_assert_eq!(m.mu.len(), m.face_pixels());
+        }
+    }
+
+    #[test]
+    fn novelty_round_trips(t in 0.01f32..100.0, area in 1u16.., var: bool, two: bool) {
+        let mut s = mlp_spec();
+        s.novelty.threshold = t;
+        s.novelty.min_area = area;
+        s.novelty.normalisation = if var { Normalisation::Variance } else { Normalisation::StdDev };
+        s.novelty.sided = if two { Sided::Two } else { Sided::One };
+        let b = s.to_bytes().unwrap();
+        let m = Model::parse(&b).unwrap();
+        prop_assert_eq!(m.novelty, s.novelty);
+    }
+}

@@ -1,0 +1,18 @@
+//! The contract every other crate speaks.
+//!
+//! - [`joints`]: the 25 Nao joints, their ids, limits and velocity limits, clamping and validation.
+//! - [`frame`]: how bytes become messages on either serial link: postcard inside, a header with
+//!   protocol version and sequence number, a CRC-16, COBS around it, `0x00` between frames.
+//! - [`msg`]: the messages of the host link (host <-> board) and of the servo bus (board <-> servos).
+//! - [`blob`]: the versioned model blob the board runs, with a validating, borrowing parser.
+//!
+//! `no_std` and heap-free; the `std` feature adds the blob writer and `std::error::Error` impls.
+#![cfg_attr(not(any(feature = "std", test)), no_std)]
+#![forbid(unsafe_code)]
+
+pub mod blob;
+pub mod frame;
+pub mod joints;
+pub mod msg;
+
+pub use joints::{Joint, JointError, JointLimits};
