@@ -1,1 +1,16 @@
-//! Host side of the mirror mark test.
+//! Host side of the mirror mark test: the `msr` command and the library behind it.
+//!
+//! One module per command or stage; `cli` only parses arguments and dispatches.
+pub mod cli;
+pub mod dataset;
+pub mod train;
+pub mod train_reach;
+pub mod quantize;
+pub mod import;
+pub mod detect;
+pub mod blobs;
+pub mod eval;
+pub mod bench;
+pub mod mirror_test;
+pub mod run_board;
+pub mod demo;

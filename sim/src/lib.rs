@@ -1,1 +1,2 @@
-//! The mirror world.
+//! The mirror world: what stands in for Gazebo, the camera, the mirror and the Nao.
+pub mod layout;

@@ -1,0 +1,72 @@
+//! The on-disk dataset layout, shared by `msr dataset` (which writes it) and every command that
+//! reads a dataset. Modelled on the published real data (`manifest.json` there):
+//!
+//! ```text
+//! DIR/dataset.json        this index (DatasetIndex)
+//! DIR/head_angles.csv     one "HeadYaw,HeadPitch" row per frame, radians, no header (as published)
+//! DIR/template.png        the robot's face template for the crop (grey)
+//! DIR/frames/000000.png   320 x 240 camera frames (RGB), the mirror view
+//! DIR/masks/000123.png    for marked frames: the mark's pixel mask (full frame, 0 or 255)
+//! ```
+use serde::{Deserialize, Serialize};
+
+pub const INDEX_FILE: &str = "dataset.json";
+pub const ANGLES_FILE: &str = "head_angles.csv";
+pub const TEMPLATE_FILE: &str = "template.png";
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Split {
+    Train,
+    Test,
+}
+
+/// A mark's exact ground truth.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MarkRecord {
+    /// e.g. "rectangle", "hexagon", "postit", "vbar", "hbar".
+    pub shape: String,
+    /// Colour name, e.g. "green".
+    pub colour: String,
+    pub rgb: [u8; 3],
+    /// Inclusive box in full-frame pixels: [x0, y0, x1, y1].
+    pub box_xyxy_inclusive: [u32; 4],
+    /// Number of mark pixels in the frame.
+    pub pixels: u32,
+    /// Path of the mask PNG, relative to the dataset folder.
+    pub mask: String,
+    /// The mark's centre on the head surface, in the head frame (metres).
+    pub point_head_m: [f64; 3],
+    /// The same point in the torso frame at this frame's head angles (metres).
+    pub point_torso_m: [f64; 3],
+}
+
+/// One frame.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrameRecord {
+    /// Path of the frame PNG, relative to the dataset folder.
+    pub file: String,
+    pub head_yaw: f64,
+    pub head_pitch: f64,
+    pub split: Split,
+    pub mark: Option<MarkRecord>,
+}
+
+/// `dataset.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct DatasetIndex {
+    /// "red" or "skin" for sim datasets; free text for recordings.
+    pub robot: String,
+    pub seed: u64,
+    pub width: u32,
+    pub height: u32,
+    /// Path of the face template, relative to the dataset folder.
+    pub template: String,
+    pub frames: Vec<FrameRecord>,
+}
+
+impl DatasetIndex {
+    pub fn split(&self, s: Split) -> impl Iterator<Item = (usize, &FrameRecord)> {
+        self.frames.iter().enumerate().filter(move |(_, f)| f.split == s)
+    }
+}
