@@ -2,6 +2,7 @@
 //!
 //! One module per command or stage; `cli` only parses arguments and dispatches.
 pub mod cli;
+pub mod predictor;
 pub mod dataset;
 pub mod train;
 pub mod train_reach;
