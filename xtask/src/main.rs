@@ -1,1 +1,136 @@
-fn main() {}
+//! `cargo xtask test`: everything the test suite needs, from a fresh machine.
+//!
+//! 1. checks (and installs when it can) the `thumbv7em-none-eabihf` target and `qemu-system-arm`;
+//! 2. builds `msr-shared` and `msr-firmware` for the bare-metal target without std;
+//! 3. builds the QEMU and NUCLEO-F429ZI firmware images;
+//! 4. runs every test of the workspace (the QEMU tests use the image from step 3).
+//!
+//! `cargo xtask setup` does steps 1 only. Every step says what it runs.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode};
+
+const TARGET: &str = "thumbv7em-none-eabihf";
+/// Bare-metal images: (crate folder, what it is).
+const IMAGES: [(&str, &str); 2] = [
+    ("firmware/qemu", "QEMU mps2-an386 image"),
+    ("firmware/nucleo", "NUCLEO-F429ZI image"),
+];
+
+fn main() -> ExitCode {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let result = match args.first().map(String::as_str) {
+        Some("test") => test(&args[1..]),
+        Some("setup") => setup(),
+        Some("images") => setup().and_then(|_| build_images()),
+        _ => {
+            eprintln!(
+                "usage: cargo xtask <command>\n\n\
+                 commands:\n  \
+                 test [ARGS]  set up, build the firmware images, run every test (ARGS go to cargo test)\n  \
+                 setup        install or check the thumbv7em target and qemu-system-arm\n  \
+                 images       setup, then build the bare-metal firmware images"
+            );
+            return ExitCode::from(2);
+        }
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("xtask: error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .parent()
+        .expect("xtask sits one level below the workspace root")
+        .to_path_buf()
+}
+
+fn step(what: &str) {
+    println!("\n==> {what}");
+}
+
+/// Runs a command in `dir`, echoing it; an error names the command.
+fn run(dir: &Path, program: &str, args: &[&str]) -> Result<(), String> {
+    println!("$ {program} {}", args.join(" "));
+    let status = Command::new(program)
+        .args(args)
+        .current_dir(dir)
+        .status()
+        .map_err(|e| format!("could not start `{program}`: {e}"))?;
+    if status.success() {
+        Ok(())
+    } else {
+        Err(format!("`{program} {}` failed ({status})", args.join(" ")))
+    }
+}
+
+fn output(program: &str, args: &[&str]) -> Option<String> {
+    let out = Command::new(program).args(args).output().ok()?;
+    out.status
+        .success()
+        .then(|| String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+fn setup() -> Result<(), String> {
+    step(&format!("checking the Rust target {TARGET}"));
+    let installed = output("rustup", &["target", "list", "--installed"]).unwrap_or_default();
+    if installed.lines().any(|l| l.trim() == TARGET) {
+        println!("{TARGET} is installed");
+    } else {
+        println!("{TARGET} is missing: installing it with rustup");
+        run(&root(), "rustup", &["target", "add", TARGET])?;
+    }
+
+    step("checking qemu-system-arm (for the emulated Cortex-M4 tests)");
+    if let Some(v) = output("qemu-system-arm", &["--version"]) {
+        println!("{}", v.lines().next().unwrap_or("qemu-system-arm found"));
+        return Ok(());
+    }
+    let is_root = output("id", &["-u"]).is_some_and(|u| u.trim() == "0");
+    if is_root && output("apt-get", &["--version"]).is_some() {
+        println!("qemu-system-arm is missing: installing the Debian package qemu-system-arm");
+        run(&root(), "apt-get", &["update", "-q"])?;
+        run(&root(), "apt-get", &["install", "-y", "-q", "qemu-system-arm"])?;
+        Ok(())
+    } else {
+        Err("qemu-system-arm is not installed and this user cannot install it; \
+             install the Debian/Ubuntu package `qemu-system-arm` (or your distribution's qemu-system-arm) \
+             and run again"
+            .into())
+    }
+}
+
+fn build_images() -> Result<(), String> {
+    let root = root();
+    step(&format!("building msr-shared and msr-firmware for {TARGET} (no std)"));
+    run(
+        &root,
+        "cargo",
+        &["build", "--release", "--target", TARGET, "-p", "msr-shared", "-p", "msr-firmware"],
+    )?;
+    for (dir, what) in IMAGES {
+        let path = root.join(dir);
+        if !path.join("Cargo.toml").exists() {
+            return Err(format!("{dir}/Cargo.toml is missing: cannot build the {what}"));
+        }
+        step(&format!("building the {what} ({dir})"));
+        run(&path, "cargo", &["build", "--release"])?;
+    }
+    Ok(())
+}
+
+fn test(extra: &[String]) -> Result<(), String> {
+    setup()?;
+    build_images()?;
+    step("running every test of the workspace");
+    let mut args = vec!["test", "--workspace", "--release"];
+    args.extend(extra.iter().map(String::as_str));
+    run(&root(), "cargo", &args)?;
+    println!("\nxtask: all tests passed");
+    Ok(())
+}
