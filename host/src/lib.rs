@@ -3,6 +3,8 @@
 //! One module per command or stage; `cli` only parses arguments and dispatches.
 pub mod cli;
 pub mod predictor;
+pub mod crop;
+pub mod data;
 pub mod dataset;
 pub mod train;
 pub mod train_reach;

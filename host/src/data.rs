@@ -1,0 +1,388 @@
+//! Loading a dataset for training and evaluation: frames -> grey face crops, head angles, split and
+//! mark ground truth.
+//!
+//! Two layouts are read:
+//! - the sim layout (`dataset.json`, see `msr_sim::layout`), with exact mark masks;
+//! - real recordings in the published layout (`manifest.json` as in `shared/data/nao-red-real`):
+//!   every frame is a test frame, marks are given by their box (the published marks are pasted
+//!   rectangles, so the box is the mask).
+//!
+//! Frames are cropped as they load (template matching on 2 threads) and only the crops are kept.
+use crate::crop::{crop_face, load_grey, CropBox, Face};
+use anyhow::{anyhow, bail, ensure, Context, Result};
+use image::GrayImage;
+use msr_sim::layout::{DatasetIndex, Split, INDEX_FILE};
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
+
+/// The published layout's index file.
+pub const MANIFEST_FILE: &str = "manifest.json";
+
+/// The ground truth of one mark.
+#[derive(Clone, Debug, PartialEq)]
+pub struct MarkTruth {
+    pub colour: String,
+    /// e.g. "rectangle"; "pasted" for the published real frames.
+    pub shape: String,
+    /// Inclusive box in full-frame pixels: [x0, y0, x1, y1].
+    pub box_xyxy: [u32; 4],
+    /// Mark pixels in the whole frame.
+    pub pixels: u32,
+    /// Mark pixels in face coordinates, row-major `face_h x face_w`.
+    pub face_mask: Vec<bool>,
+    /// True when the mask came from a mask file, false when it was filled from the box.
+    pub exact_mask: bool,
+}
+
+impl MarkTruth {
+    /// Mark pixels that fall inside the face crop.
+    pub fn pixels_in_face(&self) -> usize {
+        self.face_mask.iter().filter(|&&m| m).count()
+    }
+
+    /// Whether a full-frame point lies in the mark's box (inclusive).
+    pub fn box_contains(&self, x: f32, y: f32) -> bool {
+        let [x0, y0, x1, y1] = self.box_xyxy.map(|v| v as f32);
+        x >= x0 && x <= x1 && y >= y0 && y <= y1
+    }
+}
+
+/// One frame, cropped.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Sample {
+    /// The frame file (dataset folder joined).
+    pub file: PathBuf,
+    /// [HeadYaw, HeadPitch], radians.
+    pub head: [f32; 2],
+    pub split: Split,
+    pub face: Face,
+    pub mark: Option<MarkTruth>,
+}
+
+impl Sample {
+    /// The crop as grey/255, row-major.
+    pub fn face_unit(&self) -> Vec<f32> {
+        self.face.unit()
+    }
+    pub fn crop(&self) -> CropBox {
+        self.face.crop
+    }
+}
+
+/// Which layout a dataset was read from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    Sim,
+    Published,
+}
+
+/// A loaded dataset.
+#[derive(Clone, Debug)]
+pub struct Dataset {
+    pub root: PathBuf,
+    pub layout: Layout,
+    /// "red"/"skin" for sim data, free text for recordings.
+    pub robot: String,
+    /// The grey face template the crops were made with.
+    pub template: GrayImage,
+    pub frame_size: (u32, u32),
+    pub samples: Vec<Sample>,
+}
+
+impl Dataset {
+    /// Loads every frame of the dataset at `path` (a folder holding `dataset.json` or
+    /// `manifest.json`, or one of those files).
+    pub fn load(path: &Path) -> Result<Dataset> {
+        Self::load_split(path, None)
+    }
+
+    /// Loads only the frames of one split (`None`: all).
+    pub fn load_split(path: &Path, only: Option<Split>) -> Result<Dataset> {
+        let (root, index) = locate(path)?;
+        let (layout, pending, robot, template_file, size) = match index {
+            Index::Sim(ix) => {
+                let (robot, tpl, size) =
+                    (ix.robot.clone(), ix.template.clone(), (ix.width, ix.height));
+                (Layout::Sim, sim_frames(&root, ix, only)?, robot, tpl, size)
+            }
+            Index::Published(m) => {
+                let tpl = m.face_crop.template.clone();
+                let size = (m.camera.width, m.camera.height);
+                (
+                    Layout::Published,
+                    published_frames(&root, m, only)?,
+                    "published".into(),
+                    tpl,
+                    size,
+                )
+            }
+        };
+        let template = load_grey(&root.join(&template_file))
+            .with_context(|| format!("dataset {}: face template", root.display()))?;
+        let samples = parallel_map(&pending, |p| p.load(&template, size))?;
+        Ok(Dataset {
+            root,
+            layout,
+            robot,
+            template,
+            frame_size: size,
+            samples,
+        })
+    }
+
+    /// Face size (height, width).
+    pub fn face_size(&self) -> (usize, usize) {
+        (
+            self.template.height() as usize,
+            self.template.width() as usize,
+        )
+    }
+
+    pub fn split(&self, s: Split) -> impl Iterator<Item = &Sample> {
+        self.samples.iter().filter(move |x| x.split == s)
+    }
+
+    /// Head angles and unit faces of one split, in order (what training takes).
+    pub fn arrays(&self, s: Split) -> (Vec<[f32; 2]>, Vec<Vec<f32>>) {
+        self.split(s).map(|x| (x.head, x.face_unit())).unzip()
+    }
+}
+
+enum Index {
+    Sim(DatasetIndex),
+    Published(Manifest),
+}
+
+/// Finds the index file and parses it.
+fn locate(path: &Path) -> Result<(PathBuf, Index)> {
+    let (root, file) = if path.is_dir() {
+        if path.join(INDEX_FILE).is_file() {
+            (path.to_path_buf(), path.join(INDEX_FILE))
+        } else if path.join(MANIFEST_FILE).is_file() {
+            (path.to_path_buf(), path.join(MANIFEST_FILE))
+        } else {
+            bail!(
+                "{} holds neither {INDEX_FILE} nor {MANIFEST_FILE}",
+                path.display()
+            );
+        }
+    } else if path.is_file() {
+        let parent = path.parent().unwrap_or(Path::new(".")).to_path_buf();
+        (parent, path.to_path_buf())
+    } else {
+        bail!("dataset {} does not exist", path.display());
+    };
+    let text = std::fs::read_to_string(&file)
+        .with_context(|| format!("cannot read {}", file.display()))?;
+    let is_manifest = file.file_name().is_some_and(|n| n == MANIFEST_FILE)
+        || serde_json::from_str::<serde_json::Value>(&text)
+            .map(|v| v.get("images").is_some())
+            .unwrap_or(false);
+    let index = if is_manifest {
+        Index::Published(
+            serde_json::from_str(&text)
+                .with_context(|| format!("{} is not a valid manifest", file.display()))?,
+        )
+    } else {
+        Index::Sim(
+            serde_json::from_str(&text)
+                .with_context(|| format!("{} is not a valid {INDEX_FILE}", file.display()))?,
+        )
+    };
+    Ok((root, index))
+}
+
+/// What the published `manifest.json` says about frames (other sections are read by `import`).
+#[derive(Deserialize, Debug)]
+pub struct Manifest {
+    pub camera: Camera,
+    pub face_crop: FaceCrop,
+    pub images: Vec<ManifestImage>,
+}
+
+#[derive(Deserialize, Debug)]
+pub struct Camera {
+    pub width: u32,
+    pub height: u32,
+}
+
+#[derive(Deserialize, Debug)]
+pub struct FaceCrop {
+    pub template: String,
+}
+
+#[derive(Deserialize, Debug)]
+pub struct ManifestImage {
+    pub file: String,
+    pub head_yaw: f64,
+    pub head_pitch: f64,
+    pub mark: Option<ManifestMark>,
+}
+
+#[derive(Deserialize, Debug)]
+pub struct ManifestMark {
+    pub colour: String,
+    pub box_xyxy_inclusive: [u32; 4],
+    pub pixels: u32,
+}
+
+/// A frame to read, with what the index says about it.
+struct Pending {
+    file: PathBuf,
+    head: [f64; 2],
+    split: Split,
+    mark: Option<PendingMark>,
+}
+
+struct PendingMark {
+    colour: String,
+    shape: String,
+    box_xyxy: [u32; 4],
+    pixels: u32,
+    /// None: fill the box.
+    mask: Option<PathBuf>,
+}
+
+fn sim_frames(root: &Path, ix: DatasetIndex, only: Option<Split>) -> Result<Vec<Pending>> {
+    Ok(ix
+        .frames
+        .into_iter()
+        .filter(|f| only.is_none_or(|s| s == f.split))
+        .map(|f| Pending {
+            file: root.join(&f.file),
+            head: [f.head_yaw, f.head_pitch],
+            split: f.split,
+            mark: f.mark.map(|m| PendingMark {
+                colour: m.colour,
+                shape: m.shape,
+                box_xyxy: m.box_xyxy_inclusive,
+                pixels: m.pixels,
+                mask: Some(root.join(&m.mask)),
+            }),
+        })
+        .collect())
+}
+
+fn published_frames(root: &Path, m: Manifest, only: Option<Split>) -> Result<Vec<Pending>> {
+    // The published frames are held-out test frames (the training frames were not published).
+    if only == Some(Split::Train) {
+        return Ok(Vec::new());
+    }
+    Ok(m.images
+        .into_iter()
+        .map(|f| Pending {
+            file: root.join(&f.file),
+            head: [f.head_yaw, f.head_pitch],
+            split: Split::Test,
+            mark: f.mark.map(|k| PendingMark {
+                colour: k.colour,
+                shape: "pasted".into(),
+                box_xyxy: k.box_xyxy_inclusive,
+                pixels: k.pixels,
+                mask: None,
+            }),
+        })
+        .collect())
+}
+
+impl Pending {
+    fn load(&self, template: &GrayImage, (fw, fh): (u32, u32)) -> Result<Sample> {
+        let name = self.file.display();
+        ensure!(
+            self.head.iter().all(|a| a.is_finite()),
+            "frame {name}: head angles {:?} are not finite",
+            self.head
+        );
+        let frame = load_grey(&self.file)?;
+        ensure!(
+            frame.dimensions() == (fw, fh),
+            "frame {name} is {}x{}, the dataset says {fw}x{fh}",
+            frame.width(),
+            frame.height()
+        );
+        let face = crop_face(&frame, template).with_context(|| format!("frame {name}"))?;
+        let mark = match &self.mark {
+            None => None,
+            Some(m) => Some(
+                m.load(face.crop, (fw, fh))
+                    .with_context(|| format!("frame {name}"))?,
+            ),
+        };
+        Ok(Sample {
+            file: self.file.clone(),
+            head: self.head.map(|a| a as f32),
+            split: self.split,
+            face,
+            mark,
+        })
+    }
+}
+
+impl PendingMark {
+    fn load(&self, crop: CropBox, (fw, fh): (u32, u32)) -> Result<MarkTruth> {
+        let [x0, y0, x1, y1] = self.box_xyxy;
+        ensure!(
+            x0 <= x1 && y0 <= y1 && x1 < fw && y1 < fh,
+            "mark box {:?} is not inside the {fw}x{fh} frame",
+            self.box_xyxy
+        );
+        let inside = |x: u32, y: u32| x >= x0 && x <= x1 && y >= y0 && y <= y1;
+        let (face_mask, exact) = match &self.mask {
+            None => (face_mask(crop, inside), false),
+            Some(path) => {
+                let mask = image::open(path)
+                    .with_context(|| format!("cannot read mark mask {}", path.display()))?
+                    .to_luma8();
+                ensure!(
+                    mask.dimensions() == (fw, fh),
+                    "mark mask {} is {}x{}, the frame is {fw}x{fh}",
+                    path.display(),
+                    mask.width(),
+                    mask.height()
+                );
+                (face_mask(crop, |x, y| mask.get_pixel(x, y)[0] != 0), true)
+            }
+        };
+        Ok(MarkTruth {
+            colour: self.colour.clone(),
+            shape: self.shape.clone(),
+            box_xyxy: self.box_xyxy,
+            pixels: self.pixels,
+            face_mask,
+            exact_mask: exact,
+        })
+    }
+}
+
+fn face_mask(crop: CropBox, is_mark: impl Fn(u32, u32) -> bool) -> Vec<bool> {
+    (crop.y..crop.y + crop.height)
+        .flat_map(|y| (crop.x..crop.x + crop.width).map(move |x| (x, y)))
+        .map(|(x, y)| is_mark(x, y))
+        .collect()
+}
+
+/// Maps `f` over `items` on all cores, in order; the first error wins.
+pub fn parallel_map<T: Sync, U: Send>(
+    items: &[T],
+    f: impl Fn(&T) -> Result<U> + Sync,
+) -> Result<Vec<U>> {
+    let threads = std::thread::available_parallelism()
+        .map(|n| n.get())
+        .unwrap_or(1);
+    let chunk = items.len().div_ceil(threads).max(1);
+    let results: Vec<Result<Vec<U>>> = std::thread::scope(|s| {
+        let handles: Vec<_> = items
+            .chunks(chunk)
+            .map(|c| s.spawn(|| c.iter().map(&f).collect::<Result<Vec<U>>>()))
+            .collect();
+        handles
+            .into_iter()
+            .map(|h| h.join().map_err(|_| anyhow!("a loader thread panicked"))?)
+            .collect()
+    });
+    let mut out = Vec::with_capacity(items.len());
+    for r in results {
+        out.extend(r?);
+    }
+    Ok(out)
+}
