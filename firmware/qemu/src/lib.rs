@@ -1,0 +1,8 @@
+//! Board support for QEMU's mps2-an386 (Cortex-M4): CMSDK UARTs, a SysTick time base that counts
+//! emulated instructions under `-icount shift=0`, stack painting and semihosting exit.
+#![no_std]
+
+pub mod clock;
+pub mod exit;
+pub mod memory;
+pub mod uart;
