@@ -1,9 +1,585 @@
-//! `msr import`: import the published model (safetensors, npy, template) into a model blob.
-use anyhow::{bail, Result};
+//! `msr import`: the published model (safetensors decoder and reach network, .npy error
+//! statistics, face template, threshold) -> a fixed-point model blob the firmware runs.
+//!
+//! The manifest (`shared/data/nao-red-real/manifest.json`) names every file and tensor; nothing is
+//! assumed beyond it. Weights are PyTorch `Linear` (`W` is `[out, in]`), which is the blob's Dense
+//! layout, so they go in without transposing.
+use crate::crop::load_grey;
+use crate::predictor::FacePredictor;
+use anyhow::{bail, ensure, Context, Result};
+use image::GrayImage;
+use msr_shared::blob::{
+    Activation, LayerKind, LayerSpec, ModelSpec, Normalisation, Novelty, Reach, Shape, Sided,
+    Weights, REACH_HIDDEN, REACH_IN, REACH_OUT,
+};
+use serde::Deserialize;
+use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// The published manifest.json
+    pub manifest: PathBuf,
+    /// Where to write the model blob
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Threshold on the saliency (sigma units); default: the manifest's training threshold (4.59)
+    #[arg(long)]
+    pub threshold: Option<f32>,
+    /// Saliency |e - mu| / sigma (two, the published code) or (e - mu) / sigma (one)
+    #[arg(long, value_enum, default_value_t = SidedArg::Two)]
+    pub sided: SidedArg,
+}
 
-pub fn run(_args: Args) -> Result<()> {
-    bail!("`msr import` is not implemented yet")
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SidedArg {
+    One,
+    Two,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let mut model = Published::load(&args.manifest)?;
+    if let Some(t) = args.threshold {
+        ensure!(
+            t.is_finite() && t > 0.0,
+            "threshold {t} must be a positive number"
+        );
+        model.threshold = t;
+    }
+    model.sided = match args.sided {
+        SidedArg::One => Sided::One,
+        SidedArg::Two => Sided::Two,
+    };
+    let spec = model.to_spec()?;
+    let bytes = spec
+        .to_bytes()
+        .map_err(|e| anyhow::anyhow!("the blob does not validate: {e}"))?;
+    std::fs::write(&args.out, &bytes)
+        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    let shifts: Vec<String> = spec
+        .layers
+        .iter()
+        .map(|l| format!("{}.{}->{}", l.w_shift, l.in_shift, l.out_shift))
+        .collect();
+    println!(
+        "wrote {} ({} bytes): decoder {} ({} layers, i16 weights, shifts w.in->out {}), face {}x{}, \
+         threshold {}, min area {}",
+        args.out.display(),
+        bytes.len(),
+        model.decoder.arch(),
+        spec.layers.len(),
+        shifts.join(" "),
+        model.decoder.face_w,
+        model.decoder.face_h,
+        model.threshold,
+        model.min_area
+    );
+    Ok(())
+}
+
+// ---------------------------------------------------------------------------------------------
+// The manifest (only what import needs).
+
+#[derive(Deserialize, Debug)]
+struct Manifest {
+    face_crop: ManifestCrop,
+    decoder: ManifestDecoder,
+    error_statistics: ManifestStats,
+    novelty: ManifestNovelty,
+    reach: ManifestReach,
+}
+
+#[derive(Deserialize, Debug)]
+struct ManifestCrop {
+    template: String,
+    width: u32,
+    height: u32,
+}
+
+#[derive(Deserialize, Debug)]
+struct ManifestDecoder {
+    weights: String,
+    layers: Vec<ManifestLayer>,
+}
+
+#[derive(Deserialize, Debug)]
+struct ManifestLayer {
+    weight: String,
+    bias: String,
+    shape: [usize; 2],
+    activation: String,
+}
+
+#[derive(Deserialize, Debug)]
+struct ManifestStats {
+    mu: String,
+    sigma: String,
+    shape: [usize; 2],
+}
+
+#[derive(Deserialize, Debug)]
+struct ManifestNovelty {
+    threshold_training: f32,
+    min_blob_area: u16,
+}
+
+#[derive(Deserialize, Debug)]
+struct ManifestReach {
+    weights: String,
+    layers: Vec<ManifestLayer>,
+    input_min: [f32; REACH_IN],
+    input_max: [f32; REACH_IN],
+    output_min: [f32; REACH_OUT],
+    output_max: [f32; REACH_OUT],
+}
+
+// ---------------------------------------------------------------------------------------------
+// Float models.
+
+/// A fully connected layer, PyTorch `Linear` layout.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Dense {
+    pub n_in: usize,
+    pub n_out: usize,
+    /// `[out][in]`, row-major.
+    pub w: Vec<f32>,
+    pub b: Vec<f32>,
+    pub act: Activation,
+}
+
+impl Dense {
+    pub fn forward(&self, x: &[f32]) -> Vec<f32> {
+        (0..self.n_out)
+            .map(|o| {
+                let row = &self.w[o * self.n_in..(o + 1) * self.n_in];
+                let z = self.b[o] + row.iter().zip(x).map(|(w, x)| w * x).sum::<f32>();
+                activate(self.act, z)
+            })
+            .collect()
+    }
+}
+
+pub fn activate(a: Activation, z: f32) -> f32 {
+    match a {
+        Activation::Identity => z,
+        Activation::Tanh => z.tanh(),
+        Activation::Sigmoid => 1.0 / (1.0 + (-z).exp()),
+        Activation::Relu => z.max(0.0),
+    }
+}
+
+/// A fully connected decoder from [HeadYaw, HeadPitch] to a face (the published 2-12-64-128-4350).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DenseDecoder {
+    pub layers: Vec<Dense>,
+    pub face_h: usize,
+    pub face_w: usize,
+}
+
+impl DenseDecoder {
+    pub fn arch(&self) -> String {
+        let mut s = self
+            .layers
+            .first()
+            .map(|l| l.n_in.to_string())
+            .unwrap_or_default();
+        for l in &self.layers {
+            s += &format!("-{}", l.n_out);
+        }
+        s
+    }
+}
+
+impl FacePredictor for DenseDecoder {
+    fn face_size(&self) -> (usize, usize) {
+        (self.face_h, self.face_w)
+    }
+    fn predict(&self, head: [f32; 2], _face: &[f32]) -> Vec<f32> {
+        self.layers.iter().fold(head.to_vec(), |x, l| l.forward(&x))
+    }
+}
+
+/// The published model, as float.
+#[derive(Clone, Debug)]
+pub struct Published {
+    pub decoder: DenseDecoder,
+    /// Mean and standard deviation of the error per pixel, grey levels, row-major.
+    pub mu: Vec<f64>,
+    pub sigma: Vec<f64>,
+    pub template: GrayImage,
+    pub reach: Reach,
+    pub threshold: f32,
+    pub sided: Sided,
+    pub min_area: u16,
+}
+
+impl Published {
+    /// Reads everything the manifest names; every missing file, tensor or mismatched shape is an
+    /// error that says which.
+    pub fn load(manifest: &Path) -> Result<Published> {
+        let text = std::fs::read_to_string(manifest)
+            .with_context(|| format!("cannot read manifest {}", manifest.display()))?;
+        let m: Manifest = serde_json::from_str(&text)
+            .with_context(|| format!("{} is not a valid model manifest", manifest.display()))?;
+        let dir = manifest.parent().unwrap_or(Path::new("."));
+
+        let tensors = Tensors::open(&dir.join(&m.decoder.weights))?;
+        let layers = dense_stack(&tensors, &m.decoder.layers)?;
+        let (h, w) = (m.error_statistics.shape[0], m.error_statistics.shape[1]);
+        let out = layers.last().map(|l| l.n_out).unwrap_or(0);
+        ensure!(
+            out == h * w,
+            "decoder output has {out} values, the face ({h}x{w}) has {}",
+            h * w
+        );
+        ensure!(
+            layers[0].n_in == 2,
+            "decoder input has {} values, expected 2 head angles",
+            layers[0].n_in
+        );
+        ensure!(
+            (m.face_crop.height as usize, m.face_crop.width as usize) == (h, w),
+            "face crop {}x{} and error statistics {w}x{h} disagree",
+            m.face_crop.width,
+            m.face_crop.height
+        );
+        let decoder = DenseDecoder {
+            layers,
+            face_h: h,
+            face_w: w,
+        };
+
+        let mu = read_npy(&dir.join(&m.error_statistics.mu), (h, w))?;
+        let sigma = read_npy(&dir.join(&m.error_statistics.sigma), (h, w))?;
+        ensure!(
+            mu.iter().chain(&sigma).all(|v| v.is_finite() && *v >= 0.0),
+            "error statistics hold negative or non-finite values"
+        );
+
+        let tpath = dir.join(&m.face_crop.template);
+        let template = load_grey(&tpath)?;
+        ensure!(
+            template.dimensions() == (w as u32, h as u32),
+            "template {} is {}x{}, the face is {w}x{h}",
+            tpath.display(),
+            template.width(),
+            template.height()
+        );
+
+        let rt = Tensors::open(&dir.join(&m.reach.weights))?;
+        let r = dense_stack(&rt, &m.reach.layers)?;
+        ensure!(
+            r.len() == 2
+                && (r[0].n_in, r[0].n_out, r[1].n_out) == (REACH_IN, REACH_HIDDEN, REACH_OUT),
+            "reach network must be {REACH_IN}-{REACH_HIDDEN}-{REACH_OUT}"
+        );
+        ensure!(
+            r.iter().all(|l| l.act == Activation::Sigmoid),
+            "reach network layers must be sigmoid"
+        );
+        let reach = Reach::from_parts(
+            &r[0].w,
+            &r[0].b,
+            &r[1].w,
+            &r[1].b,
+            m.reach.input_min,
+            m.reach.input_max,
+            m.reach.output_min,
+            m.reach.output_max,
+        )
+        .map_err(|e| anyhow::anyhow!("reach network: {e}"))?;
+        ensure!(
+            m.novelty.min_blob_area > 0,
+            "min_blob_area must be at least 1"
+        );
+
+        Ok(Published {
+            decoder,
+            mu,
+            sigma,
+            template,
+            reach,
+            threshold: m.novelty.threshold_training,
+            sided: Sided::Two,
+            min_area: m.novelty.min_blob_area,
+        })
+    }
+
+    /// The blob contents: decoder in fixed point, statistics in Q8.8, reach and template as they are.
+    pub fn to_spec(&self) -> Result<ModelSpec> {
+        let (h, w) = (self.decoder.face_h, self.decoder.face_w);
+        Ok(ModelSpec {
+            face_h: h as u16,
+            face_w: w as u16,
+            novelty: Novelty {
+                threshold: self.threshold,
+                normalisation: Normalisation::StdDev,
+                sided: self.sided,
+                min_area: self.min_area,
+                sigma_floor: SIGMA_FLOOR,
+            },
+            layers: quantize_dense_stack(&self.decoder.layers, HEAD_IN_SHIFT, (h, w))?,
+            mu: self.mu.iter().map(|&v| q8_8(v)).collect(),
+            // The published code divides by sigma + 1e-5; the floor keeps it off zero in Q8.8.
+            sigma: self.sigma.iter().map(|&v| q8_8(v + 1e-5).max(1)).collect(),
+            reach: self.reach,
+            template: Some((h as u16, w as u16, self.template.as_raw().clone())),
+        })
+    }
+}
+
+/// One Q8.8 step: the smallest sigma the blob can hold.
+pub const SIGMA_FLOOR: f32 = 1.0 / 256.0;
+
+/// Head angles go in with 13 fraction bits: +-4 rad covers every Nao head joint limit.
+pub const HEAD_IN_SHIFT: i8 = 13;
+
+/// Grey levels to Q8.8, rounded and saturated.
+pub fn q8_8(v: f64) -> u16 {
+    (v * 256.0).round().clamp(0.0, u16::MAX as f64) as u16
+}
+
+/// The safetensors file of one network.
+struct Tensors {
+    path: PathBuf,
+    bytes: Vec<u8>,
+}
+
+impl Tensors {
+    fn open(path: &Path) -> Result<Tensors> {
+        let bytes = std::fs::read(path)
+            .with_context(|| format!("cannot read weights {}", path.display()))?;
+        safetensors::SafeTensors::deserialize(&bytes)
+            .with_context(|| format!("{} is not a valid safetensors file", path.display()))?;
+        Ok(Tensors {
+            path: path.to_path_buf(),
+            bytes,
+        })
+    }
+
+    /// A tensor as f32 with its shape; f64 and f16-free files only.
+    fn get(&self, name: &str) -> Result<(Vec<usize>, Vec<f32>)> {
+        let st = safetensors::SafeTensors::deserialize(&self.bytes)?;
+        let t = st
+            .tensor(name)
+            .map_err(|_| anyhow::anyhow!("{}: tensor `{name}` is missing", self.path.display()))?;
+        let data = t.data();
+        let v: Vec<f32> = match t.dtype() {
+            safetensors::Dtype::F32 => data
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                .collect(),
+            safetensors::Dtype::F64 => data
+                .chunks_exact(8)
+                .map(|c| f64::from_le_bytes(c.try_into().unwrap_or([0; 8])) as f32)
+                .collect(),
+            d => bail!(
+                "{}: tensor `{name}` is {d}, expected F32 or F64",
+                self.path.display()
+            ),
+        };
+        ensure!(
+            v.iter().all(|x| x.is_finite()),
+            "{}: tensor `{name}` holds non-finite values",
+            self.path.display()
+        );
+        Ok((t.shape().to_vec(), v))
+    }
+}
+
+/// Reads the layers the manifest lists, checking shapes and that each takes the previous output.
+fn dense_stack(t: &Tensors, layers: &[ManifestLayer]) -> Result<Vec<Dense>> {
+    ensure!(
+        !layers.is_empty(),
+        "{}: the manifest lists no layers",
+        t.path.display()
+    );
+    let mut out: Vec<Dense> = Vec::new();
+    for (i, l) in layers.iter().enumerate() {
+        let (ws, w) = t.get(&l.weight)?;
+        let (bs, b) = t.get(&l.bias)?;
+        let [n_out, n_in] = l.shape;
+        ensure!(
+            ws == [n_out, n_in],
+            "{}: tensor `{}` has shape {ws:?}, the manifest says {:?}",
+            t.path.display(),
+            l.weight,
+            l.shape
+        );
+        ensure!(
+            bs == [n_out],
+            "{}: tensor `{}` has shape {bs:?}, expected [{n_out}]",
+            t.path.display(),
+            l.bias
+        );
+        if let Some(prev) = out.last() {
+            ensure!(
+                prev.n_out == n_in,
+                "layer {i} (`{}`) takes {n_in} inputs but layer {} gives {}",
+                l.weight,
+                i - 1,
+                prev.n_out
+            );
+        }
+        let act = match l.activation.as_str() {
+            "tanh" => Activation::Tanh,
+            "sigmoid" => Activation::Sigmoid,
+            "relu" => Activation::Relu,
+            "identity" | "linear" | "none" => Activation::Identity,
+            a => bail!("layer {i}: unknown activation `{a}`"),
+        };
+        out.push(Dense {
+            n_in,
+            n_out,
+            w,
+            b,
+            act,
+        });
+    }
+    Ok(out)
+}
+
+/// A 2-d float64 (or float32) .npy array of the given shape, row-major.
+pub fn read_npy(path: &Path, (h, w): (usize, usize)) -> Result<Vec<f64>> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let npy = npyz::NpyFile::new(&bytes[..])
+        .with_context(|| format!("{} is not a valid .npy file", path.display()))?;
+    let shape: Vec<u64> = npy.shape().to_vec();
+    ensure!(
+        shape == [h as u64, w as u64],
+        "{} has shape {shape:?}, expected [{h}, {w}]",
+        path.display()
+    );
+    let fortran = npy.order() == npyz::Order::Fortran;
+    let v: Vec<f64> = match npy.dtype() {
+        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 => {
+            npy.into_vec::<f64>()?
+        }
+        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 => {
+            npy.into_vec::<f32>()?.into_iter().map(f64::from).collect()
+        }
+        d => bail!(
+            "{}: dtype {} is not float64 or float32",
+            path.display(),
+            d.descr()
+        ),
+    };
+    ensure!(
+        v.len() == h * w,
+        "{} holds {} values, expected {}",
+        path.display(),
+        v.len(),
+        h * w
+    );
+    if fortran {
+        // Column-major on disk: transpose to row-major.
+        return Ok((0..h * w).map(|i| v[(i % w) * h + i / w]).collect());
+    }
+    Ok(v)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Fixed point for a stack of dense layers.
+
+/// Largest magnitude an i16 activation can have.
+const I16_MAX_MAG: f64 = 32768.0;
+/// Accumulator budget: the firmware accumulates in i32; keep headroom for rounding.
+const ACC_LIMIT: f64 = (1u64 << 31) as f64 - 1024.0;
+
+/// Output fraction bits for an activation: tanh and sigmoid live in (-1, 1), so 15 bits (the value
+/// 1.0 itself saturates to 32767/32768); unbounded activations get 8.
+fn out_shift_for(a: Activation) -> i8 {
+    match a {
+        Activation::Tanh | Activation::Sigmoid => 15,
+        Activation::Identity | Activation::Relu => 8,
+    }
+}
+
+/// Quantizes dense layers to i16 weights with per-layer shifts. Each layer's weight shift is the
+/// largest for which (a) every weight fits i16 and (b) no accumulator can leave i32 for ANY i16
+/// input: `2^w (sum_i |W_oi| 2^15 + |b_o| 2^in) < 2^31`. The first layer takes the head angles
+/// with `in_shift` fraction bits; the last must produce `face` (h, w).
+pub fn quantize_dense_stack(
+    layers: &[Dense],
+    in_shift: i8,
+    face: (usize, usize),
+) -> Result<Vec<LayerSpec>> {
+    let mut specs = Vec::with_capacity(layers.len());
+    let mut shift_in = in_shift;
+    for (i, l) in layers.iter().enumerate() {
+        let w_shift = weight_shift(l, shift_in)
+            .with_context(|| format!("layer {i}: weights too large for fixed point"))?;
+        let out_shift = out_shift_for(l.act);
+        let scale_w = 2f64.powi(w_shift as i32);
+        let scale_b = 2f64.powi(w_shift as i32 + shift_in as i32);
+        let last = i + 1 == layers.len();
+        let output = if last {
+            ensure!(
+                l.n_out == face.0 * face.1,
+                "last layer gives {} values, the face has {}",
+                l.n_out,
+                face.0 * face.1
+            );
+            Shape {
+                c: 1,
+                h: face.0 as u16,
+                w: face.1 as u16,
+            }
+        } else {
+            Shape {
+                c: l.n_out as u16,
+                h: 1,
+                w: 1,
+            }
+        };
+        specs.push(LayerSpec {
+            kind: LayerKind::Dense,
+            activation: l.act,
+            input: Shape {
+                c: l.n_in as u16,
+                h: 1,
+                w: 1,
+            },
+            output,
+            kernel: 0,
+            stride: 0,
+            padding: 0,
+            crop_top: 0,
+            crop_left: 0,
+            w_shift,
+            in_shift: shift_in,
+            out_shift,
+            weights: Weights::I16(
+                l.w.iter()
+                    .map(|&v| (v as f64 * scale_w).round() as i16)
+                    .collect(),
+            ),
+            bias: l
+                .b
+                .iter()
+                .map(|&v| (v as f64 * scale_b).round() as i32)
+                .collect(),
+        });
+        shift_in = out_shift;
+    }
+    Ok(specs)
+}
+
+fn weight_shift(l: &Dense, in_shift: i8) -> Result<i8> {
+    let max_w = l.w.iter().fold(0f64, |m, &v| m.max((v as f64).abs()));
+    let worst_row = (0..l.n_out)
+        .map(|o| {
+            let row: f64 = l.w[o * l.n_in..(o + 1) * l.n_in]
+                .iter()
+                .map(|&v| (v as f64).abs())
+                .sum();
+            row * I16_MAX_MAG + (l.b[o] as f64).abs() * 2f64.powi(in_shift as i32)
+        })
+        .fold(0f64, f64::max);
+    (0..=15i8)
+        .rev()
+        .find(|&s| {
+            let k = 2f64.powi(s as i32);
+            max_w * k <= i16::MAX as f64 && worst_row * k + 0.5 * l.n_in as f64 <= ACC_LIMIT
+        })
+        .context("no shift keeps the accumulator within i32")
 }

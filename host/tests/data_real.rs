@@ -46,6 +46,19 @@ fn loads_the_published_frames() {
             );
         }
     }
+    // The windows OpenCV 5.0.0 picks (cv2.matchTemplate TM_CCOEFF + minMaxLoc on cv2.cvtColor grey).
+    let opencv = [
+        ("test1.png", 122, 92),
+        ("test2.png", 139, 79),
+        ("test3.png", 140, 119),
+        ("test4.png", 113, 79),
+        ("test5.png", 103, 97),
+        ("test6.png", 103, 115),
+    ];
+    for (f, x, y) in opencv {
+        let s = ds.samples.iter().find(|s| s.file.ends_with(f)).unwrap();
+        assert_eq!((s.crop().x, s.crop().y), (x, y), "{f}");
+    }
     // The marked frames are test2.png with a mark pasted: the crop must not move much.
     let base = ds
         .samples
