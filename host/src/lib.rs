@@ -17,3 +17,5 @@ pub mod bench;
 pub mod mirror_test;
 pub mod run_board;
 pub mod demo;
+pub mod models;
+pub mod calibrate;

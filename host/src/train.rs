@@ -1,6 +1,10 @@
 //! `msr train`: train a decoder or autoencoder on a dataset and calibrate its error statistics.
 use anyhow::{bail, Result};
 
+pub mod fit;
+#[cfg(test)]
+pub(crate) mod synthetic;
+
 #[derive(clap::Args, Debug)]
 pub struct Args {}
 

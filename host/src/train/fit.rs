@@ -1,0 +1,180 @@
+//! The training loop: Adam, step-decayed learning rate, shuffled minibatches, MSE, per-epoch
+//! train and test loss. Shared by the decoder and the autoencoder.
+use crate::models::{Autoencoder, Decoder};
+use anyhow::{ensure, Result};
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::prelude::*;
+use indicatif::{ProgressBar, ProgressStyle};
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use std::time::Instant;
+
+/// Hyper-parameters; the defaults are the paper's.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct HyperParams {
+    pub epochs: usize,
+    pub batch: usize,
+    pub lr: f64,
+    /// The learning rate is multiplied by `lr_decay` every `lr_step` epochs.
+    pub lr_step: usize,
+    pub lr_decay: f64,
+    /// Adam's epsilon (PyTorch's default, which the published code used).
+    pub adam_eps: f32,
+    pub seed: u64,
+}
+
+impl Default for HyperParams {
+    fn default() -> Self {
+        HyperParams { epochs: 50, batch: 128, lr: 0.005, lr_step: 10, lr_decay: 0.5, adam_eps: 1e-8, seed: 0 }
+    }
+}
+
+impl HyperParams {
+    pub fn lr_at(&self, epoch: usize) -> f64 {
+        self.lr * self.lr_decay.powi((epoch / self.lr_step.max(1)) as i32)
+    }
+
+    pub fn check(&self) -> Result<()> {
+        ensure!(self.epochs > 0, "epochs must be at least 1");
+        ensure!(self.batch > 0, "batch size must be at least 1");
+        ensure!(self.lr.is_finite() && self.lr > 0.0, "learning rate must be positive");
+        ensure!(self.lr_decay.is_finite() && self.lr_decay > 0.0, "learning-rate decay must be positive");
+        ensure!(self.lr_step > 0, "learning-rate step must be at least 1 epoch");
+        Ok(())
+    }
+}
+
+/// Per-epoch mean squared error (grey/255 units): train is the running mean over the epoch's
+/// minibatches (as PyTorch loops report it), test is the whole test split after the epoch.
+#[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct History {
+    pub train_loss: Vec<f64>,
+    pub test_loss: Vec<f64>,
+    pub seconds: f64,
+}
+
+/// Training pairs: head angles and face crops (grey/255, row-major, all the same length).
+#[derive(Clone, Debug, Default)]
+pub struct Samples {
+    pub heads: Vec<[f32; 2]>,
+    pub faces: Vec<Vec<f32>>,
+}
+
+impl Samples {
+    pub fn len(&self) -> usize {
+        self.heads.len()
+    }
+    pub fn is_empty(&self) -> bool {
+        self.heads.is_empty()
+    }
+    pub fn heads_tensor(&self, device: &Device) -> Tensor<2> {
+        let v: Vec<f32> = self.heads.iter().flatten().copied().collect();
+        Tensor::from_data(TensorData::new(v, [self.len(), 2]), device)
+    }
+    pub fn faces_tensor(&self, device: &Device) -> Tensor<2> {
+        let n = self.faces.first().map_or(0, |f| f.len());
+        let v: Vec<f32> = self.faces.iter().flatten().copied().collect();
+        Tensor::from_data(TensorData::new(v, [self.len(), n]), device)
+    }
+}
+
+/// A model the loop can train: predicts faces from head angles and/or faces.
+pub trait FaceNet: Module + Sized {
+    fn predict(&self, heads: Tensor<2>, faces: Tensor<2>) -> Tensor<2>;
+}
+
+impl FaceNet for Decoder {
+    fn predict(&self, heads: Tensor<2>, _faces: Tensor<2>) -> Tensor<2> {
+        self.forward(heads)
+    }
+}
+
+impl FaceNet for Autoencoder {
+    fn predict(&self, _heads: Tensor<2>, faces: Tensor<2>) -> Tensor<2> {
+        self.forward(faces)
+    }
+}
+
+fn index_tensor(idx: &[usize], device: &Device) -> Tensor<1, Int> {
+    let v: Vec<i64> = idx.iter().map(|&i| i as i64).collect();
+    Tensor::from_data(TensorData::new(v, [idx.len()]), device)
+}
+
+fn scalar(t: Tensor<1>) -> f64 {
+    t.into_scalar::<f32>() as f64
+}
+
+/// Mean squared error of `model` over `data`, in batches, without gradients.
+pub fn evaluate<M: FaceNet>(model: &M, data: &Samples, batch: usize, device: &Device) -> f64 {
+    if data.is_empty() {
+        return f64::NAN;
+    }
+    let model = model.valid();
+    let dev = device.clone().without_autodiff();
+    let (heads, faces) = (data.heads_tensor(&dev), data.faces_tensor(&dev));
+    let idx: Vec<usize> = (0..data.len()).collect();
+    let mut sum = 0.0;
+    for chunk in idx.chunks(batch.max(1)) {
+        let it = index_tensor(chunk, &dev);
+        let y = faces.clone().select(0, it.clone());
+        let pred = model.predict(heads.clone().select(0, it), y.clone());
+        sum += scalar((pred - y).square().mean()) * chunk.len() as f64;
+    }
+    sum / data.len() as f64
+}
+
+/// Trains `model` on `train`, reporting the test loss after every epoch. `device` must have
+/// autodiff enabled. `label` names the progress bar.
+pub fn fit<M: FaceNet>(
+    mut model: M,
+    train: &Samples,
+    test: &Samples,
+    hp: &HyperParams,
+    device: &Device,
+    label: &str,
+    progress: bool,
+) -> Result<(M, History)> {
+    hp.check()?;
+    ensure!(!train.is_empty(), "no training samples");
+    ensure!(device.is_autodiff(), "training needs an autodiff device");
+    let started = Instant::now();
+    let mut optim = AdamConfig::new().with_epsilon(hp.adam_eps).init();
+    let mut rng = ChaCha8Rng::seed_from_u64(hp.seed ^ 0x7a11);
+    let (heads, faces) = (train.heads_tensor(device), train.faces_tensor(device));
+    let n = train.len();
+    let batches = n.div_ceil(hp.batch);
+    let bar = if progress { ProgressBar::new((hp.epochs * batches) as u64) } else { ProgressBar::hidden() };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix} [{elapsed_precise}] {bar:30} {pos}/{len} {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    bar.set_prefix(label.to_string());
+    let mut history = History::default();
+    let mut order: Vec<usize> = (0..n).collect();
+    for epoch in 0..hp.epochs {
+        let lr = hp.lr_at(epoch);
+        order.shuffle(&mut rng);
+        let mut sum = 0.0;
+        for chunk in order.chunks(hp.batch) {
+            let it = index_tensor(chunk, device);
+            let y = faces.clone().select(0, it.clone());
+            let pred = model.predict(heads.clone().select(0, it), y.clone());
+            let loss = (pred - y).square().mean();
+            let grads = GradientsParams::from_grads(loss.backward(), &model);
+            sum += scalar(loss.detach()) * chunk.len() as f64;
+            model = optim.step(lr, model, grads);
+            bar.inc(1);
+        }
+        let train_loss = sum / n as f64;
+        ensure!(train_loss.is_finite(), "training diverged at epoch {} (loss {train_loss})", epoch + 1);
+        let test_loss = evaluate(&model, test, 512, device);
+        bar.set_message(format!("epoch {} train {train_loss:.5} test {test_loss:.5}", epoch + 1));
+        history.train_loss.push(train_loss);
+        history.test_loss.push(test_loss);
+    }
+    bar.finish();
+    history.seconds = started.elapsed().as_secs_f64();
+    Ok((model, history))
+}
