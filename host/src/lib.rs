@@ -5,6 +5,8 @@ pub mod cli;
 pub mod predictor;
 pub mod crop;
 pub mod data;
+pub mod pipeline;
+pub mod fixed;
 pub mod dataset;
 pub mod train;
 pub mod train_reach;

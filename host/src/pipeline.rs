@@ -1,0 +1,204 @@
+//! The detection pipeline on the host, stage by stage: predicted face -> saliency -> blobs ->
+//! winner -> reach. The float engine lives here; the fixed engine is the firmware's code
+//! (`crate::fixed`). Both give a [`Detection`] so that `detect` and `eval` treat them alike.
+use crate::crop::CropBox;
+use msr_shared::blob::{Normalisation, Reach, Sided, REACH_HIDDEN, REACH_OUT};
+use serde::Serialize;
+
+/// A connected component of salient pixels. Coordinates are in whatever frame it was found in
+/// (face or full frame; see [`Blob::offset`]); boxes are inclusive.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Blob {
+    pub area: u32,
+    pub box_xyxy: [u32; 4],
+    /// Mean of the pixel coordinates (x, y).
+    pub centroid: [f64; 2],
+}
+
+impl Blob {
+    pub fn offset(&self, dx: u32, dy: u32) -> Blob {
+        let [x0, y0, x1, y1] = self.box_xyxy;
+        Blob {
+            area: self.area,
+            box_xyxy: [x0 + dx, y0 + dy, x1 + dx, y1 + dy],
+            centroid: [self.centroid[0] + dx as f64, self.centroid[1] + dy as f64],
+        }
+    }
+}
+
+/// The largest blob with at least `min_area` pixels; the first found wins a tie.
+pub fn winner(blobs: &[Blob], min_area: u32) -> Option<Blob> {
+    let mut best: Option<Blob> = None;
+    for b in blobs.iter().filter(|b| b.area >= min_area) {
+        if best.is_none_or(|w| b.area > w.area) {
+            best = Some(*b);
+        }
+    }
+    best
+}
+
+/// Novelty settings of one evaluation row or one detection.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Settings {
+    pub threshold: f32,
+    pub normalisation: Normalisation,
+    pub sided: Sided,
+    pub min_area: u16,
+}
+
+/// Per-pixel saliency in threshold units: `(e - mu) / n` (one-sided) or `|e - mu| / n`, with
+/// `e = |255 (I - I_hat)|` in grey levels and `n` = sigma or sigma^2. A pixel is salient when its
+/// score exceeds the threshold. `sigma` already carries its floor.
+pub fn saliency(
+    face: &[u8],
+    predicted: &[f32],
+    mu: &[f32],
+    sigma: &[f32],
+    normalisation: Normalisation,
+    sided: Sided,
+) -> Vec<f32> {
+    face.iter()
+        .zip(predicted)
+        .zip(mu.iter().zip(sigma))
+        .map(|((&i, &p), (&m, &s))| {
+            let e = (i as f32 - 255.0 * p).abs();
+            let n = match normalisation {
+                Normalisation::StdDev => s,
+                Normalisation::Variance => s * s,
+            };
+            let d = match sided {
+                Sided::One => e - m,
+                Sided::Two => (e - m).abs(),
+            };
+            if n > 0.0 {
+                d / n
+            } else if d > 0.0 {
+                f32::INFINITY
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+/// Everything one run of the pipeline on one frame produced.
+#[derive(Clone, Debug)]
+pub struct Detection {
+    pub crop: CropBox,
+    /// The predicted face, grey/255, row-major.
+    pub predicted: Vec<f32>,
+    /// Saliency in threshold units (for pictures and AUROC).
+    pub saliency: Vec<f32>,
+    /// Salient pixels.
+    pub mask: Vec<bool>,
+    /// The winning blob in full-frame pixels.
+    pub blob: Option<Blob>,
+    /// HeadYaw, HeadPitch, LShoulderPitch, LShoulderRoll, LElbowRoll (radians).
+    pub joints: Option<[f32; REACH_OUT]>,
+}
+
+/// The reach network in float: mark position in full-frame pixels -> 5 joint angles.
+pub fn reach_float(r: &Reach, x: f32, y: f32) -> [f32; REACH_OUT] {
+    let sig = |z: f32| 1.0 / (1.0 + (-z).exp());
+    let inp = [
+        (x - r.in_min[0]) / (r.in_max[0] - r.in_min[0]),
+        (y - r.in_min[1]) / (r.in_max[1] - r.in_min[1]),
+    ];
+    let mut h = [0f32; REACH_HIDDEN];
+    for (j, hj) in h.iter_mut().enumerate() {
+        *hj = sig(r.b1[j] + r.w1[j][0] * inp[0] + r.w1[j][1] * inp[1]);
+    }
+    let mut out = [0f32; REACH_OUT];
+    for (k, o) in out.iter_mut().enumerate() {
+        let z = r.b2[k] + r.w2[k].iter().zip(&h).map(|(w, h)| w * h).sum::<f32>();
+        *o = sig(z) * (r.out_max[k] - r.out_min[k]) + r.out_min[k];
+    }
+    out
+}
+
+/// Joint names in the order of [`Detection::joints`].
+pub const JOINTS: [&str; REACH_OUT] = [
+    "HeadYaw",
+    "HeadPitch",
+    "LShoulderPitch",
+    "LShoulderRoll",
+    "LElbowRoll",
+];
+
+/// Blobs of a mask by imageproc's 8-connected labelling, in label order (row-major scan order
+/// of each component's first pixel). The float engine's blob stage.
+pub fn label_blobs(mask: &[bool], w: usize, h: usize) -> Vec<Blob> {
+    use imageproc::region_labelling::{connected_components, Connectivity};
+    let img = image::GrayImage::from_fn(w as u32, h as u32, |x, y| {
+        image::Luma([if mask[y as usize * w + x as usize] {
+            255
+        } else {
+            0
+        }])
+    });
+    let labels = connected_components(&img, Connectivity::Eight, image::Luma([0u8]));
+    let mut acc: Vec<(u32, [u32; 4], u64, u64)> = Vec::new();
+    for (x, y, l) in labels.enumerate_pixels() {
+        let l = l[0] as usize;
+        if l == 0 {
+            continue;
+        }
+        if acc.len() < l {
+            acc.resize(l, (0, [u32::MAX, u32::MAX, 0, 0], 0, 0));
+        }
+        let a = &mut acc[l - 1];
+        a.0 += 1;
+        a.1 = [a.1[0].min(x), a.1[1].min(y), a.1[2].max(x), a.1[3].max(y)];
+        a.2 += x as u64;
+        a.3 += y as u64;
+    }
+    acc.into_iter()
+        .filter(|a| a.0 > 0)
+        .map(|(n, b, sx, sy)| Blob {
+            area: n,
+            box_xyxy: b,
+            centroid: [sx as f64 / n as f64, sy as f64 / n as f64],
+        })
+        .collect()
+}
+
+/// The float pipeline for one face, given the model's prediction.
+pub struct FloatEngine {
+    /// Grey levels, row-major, face size.
+    pub mu: Vec<f32>,
+    /// Grey levels, floor applied.
+    pub sigma: Vec<f32>,
+    pub settings: Settings,
+    pub reach: Option<Reach>,
+    pub face_w: usize,
+}
+
+impl FloatEngine {
+    pub fn detect(&self, crop: CropBox, face: &[u8], predicted: Vec<f32>) -> Detection {
+        let s = &self.settings;
+        let saliency = saliency(
+            face,
+            &predicted,
+            &self.mu,
+            &self.sigma,
+            s.normalisation,
+            s.sided,
+        );
+        let mask: Vec<bool> = saliency.iter().map(|&v| v > s.threshold).collect();
+        let h = mask.len() / self.face_w.max(1);
+        let blobs = label_blobs(&mask, self.face_w, h);
+        let blob = winner(&blobs, s.min_area as u32).map(|b| b.offset(crop.x, crop.y));
+        let joints = match (&self.reach, blob) {
+            (Some(r), Some(b)) => Some(reach_float(r, b.centroid[0] as f32, b.centroid[1] as f32)),
+            _ => None,
+        };
+        Detection {
+            crop,
+            predicted,
+            saliency,
+            mask,
+            blob,
+            joints,
+        }
+    }
+}
