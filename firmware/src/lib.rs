@@ -1,2 +1,61 @@
-//! The board's pipeline. See the issue tracker (firmware issue) for the stage list.
-#![cfg_attr(not(feature = "std"), no_std)]
+//! The board's pipeline: fixed-point decoder, saliency, blobs, winner, confirmation, reach,
+//! motion and the two serial links. `no_std` (unless feature `std`), no heap, bounded memory,
+//! no panics on any input.
+//!
+//! # The API others call
+//!
+//! **The board** ([`Board`]): a pure function of bytes in and commands out.
+//! ```ignore
+//! static mut BOARD: Board<RamStore<{ 256 * 1024 }>> = Board::new(RamStore::new(Some(BLOB)));
+//! loop { board.poll(now_us, &mut host_uart, &mut servo_uart); }
+//! ```
+//! `host_uart` and `servo_uart` implement `embedded_io::{Read, Write, ReadReady}`; `poll` never
+//! blocks on reads (it takes what `read_ready` says is there), answers the host link
+//! (`msr_shared::msg::HostToBoard`), reads servo states, runs the watchdogs and sends servo
+//! targets every [`motion::PERIOD_US`]. The model comes from the [`ModelStore`]: built in
+//! ([`RamStore::new`]`(Some(bytes))`, 4-byte aligned) or uploaded (`ModelBegin/Chunk/Commit`).
+//!
+//! **One frame, for host tools** ([`detect`]): crop pixels + crop offset + head angles + model
+//! -> winning blob, full-frame centroid, reach angles:
+//! ```ignore
+//! let mut ws = Box::new(Workspace::new());
+//! let model = msr_shared::blob::Model::parse(&bytes)?;
+//! let det = detect(&mut ws, &model, &Settings::of(&model), &crop, [crop_x, crop_y], [yaw, pitch])?;
+//! ```
+//! The stages are also callable one by one on [`Workspace`] (`decode`, `saliency`, `mask`,
+//! `blobs`), and [`blobs::Labeller`] labels any mask (`msr blobs`).
+//!
+//! **The decoder alone** ([`decoder::Decoder::predict`]): the predicted face for a head pose,
+//! Q8.8 grey levels (divide by 65280 for grey/255), for PSNR checks.
+//!
+//! **Golden vectors** ([`golden::run`]): a fixed set of frames through the pipeline -> a digest,
+//! so a host build and a `thumbv7em-none-eabihf` build can be compared bit for bit.
+//!
+//! # Stages (one module each)
+//! [`model`] validates and stages blobs; [`decoder`]; [`saliency`]; [`blobs`]; [`winner`];
+//! [`confirm`]; [`reach`]; [`motion`]; [`link`] (framing, reassembly, watchdogs); [`board`].
+//!
+//! # Memory
+//! [`Workspace`] (two `MAX_ACTIVATION_LEN` i16 activation buffers, the threshold table, the
+//! labeller; the saliency mask reuses the spare activation buffer) plus the frame buffer and
+//! the link buffers make up [`Board`]: about 56 KiB for faces up to 64 x 96, whatever the model.
+//! The model store is separate (a built-in blob stays in flash; uploads need a staging area).
+#![cfg_attr(not(any(feature = "std", test)), no_std)]
+
+pub mod blobs;
+pub mod board;
+pub mod confirm;
+pub mod decoder;
+pub mod golden;
+pub mod link;
+pub mod model;
+pub mod motion;
+pub mod pipeline;
+pub mod reach;
+pub mod saliency;
+pub mod winner;
+
+pub use board::Board;
+pub use model::{ModelStore, RamStore};
+pub use pipeline::{detect, DetectError, FaceDetection, Workspace};
+pub use saliency::Settings;

@@ -1,0 +1,336 @@
+//! 8-connected components of a binary mask, in fixed memory, in one pass.
+//!
+//! Row by row, the mask becomes runs of set pixels; a run joins every run of the row above that
+//! touches it (8-connectivity: overlapping or diagonal). Each component's statistics (area,
+//! inclusive box, coordinate sums for the centroid, first pixel in raster order) are summed per
+//! run and merged on union. A component that no run of the current row continues is finished:
+//! it is handed to the caller and its slot is free again. So the slots in use are at most the
+//! runs of two rows, `2 * RUNS`, and with `LABELS >= 2 * RUNS` the labeller cannot overflow.
+//!
+//! The statistics are those of OpenCV's `connectedComponentsWithStats` (8-connectivity): area,
+//! box, centroid = mean of the pixel coordinates. When the slots run out ([`Labeller`] with a
+//! small `LABELS`), a run that needs a new slot is dropped, the result says `overflow`, and every
+//! component that contains a dropped run is withheld, so what is reported is still exact.
+
+use msr_shared::blob::MAX_FACE_W;
+
+/// Runs per row of the widest face.
+pub const FACE_RUNS: usize = MAX_FACE_W / 2 + 1;
+/// Slots of the board's labeller: enough that a face can never overflow it.
+pub const MAX_LABELS: usize = 2 * FACE_RUNS;
+/// The labeller the board uses for faces up to `MAX_FACE_W` wide.
+pub type FaceLabeller = Labeller<MAX_LABELS, FACE_RUNS>;
+
+const NONE: u16 = u16::MAX;
+
+/// One connected component.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Blob {
+    pub area: u32,
+    /// Inclusive box.
+    pub x0: u16,
+    pub y0: u16,
+    pub x1: u16,
+    pub y1: u16,
+    /// Sums of the pixels' column and row indices.
+    pub sum_x: u32,
+    pub sum_y: u32,
+    /// Raster index (`y * width + x`) of the component's first pixel: the OpenCV label order.
+    pub first: u32,
+}
+
+impl Blob {
+    /// Mean column and row of the pixels.
+    pub fn centroid(&self) -> [f32; 2] {
+        let a = self.area.max(1) as f64;
+        [(self.sum_x as f64 / a) as f32, (self.sum_y as f64 / a) as f32]
+    }
+
+    fn merge(&mut self, o: &Blob) {
+        self.area += o.area;
+        self.x0 = self.x0.min(o.x0);
+        self.y0 = self.y0.min(o.y0);
+        self.x1 = self.x1.max(o.x1);
+        self.y1 = self.y1.max(o.y1);
+        self.sum_x += o.sum_x;
+        self.sum_y += o.sum_y;
+        self.first = self.first.min(o.first);
+    }
+}
+
+/// What one labelling pass found.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Summary {
+    /// Components handed to the caller.
+    pub components: u32,
+    /// The slots ran out; some components were withheld.
+    pub overflow: bool,
+    /// Components withheld because they contained a dropped run.
+    pub withheld: u32,
+}
+
+/// Why a mask was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MaskError {
+    /// Zero size, fewer bytes than `width * height`, or wider than the run buffers allow.
+    Shape,
+}
+
+#[derive(Clone, Copy)]
+struct Run {
+    x0: u16,
+    x1: u16,
+    label: u16,
+}
+
+const EMPTY_RUN: Run = Run { x0: 0, x1: 0, label: NONE };
+const EMPTY_BLOB: Blob = Blob { area: 0, x0: 0, y0: 0, x1: 0, y1: 0, sum_x: 0, sum_y: 0, first: 0 };
+
+#[derive(Clone, Copy)]
+struct Slot {
+    blob: Blob,
+    parent: u16,
+    used: bool,
+    tainted: bool,
+    /// Last row (plus one) with a run of this component.
+    seen: u16,
+}
+
+const EMPTY_SLOT: Slot = Slot { blob: EMPTY_BLOB, parent: NONE, used: false, tainted: false, seen: 0 };
+
+/// A labeller with `LABELS` component slots for masks up to `2 * RUNS - 1` pixels wide.
+pub struct Labeller<const LABELS: usize, const RUNS: usize> {
+    slots: [Slot; LABELS],
+    free: [u16; LABELS],
+    n_free: usize,
+    rows: [[Run; RUNS]; 2],
+    n_rows: [usize; 2],
+}
+
+impl<const LABELS: usize, const RUNS: usize> Default for Labeller<LABELS, RUNS> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
+    pub const fn new() -> Self {
+        Labeller {
+            slots: [EMPTY_SLOT; LABELS],
+            free: [0; LABELS],
+            n_free: 0,
+            rows: [[EMPTY_RUN; RUNS]; 2],
+            n_rows: [0; 2],
+        }
+    }
+
+    /// Widest mask this labeller takes.
+    pub const fn max_width() -> usize {
+        2 * RUNS - 1
+    }
+
+    fn reset(&mut self) {
+        let n = LABELS.min(NONE as usize);
+        for i in 0..n {
+            self.free[i] = (n - 1 - i) as u16;
+            self.slots[i].used = false;
+        }
+        self.n_free = n;
+        self.n_rows = [0; 2];
+    }
+
+    fn alloc(&mut self) -> u16 {
+        if self.n_free == 0 {
+            return NONE;
+        }
+        self.n_free -= 1;
+        let l = self.free[self.n_free];
+        self.slots[l as usize] = Slot { used: true, parent: l, ..EMPTY_SLOT };
+        l
+    }
+
+    fn release(&mut self, l: u16) {
+        let s = &mut self.slots[l as usize];
+        if s.used {
+            s.used = false;
+            if self.n_free < LABELS {
+                self.free[self.n_free] = l;
+                self.n_free += 1;
+            }
+        }
+    }
+
+    fn find(&self, mut l: u16) -> u16 {
+        // Chains only link slots of the row above; LABELS steps bound the walk regardless.
+        for _ in 0..LABELS {
+            let p = self.slots[l as usize].parent;
+            if p == l || p == NONE {
+                break;
+            }
+            l = p;
+        }
+        l
+    }
+
+    /// Joins two roots; the survivor keeps both statistics.
+    fn union(&mut self, a: u16, b: u16) -> u16 {
+        if a == b {
+            return a;
+        }
+        let sb = self.slots[b as usize];
+        let sa = &mut self.slots[a as usize];
+        sa.blob.merge(&sb.blob);
+        sa.tainted |= sb.tainted;
+        sa.seen = sa.seen.max(sb.seen);
+        self.slots[b as usize].parent = a;
+        a
+    }
+
+    fn emit<F: FnMut(&Blob)>(&mut self, l: u16, sum: &mut Summary, f: &mut F) {
+        let s = self.slots[l as usize];
+        if s.tainted {
+            sum.withheld += 1;
+        } else {
+            sum.components += 1;
+            f(&s.blob);
+        }
+        self.release(l);
+    }
+
+    /// Labels `mask` (`width x height`, row-major, non-zero = set) and calls `emit` once per
+    /// component, in the order components finish.
+    pub fn label<F: FnMut(&Blob)>(
+        &mut self,
+        mask: &[u8],
+        width: usize,
+        height: usize,
+        mut emit: F,
+    ) -> Result<Summary, MaskError> {
+        if width == 0
+            || height == 0
+            || width > Self::max_width()
+            || height > u16::MAX as usize - 1
+            || width.checked_mul(height).is_none_or(|n| n > mask.len())
+        {
+            return Err(MaskError::Shape);
+        }
+        self.reset();
+        let mut sum = Summary::default();
+        let mut cur = 0usize;
+        for y in 0..height {
+            let row = &mask[y * width..(y + 1) * width];
+            let prev = 1 - cur;
+            self.scan_row(row, cur);
+            self.connect(y, width, cur, prev, &mut sum);
+            // Resolve this row's runs to their roots, then free or finish the row above's.
+            for i in 0..self.n_rows[cur] {
+                let l = self.rows[cur][i].label;
+                if l != NONE {
+                    self.rows[cur][i].label = self.find(l);
+                }
+            }
+            for i in 0..self.n_rows[prev] {
+                let l = self.rows[prev][i].label;
+                if l == NONE || !self.slots[l as usize].used {
+                    continue;
+                }
+                if self.slots[l as usize].parent != l {
+                    self.release(l);
+                } else if self.slots[l as usize].seen != y as u16 + 1 {
+                    self.emit(l, &mut sum, &mut emit);
+                }
+            }
+            cur = prev;
+        }
+        let last = 1 - cur;
+        for i in 0..self.n_rows[last] {
+            let l = self.rows[last][i].label;
+            if l != NONE && self.slots[l as usize].used {
+                self.emit(l, &mut sum, &mut emit);
+            }
+        }
+        Ok(sum)
+    }
+
+    /// The runs of one row into `rows[slot]`.
+    fn scan_row(&mut self, row: &[u8], slot: usize) {
+        let runs = &mut self.rows[slot];
+        let mut n = 0usize;
+        let mut x = 0usize;
+        let w = row.len();
+        while x < w {
+            // Skip empty pixels four at a time: most of a face is not salient.
+            while x + 4 <= w && u32::from_ne_bytes([row[x], row[x + 1], row[x + 2], row[x + 3]]) == 0 {
+                x += 4;
+            }
+            while x < w && row[x] == 0 {
+                x += 1;
+            }
+            if x >= w {
+                break;
+            }
+            let x0 = x;
+            while x < w && row[x] != 0 {
+                x += 1;
+            }
+            if n < RUNS {
+                runs[n] = Run { x0: x0 as u16, x1: (x - 1) as u16, label: NONE };
+                n += 1;
+            }
+        }
+        self.n_rows[slot] = n;
+    }
+
+    /// Gives each run of row `cur` a slot, joining the runs of `prev` that touch it.
+    fn connect(&mut self, y: usize, width: usize, cur: usize, prev: usize, sum: &mut Summary) {
+        let mut j = 0usize;
+        for i in 0..self.n_rows[cur] {
+            let r = self.rows[cur][i];
+            // Runs of the row above that end left of this one's reach never touch a later run.
+            while j < self.n_rows[prev] && self.rows[prev][j].x1 as usize + 1 < r.x0 as usize {
+                j += 1;
+            }
+            let mut label = NONE;
+            let mut tainted = false;
+            let mut k = j;
+            while k < self.n_rows[prev] && self.rows[prev][k].x0 as usize <= r.x1 as usize + 1 {
+                let pl = self.rows[prev][k].label;
+                if pl == NONE {
+                    tainted = true;
+                } else {
+                    let root = self.find(pl);
+                    label = if label == NONE { root } else { self.union(label, root) };
+                }
+                k += 1;
+            }
+            let len = (r.x1 - r.x0) as u32 + 1;
+            let run_blob = Blob {
+                area: len,
+                x0: r.x0,
+                y0: y as u16,
+                x1: r.x1,
+                y1: y as u16,
+                sum_x: (r.x0 as u32 + r.x1 as u32) * len / 2,
+                sum_y: y as u32 * len,
+                first: (y * width) as u32 + r.x0 as u32,
+            };
+            if label == NONE {
+                label = self.alloc();
+                if label == NONE {
+                    sum.overflow = true;
+                    continue;
+                }
+                self.slots[label as usize].blob = run_blob;
+            } else {
+                self.slots[label as usize].blob.merge(&run_blob);
+            }
+            let s = &mut self.slots[label as usize];
+            s.tainted |= tainted;
+            s.seen = y as u16 + 1;
+            self.rows[cur][i].label = label;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,414 @@
+//! The board: bytes in, commands out. One [`Board::poll`] call reads what has arrived on the
+//! host link and the servo bus, answers it, runs the watchdogs, and every 10 ms sends the next
+//! servo targets. Nothing else: no clock, no interrupts, no heap, so the host (the sim drives it
+//! in-process), QEMU and the real board run the same code.
+
+use crate::confirm::Confirm;
+use crate::link::{read_ready, Assembly, AssemblyError, Rx, Tx, Watchdog, FACE_TIMEOUT_US, READ_CHUNK, SERVO_TIMEOUT_US};
+use crate::model::{self, ModelStore, Upload, UploadError};
+use crate::motion::{Motion, Phase, PERIOD_US};
+use crate::pipeline::{self, Workspace};
+use crate::saliency::Settings;
+use embedded_io::{Read, ReadReady, Write};
+use msr_shared::blob::Model;
+use msr_shared::joints::REACH_JOINTS;
+use msr_shared::msg::{
+    BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameHeader, HostToBoard, JointTarget, Mode,
+    ServoToBoard, Status,
+};
+
+/// Most bytes taken from one link per poll, so a flood cannot starve the control loop.
+pub const MAX_BYTES_PER_POLL: usize = 4096;
+/// Ask the servos for their state when none came for this long.
+pub const STATE_REQUEST_US: u64 = 20_000;
+
+/// The model in use, as far as the board needs to remember it between frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Loaded {
+    crc: u32,
+    face_w: u16,
+    face_h: u16,
+}
+
+/// Everything but the big buffers and the receivers (split so a received message, which borrows
+/// its receiver, can be handled while the rest changes).
+struct Core<S: ModelStore> {
+    store: S,
+    checked: bool,
+    loaded: Option<Loaded>,
+    upload: Upload,
+    settings: Option<Settings>,
+    confirm: Confirm,
+    motion: Motion,
+    measured: [Option<f32>; 5],
+    host_tx: Tx,
+    servo_tx: Tx,
+    face_wd: Watchdog,
+    servo_wd: Watchdog,
+    next_tick_us: Option<u64>,
+    last_request_us: Option<u64>,
+    stiffness_sent: bool,
+    status_pending: bool,
+    frames: u32,
+    detections: u32,
+    reaches: u32,
+    clamped_targets: u32,
+}
+
+/// The firmware. `S` holds the model blobs (see [`ModelStore`]).
+pub struct Board<S: ModelStore> {
+    ws: Workspace,
+    frame: Assembly,
+    host_rx: Rx,
+    servo_rx: Rx,
+    core: Core<S>,
+}
+
+impl<S: ModelStore> Board<S> {
+    /// A board with its model store. `const`, so a binary can place it in a `static`.
+    pub const fn new(store: S) -> Self {
+        Board {
+            ws: Workspace::new(),
+            frame: Assembly::new(),
+            host_rx: Rx::new(),
+            servo_rx: Rx::new(),
+            core: Core {
+                store,
+                checked: false,
+                loaded: None,
+                upload: Upload::new(),
+                settings: None,
+                confirm: Confirm::defaults(),
+                motion: Motion::new(),
+                measured: [None; 5],
+                host_tx: Tx::new(),
+                servo_tx: Tx::new(),
+                face_wd: Watchdog::new(FACE_TIMEOUT_US),
+                servo_wd: Watchdog::new(SERVO_TIMEOUT_US),
+                next_tick_us: None,
+                last_request_us: None,
+                stiffness_sent: false,
+                status_pending: false,
+                frames: 0,
+                detections: 0,
+                reaches: 0,
+                clamped_targets: 0,
+            },
+        }
+    }
+
+    /// One step: `now_us` is a monotonic clock in microseconds.
+    pub fn poll<H, V>(&mut self, now_us: u64, host: &mut H, servo: &mut V)
+    where
+        H: Read + Write + ReadReady,
+        V: Read + Write + ReadReady,
+    {
+        let core = &mut self.core;
+        if !core.checked {
+            core.checked = true;
+            core.load_active(&mut self.ws);
+        }
+        let mut buf = [0u8; READ_CHUNK];
+        let mut taken = 0;
+        while taken < MAX_BYTES_PER_POLL {
+            let n = read_ready(servo, &mut buf);
+            if n == 0 {
+                break;
+            }
+            taken += n;
+            for &b in &buf[..n] {
+                if let Some(Ok(f)) = self.servo_rx.push(b) {
+                    match f.message::<ServoToBoard>() {
+                        Ok(ServoToBoard::States { states, .. }) => core.on_states(now_us, &states, host),
+                        Err(_) => self.servo_rx.count_malformed(),
+                    }
+                }
+            }
+        }
+        let mut taken = 0;
+        while taken < MAX_BYTES_PER_POLL {
+            let n = read_ready(host, &mut buf);
+            if n == 0 {
+                break;
+            }
+            taken += n;
+            for &b in &buf[..n] {
+                if let Some(Ok(f)) = self.host_rx.push(b) {
+                    match f.message::<HostToBoard>() {
+                        Ok(msg) => core.on_host(now_us, msg, &mut self.ws, &mut self.frame, host),
+                        Err(_) => self.host_rx.count_malformed(),
+                    }
+                }
+                if core.status_pending {
+                    core.status_pending = false;
+                    let s = core.status(&self.host_rx, &self.servo_rx);
+                    core.host_tx.send(host, &BoardToHost::Status(s));
+                }
+            }
+        }
+        if core.face_wd.check(now_us) {
+            core.error(host, ErrorCode::FaceTimeout, 0);
+            let s = core.status(&self.host_rx, &self.servo_rx);
+            core.host_tx.send(host, &BoardToHost::Status(s));
+        }
+        if core.servo_wd.check(now_us) {
+            core.motion.stop();
+            core.error(host, ErrorCode::ServoTimeout, 0);
+            let s = core.status(&self.host_rx, &self.servo_rx);
+            core.host_tx.send(host, &BoardToHost::Status(s));
+        }
+        let due = *core.next_tick_us.get_or_insert(now_us);
+        if now_us >= due {
+            core.tick(now_us, servo);
+            let next = due + PERIOD_US;
+            core.next_tick_us = Some(if next <= now_us { now_us + PERIOD_US } else { next });
+        }
+    }
+
+    /// Counters and state, as `GetStatus` answers.
+    pub fn status(&self) -> Status {
+        self.core.status(&self.host_rx, &self.servo_rx)
+    }
+
+    pub fn store(&self) -> &S {
+        &self.core.store
+    }
+
+    /// The behaviour's phase.
+    pub fn phase(&self) -> Phase {
+        self.core.motion.phase()
+    }
+
+    /// The posture last streamed (or to be streamed) to the servos.
+    pub fn commanded(&self) -> Option<[f32; 5]> {
+        self.core.motion.commanded()
+    }
+
+    /// The novelty settings in force (`None` without a model).
+    pub fn settings(&self) -> Option<Settings> {
+        self.core.settings
+    }
+}
+
+impl<S: ModelStore> Core<S> {
+    /// Takes the store's active blob if it validates (the built-in one at start-up).
+    fn load_active(&mut self, ws: &mut Workspace) {
+        ws.invalidate();
+        self.loaded = None;
+        self.settings = None;
+        if let Some(m) = self.store.active().and_then(|b| model::validate(b).ok()) {
+            self.loaded = Some(Loaded { crc: m.crc32, face_w: m.face_w, face_h: m.face_h });
+            self.settings = Some(Settings::of(&m));
+        }
+        self.confirm.reset();
+    }
+
+    fn mode(&self) -> Mode {
+        if self.face_wd.tripped() || self.servo_wd.tripped() {
+            return Mode::Halted;
+        }
+        if self.loaded.is_none() {
+            return Mode::NoModel;
+        }
+        match self.motion.phase() {
+            Phase::Observe => Mode::Observe,
+            Phase::Reach => Mode::Reach,
+            Phase::Hold => Mode::Hold,
+            Phase::Return => Mode::Return,
+        }
+    }
+
+    fn status(&self, host_rx: &Rx, servo_rx: &Rx) -> Status {
+        Status {
+            mode: self.mode(),
+            model_crc: self.loaded.map_or(0, |l| l.crc),
+            frames: self.frames,
+            detections: self.detections,
+            reaches: self.reaches,
+            host_link: *host_rx.counters(),
+            servo_link: *servo_rx.counters(),
+            face_watchdog_trips: self.face_wd.trips,
+            servo_watchdog_trips: self.servo_wd.trips,
+            clamped_targets: self.clamped_targets,
+        }
+    }
+
+    fn error<H: Write>(&mut self, host: &mut H, code: ErrorCode, detail: u32) {
+        self.host_tx.send(host, &BoardToHost::Error { code, detail });
+    }
+
+    fn on_states<H: Write>(&mut self, now_us: u64, states: &[msr_shared::msg::JointState], host: &mut H) {
+        let _ = host;
+        let mut any = false;
+        for s in states {
+            if let Some(i) = REACH_JOINTS.iter().position(|j| *j == s.joint) {
+                if s.position.is_finite() {
+                    self.measured[i] = Some(s.position);
+                    any = true;
+                }
+            }
+        }
+        if !any {
+            return;
+        }
+        let recovered = self.servo_wd.feed(now_us);
+        if self.motion.commanded().is_none() {
+            if let [Some(a), Some(b), Some(c), Some(d), Some(e)] = self.measured {
+                self.motion.start_from([a, b, c, d, e]);
+                // After an outage the arm may be anywhere: finish by going home.
+                if recovered {
+                    self.motion.go_home();
+                }
+            }
+        }
+    }
+
+    fn on_host<H: Write>(&mut self, now_us: u64, msg: HostToBoard, ws: &mut Workspace, frame: &mut Assembly, host: &mut H) {
+        match msg {
+            HostToBoard::Ping { nonce } => {
+                self.host_tx.send(host, &BoardToHost::Pong { nonce });
+            }
+            // Answered by `poll` once the message no longer borrows the receiver's counters.
+            HostToBoard::GetStatus => self.status_pending = true,
+            HostToBoard::FrameStart(h) => match self.loaded {
+                None => self.error(host, ErrorCode::NoModel, 0),
+                Some(l) => {
+                    if frame.start(h, l.face_w, l.face_h).is_err() {
+                        self.error(host, ErrorCode::BadFrame, h.frame as u32);
+                    }
+                }
+            },
+            HostToBoard::FrameChunk { frame: id, offset, data } => match frame.chunk(id, offset, data) {
+                Ok(Some(h)) => self.on_frame(now_us, h, frame.pixels(&h), ws, host),
+                Ok(None) => {}
+                Err(AssemblyError::Size | AssemblyError::Chunk) => self.error(host, ErrorCode::BadFrame, id as u32),
+            },
+            HostToBoard::ModelBegin { len, crc32 } => {
+                if let Err(e) = self.upload.begin(&mut self.store, len, crc32) {
+                    self.error(host, ErrorCode::BadUpload, e.detail());
+                }
+            }
+            HostToBoard::ModelChunk { offset, data } => {
+                if let Err(e) = self.upload.chunk(&mut self.store, offset, data) {
+                    self.error(host, ErrorCode::BadUpload, e.detail());
+                }
+            }
+            HostToBoard::ModelCommit => match self.upload.commit(&mut self.store) {
+                Ok(crc) => {
+                    frame.clear();
+                    self.load_active(ws);
+                    self.host_tx.send(host, &BoardToHost::ModelAccepted { crc32: crc });
+                }
+                Err(e @ UploadError::Invalid(_)) => self.error(host, ErrorCode::BadModel, e.detail()),
+                Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
+            },
+            HostToBoard::Configure(c) => {
+                if !self.configure(&c) {
+                    self.error(host, ErrorCode::BadConfig, 0);
+                }
+            }
+        }
+    }
+
+    /// Applies a configuration, all or nothing.
+    fn configure(&mut self, c: &Config) -> bool {
+        let s = Settings { threshold: c.threshold, normalisation: c.normalisation, sided: c.sided, min_area: c.min_area };
+        let Some(confirm) = Confirm::new(c.confirm_k, c.confirm_n) else { return false };
+        let mut motion = self.motion;
+        if !s.is_valid() || !motion.set_speed_fraction(c.speed_fraction) || !motion.set_hold_ms(c.hold_ms) {
+            return false;
+        }
+        self.motion = motion;
+        self.confirm = confirm;
+        if self.loaded.is_some() {
+            self.settings = Some(s);
+        }
+        true
+    }
+
+    fn on_frame<H: Write>(&mut self, now_us: u64, h: FrameHeader, pixels: &[u8], ws: &mut Workspace, host: &mut H) {
+        self.frames = self.frames.saturating_add(1);
+        if self.face_wd.feed(now_us) {
+            self.motion.go_home();
+        }
+        if self.motion.arm_up() {
+            return; // Detection pauses while the arm is up.
+        }
+        let (Some(yaw), Some(pitch)) = (self.measured[0], self.measured[1]) else {
+            self.error(host, ErrorCode::ServoTimeout, 1);
+            return;
+        };
+        let head = [yaw, pitch];
+        let result = match (self.settings, self.store.active()) {
+            (Some(settings), Some(bytes)) => match Model::parse_trusted(bytes) {
+                Ok(model) => pipeline::detect(ws, &model, &settings, pixels, [h.crop_x, h.crop_y], head)
+                    .map_err(|_| (ErrorCode::BadFrame, h.frame as u32)),
+                Err(_) => Err((ErrorCode::NoModel, 1)),
+            },
+            _ => Err((ErrorCode::NoModel, 0)),
+        };
+        let det = match result {
+            Ok(d) => d,
+            Err((code, detail)) => {
+                self.error(host, code, detail);
+                return;
+            }
+        };
+        if det.blob.is_some() {
+            self.detections = self.detections.saturating_add(1);
+        }
+        let mut confirmed = false;
+        if self.confirm.push(det.blob.is_some()) && !self.servo_wd.tripped() && !self.face_wd.tripped() {
+            if let Some(target) = det.reach {
+                if self.motion.reach(target) {
+                    confirmed = true;
+                    self.reaches = self.reaches.saturating_add(1);
+                    self.clamped_targets = self.clamped_targets.saturating_add(det.reach_clamped);
+                    self.confirm.reset();
+                }
+            }
+        }
+        let blob = det.blob.zip(det.centroid).map(|(b, c)| BlobReport {
+            area: b.area,
+            box_xyxy: [
+                b.x0.saturating_add(h.crop_x),
+                b.y0.saturating_add(h.crop_y),
+                b.x1.saturating_add(h.crop_x),
+                b.y1.saturating_add(h.crop_y),
+            ],
+            centroid: c,
+        });
+        let d = Detection { frame: h.frame, head, blob, confirmed, reach: det.reach };
+        self.host_tx.send(host, &BoardToHost::Detection(d));
+    }
+
+    /// One control period.
+    fn tick<V: Write>(&mut self, now_us: u64, servo: &mut V) {
+        let time_ms = (now_us / 1000) as u32;
+        let stale = self.servo_wd.last_us().is_none_or(|t| now_us.saturating_sub(t) >= STATE_REQUEST_US);
+        let asked = self.last_request_us.is_some_and(|t| now_us.saturating_sub(t) < STATE_REQUEST_US);
+        if stale && !asked {
+            self.servo_tx.send(servo, &BoardToServo::StateRequest);
+            self.last_request_us = Some(now_us);
+        }
+        if self.servo_wd.tripped() {
+            return; // Not streaming until the servos answer again.
+        }
+        let posture = if self.face_wd.tripped() { self.motion.hold_still() } else { self.motion.tick() };
+        let Some(p) = posture else { return };
+        if !self.stiffness_sent {
+            self.stiffness_sent = self.servo_tx.send(servo, &BoardToServo::Stiffness { on: true });
+        }
+        let mut targets = heapless::Vec::new();
+        for (j, a) in REACH_JOINTS.iter().zip(p) {
+            // The last line of defence: only angles the joint table accepts are ever sent.
+            match j.validate(a) {
+                Ok(a) => {
+                    let _ = targets.push(JointTarget { joint: *j, position: a });
+                }
+                Err(_) => self.clamped_targets = self.clamped_targets.saturating_add(1),
+            }
+        }
+        self.servo_tx.send(servo, &BoardToServo::Targets { time_ms, targets });
+    }
+}

@@ -1,0 +1,93 @@
+//! Golden vectors: a fixed set of frames through the whole pipeline, reduced to one digest.
+//!
+//! The frames are made from the model itself (its predicted face at a few head poses, plus
+//! deterministic noise and square marks), so any blob works and nothing has to be shipped.
+//! Every intermediate result that matters goes into a CRC-32: the predicted face, the mask,
+//! the winning blob, the centroid and reach bits. Run it on the host and on the board with the
+//! same blob: equal digests mean bit-identical pipelines.
+
+use crate::pipeline::{detect, DetectError, Workspace};
+use crate::saliency::Settings;
+use msr_shared::blob::{Model, CRC32};
+
+/// Frames in the set.
+pub const FRAMES: u32 = 16;
+
+/// What the golden run gave.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GoldenReport {
+    pub frames: u32,
+    /// Frames whose winner was found.
+    pub detections: u32,
+    /// CRC-32 over every frame's results.
+    pub digest: u32,
+}
+
+struct XorShift(u32);
+
+impl XorShift {
+    fn next(&mut self) -> u32 {
+        let mut x = self.0;
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        self.0 = x;
+        x
+    }
+}
+
+/// The head pose of golden frame `i`: a grid inside +-5 degrees.
+pub fn head_pose(i: u32) -> [f32; 2] {
+    let step = 0.0175f32; // about one degree
+    [((i * 7) % 11) as f32 * step - 5.0 * step, ((i * 5) % 9) as f32 * step - 4.0 * step]
+}
+
+/// Runs the golden frames. `crop` is scratch for one face (at least `face_h * face_w` bytes).
+pub fn run(ws: &mut Workspace, model: &Model, crop: &mut [u8]) -> Result<GoldenReport, DetectError> {
+    let (h, w) = (model.face_h as usize, model.face_w as usize);
+    let n = h * w;
+    let crop = crop.get_mut(..n).ok_or(DetectError::CropSize)?;
+    let settings = Settings::of(model);
+    let mut digest = CRC32.digest();
+    let mut detections = 0;
+    for i in 0..FRAMES {
+        let head = head_pose(i);
+        let face = ws.decoder.predict_uncached(model, head)?;
+        for v in face {
+            digest.update(&v.to_le_bytes());
+        }
+        let mut rng = XorShift(0x9E37_79B9 ^ (i + 1).wrapping_mul(0x85EB_CA6B));
+        for (c, &p) in crop.iter_mut().zip(face) {
+            let noise = (rng.next() % 7) as i32 - 3;
+            *c = (((p as i32 + 128) >> 8) + noise).clamp(0, 255) as u8;
+        }
+        // Odd frames carry a square mark of a random grey somewhere on the face.
+        if i % 2 == 1 {
+            let side = 7.min(h).min(w);
+            let y0 = rng.next() as usize % (h - side + 1);
+            let x0 = rng.next() as usize % (w - side + 1);
+            let grey = (rng.next() % 256) as u8;
+            for y in y0..y0 + side {
+                crop[y * w + x0..y * w + x0 + side].fill(grey);
+            }
+        }
+        let offset = [(i * 3) as u16, (i * 2) as u16];
+        let det = detect(ws, model, &settings, crop, offset, head)?;
+        for &m in ws.mask(n) {
+            digest.update(&[m]);
+        }
+        if let Some(b) = det.blob {
+            detections += 1;
+            for v in [b.area, b.x0 as u32, b.y0 as u32, b.x1 as u32, b.y1 as u32, b.sum_x, b.sum_y, b.first] {
+                digest.update(&v.to_le_bytes());
+            }
+        }
+        for c in det.centroid.iter().flatten().chain(det.reach.iter().flatten()) {
+            digest.update(&c.to_bits().to_le_bytes());
+        }
+        for v in [det.salient_pixels, det.blobs.components, det.blobs.overflow as u32] {
+            digest.update(&v.to_le_bytes());
+        }
+    }
+    Ok(GoldenReport { frames: FRAMES, detections, digest: digest.finalize() })
+}

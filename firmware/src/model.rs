@@ -1,0 +1,197 @@
+//! The running model and model uploads.
+//!
+//! A model blob comes built in (flash) or over the host link in chunks. Uploads go to a staging
+//! area behind [`ModelStore`], so a binary can put it in RAM ([`RamStore`]) or flash. Nothing
+//! changes until the whole upload arrived, its CRC-32 matches what `ModelBegin` announced and
+//! `Model::parse` (plus [`crate::decoder::check_scales`]) accepts it; only then does the store
+//! swap staging and active. A bad upload leaves the previous model running.
+
+use crate::decoder;
+use msr_shared::blob::{BlobError, Model, CRC32};
+
+/// Why an upload step was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum UploadError {
+    /// Larger than the staging area.
+    TooLarge,
+    /// A chunk out of order or past the announced length, or a commit without a begin.
+    Sequence,
+    /// The staging area could not be written (flash error).
+    Store,
+    /// All bytes arrived but their CRC-32 differs from the announced one.
+    Crc,
+    /// The blob failed validation.
+    Invalid(BlobError),
+}
+
+impl UploadError {
+    /// The `detail` number sent with the error.
+    pub fn detail(&self) -> u32 {
+        match self {
+            UploadError::TooLarge => 1,
+            UploadError::Sequence => 2,
+            UploadError::Store => 3,
+            UploadError::Crc => 4,
+            UploadError::Invalid(e) => e.code(),
+        }
+    }
+}
+
+/// Where model blobs live: one active blob (or none) and a staging area for uploads.
+///
+/// Implementations keep blobs 4-byte aligned (the decoder's fast paths need aligned tables).
+pub trait ModelStore {
+    /// The blob in use, if any.
+    fn active(&self) -> Option<&[u8]>;
+    /// Bytes the staging area holds.
+    fn capacity(&self) -> usize;
+    /// Prepares staging for a blob of `len` bytes (e.g. erases flash).
+    fn begin(&mut self, len: usize) -> Result<(), UploadError>;
+    /// Writes `data` at `offset` into staging; `offset + data.len() <= len` is checked before.
+    fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError>;
+    /// The staged bytes, `len` of them.
+    fn staged(&self) -> &[u8];
+    /// Makes the staged blob the active one.
+    fn activate(&mut self);
+}
+
+#[repr(C, align(8))]
+struct Slot<const N: usize>([u8; N]);
+
+/// A store in RAM: two slots of `N` bytes (active and staging, swapped on commit), plus an
+/// optional built-in blob (e.g. in flash) that runs until the first good upload.
+pub struct RamStore<const N: usize> {
+    slots: [Slot<N>; 2],
+    lens: [usize; 2],
+    /// Which slot is active; `None`: the built-in blob (if any).
+    active: Option<usize>,
+    builtin: Option<&'static [u8]>,
+}
+
+impl<const N: usize> Default for RamStore<N> {
+    fn default() -> Self {
+        Self::new(None)
+    }
+}
+
+impl<const N: usize> RamStore<N> {
+    pub const fn new(builtin: Option<&'static [u8]>) -> Self {
+        RamStore { slots: [Slot([0; N]), Slot([0; N])], lens: [0; 2], active: None, builtin }
+    }
+
+    fn staging(&self) -> usize {
+        match self.active {
+            Some(i) => 1 - i,
+            None => 0,
+        }
+    }
+}
+
+impl<const N: usize> ModelStore for RamStore<N> {
+    fn active(&self) -> Option<&[u8]> {
+        match self.active {
+            Some(i) => Some(&self.slots[i].0[..self.lens[i]]),
+            None => self.builtin,
+        }
+    }
+    fn capacity(&self) -> usize {
+        N
+    }
+    fn begin(&mut self, len: usize) -> Result<(), UploadError> {
+        if len > N {
+            return Err(UploadError::TooLarge);
+        }
+        let s = self.staging();
+        self.lens[s] = len;
+        Ok(())
+    }
+    fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError> {
+        let s = self.staging();
+        let end = offset.checked_add(data.len()).ok_or(UploadError::Sequence)?;
+        let dst = self.slots[s].0.get_mut(offset..end).ok_or(UploadError::TooLarge)?;
+        dst.copy_from_slice(data);
+        Ok(())
+    }
+    fn staged(&self) -> &[u8] {
+        let s = self.staging();
+        &self.slots[s].0[..self.lens[s].min(N)]
+    }
+    fn activate(&mut self) {
+        self.active = Some(self.staging());
+    }
+}
+
+/// Validates a blob for this firmware: `Model::parse` and the scale chaining the decoder needs.
+pub fn validate(bytes: &[u8]) -> Result<Model<'_>, BlobError> {
+    let m = Model::parse(bytes)?;
+    if let Err(decoder::DecodeError::Scale(i)) = decoder::check_scales(&m) {
+        return Err(BlobError::Chain(i));
+    }
+    Ok(m)
+}
+
+/// An upload in progress.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Upload {
+    state: Option<UploadState>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct UploadState {
+    len: usize,
+    crc32: u32,
+    received: usize,
+}
+
+impl Upload {
+    pub const fn new() -> Self {
+        Upload { state: None }
+    }
+
+    pub fn in_progress(&self) -> bool {
+        self.state.is_some()
+    }
+
+    /// `ModelBegin`: starts over, whatever was in progress.
+    pub fn begin<S: ModelStore>(&mut self, store: &mut S, len: u32, crc32: u32) -> Result<(), UploadError> {
+        self.state = None;
+        let len = len as usize;
+        if len > store.capacity() {
+            return Err(UploadError::TooLarge);
+        }
+        store.begin(len)?;
+        self.state = Some(UploadState { len, crc32, received: 0 });
+        Ok(())
+    }
+
+    /// `ModelChunk`: chunks must come in order; a gap or overlap aborts the upload.
+    pub fn chunk<S: ModelStore>(&mut self, store: &mut S, offset: u32, data: &[u8]) -> Result<(), UploadError> {
+        let Some(st) = self.state.as_mut() else { return Err(UploadError::Sequence) };
+        let end = (offset as usize).checked_add(data.len());
+        if offset as usize != st.received || end.is_none_or(|e| e > st.len) {
+            self.state = None;
+            return Err(UploadError::Sequence);
+        }
+        if let Err(e) = store.write(offset as usize, data) {
+            self.state = None;
+            return Err(e);
+        }
+        st.received += data.len();
+        Ok(())
+    }
+
+    /// `ModelCommit`: checks and switches. Returns the new model's CRC (its identity).
+    pub fn commit<S: ModelStore>(&mut self, store: &mut S) -> Result<u32, UploadError> {
+        let st = self.state.take().ok_or(UploadError::Sequence)?;
+        if st.received != st.len {
+            return Err(UploadError::Sequence);
+        }
+        let bytes = store.staged();
+        if bytes.len() != st.len || CRC32.checksum(bytes) != st.crc32 {
+            return Err(UploadError::Crc);
+        }
+        let crc = validate(bytes).map_err(UploadError::Invalid)?.crc32;
+        store.activate();
+        Ok(crc)
+    }
+}

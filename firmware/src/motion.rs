@@ -1,0 +1,243 @@
+//! Motion: observe -> reach -> hold -> return home -> observe, streamed every 10 ms.
+//!
+//! Each 10 ms step moves every commanded angle towards its goal by at most
+//! `speed_fraction * max_velocity * 0.01` rad (default fraction 0.1, as the published robot's
+//! `JointAnglesWithSpeed`), and every commanded angle is clamped to the joint limits: a target
+//! outside them is never produced, whatever goal was asked for. Streaming starts from the
+//! positions the servos report, so the first target is where the arm already is.
+
+use msr_shared::joints::{DEFAULT_SPEED_FRACTION, HOME_POSTURE, REACH_JOINTS};
+
+/// The control period: Nao's DCM cycle.
+pub const PERIOD_US: u64 = 10_000;
+/// How long a reach is held before going home (the published 5 s).
+pub const DEFAULT_HOLD_MS: u32 = 5_000;
+/// Longest hold the host may configure.
+pub const MAX_HOLD_MS: u32 = 60_000;
+
+const N: usize = REACH_JOINTS.len();
+
+/// Where the behaviour is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// At (or settling to) the home posture, watching for a mark.
+    Observe,
+    /// Moving to the reach target.
+    Reach,
+    /// At the target, for the hold time.
+    Hold,
+    /// Going back home.
+    Return,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Motion {
+    /// Last commanded posture; `None` until the servos' positions are known.
+    commanded: Option<[f32; N]>,
+    goal: [f32; N],
+    phase: Phase,
+    hold_ticks_left: u32,
+    speed_fraction: f32,
+    hold_ms: u32,
+}
+
+impl Default for Motion {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Clamps a posture into the limits; NaN goes to the joint's home angle.
+fn safe(p: [f32; N]) -> [f32; N] {
+    let mut out = HOME_POSTURE;
+    for i in 0..N {
+        if let Ok(v) = REACH_JOINTS[i].clamp(p[i]) {
+            out[i] = v;
+        }
+    }
+    out
+}
+
+impl Motion {
+    pub const fn new() -> Self {
+        Motion {
+            commanded: None,
+            goal: HOME_POSTURE,
+            phase: Phase::Observe,
+            hold_ticks_left: 0,
+            speed_fraction: DEFAULT_SPEED_FRACTION,
+            hold_ms: DEFAULT_HOLD_MS,
+        }
+    }
+
+    pub fn phase(&self) -> Phase {
+        self.phase
+    }
+
+    /// The arm is away from home or moving: detection pauses.
+    pub fn arm_up(&self) -> bool {
+        self.phase != Phase::Observe
+    }
+
+    pub fn commanded(&self) -> Option<[f32; N]> {
+        self.commanded
+    }
+
+    pub fn speed_fraction(&self) -> f32 {
+        self.speed_fraction
+    }
+
+    pub fn hold_ms(&self) -> u32 {
+        self.hold_ms
+    }
+
+    /// Largest step of joint `i` per period.
+    pub fn max_step(&self, i: usize) -> f32 {
+        REACH_JOINTS[i].limits().map_or(0.0, |l| l.max_velocity) * self.speed_fraction * 0.01
+    }
+
+    /// Sets the speed fraction; refused unless `0 < f <= 1`.
+    pub fn set_speed_fraction(&mut self, f: f32) -> bool {
+        if f.is_finite() && f > 0.0 && f <= 1.0 {
+            self.speed_fraction = f;
+            true
+        } else {
+            false
+        }
+    }
+
+    /// Sets the hold time; refused above [`MAX_HOLD_MS`].
+    pub fn set_hold_ms(&mut self, ms: u32) -> bool {
+        if ms <= MAX_HOLD_MS {
+            self.hold_ms = ms;
+            true
+        } else {
+            false
+        }
+    }
+
+    /// (Re)starts streaming from the measured posture.
+    pub fn start_from(&mut self, measured: [f32; N]) {
+        self.commanded = Some(safe(measured));
+    }
+
+    /// Stops streaming until [`start_from`](Self::start_from) (the servo link was lost).
+    pub fn stop(&mut self) {
+        self.commanded = None;
+    }
+
+    /// Starts a reach; only from `Observe` with streaming running. The target is clamped.
+    pub fn reach(&mut self, target: [f32; N]) -> bool {
+        if self.phase != Phase::Observe || self.commanded.is_none() {
+            return false;
+        }
+        self.goal = safe(target);
+        self.phase = Phase::Reach;
+        true
+    }
+
+    /// Abandons a reach or hold and goes home.
+    pub fn go_home(&mut self) {
+        if self.phase != Phase::Observe {
+            self.phase = Phase::Return;
+        }
+        self.goal = HOME_POSTURE;
+    }
+
+    /// One control period: advances towards the goal and through the phases. Returns the posture
+    /// to send, inside the limits, or `None` while not streaming.
+    pub fn tick(&mut self) -> Option<[f32; N]> {
+        let mut c = self.commanded?;
+        let mut arrived = true;
+        for i in 0..N {
+            let step = self.max_step(i);
+            let d = (self.goal[i] - c[i]).clamp(-step, step);
+            c[i] = if (self.goal[i] - c[i]).abs() <= step { self.goal[i] } else { c[i] + d };
+            arrived &= c[i] == self.goal[i];
+        }
+        let c = safe(c);
+        self.commanded = Some(c);
+        match self.phase {
+            Phase::Reach if arrived => {
+                self.phase = Phase::Hold;
+                self.hold_ticks_left = self.hold_ms.div_ceil((PERIOD_US / 1000) as u32);
+            }
+            Phase::Hold => {
+                self.hold_ticks_left = self.hold_ticks_left.saturating_sub(1);
+                if self.hold_ticks_left == 0 {
+                    self.go_home();
+                }
+            }
+            Phase::Return if arrived => self.phase = Phase::Observe,
+            _ => {}
+        }
+        Some(c)
+    }
+
+    /// The posture to send while holding still: the last commanded one, unchanged.
+    pub fn hold_still(&self) -> Option<[f32; N]> {
+        self.commanded
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn reach_hold_return_cycle() {
+        let mut m = Motion::new();
+        assert_eq!(m.tick(), None, "nothing is sent before the servos report");
+        m.start_from(HOME_POSTURE);
+        let target = [0.5, -0.3, -0.2, 0.1, -1.3];
+        assert!(m.reach(target));
+        assert!(!m.reach(HOME_POSTURE), "a second reach while one runs is refused");
+        let mut prev = HOME_POSTURE;
+        let mut ticks = 0;
+        while m.phase() == Phase::Reach {
+            let c = m.tick().unwrap();
+            for i in 0..N {
+                assert!((c[i] - prev[i]).abs() <= m.max_step(i) * 1.0001);
+            }
+            prev = c;
+            ticks += 1;
+            assert!(ticks < 10_000);
+        }
+        assert_eq!(m.commanded(), Some(target));
+        // LShoulderPitch moves 1.602 rad at 0.1 * 8.26797 rad/s: about 1.94 s.
+        assert!((190..=200).contains(&ticks), "{ticks}");
+        let mut hold = 0;
+        while m.phase() == Phase::Hold {
+            assert_eq!(m.tick(), Some(target));
+            hold += 1;
+        }
+        assert_eq!(hold, 500);
+        assert_eq!(m.phase(), Phase::Return);
+        while m.phase() == Phase::Return {
+            m.tick();
+        }
+        assert_eq!(m.commanded(), Some(HOME_POSTURE));
+    }
+
+    #[test]
+    fn goals_outside_limits_are_clamped_and_nan_refused() {
+        let mut m = Motion::new();
+        m.start_from([9.0, f32::NAN, -9.0, f32::INFINITY, 0.0]);
+        let c = m.commanded().unwrap();
+        for (j, a) in REACH_JOINTS.iter().zip(c) {
+            assert!(j.validate(a).is_ok(), "{j} {a}");
+        }
+        assert!(m.reach([100.0, -100.0, f32::NAN, 3.0, 1.0]));
+        for _ in 0..2000 {
+            let c = m.tick().unwrap();
+            for (j, a) in REACH_JOINTS.iter().zip(c) {
+                assert!(j.validate(a).is_ok(), "{j} {a}");
+            }
+        }
+        assert!(!m.set_speed_fraction(0.0));
+        assert!(!m.set_speed_fraction(f32::NAN));
+        assert!(!m.set_speed_fraction(1.5));
+        assert!(m.set_speed_fraction(1.0));
+        assert!(!m.set_hold_ms(MAX_HOLD_MS + 1));
+    }
+}

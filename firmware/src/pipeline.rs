@@ -1,0 +1,153 @@
+//! One face frame through every detection stage: decoder, saliency, blobs, winner, reach.
+//!
+//! [`Workspace`] is the big state (activation buffers, threshold table, labeller; the mask lives
+//! in the decoder's spare buffer). It has no heap and a `const` constructor, so a binary can put
+//! it in a `static`. [`detect`] is the pure per-frame function the host tools and the board share.
+
+use crate::blobs::{Blob, FaceLabeller, Summary};
+use crate::decoder::{DecodeError, Decoder};
+use crate::reach;
+use crate::saliency::{self, Settings, Thresholds};
+use crate::winner::Winner;
+use msr_shared::blob::{Model, REACH_OUT};
+
+/// Why a frame was not processed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DetectError {
+    /// The crop is not `face_h * face_w` bytes.
+    CropSize,
+    /// The novelty settings are out of range.
+    Settings,
+    Decode(DecodeError),
+}
+
+impl core::fmt::Display for DetectError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            DetectError::CropSize => f.write_str("face crop size differs from the model's face size"),
+            DetectError::Settings => f.write_str("novelty settings out of range"),
+            DetectError::Decode(e) => write!(f, "decoder: {e}"),
+        }
+    }
+}
+
+impl From<DecodeError> for DetectError {
+    fn from(e: DecodeError) -> Self {
+        DetectError::Decode(e)
+    }
+}
+
+/// What one frame gave.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FaceDetection {
+    /// The winning component, in crop pixels.
+    pub blob: Option<Blob>,
+    /// Its centroid in full-frame pixels (crop offset + crop centroid), `[x, y]`.
+    pub centroid: Option<[f32; 2]>,
+    /// Reach targets for `REACH_JOINTS`, clamped to the limits.
+    pub reach: Option<[f32; REACH_OUT]>,
+    /// Reach angles that had to be clamped.
+    pub reach_clamped: u32,
+    pub salient_pixels: u32,
+    /// All components found, and whether the labeller overflowed.
+    pub blobs: Summary,
+}
+
+/// Scratch and caches for [`detect`]; about 55 KiB.
+pub struct Workspace {
+    pub decoder: Decoder,
+    pub thresholds: Thresholds,
+    pub labeller: FaceLabeller,
+}
+
+impl Default for Workspace {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Workspace {
+    pub const fn new() -> Self {
+        Workspace { decoder: Decoder::new(), thresholds: Thresholds::new(), labeller: FaceLabeller::new() }
+    }
+
+    /// Forgets every cache (call after a model change; [`detect`] also notices one by its CRC).
+    pub fn invalidate(&mut self) {
+        self.decoder.invalidate();
+        self.thresholds.invalidate();
+    }
+
+    /// Stage 1: the predicted face (cached per head pose).
+    pub fn decode(&mut self, model: &Model, head: [f32; 2]) -> Result<&[u16], DecodeError> {
+        self.decoder.predict(model, head)
+    }
+
+    /// Stage 2: the saliency mask of `crop` against the last predicted face; returns the count
+    /// of salient pixels. Call [`decode`](Self::decode) first. The mask is [`mask`](Self::mask).
+    pub fn saliency(&mut self, model: &Model, s: &Settings, crop: &[u8]) -> Result<u32, DetectError> {
+        if crop.len() != model.face_pixels() {
+            return Err(DetectError::CropSize);
+        }
+        if !s.is_valid() {
+            return Err(DetectError::Settings);
+        }
+        self.thresholds.prepare(model, s);
+        let (face, mask) = self.decoder.face_and_scratch();
+        let face = face.ok_or(DetectError::Decode(DecodeError::BadInput))?;
+        if face.len() != crop.len() || mask.len() < crop.len() {
+            return Err(DetectError::CropSize);
+        }
+        Ok(saliency::saliency(crop, face, model.mu, self.thresholds.table(), s.sided, mask))
+    }
+
+    /// The mask of the last [`saliency`](Self::saliency) call (1 = salient).
+    pub fn mask(&mut self, pixels: usize) -> &[u8] {
+        let m = self.decoder.scratch();
+        let n = pixels.min(m.len());
+        &m[..n]
+    }
+
+    /// Stage 3 and 4: components of the mask, and the winner among them.
+    pub fn blobs(&mut self, model: &Model, min_area: u16) -> (Option<Blob>, Summary) {
+        let (w, h) = (model.face_w as usize, model.face_h as usize);
+        let mut winner = Winner::new(min_area);
+        let mask = self.decoder.scratch();
+        let summary = self
+            .labeller
+            .label(mask, w, h, |b| winner.offer(b))
+            .unwrap_or(Summary { overflow: true, ..Summary::default() });
+        (winner.best, summary)
+    }
+}
+
+/// The whole per-frame pipeline on one face crop (`face_h x face_w` grey bytes, row-major) at
+/// `offset = [x, y]` in the camera frame, seen with the head at `head = [HeadYaw, HeadPitch]`
+/// (radians, as the servos report them).
+pub fn detect(
+    ws: &mut Workspace,
+    model: &Model,
+    settings: &Settings,
+    crop: &[u8],
+    offset: [u16; 2],
+    head: [f32; 2],
+) -> Result<FaceDetection, DetectError> {
+    if crop.len() != model.face_pixels() {
+        return Err(DetectError::CropSize);
+    }
+    ws.decode(model, head)?;
+    let salient_pixels = ws.saliency(model, settings, crop)?;
+    let (blob, blobs) = ws.blobs(model, settings.min_area);
+    let centroid = blob.map(|b| {
+        let c = b.centroid();
+        [c[0] + offset[0] as f32, c[1] + offset[1] as f32]
+    });
+    let clamped = centroid.and_then(|c| reach::targets(&model.reach, c));
+    Ok(FaceDetection {
+        blob,
+        centroid,
+        reach: clamped.map(|(a, _)| a),
+        reach_clamped: clamped.map_or(0, |(_, n)| n),
+        salient_pixels,
+        blobs,
+    })
+}
