@@ -7,12 +7,20 @@
 //! DIR/template.png        the robot's face template for the crop (grey)
 //! DIR/frames/000000.png   320 x 240 camera frames (RGB), the mirror view
 //! DIR/masks/000123.png    for marked frames: the mark's pixel mask (full frame, 0 or 255)
+//! DIR/reach_centroids.csv reach training inputs: one "x,y" row per pair, the mark's position in
+//!                         full-frame pixels at head (0, 0), rounded (as the published
+//!                         centroid_samples.csv); optional
+//! DIR/reach_joints.csv    reach training targets, row for row: "HeadYaw,HeadPitch,LShoulderPitch,
+//!                         LShoulderRoll,LElbowRoll" in radians that touch that mark (made by the
+//!                         sim's IK; as the published arm_samples.csv); optional
 //! ```
 use serde::{Deserialize, Serialize};
 
 pub const INDEX_FILE: &str = "dataset.json";
 pub const ANGLES_FILE: &str = "head_angles.csv";
 pub const TEMPLATE_FILE: &str = "template.png";
+pub const REACH_CENTROIDS_FILE: &str = "reach_centroids.csv";
+pub const REACH_JOINTS_FILE: &str = "reach_joints.csv";
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
