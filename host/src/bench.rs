@@ -1,9 +1,444 @@
 //! `msr bench`: instruction counts, memory and code size of the firmware pipeline.
-use anyhow::{bail, Result};
+//!
+//! Two backends:
+//! - `qemu` (default): the benchmark image (`msr-qemu-bench`) runs under QEMU's mps2-an386
+//!   Cortex-M4 with `-icount shift=0`; stage figures are emulated instructions per frame
+//!   (SysTick, 40-instruction resolution), the mean over 4 built-in frames (two with a mark),
+//!   the decoder always run in full (uncached). Stack peak: painted stack of the benchmark run.
+//!   Static RAM and code size: the board image (`msr-qemu`) as linked, read from its ELF
+//!   (what runs on the robot); flash = code + the model blob.
+//! - `host`: the same library stages on this PC, timed with the OS clock; stage figures are
+//!   nanoseconds per frame (median of the repetitions), `"unit": "ns"`. It says how fast the host
+//!   tools run the pipeline and nothing about the board: instruction, RAM, flash and stack
+//!   figures are `null` there.
+//!
+//! Models: `--model FILE` (repeatable) benchmarks those blobs. Without it, two blobs are made
+//! here with the architectures of the default conv decoder and the published MLP decoder
+//! (58 x 75), deterministic pseudo-random weights, i16; the output says `"source": "synthetic"`.
+//! Timing does not depend on the weight values, only on shapes and types.
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, ensure, Context, Result};
+use msr_firmware::pipeline::Workspace;
+use msr_firmware::reach;
+use msr_firmware::saliency::Settings;
+use msr_shared::blob::{
+    LayerKind, LayerSpec, Model, ModelSpec, Normalisation, Novelty, Reach, Sided, Weights,
+};
+use msr_shared::joints::{REACH_JOINTS, HOME_POSTURE};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde_json::{json, Value};
+
+use crate::models::{ArchKind, DecoderSpec};
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Backend {
+    /// The Cortex-M4 image under QEMU: emulated instructions.
+    Qemu,
+    /// This PC, in-process: nanoseconds.
+    Host,
+}
 
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    #[arg(long, value_enum, default_value = "qemu")]
+    pub backend: Backend,
+    /// Model blob(s) to benchmark; default: synthetic conv and published-MLP blobs, 58 x 75.
+    #[arg(long)]
+    pub model: Vec<PathBuf>,
+    /// Print JSON (one object per model, a list when several) instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write the benchmarked blobs to DIR as `<model>.msrm` (e.g. to build one into an
+    /// image with `MSR_MODEL_BLOB`).
+    #[arg(long, value_name = "DIR")]
+    pub save_models: Option<PathBuf>,
+    /// Host backend: repetitions per stage and frame.
+    #[arg(long, default_value_t = 50)]
+    pub reps: usize,
+}
 
-pub fn run(_args: Args) -> Result<()> {
-    bail!("`msr bench` is not implemented yet")
+/// Face size of the default models (the published crop).
+pub const FACE: (u16, u16) = (58, 75);
+/// Targets from the firmware issue.
+pub const TARGET_INSTR_PER_MAC: f64 = 1.0;
+pub const TARGET_POST_DECODER_PER_PIXEL: f64 = 30.0;
+pub const TARGET_STATIC_RAM: u64 = 64 * 1024;
+pub const TARGET_STACK: u64 = 8 * 1024;
+pub const TARGET_CODE: u64 = 128 * 1024;
+
+/// One model to benchmark.
+pub struct BenchModel {
+    /// `"conv"`, `"published-mlp"`, or the file stem for another architecture.
+    pub name: String,
+    /// `"synthetic"` or the file it came from.
+    pub source: String,
+    pub blob: Vec<u8>,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let models = if args.model.is_empty() {
+        vec![synthetic(ArchKind::Conv)?, synthetic(ArchKind::Mlp)?]
+    } else {
+        args.model.iter().map(|p| from_file(p)).collect::<Result<Vec<_>>>()?
+    };
+    if let Some(dir) = &args.save_models {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        for m in &models {
+            let p = dir.join(format!("{}.msrm", m.name));
+            std::fs::write(&p, &m.blob).with_context(|| format!("writing {}", p.display()))?;
+            eprintln!("wrote {} ({} bytes)", p.display(), m.blob.len());
+        }
+    }
+    let mut out = Vec::new();
+    for m in &models {
+        let v = match args.backend {
+            Backend::Qemu => bench_qemu(m)?,
+            Backend::Host => bench_host(m, args.reps.max(1))?,
+        };
+        if !args.json {
+            print_table(&v);
+        }
+        out.push(v);
+    }
+    if args.json {
+        let v = if out.len() == 1 { out.remove(0) } else { Value::Array(out) };
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    }
+    Ok(())
+}
+
+/// Reads a blob and names it by its architecture.
+pub fn from_file(path: &Path) -> Result<BenchModel> {
+    let blob = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    let model = Model::parse(&blob).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let name = arch_name(&model).unwrap_or_else(|| {
+        path.file_stem().map_or("model".into(), |s| s.to_string_lossy().into_owned())
+    });
+    drop(model);
+    Ok(BenchModel { name, source: path.display().to_string(), blob })
+}
+
+/// `"conv"` for a decoder with convolutions, `"published-mlp"` for 2-12-64-128-(h*w).
+pub fn arch_name(model: &Model) -> Option<String> {
+    let conv = model
+        .layers
+        .iter()
+        .any(|l| matches!(l.kind, LayerKind::ConvTranspose2d | LayerKind::UpConv));
+    let widths: Vec<usize> = model.layers.iter().map(|l| l.output.len()).collect();
+    if conv {
+        Some("conv".into())
+    } else if widths == [12, 64, 128, model.face_pixels()] {
+        Some("published-mlp".into())
+    } else {
+        None
+    }
+}
+
+/// A blob with the architecture of `kind` at 58 x 75 and deterministic weights.
+pub fn synthetic(kind: ArchKind) -> Result<BenchModel> {
+    let (h, w) = FACE;
+    let spec = DecoderSpec::new(kind, h as usize, w as usize);
+    let shapes = spec.layer_shapes()?;
+    let mut rng = ChaCha8Rng::seed_from_u64(0x6d73_725f_6265_6e63);
+    // Angles of a few tenths of a radian in Q12; activations in Q14 (tanh and sigmoid <= 1).
+    let mut in_shift = 12i8;
+    let act_shift = 14i8;
+    let mut layers = Vec::new();
+    for (kind, act, input, output) in shapes {
+        let (n_w, n_b, fan_in) = match kind {
+            LayerKind::Dense => (input.len() * output.len(), output.len(), input.len()),
+            LayerKind::ConvTranspose2d => {
+                let k = spec.conv.as_ref().map_or(1, |c| c.kernel);
+                (input.c as usize * output.c as usize * k * k, output.c as usize, output.c as usize * k * k)
+            }
+            _ => (0, 0, 1),
+        };
+        let (kernel, stride, padding, crop) = match (&spec.conv, kind) {
+            (Some(c), LayerKind::ConvTranspose2d) => (c.kernel as u8, c.stride as u8, c.padding as u8, [0, 0]),
+            (Some(c), LayerKind::Crop) => (0, 0, 0, [c.crop[0] as u16, c.crop[1] as u16]),
+            _ => (0, 0, 0, [0, 0]),
+        };
+        let bound = 1.0 / (fan_in as f64).sqrt();
+        // As many weight bits as fit, keeping |acc| < 2^30 for inputs up to 1.0.
+        let taps = (fan_in as f64).log2().ceil() as i32;
+        let w_shift = ((32767.0 / bound).log2().floor() as i32).min(30 - in_shift as i32 - taps).clamp(0, 31) as i8;
+        let scale = (w_shift as f64).exp2();
+        let weights: Vec<i16> =
+            (0..n_w).map(|_| (rng.gen_range(-bound..bound) * scale).round() as i16).collect();
+        let acc_scale = ((w_shift + in_shift) as f64).exp2();
+        let bias: Vec<i32> =
+            (0..n_b).map(|_| (rng.gen_range(-bound..bound) * acc_scale).round() as i32).collect();
+        let out_shift = if kind == LayerKind::Crop { in_shift } else { act_shift };
+        layers.push(LayerSpec {
+            kind,
+            activation: act,
+            input,
+            output,
+            kernel,
+            stride,
+            padding,
+            crop_top: crop[0],
+            crop_left: crop[1],
+            w_shift: if kind == LayerKind::Crop { 0 } else { w_shift },
+            in_shift,
+            out_shift,
+            weights: Weights::I16(weights),
+            bias,
+        });
+        in_shift = out_shift;
+    }
+    let n = h as usize * w as usize;
+    // Error statistics: mean 3 grey levels, sigma 1.5..3.5, in Q8.8.
+    let mu = vec![3 * 256; n];
+    let sigma = (0..n).map(|i| (384 + (i * 37 % 512)) as u16).collect();
+    let mut r = |n: usize| (0..n).map(|_| rng.gen_range(-2.0f32..2.0)).collect::<Vec<f32>>();
+    let (w1, b1, w2, b2) = (r(20), r(10), r(50), r(5));
+    let mut out_min = [0f32; 5];
+    let mut out_max = [0f32; 5];
+    for (i, (j, home)) in REACH_JOINTS.iter().zip(HOME_POSTURE).enumerate() {
+        let l = j.limits().context("reach joints have limits")?;
+        out_min[i] = (home - 0.5).max(l.min);
+        out_max[i] = (home + 0.5).min(l.max);
+    }
+    let reach = Reach::from_parts(&w1, &b1, &w2, &b2, [0.0, 0.0], [320.0, 240.0], out_min, out_max)
+        .map_err(|e| anyhow::anyhow!("synthetic reach net: {e}"))?;
+    let spec = ModelSpec {
+        face_h: h,
+        face_w: w,
+        novelty: Novelty {
+            threshold: 4.59,
+            normalisation: Normalisation::StdDev,
+            sided: Sided::Two,
+            min_area: 30,
+            sigma_floor: 1.0,
+        },
+        layers,
+        mu,
+        sigma,
+        reach,
+        template: None,
+    };
+    let blob = spec.to_bytes().map_err(|e| anyhow::anyhow!("synthetic {kind:?} blob: {e}"))?;
+    let name = match kind {
+        ArchKind::Conv => "conv",
+        ArchKind::Mlp => "published-mlp",
+    };
+    Ok(BenchModel { name: name.into(), source: "synthetic".into(), blob })
+}
+
+/// Head poses of the benchmark frames; the QEMU image uses the same ones.
+pub const POSES: [[f32; 2]; 4] = [[0.0, 0.0], [0.05, -0.03], [-0.07, 0.02], [0.02, 0.06]];
+const MARK: usize = 15;
+const MARK_GREY: u8 = 226;
+
+/// The benchmark frames, made as the QEMU bench image makes them: prediction, +-2 noise,
+/// a 15 x 15 mark of grey 226 on even frames.
+pub fn frames(model: &Model, ws: &mut Workspace) -> Result<Vec<Vec<u8>>> {
+    let (h, w) = (model.face_h as usize, model.face_w as usize);
+    let mut rng = 0x1234_5678u32;
+    let mut noise = || {
+        rng = rng.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+        ((rng >> 24) % 5) as i32 - 2
+    };
+    let mut out = Vec::new();
+    for (k, head) in POSES.iter().enumerate() {
+        let face = ws.decode(model, *head).map_err(|e| anyhow::anyhow!("decoder: {e}"))?;
+        let mut frame: Vec<u8> =
+            face.iter().map(|&q| (((q as i32 + 128) >> 8) + noise()).clamp(0, 255) as u8).collect();
+        if k % 2 == 0 && h >= MARK && w >= MARK {
+            let (y0, x0) = ((h - MARK) * (k + 1) / 5, (w - MARK) * (4 - k) / 5);
+            for y in y0..y0 + MARK {
+                frame[y * w + x0..y * w + x0 + MARK].fill(MARK_GREY);
+            }
+        }
+        out.push(frame);
+    }
+    Ok(out)
+}
+
+fn median(mut v: Vec<Duration>) -> f64 {
+    v.sort();
+    v[v.len() / 2].as_nanos() as f64
+}
+
+/// The library's stages on this PC.
+pub fn bench_host(m: &BenchModel, reps: usize) -> Result<Value> {
+    let model = Model::parse(&m.blob).map_err(|e| anyhow::anyhow!("{}: {e}", m.source))?;
+    let mut ws = Box::new(Workspace::new());
+    let settings = Settings::of(&model);
+    let frames = frames(&model, &mut ws)?;
+    let (mut dec, mut sal, mut blo, mut rea) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (frame, head) in frames.iter().zip(POSES) {
+        for _ in 0..reps {
+            let t0 = Instant::now();
+            ws.decoder.predict_uncached(&model, head).map_err(|e| anyhow::anyhow!("decoder: {e}"))?;
+            let t1 = Instant::now();
+            ws.saliency(&model, &settings, frame).map_err(|e| anyhow::anyhow!("saliency: {e}"))?;
+            let t2 = Instant::now();
+            let (blob, _) = ws.blobs(&model, settings.min_area);
+            let t3 = Instant::now();
+            let c = blob.map_or([model.face_w as f32 / 2.0, model.face_h as f32 / 2.0], |b| b.centroid());
+            std::hint::black_box(reach::targets(&model.reach, c));
+            let t4 = Instant::now();
+            dec.push(t1 - t0);
+            sal.push(t2 - t1);
+            blo.push(t3 - t2);
+            rea.push(t4 - t3);
+        }
+    }
+    let stages = [median(dec), median(sal), median(blo), median(rea)];
+    let macs = model.decoder_macs();
+    Ok(json!({
+        "backend": "host",
+        "unit": "ns",
+        "model": m.name,
+        "source": m.source,
+        "face": [model.face_h, model.face_w],
+        "macs": macs,
+        "stages": {"decoder": stages[0], "saliency": stages[1], "blobs": stages[2], "reach": stages[3]},
+        "total_instructions": null,
+        "total_ns": stages.iter().sum::<f64>(),
+        "instructions_per_mac": null,
+        "ns_per_mac": stages[0] / macs.max(1) as f64,
+        "static_ram_bytes": null,
+        "flash_bytes": null,
+        "stack_peak_bytes": null,
+        "workspace_bytes": std::mem::size_of::<Workspace>(),
+    }))
+}
+
+/// The benchmark image under QEMU, plus the board image's sizes.
+pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
+    use msr_sim::qemu;
+    ensure!(
+        qemu::qemu_available(),
+        "{} is not installed: install qemu-system-arm (Debian: apt-get install qemu-system-arm) \
+         or use --backend host",
+        qemu::qemu_binary()
+    );
+    let model = Model::parse(&m.blob).map_err(|e| anyhow::anyhow!("{}: {e}", m.source))?;
+    let bench_image = qemu::find_image(qemu::BENCH_IMAGE)?;
+    let board_image = qemu::find_image(qemu::BOARD_IMAGE)?;
+    let blob = m.blob.clone();
+    let exit = qemu::run_image(&bench_image, Duration::from_secs(300), move |host, _| {
+        use std::io::Write;
+        host.write_all(b"MSRB")?;
+        host.write_all(&(blob.len() as u32).to_le_bytes())?;
+        host.write_all(&blob)?;
+        Ok(())
+    })?;
+    if let Some(l) = exit.output.lines().find(|l| l.starts_with("MSR-BENCH-ERROR")) {
+        bail!("the benchmark image refused: {l}");
+    }
+    exit.success()?;
+    let line = exit
+        .output
+        .lines()
+        .find_map(|l| l.strip_prefix("MSR-BENCH "))
+        .with_context(|| format!("no MSR-BENCH line in the image's output:\n{}", exit.output))?;
+    let r: Value = serde_json::from_str(line).with_context(|| format!("parsing {line}"))?;
+    let stage = |k: &str| r["stages"][k].as_u64().unwrap_or(0);
+    let stages = [stage("decoder"), stage("saliency"), stage("blobs"), stage("reach")];
+    let total: u64 = stages.iter().sum();
+    let macs = model.decoder_macs();
+    let pixels = model.face_pixels() as f64;
+    let board = elf_sizes(&board_image)?;
+    let code = board.flash;
+    let flash = code + m.blob.len() as u64;
+    let per_mac = stages[0] as f64 / macs.max(1) as f64;
+    let post = (stages[1] + stages[2] + stages[3]) as f64 / pixels;
+    let stack = r["stack_peak_bytes"].as_u64().unwrap_or(0);
+    Ok(json!({
+        "backend": "qemu",
+        "unit": "instructions",
+        "model": m.name,
+        "source": m.source,
+        "face": [model.face_h, model.face_w],
+        "macs": macs,
+        "stages": {"decoder": stages[0], "saliency": stages[1], "blobs": stages[2], "reach": stages[3]},
+        "total_instructions": total,
+        "instructions_per_mac": round3(per_mac),
+        "post_decoder_instructions_per_pixel": round3(post),
+        "static_ram_bytes": board.ram,
+        "flash_bytes": flash,
+        "code_bytes": code,
+        "model_bytes": m.blob.len(),
+        "stack_peak_bytes": stack,
+        "frames": r["frames"],
+        "marks_found": r["marks_found"],
+        "bench_image": {"static_ram_bytes": r["static_ram_bytes"], "code_bytes": r["code_bytes"]},
+        "targets": {
+            "instructions_per_mac": {"max": TARGET_INSTR_PER_MAC, "met": per_mac <= TARGET_INSTR_PER_MAC},
+            "post_decoder_instructions_per_pixel": {"max": TARGET_POST_DECODER_PER_PIXEL, "met": post <= TARGET_POST_DECODER_PER_PIXEL},
+            "static_ram_bytes": {"max": TARGET_STATIC_RAM, "met": board.ram <= TARGET_STATIC_RAM},
+            "stack_peak_bytes": {"max": TARGET_STACK, "met": stack <= TARGET_STACK},
+            "code_bytes": {"max": TARGET_CODE, "met": code <= TARGET_CODE},
+        },
+    }))
+}
+
+fn round3(x: f64) -> f64 {
+    (x * 1000.0).round() / 1000.0
+}
+
+/// Allocated sections of a linked image.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct ElfSizes {
+    /// Vector table, code, read-only data, and .data's initial values: what is programmed.
+    pub flash: u64,
+    /// .data, .bss, .uninit: RAM that is not stack.
+    pub ram: u64,
+}
+
+/// Reads the section table of a 32-bit little-endian ELF file. Sections below `0x2000_0000` are
+/// flash, those from it on RAM; `NOBITS` sections in flash (the model upload area) are not
+/// programmed and not counted.
+pub fn elf_sizes(path: &Path) -> Result<ElfSizes> {
+    let b = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
+    ensure!(b.len() >= 52 && b[..4] == *b"\x7fELF" && b[4] == 1 && b[5] == 1, "{} is not a 32-bit little-endian ELF file", path.display());
+    let u16_at = |o: usize| -> Result<u64> {
+        Ok(u16::from_le_bytes(b.get(o..o + 2).context("truncated ELF")?.try_into()?) as u64)
+    };
+    let u32_at = |o: usize| -> Result<u64> {
+        Ok(u32::from_le_bytes(b.get(o..o + 4).context("truncated ELF")?.try_into()?) as u64)
+    };
+    let (shoff, shentsize, shnum) = (u32_at(0x20)?, u16_at(0x2E)?, u16_at(0x30)?);
+    const SHF_ALLOC: u64 = 2;
+    const SHT_NOBITS: u64 = 8;
+    const RAM: u64 = 0x2000_0000;
+    let mut s = ElfSizes::default();
+    for i in 0..shnum {
+        let h = (shoff + i * shentsize) as usize;
+        let (kind, flags, addr, size) = (u32_at(h + 4)?, u32_at(h + 8)?, u32_at(h + 12)?, u32_at(h + 20)?);
+        if flags & SHF_ALLOC == 0 || size == 0 {
+            continue;
+        }
+        if addr >= RAM {
+            s.ram += size;
+            if kind != SHT_NOBITS {
+                s.flash += size; // initial values of .data
+            }
+        } else if kind != SHT_NOBITS {
+            s.flash += size;
+        }
+    }
+    Ok(s)
+}
+
+fn print_table(v: &Value) {
+    let unit = v["unit"].as_str().unwrap_or("");
+    println!("{} ({}, {}), {} MACs, figures in {} per frame:", v["model"].as_str().unwrap_or("?"), v["backend"].as_str().unwrap_or("?"), v["source"].as_str().unwrap_or("?"), v["macs"], unit);
+    for k in ["decoder", "saliency", "blobs", "reach"] {
+        println!("  {k:<10} {}", v["stages"][k]);
+    }
+    for k in ["instructions_per_mac", "post_decoder_instructions_per_pixel", "ns_per_mac", "static_ram_bytes", "code_bytes", "flash_bytes", "stack_peak_bytes"] {
+        if !v[k].is_null() {
+            let target = &v["targets"][k];
+            let note = if target.is_null() { String::new() } else { format!("  (target <= {}: {})", target["max"], if target["met"].as_bool() == Some(true) { "met" } else { "NOT met" }) };
+            println!("  {k:<36} {}{note}", v[k]);
+        }
+    }
 }
