@@ -30,7 +30,7 @@ pub struct Args {
     #[arg(long)]
     pub png: Option<PathBuf>,
     /// Which pipeline runs on the crop
-    #[arg(long, value_enum, default_value_t = EngineArg::Float)]
+    #[arg(long, value_enum, default_value_t = EngineArg::Fixed)]
     pub engine: EngineArg,
 }
 

@@ -5,6 +5,7 @@ pub mod cli;
 pub mod predictor;
 pub mod crop;
 pub mod data;
+pub mod metrics;
 pub mod pipeline;
 pub mod fixed;
 pub mod dataset;
