@@ -84,8 +84,9 @@ const HOST_RUNS: usize = 2048;
 /// Enough slots for two rows of runs: the labeller cannot overflow.
 const HOST_LABELS: usize = 2 * HOST_RUNS;
 
-/// Every 8-connected blob of `mask` (row-major `w x h`) by the firmware's labeller, in OpenCV's
-/// label order (raster order of the first pixel), and whether it overflowed.
+/// Every 8-connected blob of `mask` (row-major `w x h`) by the firmware's labeller, in raster
+/// order of each blob's first pixel (OpenCV 5 numbers them in its own block order: compare as
+/// sets), and whether it overflowed.
 pub fn blobs(mask: &[bool], w: usize, h: usize) -> Result<(Vec<Blob>, bool)> {
     ensure!(
         w >= 1 && h >= 1 && w <= HOST_MAX_WIDTH && h < u16::MAX as usize,
