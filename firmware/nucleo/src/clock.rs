@@ -1,4 +1,4 @@
-//! Milliseconds since boot from the Cortex-M4 cycle counter (DWT CYCCNT), extended to 64 bits.
+//! Microseconds since boot from the Cortex-M4 cycle counter (DWT CYCCNT), extended to 64 bits.
 //! The main loop calls [`Clock::millis`] far more often than the 24 s the 32-bit counter takes
 //! to wrap at 180 MHz, which is all the extension needs.
 
@@ -27,7 +27,8 @@ impl Clock {
         self.high + now as u64
     }
 
-    pub fn millis(&mut self) -> u32 {
-        (self.cycles() / (self.hz as u64 / 1000)) as u32
+    /// Microseconds since start: the board's clock.
+    pub fn micros(&mut self) -> u64 {
+        self.cycles() / (self.hz as u64 / 1_000_000)
     }
 }

@@ -1,5 +1,6 @@
-//! NUCLEO-F429ZI image: host link on USART3 (ST-LINK VCP, PD8 TX / PD9 RX), servo bus on USART2
-//! (PD5 TX / PD6 RX), defmt over RTT.
+//! NUCLEO-F429ZI image: the firmware library's `Board` with the host link on USART3 (ST-LINK VCP,
+//! PD8 TX / PD9 RX), the servo bus on USART2 (PD5 TX / PD6 RX), the DWT cycle counter as its
+//! clock, models in flash (built in, or uploaded into bank 2), logging with defmt over RTT.
 #![no_std]
 #![no_main]
 
@@ -10,6 +11,13 @@ use stm32f4xx_hal::{pac, pac::interrupt, prelude::*, serial::Serial};
 
 mod clock;
 mod port;
+mod store;
+
+use msr_firmware::board::Board;
+use store::FlashStore;
+
+// SAFETY (FlashStore::new): the one store of this image.
+static mut BOARD: Board<FlashStore> = Board::new(unsafe { FlashStore::new() });
 
 /// Host link: the ST-LINK virtual COM port.
 const HOST_BAUD: u32 = 921_600;
@@ -51,11 +59,44 @@ fn main() -> ! {
         cortex_m::peripheral::NVIC::unmask(pac::Interrupt::USART2);
     }
     // SAFETY: static register blocks of USART3/USART2, configured above.
-    let mut _host = port::Port::new(unsafe { &*pac::USART3::ptr() }, &port::HOST_RX);
-    let mut _servo = port::Port::new(unsafe { &*pac::USART2::ptr() }, &port::SERVO_RX);
-    defmt::info!("msr-nucleo: {} Hz, host link {} baud, servo bus {} baud", clocks.sysclk().raw(), HOST_BAUD, SERVO_BAUD);
+    let mut host = port::Port::new(unsafe { &*pac::USART3::ptr() }, &port::HOST_RX);
+    let mut servo = port::Port::new(unsafe { &*pac::USART2::ptr() }, &port::SERVO_RX);
+    // SAFETY: the only reference to BOARD, taken once; interrupts do not touch it.
+    let board = unsafe { &mut *core::ptr::addr_of_mut!(BOARD) };
+    defmt::info!(
+        "msr-nucleo: {} Hz, host link USART3 {} baud, servo bus USART2 {} baud, built-in model {} bytes",
+        clocks.sysclk().raw(),
+        HOST_BAUD,
+        SERVO_BAUD,
+        store::BUILT_IN.len()
+    );
+    let mut next_log_ms = 0u32;
     loop {
-        let _ = clock.millis();
+        let now_us = clock.micros();
+        board.poll(now_us, &mut host, &mut servo);
+        let now_ms = (now_us / 1000) as u32;
+        if now_ms >= next_log_ms {
+            next_log_ms = now_ms + 5_000;
+            let s = board.status();
+            defmt::info!(
+                "t={} ms mode={} model={=u32:x} frames={} detections={} reaches={} host crc/resync={}/{} servo crc/resync={}/{} face/servo wd={}/{} clamped={} rx dropped host/servo={}/{}",
+                now_ms,
+                defmt::Debug2Format(&s.mode),
+                s.model_crc,
+                s.frames,
+                s.detections,
+                s.reaches,
+                s.host_link.crc_errors,
+                s.host_link.resyncs(),
+                s.servo_link.crc_errors,
+                s.servo_link.resyncs(),
+                s.face_watchdog_trips,
+                s.servo_watchdog_trips,
+                s.clamped_targets,
+                port::HOST_RX.dropped.load(core::sync::atomic::Ordering::Relaxed),
+                port::SERVO_RX.dropped.load(core::sync::atomic::Ordering::Relaxed)
+            );
+        }
     }
 }
 
