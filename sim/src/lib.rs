@@ -9,9 +9,11 @@ pub mod body;
 pub mod dataset;
 pub mod kin;
 pub mod layout;
+pub mod link;
 pub mod looks;
 pub mod marks;
 pub mod qemu;
 pub mod render;
+pub mod servo;
 
 pub use looks::Robot;

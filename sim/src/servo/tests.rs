@@ -1,0 +1,161 @@
+use super::*;
+use msr_shared::frame::encode_message_vec;
+use msr_shared::msg::JointTarget;
+
+fn targets(t: &[(Joint, f32)]) -> Vec<u8> {
+    let mut v = heapless::Vec::new();
+    for &(joint, position) in t {
+        v.push(JointTarget { joint, position }).unwrap();
+    }
+    encode_message_vec(0, &BoardToServo::Targets { time_ms: 0, targets: v }).unwrap()
+}
+
+fn bus() -> ServoBus {
+    ServoBus::new(ServoConfig::default(), &[])
+}
+
+/// Runs the bus in 1 ms steps from `from` to `to`, collecting parsed reports.
+fn run(bus: &mut ServoBus, from: u64, to: u64) -> Vec<(u32, Vec<JointState>)> {
+    let mut acc = FrameAccumulator::<MAX_WIRE_FRAME>::new();
+    let mut out = Vec::new();
+    let mut t = from;
+    while t <= to {
+        if let Some(bytes) = bus.step(t) {
+            for b in bytes {
+                if let Some(Ok(f)) = acc.push(b) {
+                    let ServoToBoard::States { time_ms, states } = f.message().unwrap();
+                    out.push((time_ms, states.to_vec()));
+                }
+            }
+        }
+        t += 1000;
+    }
+    out
+}
+
+#[test]
+fn velocity_limit_and_first_order_response() {
+    let mut b = bus();
+    b.receive(&targets(&[(Joint::HeadYaw, 1.0)]), 0);
+    run(&mut b, 0, 50_000);
+    // A big step saturates at 8.26797 rad/s: 0.4134 rad after 50 ms.
+    let p = b.position(Joint::HeadYaw);
+    assert!((p - 8.26797 * 0.05).abs() < 1e-6, "{p}");
+    // A small step is first order: 1 - e^-1 = 63 % after one time constant (30 ms).
+    let mut b = bus();
+    b.receive(&targets(&[(Joint::HeadPitch, 0.02)]), 0);
+    run(&mut b, 0, 30_000);
+    let frac = b.position(Joint::HeadPitch) / 0.02;
+    assert!((frac - 0.632).abs() < 0.03, "{frac}");
+    run(&mut b, 31_000, 90_000);
+    assert!((b.position(Joint::HeadPitch) - 0.02).abs() < 1e-3);
+}
+
+#[test]
+fn limits_hold_and_encoder_is_12_bit() {
+    let mut b = bus();
+    let max = Joint::HeadPitch.limits().unwrap().max;
+    b.receive(&targets(&[(Joint::HeadPitch, max)]), 0);
+    for t in (0..=300_000).step_by(1000) {
+        b.step(t);
+        if t % 50_000 == 0 {
+            b.receive(&targets(&[(Joint::HeadPitch, max)]), t);
+        }
+        assert!(b.position(Joint::HeadPitch) <= max as f64);
+    }
+    assert!((b.position(Joint::HeadPitch) - max as f64).abs() < 1e-4);
+    assert_eq!(b.counters().limit_violations, 0);
+    let lsb = std::f64::consts::TAU / 4096.0;
+    let s = b.servo(Joint::HeadPitch).unwrap();
+    let counts = s.measured() / lsb;
+    assert!((counts - counts.round()).abs() < 1e-9);
+    assert!((s.measured() - s.position).abs() <= lsb / 2.0 + 1e-12);
+    assert_eq!(quantise(0.7 * lsb), lsb);
+    assert_eq!(quantise(0.4 * lsb), 0.0);
+}
+
+#[test]
+fn reports_every_10_ms_with_every_joint() {
+    let mut b = ServoBus::at_home(ServoConfig::default());
+    let reports = run(&mut b, 0, 99_000);
+    let times: Vec<u32> = reports.iter().map(|r| r.0).collect();
+    assert_eq!(times, (0..10).map(|i| i * 10).collect::<Vec<_>>());
+    let (_, states) = &reports[0];
+    assert_eq!(states.len(), 12);
+    let ids: Vec<Joint> = states.iter().map(|s| s.joint).collect();
+    assert_eq!(ids, bus_joints());
+    let ser = states.iter().find(|s| s.joint == Joint::LElbowRoll).unwrap();
+    assert!((ser.position as f64 - crate::kin::home()[4]).abs() < 0.002);
+    // A state request is answered at once.
+    b.receive(&encode_message_vec(1, &BoardToServo::StateRequest).unwrap(), 100_500);
+    assert!(b.step(100_500).is_some());
+}
+
+#[test]
+fn holds_when_targets_stop_and_stiffness_gates_motion() {
+    let mut b = bus();
+    b.receive(&targets(&[(Joint::LShoulderPitch, 2.0)]), 0);
+    // Low velocity so that the move outlasts the 100 ms hold timeout.
+    let reports = run(&mut b, 0, 100_000);
+    let at_hold = b.position(Joint::LShoulderPitch);
+    assert!(at_hold < 2.0 - 0.5 && at_hold > 0.5, "{at_hold}");
+    run(&mut b, 101_000, 300_000);
+    assert!((b.position(Joint::LShoulderPitch) - at_hold).abs() < 0.02, "kept moving after the hold");
+    assert_eq!(b.counters().hold_timeouts, 1);
+    let last = run(&mut b, 310_000, 310_000);
+    let s = last[0].1.iter().find(|s| s.joint == Joint::LShoulderPitch).unwrap();
+    assert!(s.faults & fault::TIMEOUT != 0);
+    assert!(reports[0].1.iter().all(|s| s.faults == 0));
+    // A new target clears the flag.
+    b.receive(&targets(&[(Joint::LShoulderPitch, 0.0)]), 320_000);
+    assert_eq!(b.servo(Joint::LShoulderPitch).unwrap().faults, 0);
+
+    // Limp: targets are taken but nothing moves; stiff again: holds where it is.
+    let mut b = bus();
+    b.receive(&encode_message_vec(0, &BoardToServo::Stiffness { on: false }).unwrap(), 0);
+    b.receive(&targets(&[(Joint::HeadYaw, 0.5)]), 0);
+    run(&mut b, 0, 50_000);
+    assert_eq!(b.position(Joint::HeadYaw), 0.0);
+    assert!(!b.servo(Joint::HeadYaw).unwrap().stiff);
+    b.receive(&encode_message_vec(1, &BoardToServo::Stiffness { on: true }).unwrap(), 50_000);
+    run(&mut b, 50_000, 90_000);
+    assert_eq!(b.position(Joint::HeadYaw), 0.0);
+}
+
+#[test]
+fn unsafe_targets_are_counted_and_refused() {
+    let mut b = bus();
+    b.receive(&targets(&[(Joint::HeadPitch, 0.6), (Joint::HeadYaw, 0.1)]), 0);
+    b.receive(&targets(&[(Joint::LElbowRoll, f32::NAN)]), 0);
+    b.receive(&targets(&[(Joint::LHand, 0.5)]), 0);
+    b.receive(&targets(&[(Joint::LKneePitch, 0.0)]), 0);
+    assert_eq!(b.counters().limit_violations, 4);
+    assert_eq!(b.counters().targets, 1);
+    assert_eq!(b.servo(Joint::HeadPitch).unwrap().target, 0.0);
+    assert!(b.servo(Joint::HeadPitch).unwrap().faults & fault::LIMIT != 0);
+    assert!(b.servo(Joint::LElbowRoll).unwrap().target.is_finite());
+    run(&mut b, 0, 50_000);
+    assert!(b.position(Joint::HeadPitch).abs() < 1e-12);
+    assert!(b.position(Joint::HeadYaw) > 0.07); // 81 % of the way after 50 ms
+}
+
+#[test]
+fn frame_errors_are_not_violations() {
+    let mut b = bus();
+    let good = targets(&[(Joint::HeadYaw, 0.2)]);
+    let mut flipped = good.clone();
+    flipped[3] ^= 0x10;
+    b.receive(&flipped, 0);
+    b.receive(&[0x55, 0x13, 0xFF, 0x00], 0);
+    // A valid frame whose payload is not a servo message.
+    let mut raw = [0u8; MAX_WIRE_FRAME];
+    let n = msr_shared::frame::encode_payload(5, &[0x7F, 1, 2], &mut raw).unwrap();
+    b.receive(&raw[..n], 0);
+    b.receive(&good, 0);
+    let c = b.frame_counters();
+    assert_eq!(c.frames, 2, "{c:?}");
+    assert_eq!(c.resyncs(), 3, "{c:?}");
+    assert_eq!(c.malformed, 1);
+    assert_eq!(b.counters().limit_violations, 0);
+    assert_eq!(b.counters().targets, 1);
+}
