@@ -233,21 +233,21 @@ fn rescale(v: i64, from: u32, to: u32) -> i16 {
 pub(crate) fn tanh_q24(acc: i32, bits: u32) -> i32 {
     const LAST: usize = TANH_Q24.len() - 1;
     let a = acc.unsigned_abs();
-    // |x| in Q15: table index in the top bits, interpolation weight in the low 8.
-    let t = if bits >= 15 {
-        a.checked_shr(bits - 15).unwrap_or(0)
+    // |x| in Q19: table index (steps of 2^-7) in the top bits, interpolation weight in the low 12.
+    let t = if bits >= 19 {
+        a.checked_shr(bits - 19).unwrap_or(0)
     } else if a >= (8u32 << bits) {
         u32::MAX
     } else {
-        a << (15 - bits)
+        a << (19 - bits)
     };
-    let idx = (t >> 8) as usize;
+    let idx = (t >> 12) as usize;
     let y = if idx >= LAST {
         TANH_Q24[LAST]
     } else {
         let lo = TANH_Q24[idx];
         let hi = TANH_Q24[idx + 1];
-        lo + (((hi - lo) * (t & 255)) >> 8)
+        lo + (((hi - lo) * (t & 4095)) >> 12)
     } as i32;
     if acc < 0 {
         -y
@@ -257,7 +257,7 @@ pub(crate) fn tanh_q24(acc: i32, bits: u32) -> i32 {
 }
 
 /// Runs one layer from `src` into `dst`. Errors only on shapes the parser would refuse.
-fn run_layer(l: &Layer, src: &[i16], dst: &mut [i16]) -> Result<(), ()> {
+pub(crate) fn run_layer(l: &Layer, src: &[i16], dst: &mut [i16]) -> Result<(), ()> {
     let n_in = l.input.len();
     let n_out = l.output.len();
     if n_in > src.len() || n_out > dst.len() {

@@ -55,6 +55,9 @@ pub mod reach;
 pub mod saliency;
 pub mod winner;
 
+#[cfg(test)]
+mod testkit;
+
 pub use board::Board;
 pub use model::{ModelStore, RamStore};
 pub use pipeline::{detect, DetectError, FaceDetection, Workspace};

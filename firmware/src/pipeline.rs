@@ -151,3 +151,6 @@ pub fn detect(
         blobs,
     })
 }
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,175 @@
+use super::*;
+use proptest::prelude::*;
+
+/// Independent reference: breadth-first flood fill over 8 neighbours, as OpenCV's
+/// connectedComponentsWithStats(connectivity = 8) defines the components.
+fn reference(mask: &[u8], w: usize, h: usize) -> Vec<Blob> {
+    let mut seen = vec![false; w * h];
+    let mut out = Vec::new();
+    for start in 0..w * h {
+        if mask[start] == 0 || seen[start] {
+            continue;
+        }
+        let mut b = Blob {
+            area: 0,
+            x0: u16::MAX,
+            y0: u16::MAX,
+            x1: 0,
+            y1: 0,
+            sum_x: 0,
+            sum_y: 0,
+            first: start as u32,
+        };
+        let mut queue = std::collections::VecDeque::from([start]);
+        seen[start] = true;
+        while let Some(i) = queue.pop_front() {
+            let (x, y) = (i % w, i / w);
+            b.area += 1;
+            b.x0 = b.x0.min(x as u16);
+            b.y0 = b.y0.min(y as u16);
+            b.x1 = b.x1.max(x as u16);
+            b.y1 = b.y1.max(y as u16);
+            b.sum_x += x as u32;
+            b.sum_y += y as u32;
+            for dy in -1i32..=1 {
+                for dx in -1i32..=1 {
+                    let (nx, ny) = (x as i32 + dx, y as i32 + dy);
+                    if nx < 0 || ny < 0 || nx >= w as i32 || ny >= h as i32 {
+                        continue;
+                    }
+                    let j = ny as usize * w + nx as usize;
+                    if mask[j] != 0 && !seen[j] {
+                        seen[j] = true;
+                        queue.push_back(j);
+                    }
+                }
+            }
+        }
+        out.push(b);
+    }
+    out
+}
+
+fn label_all<const L: usize, const R: usize>(lab: &mut Labeller<L, R>, mask: &[u8], w: usize, h: usize) -> (Vec<Blob>, Summary) {
+    let mut got = Vec::new();
+    let sum = lab.label(mask, w, h, |b| got.push(*b)).unwrap();
+    got.sort_by_key(|b| b.first);
+    (got, sum)
+}
+
+fn parse(rows: &[&str]) -> (Vec<u8>, usize, usize) {
+    let w = rows[0].len();
+    let mask = rows.iter().flat_map(|r| r.bytes().map(|c| (c == '#' as u8) as u8)).collect();
+    (mask, w, rows.len())
+}
+
+#[test]
+fn shapes_that_merge_late_and_touch_diagonally() {
+    let mut lab = Box::new(FaceLabeller::new());
+    for rows in [
+        // A U: two runs that join only at the bottom.
+        &["#...#", "#...#", "#####"][..],
+        // A diagonal chain is one component under 8-connectivity.
+        &["#....", ".#...", "..#..", "...#.", "....#"][..],
+        // A W with three prongs joined below, and a separate dot.
+        &["#.#.#..#", "#.#.#...", "#####..."][..],
+        // A checkerboard is one component.
+        &["#.#.#", ".#.#.", "#.#.#"][..],
+        // Nested ring and dot.
+        &["#####", "#...#", "#.#.#", "#...#", "#####"][..],
+        &["....."][..],
+        &["#####"][..],
+    ] {
+        let (m, w, h) = parse(rows);
+        let (got, sum) = label_all(&mut lab, &m, w, h);
+        assert_eq!(got, reference(&m, w, h), "{rows:?}");
+        assert!(!sum.overflow);
+        assert_eq!(sum.components as usize, got.len());
+    }
+}
+
+#[test]
+fn centroid_is_the_mean_pixel() {
+    let (m, w, h) = parse(&["##..", "##..", "...#"]);
+    let (got, _) = label_all(&mut Box::new(FaceLabeller::new()), &m, w, h);
+    assert_eq!(got[0].centroid(), [0.5, 0.5]);
+    assert_eq!(got[0].area, 4);
+    assert_eq!((got[0].x0, got[0].y0, got[0].x1, got[0].y1), (0, 0, 1, 1));
+    assert_eq!(got[1].centroid(), [3.0, 2.0]);
+}
+
+#[test]
+fn bad_shapes_are_refused() {
+    let mut lab = Box::new(FaceLabeller::new());
+    let m = vec![1u8; 200 * 2];
+    assert_eq!(lab.label(&m, 0, 1, |_| {}), Err(MaskError::Shape));
+    assert_eq!(lab.label(&m, 10, 0, |_| {}), Err(MaskError::Shape));
+    assert_eq!(lab.label(&m, 200, 2, |_| {}), Err(MaskError::Shape), "wider than the run buffers");
+    assert_eq!(lab.label(&m[..10], 4, 3, |_| {}), Err(MaskError::Shape), "mask too short");
+    assert_eq!(FaceLabeller::max_width(), 97);
+    // The widest face, every other pixel set: the most runs a row can have.
+    let w = 96;
+    let m: Vec<u8> = (0..w * 64).map(|i| ((i % w) % 2 == 0 && (i / w) % 2 == 0) as u8).collect();
+    let (got, sum) = label_all(&mut lab, &m, w, 64);
+    assert_eq!(got, reference(&m, w, 64));
+    assert_eq!((got.len(), sum.overflow), (48 * 32, false));
+}
+
+#[test]
+fn overflow_is_reported_and_what_is_kept_is_exact() {
+    // Four slots for a mask with many components at once.
+    let mut lab = Box::new(Labeller::<4, 49>::new());
+    let (m, w, h) = parse(&[
+        "#.#.#.#.#.#.",
+        "#.#.#.#.#.#.",
+        "############",
+        "............",
+        "#..#..#..#..",
+    ]);
+    let (got, sum) = label_all(&mut lab, &m, w, h);
+    assert!(sum.overflow);
+    let want = reference(&m, w, h);
+    for b in &got {
+        assert!(want.contains(b), "{b:?} is not a true component");
+    }
+    assert!(got.len() < want.len());
+    assert_eq!(sum.components as usize, got.len());
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 400, ..ProptestConfig::default() })]
+
+    #[test]
+    fn agrees_with_flood_fill(w in 1usize..=97, h in 1usize..=40, density in 0u32..100, seed: u64) {
+        let mut s = seed | 1;
+        let m: Vec<u8> = (0..w * h).map(|_| {
+            s ^= s << 13; s ^= s >> 7; s ^= s << 17;
+            ((s % 100) < density as u64) as u8
+        }).collect();
+        let mut lab = Box::new(FaceLabeller::new());
+        let (got, sum) = label_all(&mut lab, &m, w, h);
+        prop_assert!(!sum.overflow);
+        prop_assert_eq!(got, reference(&m, w, h));
+    }
+
+    #[test]
+    fn small_capacity_never_reports_a_wrong_component(w in 1usize..=30, h in 1usize..=20, density in 0u32..100, seed: u64, cap in 0usize..3) {
+        let mut s = seed | 1;
+        let m: Vec<u8> = (0..w * h).map(|_| {
+            s ^= s << 13; s ^= s >> 7; s ^= s << 17;
+            ((s % 100) < density as u64) as u8
+        }).collect();
+        let want = reference(&m, w, h);
+        let got = match cap {
+            0 => label_all(&mut Box::new(Labeller::<1, 16>::new()), &m, w, h),
+            1 => label_all(&mut Box::new(Labeller::<3, 16>::new()), &m, w, h),
+            _ => label_all(&mut Box::new(Labeller::<6, 16>::new()), &m, w, h),
+        };
+        for b in &got.0 {
+            prop_assert!(want.contains(b));
+        }
+        if !got.1.overflow {
+            prop_assert_eq!(&got.0, &want);
+        }
+    }
+}

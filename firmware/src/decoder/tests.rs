@@ -1,0 +1,151 @@
+use super::*;
+use crate::testkit::{conv_spec, float_decoder, float_layer, mlp_spec, Lcg};
+use msr_shared::blob::Model;
+
+#[test]
+fn tanh_table_matches_f64() {
+    for (i, &v) in TANH_Q24.iter().enumerate() {
+        let want = ((i as f64 / 128.0).tanh() * (1u64 << 24) as f64).round() as u32;
+        assert_eq!(v, want, "entry {i}");
+    }
+}
+
+#[test]
+fn tanh_and_sigmoid_by_table_are_within_a_q15_step() {
+    let mut r = Lcg(7);
+    let mut worst = 0f64;
+    for bits in [0u32, 3, 8, 14, 15, 20, 26, 31, 40] {
+        for _ in 0..4000 {
+            let acc = (r.unit() * 2f64.powi(bits as i32 + 4)).clamp(i32::MIN as f64, i32::MAX as f64) as i32;
+            let x = acc as f64 / 2f64.powi(bits as i32);
+            let got = tanh_q24(acc, bits) as f64 / (1u64 << 24) as f64;
+            worst = worst.max((got - x.tanh()).abs());
+        }
+    }
+    assert!(worst < 2.5e-5, "worst tanh error {worst}");
+    // Sigmoid through Requant: out = round(sig(x) * 2^15).
+    let rq = Requant { act: Activation::Sigmoid, acc_bits: 20, out_bits: 15 };
+    for _ in 0..4000 {
+        let acc = (r.unit() * 2f64.powi(24)) as i32;
+        let want = 1.0 / (1.0 + (-(acc as f64) / 2f64.powi(20)).exp()) * 32768.0;
+        let got = rq.apply(acc) as f64;
+        assert!((got - want.min(32767.0)).abs() <= 1.0, "{acc}: {got} vs {want}");
+    }
+    // Extremes saturate instead of wrapping.
+    assert_eq!(rq.apply(i32::MAX), 32767);
+    assert_eq!(rq.apply(i32::MIN), 0);
+    let rq = Requant { act: Activation::Identity, acc_bits: 0, out_bits: 31 };
+    assert_eq!(rq.apply(-5), i16::MIN);
+    let rq = Requant { act: Activation::Identity, acc_bits: 62, out_bits: 0 };
+    assert_eq!(rq.apply(i32::MAX), 0);
+}
+
+/// Each layer against its float definition, fed the same fixed-point input: identity, ReLU and
+/// crop must agree exactly, tanh and sigmoid within one output step.
+fn layers_match_float(bytes: &[u8]) {
+    let m = Model::parse(bytes).unwrap();
+    let mut r = Lcg(99);
+    for (li, l) in m.layers.iter().enumerate() {
+        for _ in 0..3 {
+            let n_in = l.input.len();
+            let amp = if li == 0 { 0.1 } else { 0.9 };
+            let x: Vec<i16> = (0..n_in)
+                .map(|_| (r.unit() * amp * 2f64.powi(l.in_shift as i32)).round() as i16)
+                .collect();
+            let mut y = vec![0i16; l.output.len()];
+            run_layer(l, &x, &mut y).unwrap();
+            let xf: Vec<f64> = x.iter().map(|&v| v as f64 / 2f64.powi(l.in_shift as i32)).collect();
+            let yf = float_layer(l, &xf);
+            let tol = match l.activation {
+                Activation::Tanh | Activation::Sigmoid => 1.0,
+                _ => 0.0,
+            };
+            for (i, (&a, &b)) in y.iter().zip(&yf).enumerate() {
+                let want = (b * 2f64.powi(l.out_shift as i32) + 0.5).floor().clamp(-32768.0, 32767.0);
+                assert!(
+                    (a as f64 - want).abs() <= tol,
+                    "layer {li} ({:?}) element {i}: fixed {a}, float {want}",
+                    l.kind
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn every_layer_kind_matches_its_float_definition() {
+    for seed in 1..6 {
+        layers_match_float(&conv_spec(seed, false).to_bytes().unwrap());
+        layers_match_float(&conv_spec(seed, true).to_bytes().unwrap());
+        layers_match_float(&mlp_spec(seed, 6, 7).to_bytes().unwrap());
+    }
+}
+
+fn max_face_error(bytes: &[u8], head: [f32; 2]) -> f64 {
+    let m = Model::parse(bytes).unwrap();
+    let mut d = Box::new(Decoder::new());
+    let face = d.predict(&m, head).unwrap().to_vec();
+    let q = quantise_input(&m, head).unwrap();
+    let s = 2f64.powi(m.layers[0].in_shift as i32);
+    let want = float_decoder(&m, [q[0] as f64 / s, q[1] as f64 / s]);
+    assert_eq!(face.len(), want.len());
+    face.iter().zip(&want).map(|(&g, &f)| (g as f64 / 65280.0 - f).abs()).fold(0.0, f64::max)
+}
+
+#[test]
+/// Without intermediate rounding the face stays within 0.13 grey levels of float.
+fn whole_decoder_is_close_to_float() {
+    for seed in 1..6 {
+        for head in [[0.0, 0.0], [0.08, -0.05], [-0.087, 0.087]] {
+            let e = max_face_error(&conv_spec(seed, false).to_bytes().unwrap(), head);
+            assert!(e < 5e-4, "conv seed {seed}: max error {e}");
+            let e = max_face_error(&conv_spec(seed, true).to_bytes().unwrap(), head);
+            assert!(e < 5e-4, "conv i8 seed {seed}: max error {e}");
+            let e = max_face_error(&mlp_spec(seed, 8, 9).to_bytes().unwrap(), head);
+            assert!(e < 5e-4, "mlp seed {seed}: max error {e}");
+        }
+    }
+}
+
+#[test]
+fn unaligned_blob_gives_the_same_face() {
+    let bytes = conv_spec(3, false).to_bytes().unwrap();
+    let mut shifted = vec![0u8; 1];
+    shifted.extend_from_slice(&bytes);
+    let a = Model::parse(&bytes).unwrap();
+    let b = Model::parse(&shifted[1..]).unwrap();
+    let mut d = Box::new(Decoder::new());
+    let fa = d.predict(&a, [0.03, -0.02]).unwrap().to_vec();
+    let fb = d.predict_uncached(&b, [0.03, -0.02]).unwrap().to_vec();
+    assert_eq!(fa, fb);
+}
+
+#[test]
+fn cache_follows_pose_and_model() {
+    let b1 = conv_spec(1, false).to_bytes().unwrap();
+    let b2 = conv_spec(2, false).to_bytes().unwrap();
+    let (m1, m2) = (Model::parse(&b1).unwrap(), Model::parse(&b2).unwrap());
+    let mut d = Box::new(Decoder::new());
+    let f1 = d.predict(&m1, [0.0, 0.0]).unwrap().to_vec();
+    // A change below the input resolution is the same pose.
+    let same = d.predict(&m1, [1e-7, 0.0]).unwrap().to_vec();
+    assert_eq!(f1, same);
+    let f2 = d.predict(&m2, [0.0, 0.0]).unwrap().to_vec();
+    assert_ne!(f1, f2);
+    let f3 = d.predict(&m1, [0.05, 0.0]).unwrap().to_vec();
+    assert_ne!(f1, f3);
+    assert_eq!(d.predict(&m1, [f32::NAN, 0.0]), Err(DecodeError::BadInput));
+    assert_eq!(d.predict(&m1, [0.0, f32::INFINITY]), Err(DecodeError::BadInput));
+}
+
+#[test]
+fn mismatched_scales_are_refused() {
+    let mut spec = conv_spec(1, false);
+    spec.layers[2].in_shift = 13;
+    let bytes = spec.to_bytes().unwrap();
+    let m = Model::parse(&bytes).unwrap();
+    assert_eq!(check_scales(&m), Err(DecodeError::Scale(2)));
+    let mut d = Box::new(Decoder::new());
+    assert_eq!(d.predict(&m, [0.0, 0.0]), Err(DecodeError::Scale(2)));
+    assert!(matches!(crate::model::validate(&bytes), Err(msr_shared::blob::BlobError::Chain(2))));
+}
