@@ -14,7 +14,8 @@ fuzz_target!(|data: &[u8]| {
         let crc = CRC32.checksum(&bytes[16..]);
         bytes[12..16].copy_from_slice(&crc.to_le_bytes());
     }
-    if let Ok(m) = Model::parse(&bytes) {
+    let parsed = Model::parse(&bytes);
+    if let Ok(m) = parsed {
         for l in &m.layers {
             for i in 0..l.weight_count() {
                 let _ = l.weight(i);
