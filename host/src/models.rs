@@ -315,6 +315,11 @@ impl Decoder {
     }
 }
 
+/// A tensor's values as f32, row-major.
+pub fn tensor_vec<const D: usize>(t: Tensor<D>) -> Result<Vec<f32>> {
+    to_vec(t.into_data())
+}
+
 fn to_vec(d: TensorData) -> Result<Vec<f32>> {
     d.convert::<f32>().try_into_vec::<f32>().map_err(|e| anyhow::anyhow!("tensor data: {e:?}"))
 }

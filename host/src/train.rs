@@ -1,13 +1,511 @@
 //! `msr train`: train a decoder or autoencoder on a dataset and calibrate its error statistics.
-use anyhow::{bail, Result};
+//!
+//! Output folder (other commands rely on it):
+//! - `{name}.mpk`: the burn record (burnpack format: burn 0.22 dropped the MessagePack recorders,
+//!   the name is kept), `name` = `decoder` or `autoencoder`;
+//! - `{name}.json`: [`ModelInfo`] (architecture, face size, hyper-parameters, per-epoch losses,
+//!   training seconds, novelty parameters and how the threshold was chosen);
+//! - `{name}_mu.npy`, `{name}_sigma.npy`: float64 `h x w` error statistics in grey levels, like the
+//!   published ones (sigma not floored; the floor is in the JSON);
+//! - `{name}_loss.png`: loss curves; `template.png`: the face template the crops were made with.
+//!
+//! Frames: the training split's unmarked frames train the model and make the statistics; the test
+//! split gives the per-epoch test loss (mark pixels excluded) and, for `--threshold-percentile`,
+//! its unmarked frames are the normal held-out frames (see `crate::calibrate`).
+use crate::calibrate::{self, ErrorStats, NoveltyParams};
+use crate::data::{Dataset, Sample};
+use crate::models::{ArchKind, Autoencoder, Decoder, DecoderSpec, FloatLayer};
+use crate::predictor::FacePredictor;
+use anyhow::{bail, ensure, Context, Result};
+use burn::prelude::*;
+use fit::{HyperParams, History, Samples};
+use msr_shared::blob::{Normalisation, Sided};
+use msr_sim::layout::Split;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
 
 pub mod fit;
+pub mod plot;
 #[cfg(test)]
 pub(crate) mod synthetic;
 
-#[derive(clap::Args, Debug)]
-pub struct Args {}
+/// What to train.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum ModelKind {
+    /// Head angles -> face.
+    Decoder,
+    /// Face -> 2-d code -> face.
+    Autoencoder,
+}
 
-pub fn run(_args: Args) -> Result<()> {
-    bail!("`msr train` is not implemented yet")
+impl ModelKind {
+    pub fn name(self) -> &'static str {
+        match self {
+            ModelKind::Decoder => "decoder",
+            ModelKind::Autoencoder => "autoencoder",
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum NormArg {
+    /// (e - mu) / sigma, the published code
+    Std,
+    /// (e - mu) / sigma^2, the paper's text
+    Variance,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum DeviceArg {
+    /// burn's pure-Rust CPU backend (flex)
+    Cpu,
+    /// CUDA GPU 0 (build with --features cuda)
+    Cuda,
+    /// wgpu default adapter (build with --features wgpu)
+    Wgpu,
+}
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Dataset folder (sim layout or the published manifest layout)
+    #[arg(long)]
+    pub data: PathBuf,
+    #[arg(long, value_enum, default_value_t = ModelKind::Decoder)]
+    pub model: ModelKind,
+    #[arg(long, value_enum, default_value_t = ArchKind::Conv)]
+    pub arch: ArchKind,
+    /// Output folder
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 50)]
+    pub epochs: usize,
+    #[arg(long, default_value_t = 128)]
+    pub batch: usize,
+    #[arg(long, default_value_t = 0.005)]
+    pub lr: f64,
+    /// Multiply the learning rate by --lr-decay every this many epochs
+    #[arg(long, default_value_t = 10)]
+    pub lr_step: usize,
+    #[arg(long, default_value_t = 0.5)]
+    pub lr_decay: f64,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Saliency normaliser
+    #[arg(long, value_enum, default_value_t = NormArg::Std)]
+    pub normalisation: NormArg,
+    /// Two-sided saliency |e - mu| / n (the published code); default one-sided (e - mu) / n
+    #[arg(long)]
+    pub two_sided: bool,
+    /// Floor on sigma in grey levels before normalising
+    #[arg(long, default_value_t = calibrate::DEFAULT_SIGMA_FLOOR)]
+    pub sigma_floor: f64,
+    /// Fixed threshold in saliency units (the paper's 0.018 * 255)
+    #[arg(long, default_value_t = calibrate::DEFAULT_THRESHOLD, conflicts_with = "threshold_percentile")]
+    pub threshold: f64,
+    /// Pick the threshold as this percentile of the detection scores of the unmarked test frames
+    #[arg(long)]
+    pub threshold_percentile: Option<f64>,
+    /// Smallest blob that counts as a detection, pixels
+    #[arg(long, default_value_t = calibrate::DEFAULT_MIN_AREA)]
+    pub min_area: u16,
+    #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
+    pub device: DeviceArg,
+    /// No progress bars
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// How the threshold was chosen.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ThresholdPolicy {
+    /// "fixed" or "percentile".
+    pub kind: String,
+    pub percentile: Option<f64>,
+    /// The frames whose detection scores were used (percentile only).
+    pub frames: Option<String>,
+    pub n_frames: usize,
+}
+
+/// `{name}.json`.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ModelInfo {
+    pub model: ModelKind,
+    pub arch: ArchKind,
+    pub face_h: usize,
+    pub face_w: usize,
+    pub spec: DecoderSpec,
+    /// Multiply-accumulates of one decoder inference.
+    pub decoder_macs: u64,
+    pub hyper: HyperParams,
+    pub device: String,
+    pub data: String,
+    pub train_frames: usize,
+    pub test_frames: usize,
+    pub train_loss: Vec<f64>,
+    pub test_loss: Vec<f64>,
+    pub final_train_mse: f64,
+    pub final_test_mse: f64,
+    pub training_seconds: f64,
+    pub novelty: NoveltyParams,
+    pub threshold_policy: ThresholdPolicy,
+    /// Frames the error statistics were made from.
+    pub stats_frames: usize,
+    pub files: Files,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Files {
+    pub record: String,
+    pub mu: String,
+    pub sigma: String,
+    pub loss_png: String,
+    pub template: String,
+}
+
+impl Files {
+    fn of(name: &str) -> Files {
+        Files {
+            record: format!("{name}.mpk"),
+            mu: format!("{name}_mu.npy"),
+            sigma: format!("{name}_sigma.npy"),
+            loss_png: format!("{name}_loss.png"),
+            template: "template.png".into(),
+        }
+    }
+}
+
+pub fn device(d: DeviceArg) -> Result<Device> {
+    match d {
+        DeviceArg::Cpu => Ok(Device::flex()),
+        #[cfg(feature = "cuda")]
+        DeviceArg::Cuda => Ok(Device::cuda(0)),
+        #[cfg(feature = "wgpu")]
+        DeviceArg::Wgpu => Ok(Device::wgpu(Default::default())),
+        #[allow(unreachable_patterns)]
+        other => bail!("this build has no {other:?} backend; rebuild with `--features {}`", format!("{other:?}").to_lowercase()),
+    }
+}
+
+/// The unmarked frames of a split, and the marked ones with their mark pixels weighted 0.
+fn samples<'a>(it: impl Iterator<Item = &'a Sample>, keep_marked: bool) -> Samples {
+    let mut s = Samples::default();
+    let mut weights = Vec::new();
+    for x in it {
+        if x.mark.is_some() && !keep_marked {
+            continue;
+        }
+        s.heads.push(x.head);
+        s.faces.push(x.face_unit());
+        let n = s.faces.last().map_or(0, |f| f.len());
+        weights.push(match &x.mark {
+            Some(m) => m.face_mask.iter().map(|&b| if b { 0.0 } else { 1.0 }).collect(),
+            None => vec![1.0; n],
+        });
+    }
+    if weights.iter().any(|w: &Vec<f32>| w.iter().any(|&v| v == 0.0)) {
+        s.weights = Some(weights);
+    }
+    s
+}
+
+pub fn run(args: Args) -> Result<()> {
+    ensure!(args.min_area >= 1, "--min-area must be at least 1");
+    if let Some(p) = args.threshold_percentile {
+        ensure!((0.0..=100.0).contains(&p), "--threshold-percentile must be within 0..=100, got {p}");
+    }
+    let novelty = NoveltyParams {
+        normalisation: match args.normalisation {
+            NormArg::Std => Normalisation::StdDev,
+            NormArg::Variance => Normalisation::Variance,
+        },
+        sided: if args.two_sided { Sided::Two } else { Sided::One },
+        threshold: args.threshold,
+        sigma_floor: args.sigma_floor,
+        min_area: args.min_area,
+    };
+    novelty.check()?;
+    let hp = HyperParams {
+        epochs: args.epochs,
+        batch: args.batch,
+        lr: args.lr,
+        lr_step: args.lr_step,
+        lr_decay: args.lr_decay,
+        seed: args.seed,
+        ..Default::default()
+    };
+    hp.check()?;
+    let dev = device(args.device)?;
+
+    let ds = Dataset::load(&args.data).with_context(|| format!("loading dataset {}", args.data.display()))?;
+    let (h, w) = ds.face_size();
+    let train = samples(ds.split(Split::Train), false);
+    let test = samples(ds.split(Split::Test), true);
+    ensure!(train.len() >= 2, "dataset {} has {} unmarked training frames; need at least 2", args.data.display(), train.len());
+    let spec = DecoderSpec::new(args.arch, h, w);
+    eprintln!(
+        "training {} ({:?}, {} MACs) on {} frames, testing on {}, face {h}x{w}",
+        args.model.name(),
+        args.arch,
+        spec.macs()?,
+        train.len(),
+        test.len()
+    );
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let out = Outputs { dir: &args.out, name: args.model.name() };
+    let trained = match args.model {
+        ModelKind::Decoder => {
+            let m = Decoder::new(&spec, hp.seed, &dev.clone().autodiff())?;
+            let (m, hist) = fit::fit(m, &train, &test, &hp, &dev.clone().autodiff(), "decoder", !args.quiet)?;
+            let m = m.valid();
+            out.save_record(m.clone())?;
+            (Trained::Decoder(m), hist)
+        }
+        ModelKind::Autoencoder => {
+            let m = Autoencoder::new(&spec, hp.seed, &dev.clone().autodiff())?;
+            let (m, hist) = fit::fit(m, &train, &test, &hp, &dev.clone().autodiff(), "autoencoder", !args.quiet)?;
+            let m = m.valid();
+            out.save_record(m.clone())?;
+            (Trained::Autoencoder(m), hist)
+        }
+    };
+    let (model, hist) = trained;
+    let net = TrainedModel { info: None, net: model, device: dev.clone() };
+
+    // Statistics over the training frames, with the final model.
+    let preds = net.predict_batch(&train.heads, &train.faces);
+    let stats = calibrate::error_stats(h, w, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?;
+
+    let mut novelty = novelty;
+    let policy = match args.threshold_percentile {
+        None => ThresholdPolicy { kind: "fixed".into(), percentile: None, frames: None, n_frames: 0 },
+        Some(p) => {
+            let normal: Vec<&Sample> = ds.split(Split::Test).filter(|s| s.mark.is_none()).collect();
+            ensure!(
+                !normal.is_empty(),
+                "--threshold-percentile needs normal held-out frames, but the test split of {} has no unmarked frame",
+                args.data.display()
+            );
+            let heads: Vec<[f32; 2]> = normal.iter().map(|s| s.head).collect();
+            let faces: Vec<Vec<f32>> = normal.iter().map(|s| s.face_unit()).collect();
+            let preds = net.predict_batch(&heads, &faces);
+            let scores: Vec<f64> = faces
+                .iter()
+                .zip(&preds)
+                .map(|(f, p)| {
+                    let sal = calibrate::saliency(&calibrate::error_map(f, p), &stats, &novelty);
+                    calibrate::detection_score(&sal, h, w, novelty.min_area)
+                })
+                .collect();
+            novelty.threshold = calibrate::threshold_from_normal(&scores, p)?;
+            eprintln!("threshold {:.3}: percentile {p} of {} unmarked test frames' detection scores", novelty.threshold, scores.len());
+            ThresholdPolicy {
+                kind: "percentile".into(),
+                percentile: Some(p),
+                frames: Some("test split, frames without a mark".into()),
+                n_frames: scores.len(),
+            }
+        }
+    };
+
+    let files = Files::of(out.name);
+    calibrate::write_npy(&args.out.join(&files.mu), h, w, &stats.mu)?;
+    calibrate::write_npy(&args.out.join(&files.sigma), h, w, &stats.sigma)?;
+    ds.template.save(args.out.join(&files.template)).with_context(|| "writing template.png")?;
+    plot::loss_png(&hist, &format!("{} ({:?})", out.name, args.arch), &args.out.join(&files.loss_png))?;
+    let info = ModelInfo {
+        model: args.model,
+        arch: args.arch,
+        face_h: h,
+        face_w: w,
+        decoder_macs: spec.macs()?,
+        spec,
+        hyper: hp,
+        device: format!("{:?}", args.device).to_lowercase(),
+        data: args.data.display().to_string(),
+        train_frames: train.len(),
+        test_frames: test.len(),
+        final_train_mse: hist.train_loss.last().copied().unwrap_or(f64::NAN),
+        final_test_mse: hist.test_loss.last().copied().unwrap_or(f64::NAN),
+        train_loss: hist.train_loss.clone(),
+        test_loss: hist.test_loss.clone(),
+        training_seconds: hist.seconds,
+        novelty,
+        threshold_policy: policy,
+        stats_frames: stats.frames,
+        files,
+    };
+    let json = args.out.join(format!("{}.json", out.name));
+    std::fs::write(&json, serde_json::to_string_pretty(&info)?).with_context(|| format!("writing {}", json.display()))?;
+    println!(
+        "{}: {} epochs in {:.1} s, final train MSE {:.5}, test MSE {:.5}, threshold {:.3}; wrote {}",
+        out.name,
+        hist.train_loss.len(),
+        hist.seconds,
+        info.final_train_mse,
+        info.final_test_mse,
+        info.novelty.threshold,
+        args.out.display()
+    );
+    Ok(())
+}
+
+struct Outputs<'a> {
+    dir: &'a Path,
+    name: &'static str,
+}
+
+impl Outputs<'_> {
+    fn save_record<M: Module>(&self, m: M) -> Result<()> {
+        let p = self.dir.join(format!("{}.mpk", self.name));
+        m.save_file(&p).map_err(|e| anyhow::anyhow!("writing {}: {e}", p.display()))
+    }
+}
+
+/// A trained network, on an inference device.
+#[derive(Debug)]
+pub enum Trained {
+    Decoder(Decoder),
+    Autoencoder(Autoencoder),
+}
+
+/// A trained model loaded for inference; a [`FacePredictor`].
+#[derive(Debug)]
+pub struct TrainedModel {
+    /// None only while training.
+    pub info: Option<ModelInfo>,
+    pub net: Trained,
+    pub device: Device,
+}
+
+impl TrainedModel {
+    pub fn info(&self) -> Result<&ModelInfo> {
+        self.info.as_ref().context("model has no info")
+    }
+
+    /// The decoder's layers in plain floats (the autoencoder's decoder for an autoencoder).
+    pub fn decoder_layers(&self) -> Result<Vec<FloatLayer>> {
+        match &self.net {
+            Trained::Decoder(d) => d.float_layers(),
+            Trained::Autoencoder(a) => a.decoder.float_layers(),
+        }
+    }
+
+    fn spec(&self) -> &DecoderSpec {
+        match &self.net {
+            Trained::Decoder(d) => &d.spec,
+            Trained::Autoencoder(a) => &a.decoder.spec,
+        }
+    }
+}
+
+impl FacePredictor for TrainedModel {
+    fn face_size(&self) -> (usize, usize) {
+        let s = self.spec();
+        (s.face_h, s.face_w)
+    }
+
+    fn predict(&self, head: [f32; 2], face: &[f32]) -> Vec<f32> {
+        self.predict_batch(&[head], &[face.to_vec()]).pop().unwrap_or_default()
+    }
+
+    /// Batches of 256. Faces are only read by the autoencoder; a face of the wrong size gives
+    /// an all-NaN prediction rather than a panic.
+    fn predict_batch(&self, heads: &[[f32; 2]], faces: &[Vec<f32>]) -> Vec<Vec<f32>> {
+        let (h, w) = self.face_size();
+        let n = h * w;
+        let mut out = Vec::with_capacity(heads.len());
+        for start in (0..heads.len()).step_by(256) {
+            let end = (start + 256).min(heads.len());
+            let b = end - start;
+            let preds: Result<Vec<f32>> = match &self.net {
+                Trained::Decoder(d) => {
+                    let v: Vec<f32> = heads[start..end].iter().flatten().copied().collect();
+                    let x = Tensor::<2>::from_data(TensorData::new(v, [b, 2]), &self.device);
+                    crate::models::tensor_vec(d.forward(x))
+                }
+                Trained::Autoencoder(a) => {
+                    let rows = &faces[start..end.min(faces.len())];
+                    if rows.len() != b || rows.iter().any(|f| f.len() != n) {
+                        Err(anyhow::anyhow!("faces missing or of the wrong size"))
+                    } else {
+                        let v: Vec<f32> = rows.iter().flatten().copied().collect();
+                        let x = Tensor::<2>::from_data(TensorData::new(v, [b, n]), &self.device);
+                        crate::models::tensor_vec(a.forward(x))
+                    }
+                }
+            };
+            match preds {
+                Ok(p) if p.len() == b * n => out.extend(p.chunks(n).map(|c| c.to_vec())),
+                _ => out.extend((0..b).map(|_| vec![f32::NAN; n])),
+            }
+        }
+        out
+    }
+}
+
+/// Loads `{name}.json` and `{name}.mpk` from a training output folder onto the CPU.
+pub fn load(dir: &Path, name: &str) -> Result<TrainedModel> {
+    load_on(dir, name, Device::flex())
+}
+
+pub fn load_on(dir: &Path, name: &str, device: Device) -> Result<TrainedModel> {
+    let json = dir.join(format!("{name}.json"));
+    let text = std::fs::read_to_string(&json).with_context(|| format!("cannot read {}", json.display()))?;
+    let info: ModelInfo = serde_json::from_str(&text).with_context(|| format!("{} is not a model description", json.display()))?;
+    ensure!(info.model.name() == name, "{} describes a {}, not a {name}", json.display(), info.model.name());
+    ensure!(
+        info.spec.face_h == info.face_h && info.spec.face_w == info.face_w,
+        "{}: face size disagrees with the architecture",
+        json.display()
+    );
+    let record_path = dir.join(&info.files.record);
+    let record = burn::store::ModuleRecord::load(&record_path)
+        .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", record_path.display()))?;
+    let net = match info.model {
+        ModelKind::Decoder => Trained::Decoder(
+            Decoder::new(&info.spec, 0, &device)?
+                .try_load_record(record)
+                .map_err(|e| anyhow::anyhow!("{} does not fit {}: {e}", record_path.display(), json.display()))?,
+        ),
+        ModelKind::Autoencoder => Trained::Autoencoder(
+            Autoencoder::new(&info.spec, 0, &device)?
+                .try_load_record(record)
+                .map_err(|e| anyhow::anyhow!("{} does not fit {}: {e}", record_path.display(), json.display()))?,
+        ),
+    };
+    Ok(TrainedModel { info: Some(info), net, device })
+}
+
+/// The error statistics saved beside a model.
+pub fn load_stats(dir: &Path, info: &ModelInfo) -> Result<ErrorStats> {
+    let (h, w, mu) = calibrate::read_npy(&dir.join(&info.files.mu))?;
+    let (h2, w2, sigma) = calibrate::read_npy(&dir.join(&info.files.sigma))?;
+    ensure!(
+        (h, w) == (info.face_h, info.face_w) && (h2, w2) == (h, w),
+        "statistics are {h}x{w} and {h2}x{w2}, the model's face is {}x{}",
+        info.face_h,
+        info.face_w
+    );
+    Ok(ErrorStats { h, w, mu, sigma, frames: info.stats_frames })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_backend_is_a_clear_error() {
+        #[cfg(not(feature = "cuda"))]
+        assert!(device(DeviceArg::Cuda).unwrap_err().to_string().contains("--features cuda"));
+        device(DeviceArg::Cpu).unwrap();
+    }
+
+    #[test]
+    fn load_refuses_missing_and_mismatched_files() {
+        let dir = tempfile::tempdir().unwrap();
+        assert!(load(dir.path(), "decoder").unwrap_err().to_string().contains("cannot read"));
+        std::fs::write(dir.path().join("decoder.json"), "{}").unwrap();
+        assert!(load(dir.path(), "decoder").is_err());
+    }
 }

@@ -60,6 +60,9 @@ pub struct History {
 pub struct Samples {
     pub heads: Vec<[f32; 2]>,
     pub faces: Vec<Vec<f32>>,
+    /// Per-pixel loss weights (0 on mark pixels, 1 elsewhere), for test frames that carry a mark:
+    /// the test loss measures how well the face is predicted, not the mark. None: all 1.
+    pub weights: Option<Vec<Vec<f32>>>,
 }
 
 impl Samples {
@@ -74,9 +77,7 @@ impl Samples {
         Tensor::from_data(TensorData::new(v, [self.len(), 2]), device)
     }
     pub fn faces_tensor(&self, device: &Device) -> Tensor<2> {
-        let n = self.faces.first().map_or(0, |f| f.len());
-        let v: Vec<f32> = self.faces.iter().flatten().copied().collect();
-        Tensor::from_data(TensorData::new(v, [self.len(), n]), device)
+        rows_tensor(&self.faces, device)
     }
 }
 
@@ -97,6 +98,12 @@ impl FaceNet for Autoencoder {
     }
 }
 
+fn rows_tensor(rows: &[Vec<f32>], device: &Device) -> Tensor<2> {
+    let n = rows.first().map_or(0, |f| f.len());
+    let v: Vec<f32> = rows.iter().flatten().copied().collect();
+    Tensor::from_data(TensorData::new(v, [rows.len(), n]), device)
+}
+
 fn index_tensor(idx: &[usize], device: &Device) -> Tensor<1, Int> {
     let v: Vec<i64> = idx.iter().map(|&i| i as i64).collect();
     Tensor::from_data(TensorData::new(v, [idx.len()]), device)
@@ -106,7 +113,8 @@ fn scalar(t: Tensor<1>) -> f64 {
     t.into_scalar::<f32>() as f64
 }
 
-/// Mean squared error of `model` over `data`, in batches, without gradients.
+/// Mean squared error of `model` over `data` (weighted by `data.weights` when given), in
+/// batches, without gradients.
 pub fn evaluate<M: FaceNet>(model: &M, data: &Samples, batch: usize, device: &Device) -> f64 {
     if data.is_empty() {
         return f64::NAN;
@@ -114,15 +122,28 @@ pub fn evaluate<M: FaceNet>(model: &M, data: &Samples, batch: usize, device: &De
     let model = model.valid();
     let dev = device.clone().without_autodiff();
     let (heads, faces) = (data.heads_tensor(&dev), data.faces_tensor(&dev));
+    let weights = data.weights.as_ref().map(|w| rows_tensor(w, &dev));
     let idx: Vec<usize> = (0..data.len()).collect();
-    let mut sum = 0.0;
+    let (mut sum, mut count) = (0.0, 0.0);
     for chunk in idx.chunks(batch.max(1)) {
         let it = index_tensor(chunk, &dev);
         let y = faces.clone().select(0, it.clone());
-        let pred = model.predict(heads.clone().select(0, it), y.clone());
-        sum += scalar((pred - y).square().mean()) * chunk.len() as f64;
+        let pred = model.predict(heads.clone().select(0, it.clone()), y.clone());
+        let sq = (pred - y).square();
+        match &weights {
+            Some(w) => {
+                let w = w.clone().select(0, it);
+                sum += scalar((sq * w.clone()).sum());
+                count += scalar(w.sum());
+            }
+            None => {
+                let [b, n] = sq.dims();
+                sum += scalar(sq.sum());
+                count += (b * n) as f64;
+            }
+        }
     }
-    sum / data.len() as f64
+    sum / count
 }
 
 /// Trains `model` on `train`, reporting the test loss after every epoch. `device` must have
@@ -138,6 +159,7 @@ pub fn fit<M: FaceNet>(
 ) -> Result<(M, History)> {
     hp.check()?;
     ensure!(!train.is_empty(), "no training samples");
+    ensure!(train.weights.is_none(), "training frames must not carry marks");
     ensure!(device.is_autodiff(), "training needs an autodiff device");
     let started = Instant::now();
     let mut optim = AdamConfig::new().with_epsilon(hp.adam_eps).init();

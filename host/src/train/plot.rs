@@ -1,0 +1,56 @@
+//! Loss curves as a PNG (plotters). Labels need a system font; without one the curves are drawn
+//! bare rather than failing the training run.
+use super::fit::History;
+use anyhow::{anyhow, Result};
+use plotters::prelude::*;
+use std::path::Path;
+
+pub fn loss_png(h: &History, title: &str, path: &Path) -> Result<()> {
+    match draw(h, title, path, true) {
+        Ok(()) => Ok(()),
+        Err(_) => draw(h, title, path, false),
+    }
+}
+
+fn draw(h: &History, title: &str, path: &Path, text: bool) -> Result<()> {
+    let e = |e: &dyn std::fmt::Display| anyhow!("loss plot {}: {e}", path.display());
+    let all: Vec<f64> =
+        h.train_loss.iter().chain(&h.test_loss).copied().filter(|v| v.is_finite() && *v > 0.0).collect();
+    if all.is_empty() {
+        return Err(anyhow!("no finite losses to plot"));
+    }
+    let lo = all.iter().copied().fold(f64::INFINITY, f64::min) * 0.8;
+    let hi = all.iter().copied().fold(0.0, f64::max) * 1.25;
+    let n = h.train_loss.len().max(h.test_loss.len()).max(2);
+    let root = BitMapBackend::new(path, (800, 500)).into_drawing_area();
+    root.fill(&WHITE).map_err(|x| e(&x))?;
+    let mut b = ChartBuilder::on(&root);
+    b.margin(12);
+    if text {
+        b.caption(title, ("sans-serif", 22)).x_label_area_size(40).y_label_area_size(70);
+    }
+    let mut chart = b.build_cartesian_2d(1usize..n, (lo..hi).log_scale()).map_err(|x| e(&x))?;
+    if text {
+        chart
+            .configure_mesh()
+            .x_desc("epoch")
+            .y_desc("MSE (grey/255)")
+            .y_label_formatter(&|v| format!("{v:.1e}"))
+            .draw()
+            .map_err(|x| e(&x))?;
+    }
+    let series = [(&h.train_loss, BLUE, "train"), (&h.test_loss, RED, "test")];
+    for (v, colour, name) in series {
+        let pts: Vec<(usize, f64)> =
+            v.iter().enumerate().filter(|(_, y)| y.is_finite() && **y > 0.0).map(|(i, y)| (i + 1, *y)).collect();
+        let s = chart.draw_series(LineSeries::new(pts, colour.stroke_width(2))).map_err(|x| e(&x))?;
+        if text {
+            s.label(name).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+        }
+    }
+    if text {
+        chart.configure_series_labels().border_style(BLACK).background_style(WHITE).draw().map_err(|x| e(&x))?;
+    }
+    root.present().map_err(|x| e(&x))?;
+    Ok(())
+}
