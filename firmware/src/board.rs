@@ -412,3 +412,6 @@ impl<S: ModelStore> Core<S> {
         self.servo_tx.send(servo, &BoardToServo::Targets { time_ms, targets });
     }
 }
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,507 @@
+//! The board driven through its two byte streams, as the sim and QEMU drive it.
+
+use super::*;
+use crate::model::RamStore;
+use crate::testkit::mlp_spec;
+use msr_shared::blob::CRC32;
+use msr_shared::frame::{encode_message, FrameAccumulator, MAX_WIRE_FRAME};
+use msr_shared::joints::HOME_POSTURE;
+use msr_shared::msg::{JointState, CHUNK};
+use proptest::prelude::*;
+use std::collections::VecDeque;
+
+#[derive(Default)]
+struct Pipe {
+    rx: VecDeque<u8>,
+    tx: Vec<u8>,
+}
+
+impl embedded_io::ErrorType for Pipe {
+    type Error = core::convert::Infallible;
+}
+impl Read for Pipe {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        let n = buf.len().min(self.rx.len());
+        for b in buf.iter_mut().take(n) {
+            *b = self.rx.pop_front().unwrap();
+        }
+        Ok(n)
+    }
+}
+impl ReadReady for Pipe {
+    fn read_ready(&mut self) -> Result<bool, Self::Error> {
+        Ok(!self.rx.is_empty())
+    }
+}
+impl Write for Pipe {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        self.tx.extend_from_slice(buf);
+        Ok(buf.len())
+    }
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        Ok(())
+    }
+}
+
+const STORE: usize = 32 * 1024;
+const FACE: (u16, u16) = (20, 24);
+
+/// A board, a host and a servo bus whose servos follow targets at once.
+struct Rig {
+    board: Box<Board<RamStore<STORE>>>,
+    host: Pipe,
+    servo: Pipe,
+    now: u64,
+    seq: u16,
+    host_acc: FrameAccumulator<MAX_WIRE_FRAME>,
+    servo_acc: FrameAccumulator<MAX_WIRE_FRAME>,
+    replies: Vec<BoardToHost>,
+    /// (time, targets) as sent.
+    targets: Vec<(u64, [f32; 5])>,
+    stiffness: bool,
+    servos_on: bool,
+    position: [f32; 5],
+}
+
+impl Rig {
+    fn new(builtin: Option<&'static [u8]>) -> Rig {
+        Rig {
+            board: Box::new(Board::new(RamStore::new(builtin))),
+            host: Pipe::default(),
+            servo: Pipe::default(),
+            now: 1_000_000,
+            seq: 0,
+            host_acc: FrameAccumulator::new(),
+            servo_acc: FrameAccumulator::new(),
+            replies: Vec::new(),
+            targets: Vec::new(),
+            stiffness: false,
+            servos_on: true,
+            position: [0.1, -0.1, 1.0, 0.2, -0.5],
+        }
+    }
+
+    fn wire<T: serde::Serialize>(&mut self, msg: &T) -> Vec<u8> {
+        let mut w = [0u8; MAX_WIRE_FRAME];
+        self.seq = self.seq.wrapping_add(1);
+        let n = encode_message(self.seq, msg, &mut w).unwrap();
+        w[..n].to_vec()
+    }
+
+    fn host_send(&mut self, msg: &HostToBoard) {
+        let w = self.wire(msg);
+        self.host.rx.extend(w);
+    }
+
+    fn states(&mut self) {
+        let mut states = heapless::Vec::new();
+        for (j, p) in REACH_JOINTS.iter().zip(self.position) {
+            states.push(JointState { joint: *j, position: p, stiffness: self.stiffness, faults: 0 }).unwrap();
+        }
+        let w = self.wire(&ServoToBoard::States { time_ms: (self.now / 1000) as u32, states });
+        self.servo.rx.extend(w);
+    }
+
+    /// Runs `ms` milliseconds in 1 ms polls; servos report every 10 ms.
+    fn run(&mut self, ms: u64) {
+        for _ in 0..ms {
+            self.now += 1000;
+            if self.servos_on && (self.now / 1000) % 10 == 0 {
+                self.states();
+            }
+            self.board.poll(self.now, &mut self.host, &mut self.servo);
+            for b in std::mem::take(&mut self.host.tx) {
+                if let Some(Ok(f)) = self.host_acc.push(b) {
+                    self.replies.push(f.message::<BoardToHost>().unwrap());
+                }
+            }
+            for b in std::mem::take(&mut self.servo.tx) {
+                if let Some(Ok(f)) = self.servo_acc.push(b) {
+                    match f.message::<BoardToServo>().unwrap() {
+                        BoardToServo::Targets { targets, .. } => {
+                            let mut t = [0f32; 5];
+                            for (i, jt) in targets.iter().enumerate() {
+                                assert_eq!(jt.joint, REACH_JOINTS[i]);
+                                t[i] = jt.position;
+                            }
+                            assert_eq!(targets.len(), 5);
+                            self.targets.push((self.now, t));
+                            if self.stiffness {
+                                self.position = t;
+                            }
+                        }
+                        BoardToServo::Stiffness { on } => self.stiffness = on,
+                        BoardToServo::StateRequest => {}
+                    }
+                }
+            }
+        }
+    }
+
+    fn upload(&mut self, blob: &[u8], announced_crc: u32) {
+        self.host_send(&HostToBoard::ModelBegin { len: blob.len() as u32, crc32: announced_crc });
+        for (i, c) in blob.chunks(CHUNK).enumerate() {
+            self.host_send(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data: c });
+            self.run(1);
+        }
+        self.host_send(&HostToBoard::ModelCommit);
+        self.run(1);
+    }
+
+    fn frame(&mut self, id: u16, pixels: &[u8]) {
+        let h = FrameHeader { frame: id, crop_x: 140, crop_y: 95, width: FACE.1, height: FACE.0 };
+        self.host_send(&HostToBoard::FrameStart(h));
+        for (i, c) in pixels.chunks(CHUNK).enumerate() {
+            self.host_send(&HostToBoard::FrameChunk { frame: id, offset: (i * CHUNK) as u16, data: c });
+        }
+    }
+
+    fn errors(&self) -> Vec<(ErrorCode, u32)> {
+        self.replies
+            .iter()
+            .filter_map(|r| match r {
+                BoardToHost::Error { code, detail } => Some((*code, *detail)),
+                _ => None,
+            })
+            .collect()
+    }
+
+    fn detections(&self) -> Vec<Detection> {
+        self.replies
+            .iter()
+            .filter_map(|r| match r {
+                BoardToHost::Detection(d) => Some(*d),
+                _ => None,
+            })
+            .collect()
+    }
+
+    /// Every target sent was inside the limits, and consecutive ones within the velocity limit
+    /// at `speed` (restarts after a servo outage excepted: they start from the measured posture).
+    fn check_targets(&self, speed: f32) {
+        for (_, t) in &self.targets {
+            for (j, a) in REACH_JOINTS.iter().zip(t) {
+                assert!(j.validate(*a).is_ok(), "{j} {a}");
+            }
+        }
+        for w in self.targets.windows(2) {
+            let ((t0, a), (t1, b)) = (w[0], w[1]);
+            if t1 - t0 > 10_000 {
+                continue;
+            }
+            for i in 0..5 {
+                let lim = REACH_JOINTS[i].limits().unwrap().max_velocity * speed * 0.01 * 1.0001;
+                assert!((b[i] - a[i]).abs() <= lim, "joint {i} at {t1}: {} -> {}", a[i], b[i]);
+            }
+        }
+    }
+}
+
+fn blob() -> &'static [u8] {
+    static BLOB: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+    BLOB.get_or_init(|| mlp_spec(3, FACE.0, FACE.1).to_bytes().unwrap())
+}
+
+/// The face the model predicts at `head`, grey bytes, optionally with a 4 x 4 mark.
+fn face(head: [f32; 2], mark: bool) -> Vec<u8> {
+    let m = Model::parse(blob()).unwrap();
+    let mut d = Box::new(crate::decoder::Decoder::new());
+    let mut f: Vec<u8> = d.predict(&m, head).unwrap().iter().map(|&p| ((p as u32 + 128) >> 8) as u8).collect();
+    if mark {
+        for y in 5..9 {
+            for x in 10..14 {
+                let i = y * FACE.1 as usize + x;
+                f[i] = if f[i] > 128 { 10 } else { 245 };
+            }
+        }
+    }
+    f
+}
+
+#[test]
+fn streams_from_the_measured_posture_to_home_before_any_model() {
+    let mut rig = Rig::new(None);
+    rig.run(50);
+    assert_eq!(rig.board.status().mode, Mode::NoModel);
+    assert!(rig.stiffness);
+    // The first target is one velocity-limited step from where the arm was.
+    let first = rig.targets[0].1;
+    for (i, (a, b)) in first.iter().zip([0.1, -0.1, 1.0, 0.2, -0.5]).enumerate() {
+        let step = REACH_JOINTS[i].limits().unwrap().max_velocity * 0.1 * 0.01;
+        assert!((a - b).abs() <= step * 1.0001 && (a - b).abs() > 0.0, "joint {i}: {a} from {b}");
+    }
+    rig.run(3000);
+    assert_eq!(rig.targets.last().unwrap().1, HOME_POSTURE);
+    rig.check_targets(0.1);
+    // Frames without a model are refused.
+    rig.frame(1, &face([0.0, 0.0], false));
+    rig.run(5);
+    assert!(rig.errors().contains(&(ErrorCode::NoModel, 0)));
+}
+
+#[test]
+fn detects_confirms_reaches_holds_and_returns() {
+    let mut rig = Rig::new(Some(blob()));
+    rig.run(3000); // settle at home
+    assert_eq!(rig.board.status().mode, Mode::Observe);
+    let home = [HOME_POSTURE[0], HOME_POSTURE[1]];
+    // Clean frames: no detection, no reach.
+    for i in 0..5 {
+        rig.frame(i, &face(home, false));
+        rig.run(40);
+    }
+    let d = rig.detections();
+    assert_eq!(d.len(), 5);
+    assert!(d.iter().all(|d| d.blob.is_none() && !d.confirmed));
+    assert_eq!(d[0].head, home);
+    // Marked frames: confirmed on the third (3 of 5).
+    for i in 5..8 {
+        rig.frame(i, &face(home, true));
+        rig.run(40);
+    }
+    let d = rig.detections();
+    assert_eq!(d.len(), 8);
+    let b = d[7].blob.unwrap();
+    assert_eq!((b.area, b.box_xyxy), (16, [150, 100, 153, 103]));
+    assert_eq!(b.centroid, [151.5, 101.5]);
+    assert!(!d[5].confirmed && !d[6].confirmed && d[7].confirmed);
+    let target = d[7].reach.unwrap();
+    assert_eq!(rig.board.phase(), Phase::Reach);
+    // While the arm is up, frames are not processed.
+    for i in 8..12 {
+        rig.frame(i, &face(home, true));
+        rig.run(100);
+    }
+    assert_eq!(rig.detections().len(), 8);
+    // Keep frames coming (the face watchdog) until the cycle ends.
+    let mut t = 0;
+    while rig.board.phase() != Phase::Observe {
+        rig.frame(100 + t, &face(home, false));
+        rig.run(100);
+        t += 1;
+        assert!(t < 200, "stuck in {:?}", rig.board.phase());
+    }
+    assert!(rig.targets.iter().any(|(_, p)| *p == target), "reached the target");
+    let held = rig.targets.iter().filter(|(_, p)| *p == target).count();
+    assert!((500..=502).contains(&held), "held {held} periods");
+    assert_eq!(rig.targets.last().unwrap().1, HOME_POSTURE);
+    assert_eq!(rig.board.status().reaches, 1);
+    assert_eq!(rig.board.status().servo_link.crc_errors, 0);
+    rig.check_targets(0.1);
+}
+
+#[test]
+fn bad_uploads_keep_the_running_model() {
+    let mut rig = Rig::new(None);
+    rig.run(20);
+    let good = blob();
+    rig.upload(good, CRC32.checksum(good));
+    let crc = Model::parse(good).unwrap().crc32;
+    assert!(rig.replies.contains(&BoardToHost::ModelAccepted { crc32: crc }));
+    assert_eq!(rig.board.status().model_crc, crc);
+
+    // Corrupted in transit: the announced CRC does not match.
+    let other = mlp_spec(4, FACE.0, FACE.1).to_bytes().unwrap();
+    let mut bad = other.clone();
+    bad[100] ^= 0x40;
+    rig.upload(&bad, CRC32.checksum(&other));
+    assert!(rig.errors().contains(&(ErrorCode::BadUpload, UploadError::Crc.detail())));
+    // Intact transfer of an invalid blob (bad magic): refused with the blob error code.
+    let mut invalid = other.clone();
+    invalid[0] = b'X';
+    rig.upload(&invalid, CRC32.checksum(&invalid));
+    assert!(rig.errors().contains(&(ErrorCode::BadModel, msr_shared::blob::BlobError::BadMagic.code())));
+    // Truncated upload: commit before all bytes.
+    rig.host_send(&HostToBoard::ModelBegin { len: other.len() as u32, crc32: CRC32.checksum(&other) });
+    rig.host_send(&HostToBoard::ModelChunk { offset: 0, data: &other[..CHUNK] });
+    rig.host_send(&HostToBoard::ModelChunk { offset: 2 * CHUNK as u32, data: &other[..CHUNK] });
+    rig.host_send(&HostToBoard::ModelCommit);
+    // Too large, and a commit with nothing begun.
+    rig.host_send(&HostToBoard::ModelBegin { len: STORE as u32 + 1, crc32: 0 });
+    rig.host_send(&HostToBoard::ModelCommit);
+    rig.run(5);
+    let errs = rig.errors();
+    assert!(errs.contains(&(ErrorCode::BadUpload, UploadError::Sequence.detail())));
+    assert!(errs.contains(&(ErrorCode::BadUpload, UploadError::TooLarge.detail())));
+    assert_eq!(rig.board.status().model_crc, crc, "the old model still runs");
+    rig.frame(1, &face([0.0, 0.0], true));
+    rig.run(30);
+    assert!(rig.detections().last().unwrap().blob.is_some());
+    // And a good upload after all that is accepted.
+    rig.upload(&other, CRC32.checksum(&other));
+    let crc2 = Model::parse(&other).unwrap().crc32;
+    assert_eq!(rig.board.status().model_crc, crc2);
+}
+
+#[test]
+fn face_watchdog_holds_still_and_servo_watchdog_stops_streaming() {
+    let mut rig = Rig::new(Some(blob()));
+    rig.run(100);
+    rig.frame(1, &face([0.0, 0.0], false));
+    rig.run(20);
+    assert!(rig.errors().is_empty());
+    rig.run(520);
+    assert_eq!(rig.errors(), vec![(ErrorCode::FaceTimeout, 0)]);
+    assert_eq!(rig.board.status().mode, Mode::Halted);
+    assert_eq!(rig.board.status().face_watchdog_trips, 1);
+    let n = rig.targets.len();
+    rig.run(200);
+    // Still streaming (servos keep their position), but not moving.
+    assert!(rig.targets.len() >= n + 19);
+    assert!(rig.targets[n..].iter().all(|(_, t)| *t == rig.targets[n - 1].1));
+    // Frames again: back to observing.
+    rig.frame(2, &face([0.0, 0.0], false));
+    rig.run(20);
+    assert_eq!(rig.board.status().mode, Mode::Observe);
+
+    // Servos go quiet: within 100 ms the board reports and stops streaming.
+    rig.servos_on = false;
+    let t0 = rig.now;
+    rig.run(150);
+    assert!(rig.errors().contains(&(ErrorCode::ServoTimeout, 0)));
+    let last = rig.targets.last().unwrap().0;
+    assert!(last <= t0 + 110_000, "targets until {} after the last state", last - t0);
+    rig.run(300);
+    assert_eq!(rig.targets.last().unwrap().0, last, "nothing streamed while the servos are silent");
+    assert_eq!(rig.board.status().servo_watchdog_trips, 1);
+    // They come back somewhere else: streaming resumes from there.
+    rig.position = [0.3, 0.2, 0.5, 0.1, -1.0];
+    rig.servos_on = true;
+    rig.run(30);
+    let resumed = rig.targets.iter().find(|(t, _)| *t > last).unwrap().1;
+    for i in 0..5 {
+        assert!((resumed[i] - rig.position[i]).abs() < 0.1);
+    }
+    rig.check_targets(0.1);
+}
+
+#[test]
+fn truncated_oversized_and_garbled_frames_are_counted_and_survived() {
+    let mut rig = Rig::new(Some(blob()));
+    rig.run(20);
+    let ping = rig.wire(&HostToBoard::Ping { nonce: 7 });
+    // Truncated: half a frame, then a delimiter.
+    rig.host.rx.extend(&ping[..ping.len() / 2]);
+    rig.host.rx.push_back(0);
+    // Oversized: a run of non-zero bytes longer than any frame.
+    rig.host.rx.extend(std::iter::repeat_n(0x55, 3 * MAX_WIRE_FRAME));
+    rig.host.rx.push_back(0);
+    // A flipped bit.
+    let mut flipped = ping.clone();
+    flipped[2] ^= 0x10;
+    rig.host.rx.extend(flipped);
+    rig.host.rx.extend(ping);
+    rig.run(5);
+    let s = rig.board.status();
+    assert_eq!(s.host_link.oversized, 1);
+    assert!(s.host_link.resyncs() >= 3, "{:?}", s.host_link);
+    assert!(rig.replies.contains(&BoardToHost::Pong { nonce: 7 }));
+    // Face frames of the wrong size, chunks out of order or past the end.
+    let h = FrameHeader { frame: 9, crop_x: 0, crop_y: 0, width: 10, height: 10 };
+    rig.host_send(&HostToBoard::FrameStart(h));
+    rig.host_send(&HostToBoard::FrameStart(FrameHeader { width: FACE.1, height: FACE.0, ..h }));
+    rig.host_send(&HostToBoard::FrameChunk { frame: 9, offset: 100, data: &[1, 2, 3] });
+    rig.host_send(&HostToBoard::FrameChunk { frame: 3, offset: 0, data: &[1, 2, 3] });
+    rig.run(5);
+    assert_eq!(rig.errors().iter().filter(|e| e.0 == ErrorCode::BadFrame).count(), 3);
+    rig.frame(10, &face([0.0, 0.0], false));
+    rig.run(20);
+    assert_eq!(rig.detections().len(), 1);
+    rig.host_send(&HostToBoard::GetStatus);
+    rig.run(2);
+    assert!(matches!(rig.replies.last(), Some(BoardToHost::Status(s)) if s.frames == 1));
+}
+
+#[test]
+fn configuration_is_checked_and_applied() {
+    let mut rig = Rig::new(Some(blob()));
+    rig.run(20);
+    let good = Config {
+        threshold: 3.0,
+        normalisation: msr_shared::blob::Normalisation::Variance,
+        sided: msr_shared::blob::Sided::One,
+        min_area: 10,
+        confirm_k: 1,
+        confirm_n: 1,
+        speed_fraction: 0.5,
+        hold_ms: 100,
+    };
+    for bad in [
+        Config { threshold: f32::NAN, ..good },
+        Config { threshold: -1.0, ..good },
+        Config { min_area: 0, ..good },
+        Config { confirm_k: 3, confirm_n: 2, ..good },
+        Config { speed_fraction: 1.5, ..good },
+        Config { hold_ms: 3_600_000, ..good },
+    ] {
+        rig.host_send(&HostToBoard::Configure(bad));
+    }
+    rig.run(2);
+    assert_eq!(rig.errors().len(), 6);
+    assert!(rig.errors().iter().all(|e| e.0 == ErrorCode::BadConfig));
+    rig.host_send(&HostToBoard::Configure(good));
+    rig.run(2);
+    assert_eq!(rig.errors().len(), 6);
+    let s = rig.board.settings().unwrap();
+    assert_eq!((s.threshold, s.min_area), (3.0, 10));
+}
+
+#[derive(Clone, Debug)]
+enum Event {
+    Garbage(Vec<u8>),
+    ServoGarbage(Vec<u8>),
+    Frame(bool, f32, f32),
+    Config(f32, u16, u8, u8, f32, u32),
+    Chunk(u32, Vec<u8>),
+    Begin(u32),
+    Commit,
+    Wait(u8),
+}
+
+fn event() -> impl Strategy<Value = Event> {
+    prop_oneof![
+        proptest::collection::vec(any::<u8>(), 0..300).prop_map(Event::Garbage),
+        proptest::collection::vec(any::<u8>(), 0..100).prop_map(Event::ServoGarbage),
+        (any::<bool>(), -0.1f32..0.1, -0.1f32..0.1).prop_map(|(m, y, p)| Event::Frame(m, y, p)),
+        (any::<f32>(), any::<u16>(), any::<u8>(), any::<u8>(), any::<f32>(), any::<u32>())
+            .prop_map(|(t, a, k, n, s, h)| Event::Config(t, a, k, n, s, h % 2000)),
+        (any::<u32>(), proptest::collection::vec(any::<u8>(), 0..CHUNK)).prop_map(|(o, d)| Event::Chunk(o % 40000, d)),
+        any::<u32>().prop_map(|l| Event::Begin(l % 40000)),
+        Just(Event::Commit),
+        any::<u8>().prop_map(Event::Wait),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+    /// Whatever arrives on either link, every target is inside the limits and within the
+    /// velocity limit, and nothing panics.
+    #[test]
+    fn garbage_never_makes_an_unsafe_command(events in proptest::collection::vec(event(), 1..60)) {
+        let mut rig = Rig::new(Some(blob()));
+        rig.run(20);
+        let mut id = 0u16;
+        for e in events {
+            match e {
+                Event::Garbage(g) => { rig.host.rx.extend(g); rig.host.rx.push_back(0); }
+                Event::ServoGarbage(g) => { rig.servo.rx.push_back(0); rig.servo.rx.extend(g); rig.servo.rx.push_back(0); }
+                Event::Frame(m, y, p) => { id = id.wrapping_add(1); rig.frame(id, &face([y, p], m)); }
+                Event::Config(t, a, k, n, s, h) => rig.host_send(&HostToBoard::Configure(Config {
+                    threshold: t, normalisation: msr_shared::blob::Normalisation::StdDev, sided: msr_shared::blob::Sided::Two,
+                    min_area: a, confirm_k: k, confirm_n: n, speed_fraction: s, hold_ms: h,
+                })),
+                Event::Chunk(o, d) => rig.host_send(&HostToBoard::ModelChunk { offset: o, data: &d }),
+                Event::Begin(l) => rig.host_send(&HostToBoard::ModelBegin { len: l, crc32: 0 }),
+                Event::Commit => rig.host_send(&HostToBoard::ModelCommit),
+                Event::Wait(ms) => rig.run(ms as u64),
+            }
+            rig.run(3);
+        }
+        rig.run(100);
+        // The speed fraction may have been configured up to 1.
+        rig.check_targets(1.0);
+        prop_assert!(!rig.targets.is_empty());
+        prop_assert_eq!(rig.board.status().model_crc, Model::parse(blob()).unwrap().crc32);
+    }
+}
