@@ -12,8 +12,10 @@ pub mod layout;
 pub mod link;
 pub mod looks;
 pub mod marks;
+pub mod pty;
 pub mod qemu;
 pub mod render;
 pub mod servo;
+pub mod world;
 
 pub use looks::Robot;

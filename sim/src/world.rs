@@ -1,0 +1,221 @@
+//! The simulated world and the firmware side, on two threads in lock-step simulated time.
+//!
+//! Every tick (default 1 ms) the world thread moves the servos, answers the servo bus and runs
+//! the scenario (which plays the PC on the host link: sends frames, reads reports, judges), while
+//! the firmware thread calls the firmware's `poll(now_us, host_link, servo_bus)`; then both meet
+//! at a barrier and time advances. A byte written at time t arrives strictly after t (see
+//! [`crate::link`]), so what each side sees does not depend on thread timing: a run is
+//! reproducible for a seed.
+use crate::body::BodyPose;
+use crate::kin::LeftArm;
+use crate::link::{link, LinkConfig, LinkEnd};
+use crate::servo::{ServoBus, ServoConfig};
+use msr_shared::joints::Joint;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Barrier, Mutex};
+
+/// The firmware side: called once a tick with the time and its two link ends.
+pub trait Firmware: Send {
+    fn poll(&mut self, now_us: u64, host: &mut LinkEnd, servo: &mut LinkEnd);
+}
+
+impl<F: FnMut(u64, &mut LinkEnd, &mut LinkEnd) + Send> Firmware for F {
+    fn poll(&mut self, now_us: u64, host: &mut LinkEnd, servo: &mut LinkEnd) {
+        self(now_us, host, servo)
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct WorldConfig {
+    pub tick_us: u64,
+    /// Host link: end A is the world (the PC's side), end B the firmware.
+    pub host_link: LinkConfig,
+    /// Servo bus: end A is the firmware, end B the servos.
+    pub servo_link: LinkConfig,
+    pub servo: ServoConfig,
+    /// Simulated seconds per wall-clock second, for talking to real-time peers (a PTY);
+    /// `None` runs as fast as it can.
+    pub pace: Option<f64>,
+}
+
+impl Default for WorldConfig {
+    fn default() -> Self {
+        WorldConfig {
+            tick_us: 1000,
+            host_link: LinkConfig::default(),
+            servo_link: LinkConfig { seed: 1, ..LinkConfig::default() },
+            servo: ServoConfig::default(),
+            pace: None,
+        }
+    }
+}
+
+impl WorldConfig {
+    /// Seeds both links' fault layers from one seed.
+    pub fn seeded(mut self, seed: u64) -> Self {
+        self.host_link.seed = seed.wrapping_mul(2);
+        self.servo_link.seed = seed.wrapping_mul(2).wrapping_add(1);
+        self
+    }
+}
+
+/// The world side: servos on the servo bus, and the PC's end of the host link.
+pub struct World {
+    pub now_us: u64,
+    pub servos: ServoBus,
+    /// The world's end of the host link; the scenario sends and receives on it.
+    pub host: LinkEnd,
+    servo_end: LinkEnd,
+}
+
+impl World {
+    fn step(&mut self) {
+        let now = self.now_us;
+        self.servo_end.set_time(now);
+        self.host.set_time(now);
+        let bytes = self.servo_end.receive();
+        self.servos.receive(&bytes, now);
+        if let Some(report) = self.servos.step(now) {
+            self.servo_end.send(&report);
+        }
+    }
+
+    /// The body pose the servos hold now (true positions), for rendering: head and both arms.
+    pub fn body_pose(&self) -> BodyPose {
+        let s = &self.servos;
+        let arm = |sp, sr, ey, er, wy| LeftArm {
+            shoulder_pitch: s.position(sp),
+            shoulder_roll: s.position(sr),
+            elbow_yaw: s.position(ey),
+            elbow_roll: s.position(er),
+            wrist_yaw: s.position(wy),
+        };
+        use Joint::*;
+        BodyPose {
+            head_yaw: s.position(HeadYaw),
+            head_pitch: s.position(HeadPitch),
+            left_arm: arm(LShoulderPitch, LShoulderRoll, LElbowYaw, LElbowRoll, LWristYaw),
+            right_arm: arm(RShoulderPitch, RShoulderRoll, RElbowYaw, RElbowRoll, RWristYaw),
+        }
+    }
+
+    /// What the servo bus has seen of the firmware's traffic (as the firmware's sending end).
+    pub fn servo_link_stats(&self) -> crate::link::LaneStats {
+        self.servo_end.tx_stats()
+    }
+}
+
+/// What the scenario tells the world after each tick.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Flow {
+    Continue,
+    Stop,
+}
+
+/// How a run went.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RunReport {
+    pub end_us: u64,
+    pub ticks: u64,
+    pub wall_s: f64,
+    /// Simulated time over wall time.
+    pub speedup: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    #[error("bad world settings: {0}")]
+    Config(String),
+    #[error("the firmware panicked at {at_us} us: {message}")]
+    FirmwarePanic { at_us: u64, message: String },
+}
+
+/// Builds the world (servos at home) and runs it with `firmware` on its own thread until the
+/// scenario says stop or `max_us` of simulated time pass. Returns the world for inspection.
+pub fn run<F, S>(cfg: &WorldConfig, firmware: &mut F, mut scenario: S, max_us: u64) -> Result<(World, RunReport), RunError>
+where
+    F: Firmware,
+    S: FnMut(&mut World) -> Flow,
+{
+    if cfg.tick_us == 0 {
+        return Err(RunError::Config("tick must be positive".into()));
+    }
+    if cfg.pace.is_some_and(|p| !(p.is_finite() && p > 0.0)) {
+        return Err(RunError::Config("pace must be positive".into()));
+    }
+    let (host_world, mut host_fw) = link(&cfg.host_link).map_err(RunError::Config)?;
+    let (mut servo_fw, servo_world) = link(&cfg.servo_link).map_err(RunError::Config)?;
+    let mut world = World {
+        now_us: 0,
+        servos: ServoBus::at_home(cfg.servo),
+        host: host_world,
+        servo_end: servo_world,
+    };
+    let barrier = Barrier::new(2);
+    let stop = AtomicBool::new(false);
+    let failed: Mutex<Option<(u64, String)>> = Mutex::new(None);
+    let tick = cfg.tick_us;
+    let t0 = std::time::Instant::now();
+    let mut ticks = 0u64;
+
+    std::thread::scope(|scope| {
+        let (barrier, stop, failed) = (&barrier, &stop, &failed);
+        scope.spawn(move || {
+            let mut now = 0u64;
+            loop {
+                host_fw.set_time(now);
+                servo_fw.set_time(now);
+                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                    firmware.poll(now, &mut host_fw, &mut servo_fw)
+                }));
+                if let Err(e) = r {
+                    let msg = e
+                        .downcast_ref::<&str>()
+                        .map(|s| s.to_string())
+                        .or_else(|| e.downcast_ref::<String>().cloned())
+                        .unwrap_or_else(|| "unknown panic".into());
+                    *failed.lock().unwrap_or_else(|p| p.into_inner()) = Some((now, msg));
+                    stop.store(true, Ordering::SeqCst);
+                }
+                barrier.wait();
+                // Both sides read the flag after the barrier and before the next one.
+                if stop.load(Ordering::SeqCst) {
+                    barrier.wait();
+                    return;
+                }
+                barrier.wait();
+                now += tick;
+            }
+        });
+        loop {
+            world.step();
+            let flow = scenario(&mut world);
+            if flow == Flow::Stop || world.now_us + tick > max_us {
+                stop.store(true, Ordering::SeqCst);
+            }
+            barrier.wait();
+            ticks += 1;
+            let done = stop.load(Ordering::SeqCst);
+            barrier.wait();
+            if done {
+                break;
+            }
+            world.now_us += tick;
+            if let Some(p) = cfg.pace {
+                let due = std::time::Duration::from_secs_f64(world.now_us as f64 * 1e-6 / p);
+                if let Some(wait) = due.checked_sub(t0.elapsed()) {
+                    std::thread::sleep(wait);
+                }
+            }
+        }
+    });
+    if let Some((at_us, message)) = failed.into_inner().unwrap_or_else(|p| p.into_inner()) {
+        return Err(RunError::FirmwarePanic { at_us, message });
+    }
+    let wall_s = t0.elapsed().as_secs_f64();
+    let end_us = world.now_us;
+    Ok((world, RunReport { end_us, ticks, wall_s, speedup: end_us as f64 * 1e-6 / wall_s.max(1e-9) }))
+}
+
+#[cfg(test)]
+mod tests;
