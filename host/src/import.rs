@@ -60,6 +60,8 @@ pub fn run(args: Args) -> Result<()> {
         .iter()
         .map(|l| format!("{}.{}->{}", l.w_shift, l.in_shift, l.out_shift))
         .collect();
+    let heads = model.head_angles.clone().unwrap_or_else(grid_heads);
+    let (psnr, max_abs) = fidelity(&bytes, &model.decoder, &heads)?;
     println!(
         "wrote {} ({} bytes): decoder {} ({} layers, i16 weights, shifts w.in->out {}), face {}x{}, \
          threshold {}, min area {}",
@@ -73,7 +75,48 @@ pub fn run(args: Args) -> Result<()> {
         model.threshold,
         model.min_area
     );
+    println!(
+        "fixed point (firmware decoder) vs float over {} head poses: PSNR {psnr:.1} dB, largest \
+         difference {max_abs:.2} grey levels",
+        heads.len()
+    );
     Ok(())
+}
+
+/// A 21 x 21 grid over +-5 degrees, when the manifest lists no head angles.
+fn grid_heads() -> Vec<[f32; 2]> {
+    let d = 5f32.to_radians();
+    (0..21 * 21)
+        .map(|i| {
+            [
+                -d + d * (i % 21) as f32 / 10.0,
+                -d + d * (i / 21) as f32 / 10.0,
+            ]
+        })
+        .collect()
+}
+
+/// How far the firmware's fixed-point decoder is from the float one: PSNR (peak 255) and the
+/// largest absolute difference, in grey levels, over `heads`.
+pub fn fidelity(blob: &[u8], float: &DenseDecoder, heads: &[[f32; 2]]) -> Result<(f64, f64)> {
+    let model = msr_shared::blob::Model::parse(blob).map_err(|e| anyhow::anyhow!("blob: {e}"))?;
+    let mut dec = Box::new(msr_firmware::decoder::Decoder::new());
+    let (mut se, mut n, mut max_abs) = (0f64, 0usize, 0f64);
+    for &h in heads {
+        let want = float.predict(h, &[]);
+        let got = dec
+            .predict_uncached(&model, h)
+            .map_err(|e| anyhow::anyhow!("firmware decoder: {e}"))?;
+        for (g, w) in got.iter().zip(&want) {
+            let d = *g as f64 / 256.0 - *w as f64 * 255.0;
+            se += d * d;
+            max_abs = max_abs.max(d.abs());
+            n += 1;
+        }
+    }
+    ensure!(n > 0, "no head poses to compare");
+    let mse = se / n as f64;
+    Ok((10.0 * (255.0f64 * 255.0 / mse.max(1e-12)).log10(), max_abs))
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -86,6 +129,40 @@ struct Manifest {
     error_statistics: ManifestStats,
     novelty: ManifestNovelty,
     reach: ManifestReach,
+    head_angles: Option<ManifestAngles>,
+}
+
+#[derive(Deserialize, Debug)]
+struct ManifestAngles {
+    file: String,
+}
+
+/// "HeadYaw,HeadPitch" rows, radians, no header.
+fn read_angles(path: &Path) -> Result<Vec<[f32; 2]>> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let mut out = Vec::new();
+    for (i, line) in text
+        .lines()
+        .enumerate()
+        .filter(|(_, l)| !l.trim().is_empty())
+    {
+        let v: Vec<f32> = line
+            .split(',')
+            .map(|x| x.trim().parse::<f32>())
+            .collect::<Result<_, _>>()
+            .ok()
+            .filter(|v: &Vec<f32>| v.len() == 2 && v.iter().all(|a| a.is_finite()))
+            .with_context(|| {
+                format!(
+                    "{} line {}: expected two finite angles",
+                    path.display(),
+                    i + 1
+                )
+            })?;
+        out.push([v[0], v[1]]);
+    }
+    Ok(out)
 }
 
 #[derive(Deserialize, Debug)]
@@ -210,6 +287,8 @@ pub struct Published {
     pub threshold: f32,
     pub sided: Sided,
     pub min_area: u16,
+    /// The recorded head angles of the training frames, when the manifest lists them.
+    pub head_angles: Option<Vec<[f32; 2]>>,
 }
 
 impl Published {
@@ -301,6 +380,10 @@ impl Published {
             threshold: m.novelty.threshold_training,
             sided: Sided::Two,
             min_area: m.novelty.min_blob_area,
+            head_angles: match &m.head_angles {
+                Some(h) => Some(read_angles(&dir.join(&h.file))?),
+                None => None,
+            },
         })
     }
 
