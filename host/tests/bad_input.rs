@@ -49,6 +49,7 @@ fn manifest(dir: &Path, tmp: &Path, name: &str, f: impl FnOnce(&mut Value)) -> P
     abs(&mut m["error_statistics"]["mu"]);
     abs(&mut m["error_statistics"]["sigma"]);
     abs(&mut m["reach"]["weights"]);
+    abs(&mut m["head_angles"]["file"]);
     f(&mut m);
     let p = tmp.join(name);
     std::fs::write(&p, serde_json::to_string(&m).unwrap()).unwrap();
