@@ -1,9 +1,550 @@
 //! `msr quantize`: turn a trained model into a fixed-point model blob and compare it with float.
-use anyhow::{bail, Result};
+//!
+//! `msr quantize --train DIR --reach FILE [--threshold T] [--weights auto|i8|i16] [--data DIR]
+//! --out MODEL.msrm` reads the decoder of a `msr train` output folder (`decoder.json`, `.mpk`,
+//! `_mu.npy`, `_sigma.npy`, `template.png`) and a `msr train-reach` network, and writes the blob
+//! plus a report `MODEL.msrm.json`.
+//!
+//! Fixed point (semantics in `msr_shared::blob`):
+//! - the head angles enter with [`HEAD_IN_SHIFT`] fraction bits;
+//! - each layer's weight shift is the largest that (a) fits every weight in i16 (or i8) and (b)
+//!   keeps the i32 accumulator from wrapping for ANY input the previous layer can produce
+//!   (tanh/sigmoid outputs are within +-1, anything else within the i16 range): per output,
+//!   `2^(w+in) (sum |W| X + |b|) + rounding slack < 2^31`, where the sum runs over the weights
+//!   that can meet in one output (for a transposed convolution, one stride phase of the kernel);
+//! - each hidden layer's output shift (15 for tanh/sigmoid unless the search lowers it) trades the
+//!   activation's resolution against the next layer's weight bits: starting from 15 everywhere,
+//!   one pass tries 10..=15 per hidden layer and keeps the shift with the best PSNR, measured by
+//!   running the firmware's own decoder on the calibration head poses;
+//! - `--weights auto` (default) takes i8 weights when they keep the PSNR at or above
+//!   [`PSNR_TARGET_DB`], else i16;
+//! - mu and sigma go to Q8.8 grey levels, sigma floored at the training floor (and one Q8.8 step).
+//!
+//! The report compares float against fixed point, the fixed side always being the firmware's code
+//! (`msr_firmware`): PSNR of the predicted faces over the test split's head poses, and, on the test
+//! frames, detection agreement (both find nothing, or both find a blob with centroids at most 1 px
+//! apart) and the centroid difference. The float side is the trained model with the float
+//! statistics and the same novelty settings (`crate::calibrate::detect`).
+use crate::calibrate::{self, ErrorStats, NoveltyParams};
+use crate::data::Dataset;
+use crate::models::{FloatLayer, float_forward_all};
+use crate::predictor::FacePredictor;
+use crate::{train, train_reach};
+use anyhow::{bail, ensure, Context, Result};
+use msr_shared::blob::{
+    Activation, LayerKind, LayerSpec, Model, ModelSpec, Novelty, Reach, Weights,
+};
+use msr_sim::layout::Split;
+use serde::Serialize;
+use std::path::PathBuf;
+
+/// Head angles go in with 13 fraction bits: +-4 rad covers every Nao head joint limit (the same
+/// as `msr import`).
+pub const HEAD_IN_SHIFT: i8 = 13;
+/// What the fixed-point faces must keep against float.
+pub const PSNR_TARGET_DB: f64 = 40.0;
+/// Accumulator limit with headroom.
+const ACC_LIMIT: f64 = 2147483648.0 - 1024.0;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WeightArg {
+    /// i8 if it keeps the PSNR target, else i16
+    Auto,
+    I8,
+    I16,
+}
 
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// Output folder of `msr train` (its decoder is quantized)
+    #[arg(long)]
+    pub train: PathBuf,
+    /// Reach network from `msr train-reach` (safetensors with its .json scaling beside it)
+    #[arg(long)]
+    pub reach: PathBuf,
+    /// Threshold in saliency units (default: the one chosen at training)
+    #[arg(long)]
+    pub threshold: Option<f64>,
+    #[arg(long, value_enum, default_value_t = WeightArg::Auto)]
+    pub weights: WeightArg,
+    /// Dataset for the float-vs-fixed report (default: the one the model was trained on)
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// The model blob to write
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Print the report as JSON
+    #[arg(long)]
+    pub json: bool,
+}
 
-pub fn run(_args: Args) -> Result<()> {
-    bail!("`msr quantize` is not implemented yet")
+/// Largest magnitude of a layer's input that the previous layer can produce.
+fn input_bound(prev: Option<Activation>, in_shift: i8) -> f64 {
+    let sat = 2f64.powi(15 - in_shift as i32);
+    match prev {
+        Some(Activation::Tanh) | Some(Activation::Sigmoid) => sat.min(1.0),
+        _ => sat,
+    }
+}
+
+/// `(max |W|, worst sum of |W| meeting in one output, terms in that sum, max |b|)`.
+fn weight_sums(l: &FloatLayer) -> (f64, f64, usize, f64) {
+    let max_w = l.weights.iter().fold(0f64, |m, &v| m.max((v as f64).abs()));
+    let max_b = l.bias.iter().fold(0f64, |m, &v| m.max((v as f64).abs()));
+    match l.kind {
+        LayerKind::Dense => {
+            let n_in = l.input.len();
+            let worst = l
+                .weights
+                .chunks(n_in.max(1))
+                .map(|r| r.iter().map(|&v| (v as f64).abs()).sum::<f64>())
+                .fold(0f64, f64::max);
+            (max_w, worst, n_in, max_b)
+        }
+        LayerKind::ConvTranspose2d | LayerKind::UpConv => {
+            let (ci, co, k) = (l.input.c as usize, l.output.c as usize, l.kernel);
+            let s = if l.kind == LayerKind::ConvTranspose2d { l.stride.max(1) } else { 1 };
+            let mut worst = 0f64;
+            // For ConvTranspose2d, the taps meeting in one output share (kr, kc) modulo stride.
+            for o in 0..co {
+                for pr in 0..s {
+                    for pc in 0..s {
+                        let mut sum = 0.0;
+                        for i in 0..ci {
+                            for kr in (pr..k).step_by(s) {
+                                for kc in (pc..k).step_by(s) {
+                                    let idx = if l.kind == LayerKind::ConvTranspose2d {
+                                        ((i * co + o) * k + kr) * k + kc
+                                    } else {
+                                        ((o * ci + i) * k + kr) * k + kc
+                                    };
+                                    sum += (l.weights[idx] as f64).abs();
+                                }
+                            }
+                        }
+                        worst = worst.max(sum);
+                    }
+                }
+            }
+            let taps = ci * k.div_ceil(s) * k.div_ceil(s);
+            (max_w, worst, taps, max_b)
+        }
+        LayerKind::Crop => (0.0, 0.0, 0, 0.0),
+    }
+}
+
+/// The largest weight shift in 0..=max that fits the weights and keeps the accumulator safe.
+fn weight_shift(l: &FloatLayer, in_shift: i8, x_bound: f64, i8w: bool) -> Option<i8> {
+    let (max_w, worst, terms, max_b) = weight_sums(l);
+    let w_max = if i8w { 127.0 } else { 32767.0 };
+    (0..=(31 - in_shift).min(24)).rev().find(|&s| {
+        let k = 2f64.powi(s as i32);
+        let acc_scale = 2f64.powi(s as i32 + in_shift as i32);
+        // Rounding each weight moves it by at most half a step: 0.5 * |x_q| <= 2^14 per term.
+        let slack = terms as f64 * 0.5 * 2f64.powi(15) + 0.5;
+        (max_w * k).round() <= w_max && acc_scale * (worst * x_bound + max_b) + slack <= ACC_LIMIT
+    })
+}
+
+/// Quantizes one layer given its input shift, output shift and weight type.
+fn quantize_layer(l: &FloatLayer, in_shift: i8, out_shift: i8, x_bound: f64, i8w: bool) -> Result<LayerSpec> {
+    l.check()?;
+    let u8_of = |v: usize, what: &str| -> Result<u8> { u8::try_from(v).with_context(|| format!("{what} {v} does not fit the blob")) };
+    let u16_of = |v: usize, what: &str| -> Result<u16> { u16::try_from(v).with_context(|| format!("{what} {v} does not fit the blob")) };
+    let base = LayerSpec {
+        kind: l.kind,
+        activation: l.activation,
+        input: l.input,
+        output: l.output,
+        kernel: u8_of(l.kernel, "kernel")?,
+        stride: u8_of(l.stride, "stride")?,
+        padding: u8_of(l.padding, "padding")?,
+        crop_top: u16_of(l.crop[0], "crop top")?,
+        crop_left: u16_of(l.crop[1], "crop left")?,
+        w_shift: 0,
+        in_shift,
+        out_shift,
+        weights: Weights::I16(vec![]),
+        bias: vec![],
+    };
+    if l.kind == LayerKind::Crop {
+        // Identity with the same scale on both sides: an exact copy.
+        return Ok(LayerSpec { out_shift: in_shift, ..base });
+    }
+    let w_shift = weight_shift(l, in_shift, x_bound, i8w)
+        .with_context(|| format!("{:?} layer {:?} -> {:?}: weights too large for fixed point", l.kind, l.input, l.output))?;
+    let kw = 2f64.powi(w_shift as i32);
+    let kb = 2f64.powi(w_shift as i32 + in_shift as i32);
+    let weights = if i8w {
+        Weights::I8(l.weights.iter().map(|&v| (v as f64 * kw).round() as i8).collect())
+    } else {
+        Weights::I16(l.weights.iter().map(|&v| (v as f64 * kw).round() as i16).collect())
+    };
+    let bias = l
+        .bias
+        .iter()
+        .map(|&v| {
+            let q = (v as f64 * kb).round();
+            ensure!(q.abs() < ACC_LIMIT, "bias {v} does not fit the accumulator");
+            Ok(q as i32)
+        })
+        .collect::<Result<Vec<i32>>>()?;
+    Ok(LayerSpec { w_shift, weights, bias, ..base })
+}
+
+/// Quantizes a layer stack with the given output shift per layer (ignored for the last layer,
+/// which always writes 15 bits: the face in (0, 1)).
+pub fn quantize_with(layers: &[FloatLayer], out_shifts: &[i8], i8w: bool) -> Result<Vec<LayerSpec>> {
+    ensure!(!layers.is_empty() && out_shifts.len() == layers.len(), "one output shift per layer");
+    let mut specs = Vec::with_capacity(layers.len());
+    let mut in_shift = HEAD_IN_SHIFT;
+    let mut prev_act = None;
+    for (i, l) in layers.iter().enumerate() {
+        let out_shift = if i + 1 == layers.len() { 15 } else { out_shifts[i] };
+        let spec = quantize_layer(l, in_shift, out_shift, input_bound(prev_act, in_shift), i8w)
+            .with_context(|| format!("layer {i}"))?;
+        in_shift = spec.out_shift;
+        if l.kind != LayerKind::Crop {
+            prev_act = Some(l.activation);
+        }
+        specs.push(spec);
+    }
+    Ok(specs)
+}
+
+/// PSNR (dB, peak 255) between two sets of faces in grey levels.
+pub fn psnr(a: &[Vec<f64>], b: &[Vec<f64>]) -> f64 {
+    let (mut se, mut n) = (0.0, 0usize);
+    for (x, y) in a.iter().zip(b) {
+        for (p, q) in x.iter().zip(y) {
+            se += (p - q).powi(2);
+            n += 1;
+        }
+    }
+    if se == 0.0 {
+        return f64::INFINITY;
+    }
+    10.0 * (255.0f64.powi(2) / (se / n.max(1) as f64)).log10()
+}
+
+/// The firmware decoder's faces (grey levels) for the head poses.
+pub fn fixed_faces(blob: &[u8], heads: &[[f32; 2]]) -> Result<Vec<Vec<f64>>> {
+    let model = Model::parse(blob).map_err(|e| anyhow::anyhow!("blob refused: {e}"))?;
+    let mut dec = Box::new(msr_firmware::decoder::Decoder::new());
+    heads
+        .iter()
+        .map(|h| {
+            let f = dec.predict_uncached(&model, *h).map_err(|e| anyhow::anyhow!("firmware decoder: {e}"))?;
+            Ok(f.iter().map(|&v| v as f64 / 256.0).collect())
+        })
+        .collect()
+}
+
+/// Float faces (grey levels) from the layer stack.
+pub fn float_faces(layers: &[FloatLayer], heads: &[[f32; 2]]) -> Vec<Vec<f64>> {
+    heads
+        .iter()
+        .map(|h| float_forward_all(layers, *h).pop().unwrap_or_default().into_iter().map(|v| v * 255.0).collect())
+        .collect()
+}
+
+/// Everything but the decoder layers.
+pub struct Extras {
+    pub face: (usize, usize),
+    pub novelty: NoveltyParams,
+    pub stats: ErrorStats,
+    pub reach: Reach,
+    pub template: Option<(u16, u16, Vec<u8>)>,
+}
+
+pub fn grey_q88(v: f64) -> u16 {
+    (v * 256.0).round().clamp(0.0, u16::MAX as f64) as u16
+}
+
+/// The blob for a layer stack.
+pub fn blob_of(layers: Vec<LayerSpec>, x: &Extras) -> Result<Vec<u8>> {
+    let p = &x.novelty;
+    p.check()?;
+    let spec = ModelSpec {
+        face_h: x.face.0 as u16,
+        face_w: x.face.1 as u16,
+        novelty: Novelty {
+            threshold: p.threshold as f32,
+            normalisation: p.normalisation,
+            sided: p.sided,
+            min_area: p.min_area,
+            sigma_floor: p.sigma_floor as f32,
+        },
+        layers,
+        mu: x.stats.mu.iter().map(|&v| grey_q88(v)).collect(),
+        sigma: x.stats.sigma.iter().map(|&v| grey_q88(v.max(p.sigma_floor)).max(1)).collect(),
+        reach: x.reach,
+        template: x.template.clone(),
+    };
+    spec.to_bytes().map_err(|e| anyhow::anyhow!("the quantized model does not make a valid blob: {e}"))
+}
+
+/// The chosen quantization and its PSNR on the calibration poses.
+pub struct Chosen {
+    pub blob: Vec<u8>,
+    pub out_shifts: Vec<i8>,
+    pub i8_weights: bool,
+    pub psnr_db: f64,
+    /// PSNR with i8 weights (when tried).
+    pub psnr_i8_db: Option<f64>,
+}
+
+/// Searches output shifts (and weight type) as described in the module doc.
+pub fn choose(layers: &[FloatLayer], x: &Extras, heads: &[[f32; 2]], weights: WeightArg) -> Result<Chosen> {
+    ensure!(!heads.is_empty(), "no head poses to calibrate on");
+    let float = float_faces(layers, heads);
+    let search = |i8w: bool| -> Result<(Vec<u8>, Vec<i8>, f64)> {
+        let mut shifts = vec![15i8; layers.len()];
+        let eval = |shifts: &[i8]| -> Result<(Vec<u8>, f64)> {
+            let blob = blob_of(quantize_with(layers, shifts, i8w)?, x)?;
+            let p = psnr(&float, &fixed_faces(&blob, heads)?);
+            Ok((blob, p))
+        };
+        let (mut best_blob, mut best) = eval(&shifts)?;
+        for i in 0..layers.len().saturating_sub(1) {
+            if layers[i].kind == LayerKind::Crop || !matches!(layers[i].activation, Activation::Tanh | Activation::Sigmoid) {
+                continue;
+            }
+            for s in 10..15 {
+                let mut t = shifts.clone();
+                t[i] = s;
+                if let Ok((blob, p)) = eval(&t) {
+                    if p > best {
+                        (best_blob, best, shifts) = (blob, p, t);
+                    }
+                }
+            }
+        }
+        Ok((best_blob, shifts, best))
+    };
+    let try_i8 = weights != WeightArg::I16;
+    let i8r = if try_i8 { Some(search(true)) } else { None };
+    if let Some(Ok((blob, shifts, p))) = &i8r {
+        if weights == WeightArg::I8 || *p >= PSNR_TARGET_DB {
+            return Ok(Chosen { blob: blob.clone(), out_shifts: shifts.clone(), i8_weights: true, psnr_db: *p, psnr_i8_db: Some(*p) });
+        }
+    }
+    if weights == WeightArg::I8 {
+        bail!("i8 weights: {}", i8r.map(|r| r.err().map(|e| format!("{e:#}")).unwrap_or_default()).unwrap_or_default());
+    }
+    let (blob, shifts, p) = search(false)?;
+    let psnr_i8_db = i8r.and_then(|r| r.ok()).map(|r| r.2);
+    Ok(Chosen { blob, out_shifts: shifts, i8_weights: false, psnr_db: p, psnr_i8_db })
+}
+
+#[derive(Serialize, Debug)]
+pub struct Report {
+    pub blob: String,
+    pub blob_bytes: usize,
+    pub crc32: String,
+    pub weights: &'static str,
+    pub out_shifts: Vec<i8>,
+    pub decoder_macs: u64,
+    pub psnr_db: f64,
+    pub psnr_i8_db: Option<f64>,
+    pub psnr_poses: usize,
+    pub test_frames: usize,
+    pub detection_agreement: f64,
+    pub float_detections: usize,
+    pub fixed_detections: usize,
+    pub centroid_diff_px_max: Option<f64>,
+    pub centroid_diff_px_mean: Option<f64>,
+    pub threshold: f64,
+    pub psnr_target_db: f64,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let model = train::load(&args.train, "decoder")
+        .with_context(|| format!("loading the trained decoder from {}", args.train.display()))?;
+    let info = model.info()?.clone();
+    let stats = train::load_stats(&args.train, &info)?;
+    let reach = train_reach::load(&args.reach)?.to_blob()?;
+    let mut novelty = info.novelty;
+    if let Some(t) = args.threshold {
+        novelty.threshold = t;
+    }
+    novelty.check()?;
+    let tpl_path = args.train.join(&info.files.template);
+    let tpl = image::open(&tpl_path).with_context(|| format!("cannot read {}", tpl_path.display()))?.to_luma8();
+    let template = Some((tpl.height() as u16, tpl.width() as u16, tpl.into_raw()));
+    let (h, w) = (info.face_h, info.face_w);
+    let x = Extras { face: (h, w), novelty, stats, reach, template };
+    let layers = model.decoder_layers()?;
+
+    let data_path = args.data.clone().unwrap_or_else(|| PathBuf::from(&info.data));
+    let ds = Dataset::load_split(&data_path, Some(Split::Test))
+        .with_context(|| format!("loading the test split of {} for the report", data_path.display()))?;
+    ensure!(ds.face_size() == (h, w), "dataset faces are {:?}, the model's are {h}x{w}", ds.face_size());
+    ensure!(!ds.samples.is_empty(), "dataset {} has no test frames", data_path.display());
+    let heads: Vec<[f32; 2]> = ds.samples.iter().map(|s| s.head).collect();
+
+    let chosen = choose(&layers, &x, &heads, args.weights)?;
+    if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
+    std::fs::write(&args.out, &chosen.blob).with_context(|| format!("writing {}", args.out.display()))?;
+
+    // Detection, float against the firmware pipeline, on the test frames.
+    let blob_model = Model::parse(&chosen.blob).map_err(|e| anyhow::anyhow!("blob refused: {e}"))?;
+    let faces: Vec<Vec<f32>> = ds.samples.iter().map(|s| s.face_unit()).collect();
+    let preds = model.predict_batch(&heads, &faces);
+    let mut ws = Box::new(msr_firmware::Workspace::new());
+    let (mut agree, mut nf, mut nq, mut diffs) = (0usize, 0usize, 0usize, Vec::new());
+    for ((s, f), p) in ds.samples.iter().zip(&faces).zip(&preds) {
+        let sal = calibrate::saliency(&calibrate::error_map(f, p), &x.stats, &x.novelty);
+        let fl = calibrate::detect(&sal, h, w, &x.novelty);
+        let fx = crate::fixed::detect_with(&mut ws, &blob_model, &s.face, s.head)?;
+        let fx = fx.blob.map(|b| [b.centroid[0] - s.face.crop.x as f64, b.centroid[1] - s.face.crop.y as f64]);
+        nf += fl.is_some() as usize;
+        nq += fx.is_some() as usize;
+        match (fl, fx) {
+            (None, None) => agree += 1,
+            (Some(a), Some(b)) => {
+                let d = ((a.centroid[0] - b[0]).powi(2) + (a.centroid[1] - b[1]).powi(2)).sqrt();
+                agree += (d <= 1.0) as usize;
+                diffs.push(d);
+            }
+            _ => {}
+        }
+    }
+    let report = Report {
+        blob: args.out.display().to_string(),
+        blob_bytes: chosen.blob.len(),
+        crc32: format!("{:08x}", blob_model.crc32),
+        weights: if chosen.i8_weights { "i8" } else { "i16" },
+        out_shifts: chosen.out_shifts.clone(),
+        decoder_macs: blob_model.decoder_macs(),
+        psnr_db: chosen.psnr_db,
+        psnr_i8_db: chosen.psnr_i8_db,
+        psnr_poses: heads.len(),
+        test_frames: ds.samples.len(),
+        detection_agreement: agree as f64 / ds.samples.len() as f64,
+        float_detections: nf,
+        fixed_detections: nq,
+        centroid_diff_px_max: diffs.iter().copied().reduce(f64::max),
+        centroid_diff_px_mean: (!diffs.is_empty()).then(|| diffs.iter().sum::<f64>() / diffs.len() as f64),
+        threshold: x.novelty.threshold,
+        psnr_target_db: PSNR_TARGET_DB,
+    };
+    let json = serde_json::to_string_pretty(&report)?;
+    let report_path = PathBuf::from(format!("{}.json", args.out.display()));
+    std::fs::write(&report_path, &json).with_context(|| format!("writing {}", report_path.display()))?;
+    if args.json {
+        println!("{json}");
+    } else {
+        println!(
+            "wrote {} ({} bytes, {} weights, {} MACs): PSNR {:.1} dB over {} poses{}; detection agreement {:.1} % on {} test frames (float {}, fixed {} detections), centroid difference max {} px",
+            report.blob,
+            report.blob_bytes,
+            report.weights,
+            report.decoder_macs,
+            report.psnr_db,
+            report.psnr_poses,
+            report.psnr_i8_db.map(|p| format!(" (i8: {p:.1} dB)")).unwrap_or_default(),
+            100.0 * report.detection_agreement,
+            report.test_frames,
+            report.float_detections,
+            report.fixed_detections,
+            report.centroid_diff_px_max.map(|d| format!("{d:.2}")).unwrap_or("-".into()),
+        );
+    }
+    Ok(())
+}
+
+/// Used by tests and other tools: a blob straight from float layers with default shifts.
+pub fn quantize_default(layers: &[FloatLayer], x: &Extras) -> Result<Vec<u8>> {
+    blob_of(quantize_with(layers, &vec![15; layers.len()], false)?, x)
+}
+
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::models::{Decoder, DecoderSpec};
+    use burn::prelude::*;
+    use msr_shared::blob::{Normalisation, Sided};
+
+    fn extras(h: usize, w: usize) -> Extras {
+        let reach = Reach::from_parts(&[0.1; 20], &[0.0; 10], &[0.1; 50], &[0.0; 5], [0.0; 2], [1.0; 2], [0.0; 5], [1.0; 5]).unwrap();
+        Extras {
+            face: (h, w),
+            novelty: NoveltyParams { normalisation: Normalisation::StdDev, sided: Sided::One, ..Default::default() },
+            stats: ErrorStats { h, w, mu: vec![3.0; h * w], sigma: vec![2.0; h * w], frames: 10 },
+            reach,
+            template: None,
+        }
+    }
+
+    fn heads() -> Vec<[f32; 2]> {
+        (0..25).map(|i| [((i % 5) as f32 - 2.0) * 0.04, ((i / 5) as f32 - 2.0) * 0.04]).collect()
+    }
+
+    #[test]
+    fn conv_and_mlp_round_trip_through_the_firmware_decoder() {
+        let dev = Device::flex();
+        for spec in [DecoderSpec::conv(20, 27), DecoderSpec::mlp(20, 27)] {
+            let layers = Decoder::new(&spec, 5, &dev).unwrap().float_layers().unwrap();
+            let x = extras(20, 27);
+            let c = choose(&layers, &x, &heads(), WeightArg::I16).unwrap();
+            assert!(!c.i8_weights);
+            assert!(c.psnr_db > 50.0, "{:?}: {:.1} dB", spec.kind(), c.psnr_db);
+            let m = Model::parse(&c.blob).unwrap();
+            assert_eq!(m.layers.len(), layers.len());
+            assert_eq!((m.face_h, m.face_w), (20, 27));
+            // The statistics went to Q8.8.
+            assert_eq!(m.mu.get(0), 3 * 256);
+            assert_eq!(m.sigma.get(0), 2 * 256);
+        }
+    }
+
+    #[test]
+    fn auto_takes_i8_only_when_it_keeps_the_psnr() {
+        let dev = Device::flex();
+        let layers = Decoder::new(&DecoderSpec::conv(20, 27), 5, &dev).unwrap().float_layers().unwrap();
+        let c = choose(&layers, &extras(20, 27), &heads(), WeightArg::Auto).unwrap();
+        let p8 = c.psnr_i8_db.unwrap();
+        assert_eq!(c.i8_weights, p8 >= PSNR_TARGET_DB, "i8 at {p8:.1} dB");
+    }
+
+    #[test]
+    fn accumulator_bound_holds_for_worst_case_inputs() {
+        // A dense layer whose row sums are large: the chosen shift must keep the worst input safe.
+        let l = FloatLayer {
+            kind: LayerKind::Dense,
+            activation: Activation::Tanh,
+            input: msr_shared::blob::Shape { c: 64, h: 1, w: 1 },
+            output: msr_shared::blob::Shape { c: 2, h: 1, w: 1 },
+            kernel: 0,
+            stride: 0,
+            padding: 0,
+            crop: [0, 0],
+            weights: (0..128).map(|i| if i % 2 == 0 { 3.0 } else { -3.0 }).collect(),
+            bias: vec![5.0, -5.0],
+        };
+        let s = quantize_layer(&l, 15, 15, 1.0, false).unwrap();
+        let Weights::I16(w) = &s.weights else { panic!() };
+        // Worst input: +-32767 matching each weight's sign.
+        for o in 0..2 {
+            let acc: i64 = s.bias[o] as i64 + w[o * 64..(o + 1) * 64].iter().map(|&v| v as i64 * 32767 * (v as i64).signum()).sum::<i64>();
+            assert!(acc.abs() < i32::MAX as i64, "acc {acc}");
+        }
+        // Weights beyond i16 even at shift 0 are an error, not a wrap.
+        let mut big = l.clone();
+        big.weights[0] = 1e6;
+        assert!(quantize_layer(&big, 15, 15, 1.0, false).is_err());
+    }
+
+    #[test]
+    fn psnr_by_hand() {
+        let a = vec![vec![0.0, 0.0]];
+        let b = vec![vec![2.55, 2.55]];
+        assert!((psnr(&a, &b) - 40.0).abs() < 1e-9);
+        assert_eq!(psnr(&a, &a), f64::INFINITY);
+    }
 }
