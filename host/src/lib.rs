@@ -22,3 +22,7 @@ pub mod run_board;
 pub mod demo;
 pub mod models;
 pub mod calibrate;
+pub mod episode;
+pub mod episode_qemu;
+pub mod model_blob;
+pub mod report;

@@ -1,9 +1,121 @@
-//! `msr mirror-test`: run mirror-test episodes: sim world, emulated links, firmware in-process or in QEMU.
+//! `msr mirror-test`: run mirror-test episodes: sim world, emulated links, firmware in-process or
+//! in QEMU. See [`crate::episode`] for what one trial is.
+use crate::episode::{self, Backend, EpisodeConfig, Summary, Trial};
 use anyhow::{bail, Result};
+use msr_sim::Robot;
+use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// The model blob (.msrm), with its face template and reach network
+    #[arg(long)]
+    pub model: PathBuf,
+    #[arg(long, default_value_t = 20)]
+    pub trials: usize,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    #[arg(long, value_enum, default_value_t = Backend::Inproc)]
+    pub backend: Backend,
+    #[arg(long, default_value = "red")]
+    pub robot: Robot,
+    /// Bit-error rate on both directions of both links
+    #[arg(long, default_value_t = 0.0)]
+    pub ber: f64,
+    /// Cut both links for this many milliseconds in every trial
+    #[arg(long)]
+    pub disconnect_ms: Option<u64>,
+    /// When the cut starts, milliseconds into the trial
+    #[arg(long, default_value_t = 1500)]
+    pub disconnect_at_ms: u64,
+    /// Share of trials without a mark
+    #[arg(long, default_value_t = 0.2)]
+    pub no_mark_share: f64,
+    /// Trials run at once (each takes two threads); default: the machine's cores, at most 4
+    #[arg(long)]
+    pub parallel: Option<usize>,
+    /// Also write every trial (mark, reach, error, why it failed) to this JSON file
+    #[arg(long)]
+    pub trials_out: Option<PathBuf>,
+    /// Print the summary as JSON
+    #[arg(long)]
+    pub json: bool,
+}
 
-pub fn run(_args: Args) -> Result<()> {
-    bail!("`msr mirror-test` is not implemented yet")
+pub fn config(a: &Args) -> Result<EpisodeConfig> {
+    if !(0.0..=1.0).contains(&a.ber) {
+        bail!("--ber must be in 0..=1, got {}", a.ber);
+    }
+    if !(0.0..=1.0).contains(&a.no_mark_share) {
+        bail!("--no-mark-share must be in 0..=1, got {}", a.no_mark_share);
+    }
+    let mut c = EpisodeConfig::new(a.robot).with_ber(a.ber);
+    c.no_mark_share = a.no_mark_share;
+    if let Some(ms) = a.disconnect_ms {
+        c = c.with_disconnect(a.disconnect_at_ms * 1000, ms * 1000);
+    }
+    if let Some(p) = a.parallel {
+        c.parallel = p.max(1);
+    }
+    Ok(c)
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if a.trials == 0 {
+        bail!("--trials must be at least 1");
+    }
+    let blob = episode::read_model(&a.model)?;
+    let cfg = config(&a)?;
+    let quiet = a.json;
+    let progress = |t: &Trial| {
+        if !quiet {
+            eprintln!("{}", describe(t));
+        }
+    };
+    let trials = match a.backend {
+        Backend::Inproc => episode::run_inproc(&blob, &cfg, a.trials, a.seed, &progress)?,
+        Backend::Qemu => crate::episode_qemu::run_qemu(&blob, &cfg, a.trials, a.seed, &progress)?,
+    };
+    if let Some(p) = &a.trials_out {
+        std::fs::write(p, serde_json::to_vec_pretty(&trials)?)?;
+    }
+    let s = episode::summarise(a.backend, a.robot, &trials);
+    if a.json {
+        println!("{}", serde_json::to_string(&s)?);
+    } else {
+        println!("{}", readable(&s));
+    }
+    Ok(())
+}
+
+/// One line per trial, for progress.
+pub fn describe(t: &Trial) -> String {
+    let what = match (&t.mark, t.false_reach, t.touched) {
+        (_, true, _) => "FALSE REACH".to_string(),
+        (None, _, _) => "no mark, no reach".to_string(),
+        (Some(m), _, true) => format!("{m}: touched, {:.1} mm, {:.0} ms", t.touch_error_mm.unwrap_or(f64::NAN), t.latency_ms.unwrap_or(f64::NAN)),
+        (Some(m), _, false) => format!("{m}: MISSED ({})", t.failure.as_deref().unwrap_or("?")),
+    };
+    format!("trial {:>3}: {what} [{:.1} s sim, {:.2} s wall]", t.index, t.sim_s, t.wall_s)
+}
+
+pub fn readable(s: &Summary) -> String {
+    let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
+    format!(
+        "{} {}: {} trials, touched {}/{} marked ({:.1} %), false reaches {}/{} unmarked, median touch error {} mm, \
+         median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, watchdog trips {}",
+        s.backend,
+        s.robot,
+        s.trials,
+        s.touched,
+        s.marked_trials,
+        100.0 * s.touch_rate,
+        s.false_reaches,
+        s.no_mark_trials,
+        f(s.median_touch_error_mm),
+        f(s.latency_ms_median),
+        s.limit_violations,
+        s.crc_errors,
+        s.resyncs,
+        s.watchdog_trips
+    )
 }

@@ -1,0 +1,667 @@
+//! Mirror-test episodes: the sim world on one thread, the firmware on the other, the emulated host
+//! link and servo bus between them, and a scenario that plays the PC and judges.
+//!
+//! One trial, in simulated time (each trial is a fresh world and a fresh board, so trials are
+//! independent and run in parallel):
+//! - 0 s: the robot sits at home (the observe posture); the PC streams camera frames every
+//!   [`EpisodeConfig::frame_period_us`]: rendered at the posture the servos hold *now*, cropped
+//!   with the model's face template (the host crop), sent over the host link.
+//! - [`EpisodeConfig::mark_at_us`]: a mark appears on the face (random kind, colour and place,
+//!   redrawn while it is too faint to see, as the datasets do), except in a share of trials.
+//! - The board reads the head angles from the servos, detects, confirms and reaches; the PC sees
+//!   the confirmed detection (the reach starts) on the host link.
+//! - The judge samples the true joint angles every 10 ms. Once all five reach joints are within
+//!   [`HELD_TOLERANCE_RAD`] of the reach target the reach is held; after
+//!   [`EpisodeConfig::judge_hold_us`] of holding, the trial is judged by forward kinematics
+//!   (`msr_sim::kin::judge_touch`: every held sample within 20 mm of the mark's 3-D point) and
+//!   ends. The rest of the 5 s hold would only repeat the same posture.
+//! - A reach while no mark is on the face is a false reach. A trial without a reach ends
+//!   [`EpisodeConfig::watch_us`] after the mark time.
+//!
+//! While the arm is up the board pauses detection, so the PC sends frames only every
+//! [`ARM_UP_FRAME_PERIOD_US`] then, enough to keep the face watchdog (500 ms) fed.
+use crate::crop;
+use anyhow::{anyhow, Context, Result};
+use image::{DynamicImage, GrayImage};
+use msr_firmware::model::{ModelStore, UploadError};
+use msr_firmware::Board;
+use msr_shared::blob::Model;
+use msr_shared::frame::{encode_message_vec, FrameAccumulator, LinkCounters, Sequencer, MAX_WIRE_FRAME};
+use msr_shared::msg::{BoardToHost, Config, Detection, FrameHeader, HostToBoard, Status, CHUNK};
+use msr_sim::body::BodyPose;
+use msr_sim::link::{FaultConfig, LinkEnd};
+use msr_sim::render::{Renderer, Variation};
+use msr_sim::world::{self, Flow, World, WorldConfig};
+use msr_sim::Robot;
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+
+/// The reach is held when every reach joint is this close to its target.
+pub const HELD_TOLERANCE_RAD: f64 = 0.01;
+/// Frame period while the arm is up (detection paused; the face watchdog wants one per 500 ms).
+pub const ARM_UP_FRAME_PERIOD_US: u64 = 250_000;
+/// Joint samples for the judge: the DCM period.
+pub const SAMPLE_US: u64 = 10_000;
+
+/// What runs the firmware.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Backend {
+    /// `msr_firmware::Board` on a thread of this process.
+    Inproc,
+    /// The `thumbv7em-none-eabihf` image in `qemu-system-arm` (mps2-an386).
+    Qemu,
+}
+
+impl Backend {
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Inproc => "inproc",
+            Backend::Qemu => "qemu",
+        }
+    }
+}
+
+/// How trials run.
+#[derive(Clone, Debug)]
+pub struct EpisodeConfig {
+    pub robot: Robot,
+    /// Share of trials with no mark.
+    pub no_mark_share: f64,
+    pub frame_period_us: u64,
+    /// When the mark appears.
+    pub mark_at_us: u64,
+    /// How long after the mark time a reach may start.
+    pub watch_us: u64,
+    /// How long the held reach is sampled before judging.
+    pub judge_hold_us: u64,
+    /// Faults on the host link (both directions).
+    pub host_faults: FaultConfig,
+    /// Faults on the servo bus (both directions).
+    pub servo_faults: FaultConfig,
+    /// Sent to the board at the start of each trial, if given.
+    pub board_config: Option<Config>,
+    /// Trials run at once (each uses two threads).
+    pub parallel: usize,
+}
+
+impl EpisodeConfig {
+    pub fn new(robot: Robot) -> EpisodeConfig {
+        EpisodeConfig {
+            robot,
+            no_mark_share: 0.2,
+            frame_period_us: 100_000,
+            mark_at_us: 400_000,
+            watch_us: 4_000_000,
+            judge_hold_us: 1_000_000,
+            host_faults: FaultConfig::default(),
+            servo_faults: FaultConfig::default(),
+            board_config: None,
+            parallel: std::thread::available_parallelism().map_or(1, |n| n.get()).min(4),
+        }
+    }
+
+    /// The same bit-error rate on every direction of both links.
+    pub fn with_ber(mut self, ber: f64) -> Self {
+        self.host_faults.bit_error_rate = ber;
+        self.servo_faults.bit_error_rate = ber;
+        self
+    }
+
+    /// Both links dead for `duration_us` from `start_us`.
+    pub fn with_disconnect(mut self, start_us: u64, duration_us: u64) -> Self {
+        self.host_faults.disconnects.push((start_us, duration_us));
+        self.servo_faults.disconnects.push((start_us, duration_us));
+        self
+    }
+
+    fn world(&self, seed: u64) -> WorldConfig {
+        let mut w = WorldConfig::default().seeded(seed);
+        w.host_link.a_to_b = self.host_faults.clone();
+        w.host_link.b_to_a = self.host_faults.clone();
+        w.servo_link.a_to_b = self.servo_faults.clone();
+        w.servo_link.b_to_a = self.servo_faults.clone();
+        w
+    }
+
+    fn max_us(&self) -> u64 {
+        // Mark, watch window, a reach at speed 0.1 (under 4 s for any IK posture), the judged
+        // hold, and room for a watchdog recovery and a second reach.
+        self.mark_at_us + self.watch_us + 2 * (4_000_000 + self.judge_hold_us)
+    }
+}
+
+/// One trial's outcome.
+#[derive(Clone, Debug, Serialize)]
+pub struct Trial {
+    pub index: usize,
+    /// The mark (kind, colour) when one was put on the face.
+    pub mark: Option<String>,
+    /// The mark's centre in the frame at head (0, 0), pixels.
+    pub mark_pixel: Option<[f64; 2]>,
+    /// A reach started (the board confirmed a detection).
+    pub reached: bool,
+    /// A reach while no mark was on the face.
+    pub false_reach: bool,
+    pub touched: bool,
+    /// Worst fingertip-to-mark distance while held (marked trials with a held reach).
+    pub touch_error_mm: Option<f64>,
+    /// Simulated time from the mark appearing to the reach starting.
+    pub latency_ms: Option<f64>,
+    /// The reach target the board streamed, when it reached.
+    pub reach_target: Option<[f32; 5]>,
+    /// Why a marked trial failed, for finding the stage at fault.
+    pub failure: Option<String>,
+    pub frames_sent: u32,
+    pub detections: u32,
+    pub limit_violations: u32,
+    pub crc_errors: u32,
+    pub resyncs: u32,
+    pub watchdog_trips: u32,
+    pub sim_s: f64,
+    pub wall_s: f64,
+}
+
+/// The summary `msr mirror-test --json` prints, exactly these keys.
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    pub backend: String,
+    pub robot: String,
+    pub trials: usize,
+    pub marked_trials: usize,
+    pub touched: usize,
+    pub touch_rate: f64,
+    pub no_mark_trials: usize,
+    pub false_reaches: usize,
+    pub median_touch_error_mm: Option<f64>,
+    pub latency_ms_median: Option<f64>,
+    pub limit_violations: u64,
+    pub crc_errors: u64,
+    pub resyncs: u64,
+    pub watchdog_trips: u64,
+}
+
+pub fn median(mut v: Vec<f64>) -> Option<f64> {
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_by(|a, b| a.total_cmp(b));
+    let n = v.len();
+    Some(if n % 2 == 1 { v[n / 2] } else { (v[n / 2 - 1] + v[n / 2]) / 2.0 })
+}
+
+pub fn summarise(backend: Backend, robot: Robot, trials: &[Trial]) -> Summary {
+    let marked: Vec<&Trial> = trials.iter().filter(|t| t.mark.is_some()).collect();
+    let touched = marked.iter().filter(|t| t.touched).count();
+    let sum = |f: fn(&Trial) -> u32| trials.iter().map(|t| f(t) as u64).sum::<u64>();
+    Summary {
+        backend: backend.name().into(),
+        robot: robot.name().into(),
+        trials: trials.len(),
+        marked_trials: marked.len(),
+        touched,
+        touch_rate: if marked.is_empty() { 0.0 } else { touched as f64 / marked.len() as f64 },
+        no_mark_trials: trials.len() - marked.len(),
+        false_reaches: trials.iter().filter(|t| t.false_reach).count(),
+        median_touch_error_mm: median(marked.iter().filter_map(|t| t.touch_error_mm).collect()),
+        latency_ms_median: median(marked.iter().filter_map(|t| t.latency_ms).collect()),
+        limit_violations: sum(|t| t.limit_violations),
+        crc_errors: sum(|t| t.crc_errors),
+        resyncs: sum(|t| t.resyncs),
+        watchdog_trips: sum(|t| t.watchdog_trips),
+    }
+}
+
+/// A model store on the heap: the active blob and a staging area, 4-byte aligned.
+pub struct HeapStore {
+    slots: [Vec<u32>; 2],
+    lens: [usize; 2],
+    active: Option<usize>,
+    capacity: usize,
+}
+
+impl HeapStore {
+    /// A store whose uploads may take `capacity` bytes, running `builtin` until an upload.
+    pub fn new(builtin: Option<&[u8]>, capacity: usize) -> HeapStore {
+        let words = capacity.div_ceil(4);
+        let mut s = HeapStore { slots: [vec![0; words], vec![0; words]], lens: [0; 2], active: None, capacity };
+        if let Some(b) = builtin {
+            let mut w = vec![0u32; b.len().div_ceil(4)];
+            bytemuck::cast_slice_mut::<u32, u8>(&mut w)[..b.len()].copy_from_slice(b);
+            s.slots[0] = w;
+            s.lens[0] = b.len();
+            s.active = Some(0);
+            if s.slots[1].len() < words {
+                s.slots[1] = vec![0; words];
+            }
+        }
+        s
+    }
+
+    fn staging(&self) -> usize {
+        self.active.map_or(0, |i| 1 - i)
+    }
+}
+
+impl ModelStore for HeapStore {
+    fn active(&self) -> Option<&[u8]> {
+        self.active.map(|i| &bytemuck::cast_slice::<u32, u8>(&self.slots[i])[..self.lens[i]])
+    }
+    fn capacity(&self) -> usize {
+        self.capacity
+    }
+    fn begin(&mut self, len: usize) -> Result<(), UploadError> {
+        if len > self.capacity {
+            return Err(UploadError::TooLarge);
+        }
+        let s = self.staging();
+        if self.slots[s].len() * 4 < len {
+            self.slots[s] = vec![0; len.div_ceil(4)];
+        }
+        self.lens[s] = len;
+        Ok(())
+    }
+    fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError> {
+        let s = self.staging();
+        let end = offset.checked_add(data.len()).ok_or(UploadError::Sequence)?;
+        let bytes = bytemuck::cast_slice_mut::<u32, u8>(&mut self.slots[s]);
+        bytes.get_mut(offset..end).ok_or(UploadError::TooLarge)?.copy_from_slice(data);
+        Ok(())
+    }
+    fn staged(&self) -> &[u8] {
+        let s = self.staging();
+        let b = bytemuck::cast_slice::<u32, u8>(&self.slots[s]);
+        &b[..self.lens[s].min(b.len())]
+    }
+    fn activate(&mut self) {
+        self.active = Some(self.staging());
+    }
+}
+
+/// The in-process firmware: a board with the model built in.
+pub type InprocBoard = Board<HeapStore>;
+
+pub fn inproc_board(blob: &[u8]) -> Box<InprocBoard> {
+    Box::new(Board::new(HeapStore::new(Some(blob), 512 * 1024)))
+}
+
+/// The PC's side of the host link: frames out, reports in.
+pub struct HostPort {
+    seq: Sequencer,
+    rx: Box<FrameAccumulator<MAX_WIRE_FRAME>>,
+    frame_id: u16,
+}
+
+impl Default for HostPort {
+    fn default() -> Self {
+        HostPort { seq: Sequencer::default(), rx: Box::new(FrameAccumulator::new()), frame_id: 0 }
+    }
+}
+
+impl HostPort {
+    /// The wire bytes of one message.
+    pub fn encode(&mut self, msg: &HostToBoard) -> Vec<u8> {
+        encode_message_vec(self.seq.next(), msg).expect("host messages fit a frame")
+    }
+
+    /// The wire bytes of a face crop: `FrameStart` and its chunks.
+    pub fn encode_face(&mut self, crop: crop::CropBox, grey: &[u8]) -> Vec<u8> {
+        self.frame_id = self.frame_id.wrapping_add(1);
+        let id = self.frame_id;
+        let h = FrameHeader { frame: id, crop_x: crop.x as u16, crop_y: crop.y as u16, width: crop.width as u16, height: crop.height as u16 };
+        let mut out = self.encode(&HostToBoard::FrameStart(h));
+        for (i, data) in grey.chunks(CHUNK).enumerate() {
+            let offset = (i * CHUNK) as u16;
+            out.extend(self.encode(&HostToBoard::FrameChunk { frame: id, offset, data }));
+        }
+        out
+    }
+
+    /// The wire bytes of a model upload: begin, chunks, commit.
+    pub fn encode_upload(&mut self, blob: &[u8]) -> Vec<u8> {
+        let crc32 = msr_shared::blob::CRC32.checksum(blob);
+        let mut out = self.encode(&HostToBoard::ModelBegin { len: blob.len() as u32, crc32 });
+        for (i, data) in blob.chunks(CHUNK).enumerate() {
+            out.extend(self.encode(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data }));
+        }
+        out.extend(self.encode(&HostToBoard::ModelCommit));
+        out
+    }
+
+    /// Parses what arrived; damaged frames are counted by the accumulator and skipped.
+    pub fn receive(&mut self, bytes: &[u8]) -> Vec<BoardToHost> {
+        let mut out = Vec::new();
+        for &b in bytes {
+            if let Some(Ok(f)) = self.rx.push(b) {
+                match f.message::<BoardToHost>() {
+                    Ok(m) => out.push(m),
+                    Err(_) => self.rx.count_malformed(),
+                }
+            }
+        }
+        out
+    }
+
+    pub fn counters(&self) -> &LinkCounters {
+        self.rx.counters()
+    }
+}
+
+/// Renders and crops camera frames of one robot.
+pub struct Camera<'a> {
+    pub renderer: &'a Renderer,
+    pub template: &'a GrayImage,
+}
+
+impl Camera<'_> {
+    /// The grey frame at a pose with an optional mark, and its face crop.
+    pub fn shoot(&self, pose: &BodyPose, mark: Option<&msr_sim::marks::Mark>, rng: &mut ChaCha8Rng) -> Result<(GrayImage, crop::Face)> {
+        let var = Variation::random(rng);
+        let r = self.renderer.render(pose, mark, &var);
+        let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb));
+        let face = crop::crop_face(&grey, self.template)?;
+        Ok((grey, face))
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Stage {
+    Watching,
+    /// A reach started at this time, towards this target.
+    Reaching { since_us: u64 },
+    Held { since_us: u64 },
+    Done,
+}
+
+/// The scenario of one trial: the PC and the judge.
+struct Scenario<'a> {
+    cfg: &'a EpisodeConfig,
+    camera: Camera<'a>,
+    rng: ChaCha8Rng,
+    port: HostPort,
+    marked: bool,
+    mark: Option<msr_sim::marks::Mark>,
+    next_frame_us: u64,
+    next_sample_us: u64,
+    stage: Stage,
+    target: Option<[f32; 5]>,
+    held: Vec<msr_sim::kin::Reach>,
+    trial: Trial,
+    error: Option<anyhow::Error>,
+    status: Option<Status>,
+    detections: Vec<(u64, Detection)>,
+}
+
+impl Scenario<'_> {
+    fn mark_on(&self, now: u64) -> bool {
+        self.marked && now >= self.cfg.mark_at_us
+    }
+
+    fn step(&mut self, w: &mut World) -> Result<Flow> {
+        let now = w.now_us;
+        if now == 0 {
+            if let Some(c) = self.cfg.board_config {
+                let bytes = self.port.encode(&HostToBoard::Configure(c));
+                w.host.send(&bytes);
+            }
+        }
+        for m in self.port.receive(&w.host.receive()) {
+            match m {
+                BoardToHost::Detection(d) => {
+                    if d.blob.is_some() {
+                        self.trial.detections += 1;
+                    }
+                    if d.confirmed {
+                        self.on_reach(now, d);
+                    }
+                    self.detections.push((now, d));
+                }
+                BoardToHost::Status(s) => self.status = Some(s),
+                _ => {}
+            }
+        }
+        if self.trial.false_reach {
+            return Ok(Flow::Stop);
+        }
+        // The mark appears: choose one that shows, at the pose the head has now.
+        if self.mark_on(now) && self.mark.is_none() {
+            let (m, _) = msr_sim::dataset::render_marked(self.camera.renderer, &w.body_pose(), &Variation::CLEAN, &mut self.rng);
+            let p = msr_sim::body::project_head(&m.point_head(), 0.0, 0.0);
+            self.trial.mark = Some(format!("{} {}", m.colour, m.kind));
+            self.trial.mark_pixel = p;
+            self.mark = Some(m);
+        }
+        let arm_up = !matches!(self.stage, Stage::Watching);
+        let period = if arm_up { ARM_UP_FRAME_PERIOD_US.max(self.cfg.frame_period_us) } else { self.cfg.frame_period_us };
+        if now >= self.next_frame_us && w.host.tx_idle_at_us() <= now {
+            let (_, face) = self.camera.shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng)?;
+            let bytes = self.port.encode_face(face.crop, &face.grey);
+            w.host.send(&bytes);
+            self.trial.frames_sent += 1;
+            self.next_frame_us = now + period;
+        }
+        if now >= self.next_sample_us {
+            self.next_sample_us = now + SAMPLE_US;
+            self.sample(now, w);
+        }
+        let limit = match self.stage {
+            Stage::Watching => self.cfg.mark_at_us + self.cfg.watch_us,
+            _ => self.cfg.max_us(),
+        };
+        Ok(if self.stage == Stage::Done || now >= limit { Flow::Stop } else { Flow::Continue })
+    }
+
+    fn on_reach(&mut self, now: u64, d: Detection) {
+        self.trial.reached = true;
+        if !self.mark_on(now) {
+            self.trial.false_reach = true;
+            self.trial.reach_target = d.reach;
+            return;
+        }
+        if self.trial.latency_ms.is_none() {
+            self.trial.latency_ms = Some((now - self.cfg.mark_at_us) as f64 / 1000.0);
+        }
+        self.target = d.reach;
+        self.trial.reach_target = d.reach;
+        self.held.clear();
+        self.stage = Stage::Reaching { since_us: now };
+    }
+
+    fn sample(&mut self, now: u64, w: &World) {
+        let q = w.servos.reach_angles();
+        let Some(t) = self.target else { return };
+        let near = q.iter().zip(t).all(|(a, b)| (a - b as f64).abs() <= HELD_TOLERANCE_RAD);
+        match self.stage {
+            Stage::Reaching { .. } if near => {
+                self.stage = Stage::Held { since_us: now };
+                self.held.push(q);
+            }
+            Stage::Held { since_us } => {
+                if !near {
+                    // The board left the target early (a watchdog): not a held reach.
+                    self.stage = Stage::Watching;
+                    self.trial.failure = Some("the arm left the reach target before the hold was judged".into());
+                    self.held.clear();
+                } else {
+                    self.held.push(q);
+                    if now - since_us >= self.cfg.judge_hold_us {
+                        self.judge();
+                        self.stage = Stage::Done;
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn judge(&mut self) {
+        let Some(m) = &self.mark else { return };
+        let (touched, worst) = msr_sim::kin::judge_touch(&self.held, &m.point_head());
+        self.trial.touched = touched;
+        self.trial.touch_error_mm = Some(worst * 1000.0);
+        if !touched {
+            self.trial.failure = Some(format!("reach held {:.1} mm from the mark", worst * 1000.0));
+        }
+    }
+
+    /// Why a marked trial did not touch, from what the board reported.
+    fn diagnose(&self) -> Option<String> {
+        if !self.marked || self.trial.touched {
+            return None;
+        }
+        if let Some(f) = &self.trial.failure {
+            return Some(f.clone());
+        }
+        let after: Vec<&Detection> = self.detections.iter().filter(|(t, _)| *t >= self.cfg.mark_at_us).map(|(_, d)| d).collect();
+        let seen = after.iter().filter(|d| d.blob.is_some()).count();
+        Some(match (self.stage, seen) {
+            (_, 0) => format!("detection: no blob in {} frames with the mark", after.len()),
+            (Stage::Watching, n) => format!("confirm: blob in only {n} of {} frames", after.len()),
+            (Stage::Reaching { .. }, _) => "motion: the arm never settled at the reach target".into(),
+            _ => "unknown".into(),
+        })
+    }
+}
+
+/// Runs one trial with the in-process board. `seed` makes the trial (mark, noise, link faults).
+pub fn run_trial_inproc(blob: &[u8], camera: Camera, cfg: &EpisodeConfig, index: usize, seed: u64) -> Result<Trial> {
+    let mut board = inproc_board(blob);
+    let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| board.poll(now, h, s);
+    let (mut trial, _) = run_trial_with(&mut fw, camera, cfg, index, seed)?;
+    // In-process the board's own counters are at hand (a GetStatus would report the same).
+    let s = board.status();
+    add_board_counters(&mut trial, &s);
+    Ok(trial)
+}
+
+/// Adds the board's link counters and watchdog trips to a trial's.
+pub fn add_board_counters(trial: &mut Trial, s: &Status) {
+    trial.crc_errors += s.host_link.crc_errors + s.servo_link.crc_errors;
+    trial.resyncs += s.host_link.resyncs() + s.servo_link.resyncs();
+    trial.watchdog_trips += s.face_watchdog_trips + s.servo_watchdog_trips;
+}
+
+/// Runs one trial with any firmware; returns the trial (with the sim side's counters) and the
+/// last status the board sent, if any.
+pub fn run_trial_with<F: world::Firmware>(
+    fw: &mut F,
+    camera: Camera,
+    cfg: &EpisodeConfig,
+    index: usize,
+    seed: u64,
+) -> Result<(Trial, Option<Status>)> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let marked = !rng.gen_bool(cfg.no_mark_share.clamp(0.0, 1.0));
+    let mut sc = Scenario {
+        cfg,
+        camera,
+        rng,
+        port: HostPort::default(),
+        marked,
+        mark: None,
+        next_frame_us: 0,
+        next_sample_us: 0,
+        stage: Stage::Watching,
+        target: None,
+        held: Vec::new(),
+        trial: Trial {
+            index,
+            mark: None,
+            mark_pixel: None,
+            reached: false,
+            false_reach: false,
+            touched: false,
+            touch_error_mm: None,
+            latency_ms: None,
+            reach_target: None,
+            failure: None,
+            frames_sent: 0,
+            detections: 0,
+            limit_violations: 0,
+            crc_errors: 0,
+            resyncs: 0,
+            watchdog_trips: 0,
+            sim_s: 0.0,
+            wall_s: 0.0,
+        },
+        error: None,
+        status: None,
+        detections: Vec::new(),
+    };
+    let wcfg = cfg.world(seed);
+    let (w, report) = world::run(
+        &wcfg,
+        fw,
+        |w: &mut World| match sc.step(w) {
+            Ok(f) => f,
+            Err(e) => {
+                sc.error = Some(e);
+                Flow::Stop
+            }
+        },
+        cfg.max_us(),
+    )
+    .map_err(|e| anyhow!("trial {index}: {e}"))?;
+    if let Some(e) = sc.error.take() {
+        return Err(e.context(format!("trial {index}")));
+    }
+    sc.trial.failure = sc.diagnose();
+    let mut t = sc.trial.clone();
+    t.limit_violations = w.servos.counters().limit_violations;
+    let bus = w.servos.frame_counters();
+    let pc = sc.port.counters();
+    t.crc_errors = bus.crc_errors + pc.crc_errors;
+    t.resyncs = bus.resyncs() + pc.resyncs();
+    t.sim_s = report.end_us as f64 * 1e-6;
+    t.wall_s = report.wall_s;
+    Ok((t, sc.status))
+}
+
+/// Seed of trial `i` of a run seeded `seed`.
+pub fn trial_seed(seed: u64, i: usize) -> u64 {
+    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(i as u64 * 0x2545_F491_4F6C_DD1D + 1)
+}
+
+/// Runs `n` in-process trials, `cfg.parallel` at a time; `progress` is told after each.
+pub fn run_inproc(blob: &[u8], cfg: &EpisodeConfig, n: usize, seed: u64, progress: &(dyn Fn(&Trial) + Sync)) -> Result<Vec<Trial>> {
+    let model = Model::parse(blob).map_err(|e| anyhow!("model blob: {e}"))?;
+    let template = crate::detect::template_of(&model)?;
+    let renderer = Renderer::new(cfg.robot);
+    let next = std::sync::atomic::AtomicUsize::new(0);
+    let results = std::sync::Mutex::new(Vec::with_capacity(n));
+    let first_error = std::sync::Mutex::new(None);
+    std::thread::scope(|s| {
+        for _ in 0..cfg.parallel.max(1).min(n.max(1)) {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, std::sync::atomic::Ordering::SeqCst);
+                if i >= n || first_error.lock().unwrap().is_some() {
+                    return;
+                }
+                let camera = Camera { renderer: &renderer, template: &template };
+                match run_trial_inproc(blob, camera, cfg, i, trial_seed(seed, i)) {
+                    Ok(t) => {
+                        progress(&t);
+                        results.lock().unwrap().push(t);
+                    }
+                    Err(e) => {
+                        first_error.lock().unwrap().get_or_insert(e);
+                    }
+                }
+            });
+        }
+    });
+    if let Some(e) = first_error.into_inner().unwrap() {
+        return Err(e);
+    }
+    let mut v = results.into_inner().unwrap();
+    v.sort_by_key(|t| t.index);
+    Ok(v)
+}
+
+/// Reads a model blob and checks it parses.
+pub fn read_model(path: &std::path::Path) -> Result<Vec<u8>> {
+    let bytes = std::fs::read(path).with_context(|| format!("reading model {}", path.display()))?;
+    Model::parse(&bytes).map_err(|e| anyhow!("model {}: {e}", path.display()))?;
+    Ok(bytes)
+}
