@@ -16,6 +16,7 @@
 
 use msr_shared::blob::{Activation, Layer, LayerKind, Model, WeightType, MAX_ACTIVATION_LEN};
 
+mod fast;
 mod kernels;
 mod tanh_table;
 
@@ -54,9 +55,13 @@ pub fn check_scales(model: &Model) -> Result<(), DecodeError> {
     Ok(())
 }
 
+/// One activation buffer, 4-byte aligned so that i16 pairs load as words (SMLAD operands).
+#[repr(C, align(4))]
+struct Act([i16; MAX_ACTIVATION_LEN]);
+
 /// The decoder's two activation buffers and its cached prediction.
 pub struct Decoder {
-    act: [[i16; MAX_ACTIVATION_LEN]; 2],
+    act: [Act; 2],
     /// Which buffer holds the face (as Q8.8 grey, u16 bit patterns), and how many pixels.
     face: Option<(usize, usize)>,
     /// (model CRC, quantised head angles) of the cached face.
@@ -71,7 +76,7 @@ impl Default for Decoder {
 
 impl Decoder {
     pub const fn new() -> Self {
-        Decoder { act: [[0; MAX_ACTIVATION_LEN]; 2], face: None, key: None }
+        Decoder { act: [Act([0; MAX_ACTIVATION_LEN]), Act([0; MAX_ACTIVATION_LEN])], face: None, key: None }
     }
 
     /// Forgets the cached face (e.g. after a model change).
@@ -104,19 +109,19 @@ impl Decoder {
     /// The last predicted face, if any.
     pub fn face(&self) -> Option<&[u16]> {
         let (k, n) = self.face?;
-        Some(&bytemuck::cast_slice(&self.act[k][..])[..n])
+        Some(&bytemuck::cast_slice(&self.act[k].0[..])[..n])
     }
 
     /// The buffer that does not hold the face, as bytes: scratch space for the saliency mask.
     /// Its contents are lost at the next decoder run.
     pub fn scratch(&mut self) -> &mut [u8] {
         let k = self.face.map_or(1, |(k, _)| 1 - k);
-        bytemuck::cast_slice_mut(&mut self.act[k][..])
+        bytemuck::cast_slice_mut(&mut self.act[k].0[..])
     }
 
     /// The face and the scratch buffer together.
     pub fn face_and_scratch(&mut self) -> (Option<&[u16]>, &mut [u8]) {
-        let [a, b] = &mut self.act;
+        let [Act(a), Act(b)] = &mut self.act;
         match self.face {
             Some((0, n)) => (Some(&bytemuck::cast_slice::<i16, u16>(&a[..])[..n]), bytemuck::cast_slice_mut(&mut b[..])),
             Some((_, n)) => (Some(&bytemuck::cast_slice::<i16, u16>(&b[..])[..n]), bytemuck::cast_slice_mut(&mut a[..])),
@@ -128,7 +133,7 @@ impl Decoder {
         self.face = None;
         self.key = None;
         check_scales(model)?;
-        let [a, b] = &mut self.act;
+        let [Act(a), Act(b)] = &mut self.act;
         a[0] = input[0];
         a[1] = input[1];
         let mut cur = 0usize;
@@ -275,7 +280,30 @@ pub(crate) fn run_layer(l: &Layer, src: &[i16], dst: &mut [i16]) -> Result<(), (
     if l.bias_count() != bias_n {
         return Err(());
     }
-    // Aligned i16 tables take the fast path; anything else reads through the byte accessors.
+    // Paired fast paths for i16 weights; anything else is the generic loops.
+    if l.weight_type == WeightType::I16 {
+        match l.kind {
+            LayerKind::Dense if n_in % 2 == 0 => {
+                let w = bytemuck::try_cast_slice::<u8, u32>(l.weights);
+                let x = bytemuck::try_cast_slice::<i16, u32>(x);
+                if let (Ok(w), Ok(x), Some(b)) = (w, x, l.bias_i32()) {
+                    fast::dense_pairs(rq, w, b, x, y);
+                    return Ok(());
+                }
+            }
+            LayerKind::ConvTranspose2d => {
+                let done = match (l.weights_i16(), l.bias_i32()) {
+                    (Some(w), Some(b)) => fast::conv_transpose(l, rq, &w, &b, x, y),
+                    _ => fast::conv_transpose(l, rq, &kernels::Raw(l), &kernels::RawBias(l), x, y),
+                };
+                if done {
+                    return Ok(());
+                }
+            }
+            _ => {}
+        }
+    }
+    // Aligned tables are read as slices; anything else through the byte accessors.
     match (l.weight_type, l.weights_i16(), l.bias_i32()) {
         (WeightType::I16, Some(w), Some(b)) => kernels::layer(l, rq, &w, &b, x, y),
         (WeightType::I8, _, Some(b)) => match l.weights_i8() {

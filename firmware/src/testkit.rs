@@ -48,7 +48,7 @@ pub fn layer(
         Weights::I16((0..nw).map(|_| wq(rng.unit() * scale) as i16).collect())
     };
     let bias = (0..nb)
-        .map(|_| (rng.unit() * 0.3 * (1i64 << (w_shift + in_shift)) as f64).round() as i32)
+        .map(|_| (rng.unit() * 0.3 * (1i64 << (w_shift + in_shift)) as f64).round().clamp(-1e9, 1e9) as i32)
         .collect();
     LayerSpec {
         kind,

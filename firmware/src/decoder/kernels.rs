@@ -114,17 +114,17 @@ pub(crate) fn dense<W: Table, B: Table>(rq: Requant, w: &W, b: &B, x: &[i16], y:
 }
 
 /// Valid (kernel tap, input index) pairs of one output coordinate, at most `MAX_K` of them.
-const MAX_K: usize = 32;
+pub(crate) const MAX_K: usize = 32;
 
-struct Taps {
-    n: usize,
-    k: [u8; MAX_K],
-    i: [u16; MAX_K],
+pub(crate) struct Taps {
+    pub(crate) n: usize,
+    pub(crate) k: [u8; MAX_K],
+    pub(crate) i: [u16; MAX_K],
 }
 
 impl Taps {
     /// ConvTranspose2d: output `o` takes input `i` through tap `t` when `o + p - t = i * s`.
-    fn transpose(o: usize, k: usize, s: usize, p: usize, n_in: usize) -> Taps {
+    pub(crate) fn transpose(o: usize, k: usize, s: usize, p: usize, n_in: usize) -> Taps {
         let mut taps = Taps { n: 0, k: [0; MAX_K], i: [0; MAX_K] };
         for t in 0..k.min(MAX_K) {
             let Some(v) = (o + p).checked_sub(t) else { continue };
