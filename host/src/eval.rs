@@ -3,8 +3,9 @@
 //! Rows: model (decoder, autoencoder) x weighting (sigma: the blob's statistics; none: Sigma = I,
 //! i.e. sigma = 1 grey level everywhere, the paper's ablation) x engine (float, fixed). The fixed
 //! engine is the firmware's pipeline on the blob (for "none", the blob with its sigma table set to
-//! 1.0). The float decoder is a trained float model found next to the blob when this build can
-//! load one, else the blob's dense decoder dequantized (the row says which). Rows that cannot be
+//! 1.0). Float rows use the trained models next to the blob (`msr train` output: `{name}.json`,
+//! `{name}.mpk`, statistics and novelty settings), or for the decoder, when there is none, the
+//! blob's dense decoder dequantized (the row's `source` says which). Rows that cannot be
 //! made are listed under `absent` with the reason, never invented.
 //!
 //! Columns, over the test frames (crops as the dataset loader makes them):
@@ -24,7 +25,7 @@
 use crate::data::{Dataset, Sample};
 use crate::detect::{dequantized_decoder, float_engine_of, parse_blob, read_blob};
 use crate::metrics::{auroc, detection_score};
-use crate::pipeline::Detection;
+use crate::pipeline::{Detection, Settings};
 use crate::predictor::FacePredictor;
 use anyhow::{ensure, Context, Result};
 use msr_shared::blob::{Model, CRC32};
@@ -118,51 +119,66 @@ pub fn evaluate(blob_path: &Path, data: &Path) -> Result<Report> {
 
     let mut rows = Vec::new();
     let mut absent = Vec::new();
-    let mut dets: Vec<((&str, &str), Vec<Detection>)> = Vec::new();
-    let trained = trained_models(blob_path);
+    let mut dets: Vec<((&str, &str, &str), Vec<Detection>)> = Vec::new();
+    let heads: Vec<[f32; 2]> = test.iter().map(|s| s.head).collect();
+    let faces: Vec<Vec<f32>> = test.iter().map(|s| s.face_unit()).collect();
 
-    // Decoder, float: a trained model if loadable, else the blob's dequantized decoder.
-    let float_decoder: Result<(Box<dyn FacePredictor>, String), String> = match &trained.decoder {
-        Some(Ok(p)) => Ok((p.0.clone_box(), p.1.clone())),
-        _ => dequantized_decoder(&model)
-            .map(|d| {
-                (
-                    Box::new(d) as Box<dyn FacePredictor>,
-                    "blob decoder, dequantized to float".into(),
-                )
-            })
-            .map_err(|e| format!("{e:#}")),
-    };
-    for (weighting, m) in WEIGHTINGS.iter().zip([&model, &none_model]) {
-        match &float_decoder {
-            Ok((pred, source)) => {
-                let eng = float_engine_of(m);
-                let heads: Vec<[f32; 2]> = test.iter().map(|s| s.head).collect();
-                let faces: Vec<Vec<f32>> = test.iter().map(|s| s.face_unit()).collect();
-                let predicted = pred.predict_batch(&heads, &faces);
-                let d: Vec<Detection> = test
-                    .iter()
-                    .zip(predicted)
-                    .map(|(s, p)| eng.detect(s.face.crop, &s.face.grey, p))
-                    .collect();
-                rows.push(row(
-                    "decoder",
-                    weighting,
-                    "float",
-                    source.clone(),
-                    &test,
-                    &d,
-                    m,
-                ));
-                dets.push((("float", weighting), d));
+    // Float models: trained ones next to the blob; for the decoder, else the blob's own decoder.
+    let dir = blob_path.parent().unwrap_or(Path::new("."));
+    for name in ["decoder", "autoencoder"] {
+        let float = match trained_model(dir, name, ds.face_size()) {
+            Ok(Some(f)) => Ok(f),
+            Ok(None) if name == "decoder" => blob_float_decoder(&model),
+            Ok(None) => Err(format!(
+                "no trained {name} next to {} (the training output folder holds {name}.json and \
+                 {name}.mpk)",
+                blob_path.display()
+            )),
+            Err(e) => Err(e),
+        };
+        let float = match float {
+            Ok(f) => f,
+            Err(reason) => {
+                for weighting in WEIGHTINGS {
+                    absent.push(Absent {
+                        model: name,
+                        weighting,
+                        engine: "float",
+                        reason: reason.clone(),
+                    });
+                }
+                continue;
             }
-            Err(reason) => absent.push(Absent {
-                model: "decoder",
+        };
+        let predicted = float.predictor.predict_batch(&heads, &faces);
+        for weighting in WEIGHTINGS {
+            let mut eng = float_engine_of(&model);
+            eng.mu = float.mu.clone();
+            eng.sigma = if weighting == "sigma" {
+                float.sigma.clone()
+            } else {
+                vec![1.0; float.sigma.len()]
+            };
+            eng.settings = float.settings;
+            let d: Vec<Detection> = test
+                .iter()
+                .zip(&predicted)
+                .map(|(s, p)| eng.detect(s.face.crop, &s.face.grey, p.clone()))
+                .collect();
+            rows.push(row(
+                name,
                 weighting,
-                engine: "float",
-                reason: reason.clone(),
-            }),
+                "float",
+                float.source.clone(),
+                &test,
+                &d,
+                float.settings.min_area,
+            ));
+            dets.push(((name, "float", weighting), d));
         }
+    }
+    // Fixed point: the firmware's pipeline on the blob (a decoder: the board runs nothing else).
+    for (weighting, m) in WEIGHTINGS.iter().zip([&model, &none_model]) {
         let mut d = Vec::with_capacity(test.len());
         let mut ws = Box::new(msr_firmware::Workspace::new());
         for s in &test {
@@ -172,23 +188,18 @@ pub fn evaluate(blob_path: &Path, data: &Path) -> Result<Report> {
             );
         }
         let source = format!("{} (firmware pipeline)", blob_path.display());
-        rows.push(row("decoder", weighting, "fixed", source, &test, &d, m));
-        dets.push((("fixed", weighting), d));
-    }
-    let ae_reason = match &trained.autoencoder {
-        Some(Err(e)) => e.clone(),
-        Some(Ok(_)) | None => format!(
-            "no trained autoencoder next to {} (the training output folder holds autoencoder.*)",
-            blob_path.display()
-        ),
-    };
-    for weighting in WEIGHTINGS {
-        absent.push(Absent {
-            model: "autoencoder",
+        rows.push(row(
+            "decoder",
             weighting,
-            engine: "float",
-            reason: ae_reason.clone(),
-        });
+            "fixed",
+            source,
+            &test,
+            &d,
+            m.novelty.min_area,
+        ));
+        dets.push((("decoder", "fixed", weighting), d));
+    }
+    for weighting in WEIGHTINGS {
         absent.push(Absent {
             model: "autoencoder",
             weighting,
@@ -196,18 +207,10 @@ pub fn evaluate(blob_path: &Path, data: &Path) -> Result<Report> {
             reason: "the board runs decoders only: a model blob maps head angles to a face".into(),
         });
     }
-    if let Some(Err(e)) = &trained.decoder {
-        absent.push(Absent {
-            model: "decoder",
-            weighting: "sigma",
-            engine: "float",
-            reason: format!("trained decoder not used: {e}"),
-        });
-    }
 
     let find = |e: &str| {
         dets.iter()
-            .find(|((en, w), _)| *en == e && *w == "sigma")
+            .find(|((m, en, w), _)| *m == "decoder" && *en == e && *w == "sigma")
             .map(|x| &x.1)
     };
     let quantized_agreement = match (find("float"), find("fixed")) {
@@ -260,10 +263,10 @@ fn row(
     source: String,
     test: &[&Sample],
     dets: &[Detection],
-    m: &Model,
+    min_area: u16,
 ) -> Row {
-    let w = m.face_w as usize;
-    let min_area = m.novelty.min_area as u32;
+    let w = test.first().map_or(1, |s| s.face.crop.width as usize);
+    let min_area = min_area as u32;
     let (mut overlap, mut precision, mut hits, mut marked) = (0f64, 0f64, 0usize, 0usize);
     let (mut alarms, mut unmarked) = (0usize, 0usize);
     let (mut img_scores, mut img_labels) = (Vec::new(), Vec::new());
@@ -346,40 +349,65 @@ fn on_mark_pixel(s: &Sample, w: usize, x: u32, y: u32) -> bool {
     mk.face_mask[(y - c.y) as usize * w + (x - c.x) as usize]
 }
 
-/// A float model and where it came from.
-pub type Found = (Box<dyn ClonePredictor>, String);
-
-/// `FacePredictor` that can be cloned into a box.
-pub trait ClonePredictor: FacePredictor {
-    fn clone_box(&self) -> Box<dyn FacePredictor>;
+/// A float model with the statistics and settings its rows use.
+struct FloatModel {
+    predictor: Box<dyn FacePredictor>,
+    /// Grey levels.
+    mu: Vec<f32>,
+    /// Grey levels, floored as the model's calibration says.
+    sigma: Vec<f32>,
+    settings: Settings,
+    source: String,
 }
 
-/// Trained float models next to the blob: `Some(Err)` when files are there but cannot be used.
-pub struct Trained {
-    pub decoder: Option<Result<Found, String>>,
-    pub autoencoder: Option<Result<Found, String>>,
-}
-
-fn trained_models(blob: &Path) -> Trained {
-    let dir = blob.parent().unwrap_or(Path::new("."));
-    let look = |stem: &str| -> Option<Result<Found, String>> {
-        let files: Vec<PathBuf> = std::fs::read_dir(dir)
-            .ok()?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| p.file_stem().is_some_and(|s| s == stem))
-            .collect();
-        if files.is_empty() {
-            return None;
-        }
-        Some(Err(format!(
-            "found {} but this build has no loader for trained {stem} files yet",
-            files[0].display()
-        )))
-    };
-    Trained {
-        decoder: look("decoder"),
-        autoencoder: look("autoencoder"),
+/// `{name}.json` + `{name}.mpk` from `msr train` in `dir`: `Ok(None)` when there is none,
+/// `Err(reason)` when there is one that cannot be used.
+fn trained_model(
+    dir: &Path,
+    name: &str,
+    face: (usize, usize),
+) -> Result<Option<FloatModel>, String> {
+    if !dir.join(format!("{name}.json")).is_file() {
+        return Ok(None);
     }
+    let m = crate::train::load(dir, name).map_err(|e| format!("{e:#}"))?;
+    let info = m.info().map_err(|e| format!("{e:#}"))?.clone();
+    let stats = crate::train::load_stats(dir, &info).map_err(|e| format!("{e:#}"))?;
+    if (info.face_h, info.face_w) != face {
+        return Err(format!(
+            "trained {name} takes {}x{} faces, the dataset's are {}x{}",
+            info.face_w, info.face_h, face.1, face.0
+        ));
+    }
+    let floor = info.novelty.sigma_floor.max(1e-5);
+    Ok(Some(FloatModel {
+        predictor: Box::new(m),
+        mu: stats.mu.iter().map(|&v| v as f32).collect(),
+        sigma: stats.sigma.iter().map(|&v| v.max(floor) as f32).collect(),
+        settings: Settings {
+            threshold: info.novelty.threshold as f32,
+            normalisation: info.novelty.normalisation,
+            sided: info.novelty.sided,
+            min_area: info.novelty.min_area,
+        },
+        source: format!(
+            "{} (trained, float)",
+            dir.join(format!("{name}.mpk")).display()
+        ),
+    }))
+}
+
+/// The blob's dense decoder in float, with the blob's statistics and settings.
+fn blob_float_decoder(model: &Model) -> Result<FloatModel, String> {
+    let dec = dequantized_decoder(model).map_err(|e| format!("{e:#}"))?;
+    let eng = float_engine_of(model);
+    Ok(FloatModel {
+        predictor: Box::new(dec),
+        mu: eng.mu,
+        sigma: eng.sigma,
+        settings: eng.settings,
+        source: "blob decoder dequantized to float (no trained decoder next to the blob)".into(),
+    })
 }
 
 pub fn markdown(r: &Report) -> String {
