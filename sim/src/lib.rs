@@ -5,7 +5,15 @@
 //! - [`kin`]: forward and inverse kinematics, the touch judge.
 //! - [`render`], [`looks`], [`marks`]: mirror-view frames of the `red` and `skin` robots, marks.
 //! - [`dataset`]: datasets in the layout of [`layout`], reach training pairs.
+//! - [`servo`]: emulated servos on the servo bus; [`link`]: baud-paced links and a fault layer;
+//!   [`pty`]: a pseudo-terminal for `serialport` hosts.
+//! - [`world`]: the world and the firmware on two threads in lock-step simulated time;
+//!   [`camera`]: frames of the running world as host-link messages.
+//!
+//! Examples: `cargo run -p msr-sim --example sim_pictures` (frames under
+//! `target/sim-pictures/`), `cargo run -p msr-sim --example sim_bench` (speeds).
 pub mod body;
+pub mod camera;
 pub mod dataset;
 pub mod kin;
 pub mod layout;

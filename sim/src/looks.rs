@@ -54,16 +54,16 @@ pub const AMBIENT: f32 = 0.45;
 pub struct Surface {
     pub albedo: [f32; 3],
     pub specular: f32,
-    pub shininess: f32,
+    pub shininess: i32,
     pub emission: [f32; 3],
 }
 
 impl Surface {
     const fn plastic(albedo: [f32; 3]) -> Surface {
-        Surface { albedo, specular: 0.35, shininess: 24.0, emission: [0.0; 3] }
+        Surface { albedo, specular: 0.35, shininess: 24, emission: [0.0; 3] }
     }
     const fn matte(albedo: [f32; 3]) -> Surface {
-        Surface { albedo, specular: 0.06, shininess: 6.0, emission: [0.0; 3] }
+        Surface { albedo, specular: 0.06, shininess: 6, emission: [0.0; 3] }
     }
     /// Paper or paint on the face: a matte colour.
     pub fn paint(rgb: [u8; 3]) -> Surface {
@@ -73,7 +73,7 @@ impl Surface {
         Surface {
             albedo: [0.05; 3],
             specular: 0.2,
-            shininess: 30.0,
+            shininess: 30,
             emission: colour.map(|c| c * level),
         }
     }

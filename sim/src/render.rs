@@ -91,12 +91,22 @@ impl Renderer {
 
     /// Renders the mirror view at `pose`, with an optional mark on the face.
     pub fn render(&self, pose: &BodyPose, mark: Option<&Mark>, var: &Variation) -> Rendered {
+        self.render_window(pose, mark, var, [0, 0, WIDTH, HEIGHT])
+    }
+
+    /// As [`Renderer::render`], but casts rays only inside `window` ([x, y, width, height]);
+    /// outside it the frame is plain background without noise, and the mark's mask and counts
+    /// cover the window only. For episodes that only look at the face crop.
+    pub fn render_window(&self, pose: &BodyPose, mark: Option<&Mark>, var: &Variation, window: [u32; 4]) -> Rendered {
+        let (wx0, wy0) = (window[0], window[1]);
+        let (wx1, wy1) = (window[0].saturating_add(window[2]), window[1].saturating_add(window[3]));
         let prims = body::ellipsoids(pose);
         let boxes: Vec<[i32; 4]> = prims.iter().map(|e| screen_box(e, pose)).collect();
         let cam = kin::camera_pose(pose.head_yaw, pose.head_pitch);
         let rot = cam.rotation.to_rotation_matrix();
         let origin = Point3::from(cam.translation.vector);
-        let head_inv = prims[0].frame.inverse();
+        let inv_frames: Vec<_> = prims.iter().map(|e| e.frame.inverse()).collect();
+        let head_inv = inv_frames[0];
         let light = looks::LIGHT.normalize();
         let look = looks::Look::of(self.robot, var.eye_led);
 
@@ -109,24 +119,47 @@ impl Renderer {
         let mut noise_left = 0;
         let gain = var.exposure * 255.0;
 
+        // Per row: the primitives whose screen box spans it, and the columns they cover.
+        let mut row_prims: Vec<usize> = Vec::with_capacity(prims.len());
+        let mut row_span = (i32::MAX, i32::MIN);
+        let mut row = u32::MAX;
         for (i, px) in rgb.pixels_mut().enumerate() {
             let (x, y) = ((i as u32) % WIDTH, (i as u32) / WIDTH);
-            let r = self.rays[i];
-            let d = rot * Vector3::new(1.0, r[0], r[1]);
+            if x < wx0 || x >= wx1 || y < wy0 || y >= wy1 {
+                *px = image::Rgb(self.background[i].map(|c| (c * 255.0).round() as u8));
+                continue;
+            }
+            if y != row {
+                row = y;
+                row_prims.clear();
+                row_span = (i32::MAX, i32::MIN);
+                for (k, b) in boxes.iter().enumerate() {
+                    if (y as i32) >= b[1] && (y as i32) <= b[3] {
+                        row_prims.push(k);
+                        row_span = (row_span.0.min(b[0]), row_span.1.max(b[2]));
+                    }
+                }
+            }
             let mut colour = self.background[i];
+            let xi = x as i32;
+            let r = self.rays[i];
+            let d = if xi >= row_span.0 && xi <= row_span.1 {
+                rot * Vector3::new(1.0, r[0], r[1])
+            } else {
+                Vector3::zeros()
+            };
             if d.x > 1e-9 {
                 // Reflect at the mirror plane.
                 let t = (body::MIRROR_X - origin.x) / d.x;
                 let o = origin + d * t;
                 let d = Vector3::new(-d.x, d.y, d.z);
-                let (xi, yi) = (x as i32, y as i32);
                 let mut near: Option<(f64, usize)> = None;
-                for (k, e) in prims.iter().enumerate() {
+                for &k in &row_prims {
                     let b = boxes[k];
-                    if xi < b[0] || xi > b[2] || yi < b[1] || yi > b[3] {
+                    if xi < b[0] || xi > b[2] {
                         continue;
                     }
-                    if let Some(t) = e.hit(&o, &d) {
+                    if let Some(t) = prims[k].hit(&o, &d) {
                         if near.map_or(true, |n| t < n.0) {
                             near = Some((t, k));
                         }
@@ -137,7 +170,7 @@ impl Renderer {
                     let p = o + d * t;
                     let n = e.normal(&p);
                     let view = -d.normalize();
-                    let local = e.frame.inverse() * p;
+                    let local = inv_frames[k] * p;
                     let mut surf = look.surface(e.part, &local);
                     let mut on_mark = false;
                     if let (Part::Head, Some(m)) = (e.part, mark) {
@@ -197,7 +230,7 @@ impl Renderer {
 fn shade(s: &looks::Surface, n: &Vector3<f64>, l: &Vector3<f64>, v: &Vector3<f64>) -> [f32; 3] {
     let diffuse = n.dot(l).max(0.0) as f32;
     let h = (l + v).normalize();
-    let spec = (n.dot(&h).max(0.0) as f32).powf(s.shininess) * s.specular;
+    let spec = (n.dot(&h).max(0.0) as f32).powi(s.shininess) * s.specular;
     let k = looks::AMBIENT + (1.0 - looks::AMBIENT) * diffuse;
     [0, 1, 2].map(|c| s.albedo[c] * k + spec + s.emission[c])
 }
