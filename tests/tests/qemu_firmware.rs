@@ -38,3 +38,369 @@ fn selftest_clock_and_uarts() {
     exit.success().unwrap();
     assert!(exit.output.contains("calibration: 4000000 loop instructions"), "{}", exit.output);
 }
+
+// ---------------------------------------------------------------------------------------------
+// The board image, driven over its two links.
+
+use msr_firmware::pipeline::{detect, Workspace};
+use msr_firmware::saliency::Settings;
+use msr_host::bench::{synthetic, BenchModel};
+use msr_host::models::ArchKind;
+use msr_shared::blob::{Model, CRC32};
+use msr_shared::frame::{encode_message_vec, FrameAccumulator, MAX_WIRE_FRAME};
+use msr_shared::joints::{HOME_POSTURE, REACH_JOINTS};
+use msr_shared::msg::{
+    BoardToHost, BoardToServo, Detection, ErrorCode, FrameHeader, HostToBoard, JointState, ServoToBoard, CHUNK,
+};
+use std::os::unix::net::UnixStream;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+/// The end-of-run sequence the QEMU board image watches UART0 for.
+const EXIT_SEQUENCE: &[u8] = b"\0\0\0MSR-EXIT\0";
+/// Where the face crop sits in the 320 x 240 camera frame.
+const CROP: [u16; 2] = [120, 60];
+
+/// What the emulated servos saw.
+#[derive(Default)]
+struct ServoLog {
+    targets: Vec<(u32, [f32; 5])>,
+    state_requests: u32,
+    bad_targets: Vec<String>,
+}
+
+/// Ideal servos on UART1: they answer every state request with their positions and move to each
+/// target at once. Every target is checked against the joint limits.
+/// `head`, when set, is what HeadYaw and HeadPitch report, whatever their targets.
+fn spawn_servos(
+    mut bus: UnixStream,
+    stop: Arc<AtomicBool>,
+    log: Arc<Mutex<ServoLog>>,
+    head: Arc<Mutex<Option<[f32; 2]>>>,
+) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        bus.set_read_timeout(Some(Duration::from_millis(20))).unwrap();
+        let mut acc = FrameAccumulator::<MAX_WIRE_FRAME>::new();
+        let mut pos = HOME_POSTURE;
+        let mut seq = 0u16;
+        let mut buf = [0u8; 512];
+        while !stop.load(Ordering::Relaxed) {
+            let n = match bus.read(&mut buf) {
+                Ok(0) => return,
+                Ok(n) => n,
+                Err(_) => continue,
+            };
+            for &b in &buf[..n] {
+                let Some(Ok(f)) = acc.push(b) else { continue };
+                let Ok(msg) = f.message::<BoardToServo>() else { continue };
+                match msg {
+                    BoardToServo::StateRequest => {
+                        let mut report = pos;
+                        if let Some(h) = *head.lock().unwrap() {
+                            report[..2].copy_from_slice(&h);
+                        }
+                        let mut states = heapless::Vec::new();
+                        for (j, p) in REACH_JOINTS.iter().zip(report) {
+                            states.push(JointState { joint: *j, position: p, stiffness: true, faults: 0 }).unwrap();
+                        }
+                        let reply = encode_message_vec(seq, &ServoToBoard::States { time_ms: 0, states }).unwrap();
+                        seq = seq.wrapping_add(1);
+                        if bus.write_all(&reply).is_err() {
+                            return;
+                        }
+                        log.lock().unwrap().state_requests += 1;
+                    }
+                    BoardToServo::Targets { time_ms, targets } => {
+                        let mut l = log.lock().unwrap();
+                        for t in &targets {
+                            if let Err(e) = t.joint.validate(t.position) {
+                                l.bad_targets.push(format!("{e}"));
+                            }
+                            if let Some(i) = REACH_JOINTS.iter().position(|j| *j == t.joint) {
+                                pos[i] = t.position;
+                            }
+                        }
+                        l.targets.push((time_ms, pos));
+                    }
+                    BoardToServo::Stiffness { .. } => {}
+                }
+            }
+        }
+    })
+}
+
+/// The host side of UART0: framed messages out, board messages in.
+struct HostLink {
+    s: UnixStream,
+    acc: FrameAccumulator<MAX_WIRE_FRAME>,
+    seq: u16,
+}
+
+impl HostLink {
+    fn send(&mut self, msg: &HostToBoard) {
+        let bytes = encode_message_vec(self.seq, msg).unwrap();
+        self.seq = self.seq.wrapping_add(1);
+        self.s.write_all(&bytes).unwrap();
+    }
+
+    /// The next board message, skipping none; panics after `timeout`.
+    fn recv(&mut self, timeout: Duration) -> BoardToHost {
+        let deadline = Instant::now() + timeout;
+        let mut b = [0u8; 1];
+        loop {
+            assert!(Instant::now() < deadline, "no message from the board within {timeout:?}");
+            match self.s.read(&mut b) {
+                Ok(0) => panic!("the board's host link closed"),
+                Ok(_) => {
+                    if let Some(Ok(f)) = self.acc.push(b[0]) {
+                        return f.message::<BoardToHost>().expect("a valid BoardToHost message");
+                    }
+                }
+                Err(_) => {}
+            }
+        }
+    }
+
+    /// Waits for a message `pick` accepts, returning the others seen on the way.
+    fn until<T>(&mut self, timeout: Duration, mut pick: impl FnMut(&BoardToHost) -> Option<T>) -> (T, Vec<BoardToHost>) {
+        let deadline = Instant::now() + timeout;
+        let mut other = Vec::new();
+        loop {
+            let m = self.recv(deadline.saturating_duration_since(Instant::now()).max(Duration::from_millis(1)));
+            if let Some(t) = pick(&m) {
+                return (t, other);
+            }
+            other.push(m);
+        }
+    }
+
+    fn upload(&mut self, blob: &[u8]) -> u32 {
+        self.send(&HostToBoard::ModelBegin { len: blob.len() as u32, crc32: CRC32.checksum(blob) });
+        for (i, c) in blob.chunks(CHUNK).enumerate() {
+            self.send(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data: c });
+        }
+        self.send(&HostToBoard::ModelCommit);
+        let (crc, other) = self.until(Duration::from_secs(60), |m| match m {
+            BoardToHost::ModelAccepted { crc32 } => Some(*crc32),
+            // A watchdog may trip while a large model streams in; that is reported, not fatal.
+            BoardToHost::Error { code: ErrorCode::BadUpload | ErrorCode::BadModel, detail } => {
+                panic!("upload refused: {m:?} ({detail})")
+            }
+            _ => None,
+        });
+        drop(other);
+        crc
+    }
+
+    fn frame(&mut self, id: u16, model: &Model, pixels: &[u8]) {
+        self.send(&HostToBoard::FrameStart(FrameHeader {
+            frame: id,
+            crop_x: CROP[0],
+            crop_y: CROP[1],
+            width: model.face_w,
+            height: model.face_h,
+        }));
+        for (i, c) in pixels.chunks(CHUNK).enumerate() {
+            self.send(&HostToBoard::FrameChunk { frame: id, offset: (i * CHUNK) as u16, data: c });
+        }
+    }
+}
+
+/// Frames for the head at `head`: the model's own prediction with +-2 grey levels of noise, and
+/// a 15 x 15 mark of grey 226 at `mark` (crop pixels, top-left) when given.
+fn make_frame(model: &Model, head: [f32; 2], mark: Option<(usize, usize)>, seed: u32) -> Vec<u8> {
+    let mut ws = Box::new(Workspace::new());
+    let face = ws.decode(model, head).unwrap();
+    let mut rng = seed;
+    let mut f: Vec<u8> = face
+        .iter()
+        .map(|&q| {
+            rng = rng.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (((q as i32 + 128) >> 8) + ((rng >> 24) % 5) as i32 - 2).clamp(0, 255) as u8
+        })
+        .collect();
+    if let Some((y0, x0)) = mark {
+        let w = model.face_w as usize;
+        for y in y0..y0 + 15 {
+            f[y * w + x0..y * w + x0 + 15].fill(226);
+        }
+    }
+    f
+}
+
+struct Run {
+    detections: Vec<(Detection, Vec<u8>)>,
+    servo: ServoLog,
+    exit: msr_sim::qemu::QemuExit,
+    other: Vec<BoardToHost>,
+}
+
+/// Uploads `m` to the board image, sends `n_frames` frames (each answered by a Detection before
+/// the next goes out), then lets the motion run for `settle` and ends the run. With `heads`, the
+/// servos report `heads[k]` as the head pose for frame `k`.
+fn drive_board(
+    m: &BenchModel,
+    frames: impl Fn(&Model, [f32; 2], usize) -> Vec<u8>,
+    n_frames: usize,
+    heads: Option<&[[f32; 2]]>,
+    settle: Duration,
+) -> Option<Run> {
+    let img = image(qemu::BOARD_IMAGE)?;
+    let model = Model::parse(&m.blob).unwrap();
+    let q = Qemu::start(&img).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let log = Arc::new(Mutex::new(ServoLog::default()));
+    let head_override = Arc::new(Mutex::new(None));
+    let servos = spawn_servos(q.servo.try_clone().unwrap(), stop.clone(), log.clone(), head_override.clone());
+    let s = q.host.try_clone().unwrap();
+    s.set_read_timeout(Some(Duration::from_millis(50))).unwrap();
+    let mut host = HostLink { s, acc: FrameAccumulator::new(), seq: 0 };
+    host.send(&HostToBoard::Ping { nonce: 7 });
+    let (nonce, _) = host.until(Duration::from_secs(30), |m| match m {
+        BoardToHost::Pong { nonce } => Some(*nonce),
+        _ => None,
+    });
+    assert_eq!(nonce, 7);
+    assert_eq!(host.upload(&m.blob), model.crc32);
+    let mut detections = Vec::new();
+    let mut other = Vec::new();
+    let mut head = [0.0f32, 0.0];
+    for k in 0..n_frames {
+        if let Some(hs) = heads {
+            head = hs[k];
+            *head_override.lock().unwrap() = Some(head);
+            // Two more answered state requests: the board has the new pose.
+            let asked = log.lock().unwrap().state_requests;
+            let t = Instant::now();
+            while log.lock().unwrap().state_requests < asked + 2 {
+                assert!(t.elapsed() < Duration::from_secs(30), "the board stopped asking the servos");
+                std::thread::sleep(Duration::from_millis(1));
+            }
+        }
+        let pixels = frames(&model, head, k);
+        host.frame(k as u16, &model, &pixels);
+        let (d, o) = host.until(Duration::from_secs(60), |msg| match msg {
+            BoardToHost::Detection(d) if d.frame == k as u16 => Some(*d),
+            _ => None,
+        });
+        other.extend(o);
+        head = d.head;
+        detections.push((d, pixels));
+    }
+    let t = Instant::now();
+    while t.elapsed() < settle {
+        if let Ok(n) = host.s.read(&mut [0u8; 256]) {
+            if n == 0 {
+                break;
+            }
+        }
+    }
+    host.s.write_all(EXIT_SEQUENCE).unwrap();
+    let exit = q.wait(Duration::from_secs(60)).unwrap();
+    stop.store(true, Ordering::Relaxed);
+    servos.join().unwrap();
+    let servo = std::mem::take(&mut *log.lock().unwrap());
+    Some(Run { detections, servo, exit, other })
+}
+
+/// The 15 x 15 mark, placed on frames 1.. (frame 0 is clean).
+fn marked(model: &Model, head: [f32; 2], k: usize) -> Vec<u8> {
+    let mark = (k > 0).then_some((20, 30));
+    make_frame(model, head, mark, 0xC0FFEE + k as u32)
+}
+
+#[test]
+fn board_image_detects_reaches_and_matches_the_host_build() {
+    let m = synthetic(ArchKind::Conv).unwrap();
+    // Frames 1, 2, 3 carry the mark: the third confirms and the arm goes up (detection pauses).
+    let Some(run) = drive_board(&m, marked, 4, None, Duration::from_secs(3)) else { return };
+    run.exit.success().unwrap();
+    println!("{}", run.exit.output);
+    let model = Model::parse(&m.blob).unwrap();
+    let settings = Settings::of(&model);
+
+    // Frame 0 is the face itself: nothing; the marked ones: the mark.
+    let (d0, _) = &run.detections[0];
+    assert!(d0.blob.is_none(), "clean frame: {d0:?}");
+    let mark_box = [CROP[0] + 30, CROP[1] + 20, CROP[0] + 44, CROP[1] + 34];
+    let seen: Vec<&Detection> = run.detections.iter().map(|(d, _)| d).filter(|d| d.blob.is_some()).collect();
+    assert!(seen.len() >= 3, "the mark must be found on the marked frames: {:?}", run.detections.iter().map(|d| d.0).collect::<Vec<_>>());
+    for d in &seen {
+        let b = d.blob.unwrap();
+        assert_eq!(b.box_xyxy, mark_box, "{d:?}");
+        assert_eq!(b.area, 225);
+    }
+    // Confirmation: K = 3 of the last N = 5 (the library's defaults) before the reach.
+    let first_confirm = run.detections.iter().position(|(d, _)| d.confirmed).expect("a reach was confirmed");
+    assert_eq!(first_confirm, 3, "{:?}", run.detections.iter().map(|d| d.0).collect::<Vec<_>>());
+
+    // Targets streamed, every one inside the limits, moving towards the reach.
+    let reach = run.detections[first_confirm].0.reach.unwrap();
+    let servo = &run.servo;
+    assert!(servo.bad_targets.is_empty(), "targets outside the limits: {:?}", servo.bad_targets);
+    assert!(servo.targets.len() >= 20, "only {} target messages", servo.targets.len());
+    assert!(servo.state_requests >= 1);
+    let last = servo.targets.last().unwrap().1;
+    let start = HOME_POSTURE;
+    for i in 0..5 {
+        let (from, to, now) = (start[i], reach[i], last[i]);
+        assert!(
+            (now - to).abs() <= (from - to).abs() + 1e-6,
+            "joint {i} moved away from the reach: home {from} target {to} now {now}"
+        );
+    }
+    // 10 ms apart in the board's (virtual) time.
+    let times: Vec<u32> = servo.targets.iter().map(|t| t.0).collect();
+    let steps: Vec<u32> = times.windows(2).map(|w| w[1].wrapping_sub(w[0])).collect();
+    assert!(steps.iter().filter(|&&s| s == 10).count() * 10 >= steps.len() * 9, "target periods: {steps:?}");
+
+    // Exactness: the host build of the same library on the same frames and head angles gives
+    // the same bits.
+    let mut ws = Box::new(Workspace::new());
+    for (d, pixels) in &run.detections {
+        let h = detect(&mut ws, &model, &settings, pixels, CROP, d.head).unwrap();
+        let host_blob = h.blob.map(|b| (b.area, [b.x0 + CROP[0], b.y0 + CROP[1], b.x1 + CROP[0], b.y1 + CROP[1]]));
+        assert_eq!(d.blob.map(|b| (b.area, b.box_xyxy)), host_blob, "frame {}", d.frame);
+        assert_eq!(d.blob.map(|b| b.centroid.map(f32::to_bits)), h.centroid.map(|c| c.map(f32::to_bits)), "frame {}", d.frame);
+        assert_eq!(d.reach.map(|r| r.map(f32::to_bits)), h.reach.map(|r| r.map(f32::to_bits)), "frame {}", d.frame);
+    }
+    let _ = run.other;
+}
+
+/// Host build and QEMU build, bit for bit, over head poses across the +-5 degree range and both
+/// decoders; marks on every third frame only, so no reach interrupts detection.
+#[test]
+fn qemu_and_host_builds_agree_bit_for_bit() {
+    let heads: Vec<[f32; 2]> = (0..9)
+        .map(|k| {
+            let a = k as f32 * 0.7;
+            [0.087 * a.sin(), 0.06 * (1.3 * a).cos()]
+        })
+        .collect();
+    let frames = |model: &Model, head: [f32; 2], k: usize| {
+        let mark = (k % 3 == 1).then_some((5 + 4 * k, 50 - 5 * k));
+        make_frame(model, head, mark, 77 + k as u32)
+    };
+    for kind in [ArchKind::Conv, ArchKind::Mlp] {
+        let m = synthetic(kind).unwrap();
+        let Some(run) = drive_board(&m, frames, heads.len(), Some(&heads), Duration::ZERO) else { return };
+        run.exit.success().unwrap();
+        let model = Model::parse(&m.blob).unwrap();
+        let settings = Settings::of(&model);
+        let mut ws = Box::new(Workspace::new());
+        let mut found = 0;
+        for ((d, pixels), want_head) in run.detections.iter().zip(&heads) {
+            assert_eq!(d.head.map(f32::to_bits), want_head.map(f32::to_bits), "{kind:?} frame {}: head", d.frame);
+            assert!(!d.confirmed, "{kind:?}: no reach expected");
+            let h = detect(&mut ws, &model, &settings, pixels, CROP, d.head).unwrap();
+            let host_blob = h.blob.map(|b| (b.area, [b.x0 + CROP[0], b.y0 + CROP[1], b.x1 + CROP[0], b.y1 + CROP[1]]));
+            assert_eq!(d.blob.map(|b| (b.area, b.box_xyxy)), host_blob, "{kind:?} frame {}", d.frame);
+            assert_eq!(d.blob.map(|b| b.centroid.map(f32::to_bits)), h.centroid.map(|c| c.map(f32::to_bits)), "{kind:?} frame {}", d.frame);
+            assert_eq!(d.reach.map(|r| r.map(f32::to_bits)), h.reach.map(|r| r.map(f32::to_bits)), "{kind:?} frame {}", d.frame);
+            found += d.blob.is_some() as usize;
+        }
+        // The marks were found (the comparison is not of empty results only).
+        assert!(found >= 3, "{kind:?}: {found} marks found");
+    }
+}

@@ -21,7 +21,7 @@ use msr_qemu::uart::{Uart, UART0, UART1};
 use msr_qemu::memory;
 
 /// Three delimiters, an ASCII word, a delimiter.
-pub const EXIT_SEQUENCE: &[u8] = b"\0\0\0MSR-EXIT\0";
+pub const EXIT_SEQUENCE: &[u8; 12] = b"\0\0\0MSR-EXIT\0";
 
 // SAFETY (FlashStore::new): the one store of this image; the bench area is not used here.
 static mut BOARD: Board<FlashStore> = Board::new(unsafe { FlashStore::new() });
@@ -29,7 +29,8 @@ static mut BOARD: Board<FlashStore> = Board::new(unsafe { FlashStore::new() });
 /// UART0 with a watch for [`EXIT_SEQUENCE`] on what the board reads.
 struct HostLink {
     uart: Uart,
-    matched: usize,
+    /// The last bytes read, newest last.
+    recent: [u8; EXIT_SEQUENCE.len()],
     exit: bool,
 }
 
@@ -47,15 +48,9 @@ impl embedded_io::Read for HostLink {
     fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
         let n = embedded_io::Read::read(&mut self.uart, buf)?;
         for &b in &buf[..n] {
-            if b == EXIT_SEQUENCE[self.matched] {
-                self.matched += 1;
-                if self.matched == EXIT_SEQUENCE.len() {
-                    self.exit = true;
-                    self.matched = 0;
-                }
-            } else {
-                self.matched = usize::from(b == EXIT_SEQUENCE[0]);
-            }
+            self.recent.copy_within(1.., 0);
+            self.recent[EXIT_SEQUENCE.len() - 1] = b;
+            self.exit |= self.recent == *EXIT_SEQUENCE;
         }
         Ok(n)
     }
@@ -78,7 +73,7 @@ fn main() -> ! {
     let clock = Clock::start(cp.SYST);
     // SAFETY: this image owns both UARTs.
     let (host, mut servo) = unsafe { (Uart::new(UART0), Uart::new(UART1)) };
-    let mut host = HostLink { uart: host, matched: 0, exit: false };
+    let mut host = HostLink { uart: host, recent: [0xFF; EXIT_SEQUENCE.len()], exit: false };
     // SAFETY: the only reference to BOARD, taken once in this single-threaded image.
     let board = unsafe { &mut *core::ptr::addr_of_mut!(BOARD) };
     let sizes = memory::sizes();
