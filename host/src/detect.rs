@@ -7,6 +7,7 @@ use crate::predictor::FacePredictor;
 use anyhow::{bail, ensure, Context, Result};
 use image::GrayImage;
 use msr_shared::blob::{LayerKind, Model};
+use msr_shared::joints::Joint;
 use std::path::{Path, PathBuf};
 
 #[derive(clap::Args, Debug)]
@@ -18,10 +19,10 @@ pub struct Args {
     #[arg(long)]
     pub image: PathBuf,
     /// HeadYaw when the frame was taken, radians
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub head_yaw: f32,
     /// HeadPitch when the frame was taken, radians
-    #[arg(long, allow_negative_numbers = true)]
+    #[arg(long, allow_hyphen_values = true)]
     pub head_pitch: f32,
     /// Print JSON instead of a readable line
     #[arg(long)]
@@ -44,12 +45,10 @@ pub enum EngineArg {
 
 pub fn run(args: Args) -> Result<()> {
     let head = [args.head_yaw, args.head_pitch];
-    ensure!(
-        head.iter().all(|a| a.is_finite()),
-        "head angles must be finite numbers (got yaw {}, pitch {})",
-        head[0],
-        head[1]
-    );
+    // The angles the servos can report: finite and inside Nao's head limits.
+    for (joint, a) in [(Joint::HeadYaw, head[0]), (Joint::HeadPitch, head[1])] {
+        joint.validate(a).map_err(|e| anyhow::anyhow!("head angle: {e}"))?;
+    }
     let bytes = read_blob(&args.model)?;
     let model = parse_blob(&bytes, &args.model)?;
     let frame = load_grey(&args.image)?;

@@ -122,3 +122,30 @@ fn published_model_finds_all_real_marks_and_nothing_else() {
     check_engine(&dir, &blob, "float");
     check_engine(&dir, &blob, "fixed");
 }
+
+#[test]
+fn readable_line_and_picture() {
+    let Some(dir) = real_dir() else { return };
+    let tmp = tempfile::tempdir().unwrap();
+    let blob = import(&dir, tmp.path());
+    let png = tmp.path().join("det.png");
+    let (ok, out, err) = msr(&[
+        "detect",
+        "--model",
+        blob.to_str().unwrap(),
+        "--image",
+        dir.join("test2_green2.png").to_str().unwrap(),
+        "--head-yaw",
+        "0.0779905144",
+        "--head-pitch",
+        "0.0801204423",
+        "--png",
+        png.to_str().unwrap(),
+    ]);
+    assert!(ok, "{err}");
+    assert!(out.starts_with("face at (139, 79) 75x58: mark of"), "{out}");
+    assert!(out.contains("reach: HeadYaw"), "{out}");
+    let img = image::open(&png).unwrap();
+    // Frame, then two columns of 2x face panels.
+    assert_eq!((img.width(), img.height()), (320 + 4 * 75 + 8, 240));
+}
