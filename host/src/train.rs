@@ -18,7 +18,7 @@ use crate::models::{ArchKind, Autoencoder, Decoder, DecoderSpec, FloatLayer};
 use crate::predictor::FacePredictor;
 use anyhow::{bail, ensure, Context, Result};
 use burn::prelude::*;
-use fit::{HyperParams, History, Samples};
+use fit::{HyperParams, Samples};
 use msr_shared::blob::{Normalisation, Sided};
 use msr_sim::layout::Split;
 use serde::{Deserialize, Serialize};
@@ -242,15 +242,25 @@ pub fn run(args: Args) -> Result<()> {
     let train = samples(ds.split(Split::Train), false);
     let test = samples(ds.split(Split::Test), true);
     ensure!(train.len() >= 2, "dataset {} has {} unmarked training frames; need at least 2", args.data.display(), train.len());
+    // Fail before training, not after, when the policy has nothing to work on.
+    if args.threshold_percentile.is_some() {
+        ensure!(
+            ds.split(Split::Test).any(|s| s.mark.is_none()),
+            "--threshold-percentile needs normal held-out frames, but the test split of {} has no unmarked frame",
+            args.data.display()
+        );
+    }
     let spec = DecoderSpec::new(args.arch, h, w);
-    eprintln!(
-        "training {} ({:?}, {} MACs) on {} frames, testing on {}, face {h}x{w}",
-        args.model.name(),
-        args.arch,
-        spec.macs()?,
-        train.len(),
-        test.len()
-    );
+    if !args.quiet {
+        eprintln!(
+            "training {} ({:?}, {} MACs) on {} frames, testing on {}, face {h}x{w}",
+            args.model.name(),
+            args.arch,
+            spec.macs()?,
+            train.len(),
+            test.len()
+        );
+    }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let out = Outputs { dir: &args.out, name: args.model.name() };
     let trained = match args.model {
@@ -298,7 +308,9 @@ pub fn run(args: Args) -> Result<()> {
                 })
                 .collect();
             novelty.threshold = calibrate::threshold_from_normal(&scores, p)?;
-            eprintln!("threshold {:.3}: percentile {p} of {} unmarked test frames' detection scores", novelty.threshold, scores.len());
+            if !args.quiet {
+                eprintln!("threshold {:.3}: percentile {p} of {} unmarked test frames' detection scores", novelty.threshold, scores.len());
+            }
             ThresholdPolicy {
                 kind: "percentile".into(),
                 percentile: Some(p),

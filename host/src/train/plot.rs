@@ -1,4 +1,4 @@
-//! Loss curves as a PNG (plotters). Labels need a system font; without one the curves are drawn
+//! Loss curves as a PNG (linear axes) (plotters). Labels need a system font; without one the curves are drawn
 //! bare rather than failing the training run.
 use super::fit::History;
 use anyhow::{anyhow, Result};
@@ -19,8 +19,7 @@ fn draw(h: &History, title: &str, path: &Path, text: bool) -> Result<()> {
     if all.is_empty() {
         return Err(anyhow!("no finite losses to plot"));
     }
-    let lo = all.iter().copied().fold(f64::INFINITY, f64::min) * 0.8;
-    let hi = all.iter().copied().fold(0.0, f64::max) * 1.25;
+    let hi = all.iter().copied().fold(0.0, f64::max) * 1.05;
     let n = h.train_loss.len().max(h.test_loss.len()).max(2);
     let root = BitMapBackend::new(path, (800, 500)).into_drawing_area();
     root.fill(&WHITE).map_err(|x| e(&x))?;
@@ -29,13 +28,13 @@ fn draw(h: &History, title: &str, path: &Path, text: bool) -> Result<()> {
     if text {
         b.caption(title, ("sans-serif", 22)).x_label_area_size(40).y_label_area_size(70);
     }
-    let mut chart = b.build_cartesian_2d(1usize..n, (lo..hi).log_scale()).map_err(|x| e(&x))?;
+    let mut chart = b.build_cartesian_2d(1usize..n, 0.0..hi).map_err(|x| e(&x))?;
     if text {
         chart
             .configure_mesh()
             .x_desc("epoch")
             .y_desc("MSE (grey/255)")
-            .y_label_formatter(&|v| format!("{v:.1e}"))
+            .y_label_formatter(&|v| format!("{v:.4}"))
             .draw()
             .map_err(|x| e(&x))?;
     }

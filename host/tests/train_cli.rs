@@ -1,0 +1,123 @@
+//! `msr train`, `train-reach` and `quantize` from the command line on a tiny sim dataset: the
+//! output layout others rely on, the threshold policy, and bad input (one clear line, non-zero
+//! exit, no panic). Plumbing, not quality: 1-2 epochs.
+use msr_host::predictor::FacePredictor;
+use serde_json::Value;
+use std::path::Path;
+use std::process::{Command, Output};
+
+fn run(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_msr")).args(args).output().unwrap()
+}
+
+fn ok(args: &[&str]) -> String {
+    let out = run(args);
+    assert!(out.status.success(), "msr {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Fails with exactly one line on stderr that mentions `what`, and no panic.
+fn fails(args: &[&str], what: &str) {
+    let out = run(args);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "msr {args:?} succeeded");
+    assert!(!err.contains("panicked"), "msr {args:?} panicked: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| !l.trim().is_empty()).collect();
+    assert_eq!(lines.len(), 1, "msr {args:?}: expected one line, got {err}");
+    assert!(err.contains(what), "msr {args:?}: `{err}` does not mention `{what}`");
+}
+
+fn p(x: &Path) -> &str {
+    x.to_str().unwrap()
+}
+
+#[test]
+fn train_writes_the_layout_and_quantize_matches_float() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (data, out) = (tmp.path().join("data"), tmp.path().join("out"));
+    ok(&["dataset", "--count", "50", "--seed", "3", "--out", p(&data)]);
+    // Unmark a few test frames so that there are normal held-out frames for the percentile.
+    let ix_path = data.join("dataset.json");
+    let mut ix: Value = serde_json::from_str(&std::fs::read_to_string(&ix_path).unwrap()).unwrap();
+    let mut unmarked = 0;
+    for f in ix["frames"].as_array_mut().unwrap() {
+        if f["split"] == "test" && unmarked < 4 {
+            f["mark"] = Value::Null;
+            unmarked += 1;
+        }
+    }
+    assert_eq!(unmarked, 4);
+    std::fs::write(&ix_path, serde_json::to_string(&ix).unwrap()).unwrap();
+
+    ok(&["train", "--data", p(&data), "--epochs", "2", "--quiet", "--threshold-percentile", "100", "--out", p(&out)]);
+    for f in ["decoder.mpk", "decoder.json", "decoder_mu.npy", "decoder_sigma.npy", "decoder_loss.png", "template.png"] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let info: Value = serde_json::from_str(&std::fs::read_to_string(out.join("decoder.json")).unwrap()).unwrap();
+    assert_eq!(info["arch"], "conv");
+    assert_eq!(info["train_loss"].as_array().unwrap().len(), 2);
+    assert_eq!(info["threshold_policy"]["kind"], "percentile");
+    assert_eq!(info["threshold_policy"]["n_frames"], 4);
+    assert!(info["training_seconds"].as_f64().unwrap() > 0.0);
+
+    // The saved model loads and predicts faces of the template's size, in (0, 1).
+    let m = msr_host::train::load(&out, "decoder").unwrap();
+    let (h, w) = m.face_size();
+    assert_eq!((h as u64, w as u64), (info["face_h"].as_u64().unwrap(), info["face_w"].as_u64().unwrap()));
+    let f = m.predict([0.01, -0.02], &[]);
+    assert_eq!(f.len(), h * w);
+    assert!(f.iter().all(|v| *v > 0.0 && *v < 1.0));
+
+    let reach = tmp.path().join("reach.safetensors");
+    ok(&[
+        "train-reach",
+        "--inputs",
+        p(&data.join("reach_centroids.csv")),
+        "--targets",
+        p(&data.join("reach_joints.csv")),
+        "--iterations",
+        "300",
+        "--no-loo",
+        "--out",
+        p(&reach),
+    ]);
+    let blob = out.join("model.msrm");
+    let report = ok(&["quantize", "--train", p(&out), "--reach", p(&reach), "--json", "--out", p(&blob)]);
+    let r: Value = serde_json::from_str(&report).unwrap();
+    assert!(r["psnr_db"].as_f64().unwrap() >= 40.0, "{report}");
+    assert!(r["detection_agreement"].as_f64().unwrap() >= 0.9, "{report}");
+    let bytes = std::fs::read(&blob).unwrap();
+    msr_shared::blob::Model::parse(&bytes).unwrap();
+
+    // Bad input, on the real outputs above.
+    fails(&["quantize", "--train", p(&out), "--reach", p(&tmp.path().join("nope.safetensors")), "--out", p(&blob)], "nope");
+    fails(&["quantize", "--train", p(&tmp.path().join("none")), "--reach", p(&reach), "--out", p(&blob)], "decoder");
+    fails(&["quantize", "--train", p(&out), "--reach", p(&reach), "--threshold=-1", "--out", p(&blob)], "threshold");
+    // All test frames marked: no normal frames to take a percentile of.
+    let data2 = tmp.path().join("data2");
+    ok(&["dataset", "--count", "20", "--seed", "4", "--out", p(&data2)]);
+    fails(
+        &["train", "--data", p(&data2), "--epochs", "1", "--quiet", "--threshold-percentile", "99", "--out", p(&tmp.path().join("o2"))],
+        "unmarked",
+    );
+}
+
+#[test]
+fn bad_arguments_are_one_clear_line() {
+    let tmp = tempfile::tempdir().unwrap();
+    let o = tmp.path().join("o");
+    fails(&["train", "--data", p(&tmp.path().join("missing")), "--out", p(&o)], "missing");
+    fails(&["train", "--data", p(tmp.path()), "--epochs", "0", "--out", p(&o)], "epochs");
+    fails(&["train", "--data", p(tmp.path()), "--threshold-percentile", "120", "--out", p(&o)], "percentile");
+    fails(&["train", "--data", p(tmp.path()), "--sigma-floor", "NaN", "--out", p(&o)], "sigma floor");
+
+    let (a, b) = (tmp.path().join("a.csv"), tmp.path().join("b.csv"));
+    std::fs::write(&a, "1,2\n3,4\n5,6\n").unwrap();
+    std::fs::write(&b, "0,0,0,0,0\n1,1,1,1,1\n").unwrap();
+    fails(&["train-reach", "--inputs", p(&a), "--targets", p(&b), "--out", p(&o)], "rows");
+    std::fs::write(&b, "0,0,0,0,0\n1,1,1,1,1\n2,2,NaN,2,2\n").unwrap();
+    fails(&["train-reach", "--inputs", p(&a), "--targets", p(&b), "--out", p(&o)], "non-finite");
+    std::fs::write(&b, "0,0,0,0\n1,1,1,1\n2,2,2,2\n").unwrap();
+    fails(&["train-reach", "--inputs", p(&a), "--targets", p(&b), "--out", p(&o)], "expected 5");
+    fails(&["train-reach", "--inputs", p(&tmp.path().join("x.csv")), "--targets", p(&b), "--out", p(&o)], "x.csv");
+}
