@@ -26,10 +26,10 @@ fn main() -> anyhow::Result<()> {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
         let (t, c) = (Instant::now(), cpu_s());
         let mut marked = 0;
-        for i in 0..1300 {
+        for i in 0..1300u32 {
             let pose = BodyPose::head(rng.gen_range(-a..a), rng.gen_range(-a..a));
             let v = Variation::random(&mut rng);
-            let mark = (i % 5 == 0).then(|| Mark::random(&mut rng));
+            let mark = i.is_multiple_of(5).then(|| Mark::random(&mut rng));
             marked += r.render(&pose, mark.as_ref(), &v).mark.is_some() as u32;
         }
         let (s, cs) = (t.elapsed().as_secs_f64(), cpu_s() - c);
@@ -58,7 +58,7 @@ fn main() -> anyhow::Result<()> {
     let mut seq = Default::default();
     let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| {
         let _ = (h.receive(), s.receive());
-        if now % 10_000 == 0 {
+        if now.is_multiple_of(10_000) {
             let mut t = heapless::Vec::new();
             let yaw = 0.05 * ((now as f32) * 1e-6).sin();
             t.push(msr_shared::msg::JointTarget { joint: msr_shared::Joint::HeadYaw, position: yaw }).unwrap();
@@ -67,7 +67,7 @@ fn main() -> anyhow::Result<()> {
         }
     };
     let (_, rep) = run(&WorldConfig::default(), &mut fw, |w: &mut World| {
-        if mode < 2 && w.now_us % 100_000 == 0 {
+        if mode < 2 && w.now_us.is_multiple_of(100_000) {
             let c = if face_only { cam.capture_face(w, None) } else { cam.capture(w, None) };
             w.host.send(&frame_wire(0, &c.crop, c.crop_origin, &mut seq));
         }

@@ -135,7 +135,7 @@ mod tests {
             &mut fw,
             |w: &mut World| {
                 // 10 frames a second.
-                if w.now_us % 100_000 == 0 && sent.len() < 5 {
+                if w.now_us.is_multiple_of(100_000) && sent.len() < 5 {
                     let c = cam.capture(w, Some(&mark));
                     assert_eq!(c.crop_origin, body::crop_origin(0.0, 0.0));
                     assert!(c.frame.mark.as_ref().unwrap().pixels > 0);

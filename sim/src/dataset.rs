@@ -162,10 +162,10 @@ pub fn render_marked<R: Rng>(
 ) -> (Mark, crate::render::Rendered) {
     let mut mark = Mark::random(rng);
     let mut best: Option<(f32, Mark, crate::render::Rendered)> = None;
-    for attempt in 0..24 {
+    for attempt in 0..24u32 {
         if attempt > 0 {
             let kind = mark.kind;
-            mark = if attempt % 4 == 0 {
+            mark = if attempt.is_multiple_of(4) {
                 Mark::random_of_kind(kind, rng).expect("known kind")
             } else {
                 Mark::of_kind(kind, mark.centre_yz, rng).expect("known kind")
@@ -176,7 +176,7 @@ pub fn render_marked<R: Rng>(
         if c >= MIN_MARK_CONTRAST {
             return (mark, r);
         }
-        if best.as_ref().map_or(true, |b| c > b.0) {
+        if best.as_ref().is_none_or(|b| c > b.0) {
             best = Some((c, mark.clone(), r));
         }
     }

@@ -278,7 +278,7 @@ pub fn ik_touch(mark_head: &Point3<f64>) -> Result<Reach, IkError> {
                 if err <= IK_TOLERANCE_M && arm_clear_of_head(&q, 0.0) == 0.0 {
                     return Ok(q);
                 }
-                if best.as_ref().map_or(true, |b| err < b.1) {
+                if best.as_ref().is_none_or(|b| err < b.1) {
                     best = Some((1e3, err, q));
                 }
             }

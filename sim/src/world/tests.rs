@@ -77,7 +77,7 @@ fn episode(cfg: &WorldConfig, bad_at_us: Option<u64>) -> (FakeBoard, World, Vec<
                         }
                     }
                 }
-                if w.now_us % 50_000 == 0 {
+                if w.now_us.is_multiple_of(50_000) {
                     let nonce = (w.now_us / 1000) as u32;
                     w.host.send(&encode_message_vec(0, &HostToBoard::Ping { nonce }).unwrap());
                 }
