@@ -82,7 +82,7 @@ pub fn cross_correlation(frame: &GrayImage, tpl: &GrayImage) -> Vec<i64> {
     let m = fw * fh - tw + 1;
     let mut c = vec![0f32; m * th];
     // SAFETY: A reads f[i + k] for i < m, k < tw, i.e. up to fw*fh - 1; B reads t[r*tw + k] for
-    // r < th, k < tw; C is m x th, row-major, written without aliasing.
+    // r < th, k < tw; C is m x th, column-major (C[i][r] at r*m + i), written without aliasing.
     unsafe {
         matrixmultiply::sgemm(
             m,
@@ -97,17 +97,18 @@ pub fn cross_correlation(frame: &GrayImage, tpl: &GrayImage) -> Vec<i64> {
             tw as isize,
             0.0,
             c.as_mut_ptr(),
-            th as isize,
             1,
+            m as isize,
         );
     }
     let (ow, oh) = (fw - tw + 1, fh - th + 1);
     let mut out = vec![0i64; ow * oh];
     for y in 0..oh {
+        let dst = &mut out[y * ow..(y + 1) * ow];
         for r in 0..th {
-            let row = &c[(y + r) * fw * th..];
-            for x in 0..ow {
-                out[y * ow + x] += row[x * th + r] as i64;
+            let src = &c[r * m + (y + r) * fw..][..ow];
+            for (o, &v) in dst.iter_mut().zip(src) {
+                *o += v as i64;
             }
         }
     }
