@@ -266,29 +266,31 @@ pub fn ik_touch(mark_head: &Point3<f64>) -> Result<Reach, IkError> {
         return Err(IkError::NotFinite);
     }
     let lim = reach_limits();
-    // Seeds from a neutral head outwards; the first collision-free solution wins, else the
-    // closest miss is reported.
-    let mut best: Option<(f64, f64, Reach)> = None;
+    // Seeds from a neutral head outwards, in groups by head yaw; within the first group that
+    // has collision-free solutions the one with the lowest cost wins (fewer jumps between
+    // neighbouring marks than "first found"). Else the closest miss is reported.
+    let cost = |q: &Reach| residuals(q, mark_head).iter().map(|r| r * r).sum::<f64>();
+    let mut closest_miss = f64::INFINITY;
     for yaw in [0.0, -0.5, 0.5, -1.0, 1.0] {
+        let mut best: Option<(f64, Reach)> = None;
         for pitch in [0.0, 0.3, -0.3] {
             for arm in [[-0.3, 0.0, -1.3], [0.2, 0.2, -1.5], [-0.6, -0.2, -1.1]] {
-                let s = [yaw, pitch, arm[0], arm[1], arm[2]];
-                let q = solve_from(s, mark_head, &lim);
+                let q = solve_from([yaw, pitch, arm[0], arm[1], arm[2]], mark_head, &lim);
                 let err = touch_distance(&q, mark_head);
+                closest_miss = closest_miss.min(err);
                 if err <= IK_TOLERANCE_M && arm_clear_of_head(&q, 0.0) == 0.0 {
-                    return Ok(q);
-                }
-                if best.as_ref().is_none_or(|b| err < b.1) {
-                    best = Some((1e3, err, q));
+                    let c = cost(&q);
+                    if best.is_none_or(|b| c < b.0) {
+                        best = Some((c, q));
+                    }
                 }
             }
         }
+        if let Some((_, q)) = best {
+            return Ok(q);
+        }
     }
-    let (score, err, q) = best.expect("at least one seed");
-    if score >= 1e3 {
-        return Err(IkError::Unreachable { best_mm: err * 1e3 });
-    }
-    Ok(q)
+    Err(IkError::Unreachable { best_mm: closest_miss * 1e3 })
 }
 
 /// The reach vector as f32 in [`msr_shared::joints::REACH_JOINTS`] order.
