@@ -76,7 +76,7 @@ fn main() -> anyhow::Result<()> {
     let (_, rep) = run(&WorldConfig::default(), &mut fw, |w: &mut World| {
         if mode < 2 && w.now_us.is_multiple_of(100_000) {
             let c = if face_only { cam.capture_face(w, None) } else { cam.capture(w, None) };
-            w.host.send(&frame_wire(0, &c.crop, c.crop_origin, &mut seq));
+            w.host.send(&frame_wire(0, &c.crop, c.crop_origin, &mut seq).expect("a face crop fits"));
         }
         Flow::Continue
     }, 20_000_000)?;

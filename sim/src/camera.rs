@@ -80,7 +80,13 @@ pub fn face_crop(rgb: &image::RgbImage, origin: [u32; 2]) -> GrayImage {
 
 /// Wire bytes of one face crop on the host link: a `FrameStart` and `FrameChunk`s of at most
 /// [`CHUNK`] bytes, each its own frame.
-pub fn frame_wire(frame: u16, crop: &GrayImage, origin: [u32; 2], seq: &mut Sequencer) -> Vec<u8> {
+pub fn frame_wire(frame: u16, crop: &GrayImage, origin: [u32; 2], seq: &mut Sequencer) -> Result<Vec<u8>, String> {
+    let fits = |v: u32| u16::try_from(v).is_ok();
+    if !(fits(origin[0]) && fits(origin[1]) && fits(crop.width()) && fits(crop.height()))
+        || crop.as_raw().len() > u16::MAX as usize + 1
+    {
+        return Err(format!("a {}x{} crop at {origin:?} does not fit the frame messages", crop.width(), crop.height()));
+    }
     let header = FrameHeader {
         frame,
         crop_x: origin[0] as u16,
@@ -93,7 +99,7 @@ pub fn frame_wire(frame: u16, crop: &GrayImage, origin: [u32; 2], seq: &mut Sequ
         let msg = HostToBoard::FrameChunk { frame, offset: (i * CHUNK) as u16, data };
         out.extend(encode_message_vec(seq.next(), &msg).expect("a chunk fits a frame"));
     }
-    out
+    Ok(out)
 }
 
 #[cfg(test)]
@@ -139,7 +145,7 @@ mod tests {
                     let c = cam.capture(w, Some(&mark));
                     assert_eq!(c.crop_origin, body::crop_origin(0.0, 0.0));
                     assert!(c.frame.mark.as_ref().unwrap().pixels > 0);
-                    w.host.send(&frame_wire(sent.len() as u16, &c.crop, c.crop_origin, &mut seq));
+                    w.host.send(&frame_wire(sent.len() as u16, &c.crop, c.crop_origin, &mut seq).unwrap());
                     sent.push(c.crop);
                 }
                 if w.now_us >= 600_000 { Flow::Stop } else { Flow::Continue }
@@ -180,5 +186,9 @@ mod tests {
         let img = image::RgbImage::new(320, 240);
         let c = face_crop(&img, [300, 230]);
         assert_eq!(c.dimensions(), (75, 58));
+        // A crop too large for the messages is an error, not a wrapped offset.
+        let big = GrayImage::new(300, 300);
+        assert!(frame_wire(0, &big, [0, 0], &mut Sequencer::default()).is_err());
+        assert!(frame_wire(0, &c, [70_000, 0], &mut Sequencer::default()).is_err());
     }
 }

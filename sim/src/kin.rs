@@ -157,12 +157,20 @@ pub fn touch_distance(q: &Reach, mark_head: &Point3<f64>) -> f64 {
 /// Judges a reach from the measured joint angles of the five reach joints, sampled while the
 /// reach is held: a touch needs every sample within [`TOUCH_RADIUS_M`]. Returns the worst distance
 /// too. No samples is no touch.
+/// A sample that is not finite (a NaN angle) is no touch, and the worst distance is NaN.
 pub fn judge_touch(held: &[Reach], mark_head: &Point3<f64>) -> (bool, f64) {
-    let worst = held
-        .iter()
-        .map(|q| touch_distance(q, mark_head))
-        .fold(f64::NAN, f64::max);
-    (!held.is_empty() && worst <= TOUCH_RADIUS_M, worst)
+    let mut worst = f64::NEG_INFINITY;
+    for q in held {
+        let d = touch_distance(q, mark_head);
+        if !d.is_finite() {
+            return (false, f64::NAN);
+        }
+        worst = worst.max(d);
+    }
+    if held.is_empty() {
+        return (false, f64::NAN);
+    }
+    (worst <= TOUCH_RADIUS_M, worst)
 }
 
 /// Why the IK found no posture.

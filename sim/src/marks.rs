@@ -98,10 +98,18 @@ impl Mark {
         }
     }
 
-    /// The mark's centre on the head surface (head frame).
+    /// The mark's centre on the head surface (head frame). A centre given off the head's
+    /// outline is moved onto its edge.
     pub fn point_head(&self) -> Point3<f64> {
-        body::face_point(self.centre_yz[0], self.centre_yz[1])
-            .expect("mark centres are placed on the face")
+        let [y, z] = self.centre_yz;
+        if let Some(p) = body::face_point(y, z) {
+            return p;
+        }
+        let (c, r) = body::HEAD_ELLIPSOID;
+        let (u, v) = ((y - c[1]) / r[1], (z - c[2]) / r[2]);
+        let k = 0.999 / (u * u + v * v).sqrt().max(1e-12);
+        let (u, v) = if (u * k).is_finite() && (v * k).is_finite() { (u * k, v * k) } else { (0.0, 0.0) };
+        body::face_point(c[1] + u * r[1], c[2] + v * r[2]).expect("inside the outline")
     }
 
     /// A mark of `kind` with random size (post-its) and colour, centred at `centre_yz`.

@@ -75,8 +75,11 @@ fn touch_judge_by_hand() {
     // The mark moves with the head: the same arm with the head turned away is no touch.
     let moved = [q[0] + 0.5, q[1], q[2], q[3], q[4]];
     assert!(!judge_touch(&[q, moved], &near).0);
-    // Nothing held is no touch.
+    // Nothing held is no touch; a NaN sample spoils the hold.
     assert!(!judge_touch(&[], &near).0);
+    let nan = [q[0], f64::NAN, q[2], q[3], q[4]];
+    let (touched, worst) = judge_touch(&[q, nan, q], &near);
+    assert!(!touched && worst.is_nan());
 }
 
 #[test]
