@@ -192,19 +192,52 @@ pub(crate) struct Requant {
     /// Fraction bits of the accumulator (`w_shift + in_shift`).
     acc_bits: u32,
     out_bits: u32,
+    /// tanh/sigmoid when both shifts are plain right shifts (the usual case): the shift of
+    /// |acc| to the table's Q19 and the final rounding shift. Same results as the general path.
+    fast: Option<(u32, u32)>,
 }
 
 impl Requant {
     pub(crate) fn of(l: &Layer) -> Requant {
-        Requant {
-            act: l.activation,
-            acc_bits: (l.w_shift as i32 + l.in_shift as i32).max(0) as u32,
-            out_bits: l.out_shift.max(0) as u32,
-        }
+        let acc_bits = (l.w_shift as i32 + l.in_shift as i32).max(0) as u32;
+        Requant::new(l.activation, acc_bits, l.out_shift.max(0) as u32)
+    }
+
+    pub(crate) fn new(act: Activation, acc_bits: u32, out_bits: u32) -> Requant {
+        let fast = match act {
+            Activation::Tanh if (19..51).contains(&acc_bits) && (1..=23).contains(&out_bits) => {
+                Some((acc_bits - 19, 24 - out_bits))
+            }
+            Activation::Sigmoid if (18..50).contains(&acc_bits) && (1..=24).contains(&out_bits) => {
+                Some((acc_bits + 1 - 19, 25 - out_bits))
+            }
+            _ => None,
+        };
+        Requant { act, acc_bits, out_bits, fast }
     }
 
     #[inline]
     pub(crate) fn apply(&self, acc: i32) -> i16 {
+        if let Some((sh, k)) = self.fast {
+            const LAST: usize = TANH_Q24.len() - 1;
+            let t = acc.unsigned_abs() >> sh;
+            let idx = (t >> 12) as usize;
+            let y = if idx < LAST {
+                let lo = TANH_Q24[idx];
+                let hi = TANH_Q24[idx + 1];
+                lo + (((hi - lo) * (t & 4095)) >> 12)
+            } else {
+                TANH_Q24[LAST]
+            } as i32;
+            let y = if acc < 0 { -y } else { y };
+            let v = if self.act == Activation::Sigmoid { (1 << 24) + y } else { y };
+            let r = ((v >> (k - 1)) >> 1) + ((v >> (k - 1)) & 1);
+            return r.clamp(i16::MIN as i32, i16::MAX as i32) as i16;
+        }
+        self.apply_general(acc)
+    }
+
+    fn apply_general(&self, acc: i32) -> i16 {
         match self.act {
             Activation::Identity => rescale(acc as i64, self.acc_bits, self.out_bits),
             Activation::Relu => rescale(acc.max(0) as i64, self.acc_bits, self.out_bits),
@@ -220,6 +253,12 @@ impl Requant {
 /// `sat_i16(round(v * 2^(to - from)))`.
 #[inline]
 fn rescale(v: i64, from: u32, to: u32) -> i16 {
+    // The common case in i32: a right shift of a value that fits.
+    if from > to && from - to < 32 && v >= i32::MIN as i64 && v <= i32::MAX as i64 {
+        let k = from - to;
+        let r = ((v as i32 >> (k - 1)) >> 1) + ((v as i32 >> (k - 1)) & 1);
+        return r.clamp(i16::MIN as i32, i16::MAX as i32) as i16;
+    }
     let r = if from >= to {
         round_shift_i64(v, from - to)
     } else {

@@ -70,12 +70,17 @@ pub(crate) fn dense_pairs(rq: Requant, w: &[u32], b: &[i32], x: &[u32], y: &mut 
 }
 
 /// Packed weight pairs of one output channel and phase: at most this many words on the stack.
-const MAX_PACKED: usize = 512;
+const MAX_PACKED: usize = 256;
+/// Terms (weight pair, input offset) of one output row of one phase.
+const MAX_TERMS: usize = 128;
 
-/// Two adjacent i16 of `row` from index `i` as one word (low half first).
+/// Two adjacent i16 from `p` as one word (low half first). Unaligned loads are fine on v7E-M.
+///
+/// # Safety
+/// `p` and `p + 1` must be inside one slice.
 #[inline(always)]
-fn pair(row: &[i16], i: usize) -> u32 {
-    (row[i] as u16 as u32) | ((row[i + 1] as u16 as u32) << 16)
+unsafe fn rd(p: *const i16) -> u32 {
+    core::ptr::read_unaligned(p as *const u32)
 }
 
 /// ConvTranspose2d by output phase with paired taps. Returns false (nothing written) when the
@@ -94,14 +99,20 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
     if k > MAX_K || s == 0 || k < 2 || x.len() != ic_n * ih * iw || y.len() != oc_n * oh * ow {
         return false;
     }
-    // Taps per phase: at most ceil(k / s); pairs of them.
-    let nt_max = k.div_ceil(s);
-    let np_max = nt_max.div_ceil(2);
-    if ic_n * k * np_max > MAX_PACKED || w.len() != ic_n * oc_n * k * k || b.len() != oc_n {
+    // Taps per phase: at most ceil(k / s), in pairs (an odd one pairs with a zero weight).
+    let np_max = k.div_ceil(s).div_ceil(2);
+    let ty_max = k.div_ceil(s);
+    if ic_n * k * np_max > MAX_PACKED
+        || ic_n * ty_max * np_max > MAX_TERMS
+        || w.len() != ic_n * oc_n * k * k
+        || b.len() != oc_n
+    {
         return false;
     }
     let mut packed = [0u32; MAX_PACKED];
-    let mut single = [0i16; MAX_PACKED];
+    let mut wt = [0u32; MAX_TERMS];
+    let mut offs = [0isize; MAX_TERMS];
+    let mut rows = [0isize; MAX_TERMS];
     for oc in 0..oc_n {
         let bias = b.at(oc);
         for px in 0..s.min(ow) {
@@ -109,76 +120,102 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
             let kx0 = (px + p) % s;
             let c0 = (px + p) / s;
             let nt = if kx0 < k { (k - kx0).div_ceil(s) } else { 0 };
-            let np = nt / 2;
-            // Pack (lo: tap j+1 at ix-1, hi: tap j at ix) for every input channel and ky.
+            let np = nt.div_ceil(2);
+            // Pair q: (lo: tap 2q+1 at ix-1, hi: tap 2q at ix); an odd last tap has lo = 0.
             for ic in 0..ic_n {
                 for ky in 0..k {
                     let wrow = ((ic * oc_n + oc) * k + ky) * k;
                     for q in 0..np {
                         let hi = w.at(wrow + kx0 + 2 * q * s) as u16 as u32;
-                        let lo = w.at(wrow + kx0 + (2 * q + 1) * s) as u16 as u32;
+                        let lo = if 2 * q + 1 < nt { w.at(wrow + kx0 + (2 * q + 1) * s) as u16 as u32 } else { 0 };
                         packed[(ic * k + ky) * np_max + q] = lo | (hi << 16);
-                    }
-                    if nt % 2 == 1 {
-                        single[ic * k + ky] = w.at(wrow + kx0 + (nt - 1) * s) as i16;
                     }
                 }
             }
-            // Outputs of this phase: m in 0..m_n; interior when every ix is inside the input.
+            // Outputs of this phase: m in 0..m_n; interior when every pair read is inside the
+            // row: lowest read m + c0 - 2*np + 1 >= 0, highest m + c0 < iw.
             let m_n = (ow - px).div_ceil(s);
-            let m_lo = (nt.saturating_sub(1)).saturating_sub(c0).min(m_n);
+            let m_lo = (2 * np).saturating_sub(1).saturating_sub(c0).min(m_n);
             let m_hi = iw.saturating_sub(c0).min(m_n).max(m_lo);
-            for oy in 0..oh {
+            // Rows by phase: consecutive rows of one phase use the same taps one input row
+            // further down, so their terms only shift (rebuilt when the taps change).
+            let mut n = 0;
+            let mut prev: Option<(usize, u8, u16)> = None;
+            for oy in (0..s).flat_map(|py| (py..oh).step_by(s)) {
                 let ty = Taps::transpose(oy, k, s, p, ih);
                 let out_row = (oc * oh + oy) * ow;
-                let edge = |m: usize, y: &mut [i16]| {
-                    let ox = s * m + px;
-                    let tx = Taps::transpose(ox, k, s, p, iw);
-                    let mut acc = bias;
-                    for a in 0..ty.n {
-                        for c in 0..tx.n {
-                            let mut wi = (oc * k + ty.k[a] as usize) * k + tx.k[c] as usize;
-                            let mut xi = ty.i[a] as usize * iw + tx.i[c] as usize;
-                            for _ in 0..ic_n {
-                                acc = acc.wrapping_add(w.at(wi) * x[xi] as i32);
-                                wi += oc_n * k * k;
-                                xi += ih * iw;
+                // Same count and same first tap: the same contiguous run of taps.
+                let same = prev.filter(|&(pn, pk, _)| pn == ty.n && pk == ty.k[0] && ty.n > 0);
+                prev = Some((ty.n, ty.k[0], ty.i[0]));
+                if let Some((_, _, pi)) = same {
+                    let d = (ty.i[0] as isize - pi as isize) * iw as isize;
+                    for t in 0..n {
+                        offs[t] += d;
+                        rows[t] += d;
+                    }
+                } else {
+                    // This row's terms: weight pair and where its input pair starts (minus m).
+                    n = 0;
+                    for ic in 0..ic_n {
+                        for a in 0..ty.n {
+                            let ky = ty.k[a] as usize;
+                            let row = ((ic * ih + ty.i[a] as usize) * iw) as isize;
+                            for q in 0..np {
+                                wt[n] = packed[(ic * k + ky) * np_max + q];
+                                offs[n] = row + c0 as isize - 2 * q as isize - 1;
+                                rows[n] = row;
+                                n += 1;
                             }
                         }
                     }
-                    y[out_row + ox] = rq.apply(acc);
+                }
+                // Border outputs: the same terms, reading zero outside the row.
+                let edge = |m: usize, y: &mut [i16]| {
+                    let mut acc = bias;
+                    for t in 0..n {
+                        let col = offs[t] - rows[t] + m as isize;
+                        let at = |c: isize| -> u32 {
+                            if c >= 0 && (c as usize) < iw {
+                                x[(rows[t] + c) as usize] as u16 as u32
+                            } else {
+                                0
+                            }
+                        };
+                        acc = smlad(wt[t], at(col) | (at(col + 1) << 16), acc);
+                    }
+                    y[out_row + s * m + px] = rq.apply(acc);
                 };
                 for m in (0..m_lo).chain(m_hi..m_n) {
                     edge(m, y);
                 }
+                let terms = wt[..n].iter().zip(&offs[..n]);
+                let xp = x.as_ptr();
+                // Blocks of four; a last partial block is redone as the four ending at m_hi
+                // (the overlap is written twice with the same values).
                 let mut m = m_lo;
-                while m + 4 <= m_hi {
-                    let mut acc = [bias; 4];
-                    for ic in 0..ic_n {
-                        for a in 0..ty.n {
-                            let ky = ty.k[a] as usize;
-                            let row = &x[(ic * ih + ty.i[a] as usize) * iw..][..iw];
-                            let wp = &packed[(ic * k + ky) * np_max..][..np];
-                            for (q, &wv) in wp.iter().enumerate() {
-                                // Taps 2q+1 and 2q read ix - 1 and ix, ix = m + c0 - 2q.
-                                let base = m + c0 - 2 * q - 1;
-                                acc[0] = smlad(wv, pair(row, base), acc[0]);
-                                acc[1] = smlad(wv, pair(row, base + 1), acc[1]);
-                                acc[2] = smlad(wv, pair(row, base + 2), acc[2]);
-                                acc[3] = smlad(wv, pair(row, base + 3), acc[3]);
-                            }
-                            if nt % 2 == 1 {
-                                let ws = single[ic * k + ky] as i32;
-                                let base = m + c0 - (nt - 1);
-                                for (t, a) in acc.iter_mut().enumerate() {
-                                    *a = a.wrapping_add(ws * row[base + t] as i32);
-                                }
-                            }
+                let mut last = false;
+                while m + 4 <= m_hi || (!last && m < m_hi && m_hi >= m_lo + 4) {
+                    if m + 4 > m_hi {
+                        m = m_hi - 4;
+                        last = true;
+                    }
+                    let (mut a0, mut a1, mut a2, mut a3) = (bias, bias, bias, bias);
+                    for (&wv, &off) in terms.clone() {
+                        // SAFETY: m_lo <= m and m + 3 < m_hi keep every pair read, from
+                        // off + m to off + m + 4, inside row `row` of `x` (see m_lo, m_hi).
+                        unsafe {
+                            let q = xp.offset(off + m as isize);
+                            a0 = smlad(wv, rd(q), a0);
+                            a1 = smlad(wv, rd(q.add(1)), a1);
+                            a2 = smlad(wv, rd(q.add(2)), a2);
+                            a3 = smlad(wv, rd(q.add(3)), a3);
                         }
                     }
-                    for (t, &a) in acc.iter().enumerate() {
-                        y[out_row + s * (m + t) + px] = rq.apply(a);
-                    }
+                    let o = out_row + s * m + px;
+                    y[o] = rq.apply(a0);
+                    y[o + s] = rq.apply(a1);
+                    y[o + 2 * s] = rq.apply(a2);
+                    y[o + 3 * s] = rq.apply(a3);
                     m += 4;
                 }
                 while m < m_hi {

@@ -24,7 +24,7 @@ fn tanh_and_sigmoid_by_table_are_within_a_q15_step() {
     }
     assert!(worst < 2.5e-5, "worst tanh error {worst}");
     // Sigmoid through Requant: out = round(sig(x) * 2^15).
-    let rq = Requant { act: Activation::Sigmoid, acc_bits: 20, out_bits: 15 };
+    let rq = Requant::new(Activation::Sigmoid, 20, 15);
     for _ in 0..4000 {
         let acc = (r.unit() * 2f64.powi(24)) as i32;
         let want = 1.0 / (1.0 + (-(acc as f64) / 2f64.powi(20)).exp()) * 32768.0;
@@ -34,9 +34,9 @@ fn tanh_and_sigmoid_by_table_are_within_a_q15_step() {
     // Extremes saturate instead of wrapping.
     assert_eq!(rq.apply(i32::MAX), 32767);
     assert_eq!(rq.apply(i32::MIN), 0);
-    let rq = Requant { act: Activation::Identity, acc_bits: 0, out_bits: 31 };
+    let rq = Requant::new(Activation::Identity, 0, 31);
     assert_eq!(rq.apply(-5), i16::MIN);
-    let rq = Requant { act: Activation::Identity, acc_bits: 62, out_bits: 0 };
+    let rq = Requant::new(Activation::Identity, 62, 0);
     assert_eq!(rq.apply(i32::MAX), 0);
 }
 
@@ -225,6 +225,25 @@ mod shapes {
             let act = if relu { Activation::Relu } else { Activation::Identity };
             let spec = layer(&mut r, LayerKind::Dense, act, shape(n_in, 1, 1), shape(1, 1, n_out), (0, 0, 0), (12, 12, 10), 0.5, false);
             check(spec, seed)?;
+        }
+    }
+}
+
+#[test]
+fn fast_activation_path_equals_the_general_one() {
+    let mut r = Lcg(5);
+    for act in [Activation::Tanh, Activation::Sigmoid] {
+        for acc_bits in 0..60 {
+            for out_bits in 0..31 {
+                let rq = Requant::new(act, acc_bits, out_bits);
+                for _ in 0..40 {
+                    let acc = r.next_u32() as i32 >> (r.next_u32() % 32);
+                    assert_eq!(rq.apply(acc), rq.apply_general(acc), "{act:?} {acc_bits} {out_bits} {acc}");
+                }
+                for acc in [0, 1, -1, i32::MAX, i32::MIN] {
+                    assert_eq!(rq.apply(acc), rq.apply_general(acc));
+                }
+            }
         }
     }
 }
