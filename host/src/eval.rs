@@ -41,6 +41,10 @@ pub struct Args {
     /// Dataset folder (sim layout or the published manifest layout)
     #[arg(long)]
     pub data: PathBuf,
+    /// The published manifest the blob was imported from: its float decoder and float64
+    /// statistics make the float decoder rows (instead of the blob's dequantized decoder)
+    #[arg(long)]
+    pub manifest: Option<PathBuf>,
     /// Print JSON instead of markdown
     #[arg(long)]
     pub json: bool,
@@ -84,7 +88,7 @@ pub struct Report {
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let report = evaluate(&args.model, &args.data)?;
+    let report = evaluate_with(&args.model, &args.data, args.manifest.as_deref())?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
@@ -96,6 +100,16 @@ pub fn run(args: Args) -> Result<()> {
 const WEIGHTINGS: [&str; 2] = ["sigma", "none"];
 
 pub fn evaluate(blob_path: &Path, data: &Path) -> Result<Report> {
+    evaluate_with(blob_path, data, None)
+}
+
+/// [`evaluate`], with the float decoder taken from a published manifest when one is given.
+pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> Result<Report> {
+    let published = match manifest {
+        Some(m) => Some(published_float_decoder(m)?),
+        None => None,
+    };
+    let mut published = published;
     let bytes = read_blob(blob_path)?;
     let model = parse_blob(&bytes, blob_path)?;
     let ds = Dataset::load_split(data, Some(Split::Test))
@@ -126,8 +140,18 @@ pub fn evaluate(blob_path: &Path, data: &Path) -> Result<Report> {
     // Float models: trained ones next to the blob; for the decoder, else the blob's own decoder.
     let dir = blob_path.parent().unwrap_or(Path::new("."));
     for name in ["decoder", "autoencoder"] {
-        let float = match trained_model(dir, name, ds.face_size()) {
+        let from_manifest = if name == "decoder" {
+            published.take()
+        } else {
+            None
+        };
+        let found = match from_manifest {
+            Some(f) => Ok(Some(f)),
+            None => trained_model(dir, name, ds.face_size()),
+        };
+        let float = match found {
             Ok(Some(f)) => Ok(f),
+            Ok(None) if name == "decoder" => blob_float_decoder(&model),
             Ok(None) if name == "decoder" => blob_float_decoder(&model),
             Ok(None) => Err(format!(
                 "no trained {name} next to {} (the training output folder holds {name}.json and \
@@ -395,6 +419,26 @@ fn trained_model(
             dir.join(format!("{name}.mpk")).display()
         ),
     }))
+}
+
+/// The published float decoder with its float64 statistics (sigma + 1e-5, as the published code)
+/// and its novelty settings.
+fn published_float_decoder(manifest: &Path) -> Result<FloatModel> {
+    let p = crate::import::Published::load(manifest)?;
+    let (h, w) = (p.decoder.face_h, p.decoder.face_w);
+    ensure!(p.mu.len() == h * w, "statistics do not match the face");
+    Ok(FloatModel {
+        mu: p.mu.iter().map(|&v| v as f32).collect(),
+        sigma: p.sigma.iter().map(|&v| (v + 1e-5) as f32).collect(),
+        settings: Settings {
+            threshold: p.threshold,
+            normalisation: msr_shared::blob::Normalisation::StdDev,
+            sided: p.sided,
+            min_area: p.min_area,
+        },
+        source: format!("{} (published float decoder)", manifest.display()),
+        predictor: Box::new(p.decoder),
+    })
 }
 
 /// The blob's dense decoder in float, with the blob's statistics and settings.

@@ -295,6 +295,36 @@ fn eval_on_the_real_frames_shows_sigma_weighting_matters() {
         assert!(get("none", e)["false_alarm_rate"].as_f64().unwrap() > 0.5);
     }
     assert_eq!(v["quantized_agreement"], 1.0);
+    // With the manifest, the float rows are the published float decoder and statistics.
+    let m = dir.join("manifest.json");
+    let (ok, out, err) = msr(&[
+        "eval",
+        "--model",
+        b,
+        "--data",
+        dir.to_str().unwrap(),
+        "--manifest",
+        m.to_str().unwrap(),
+        "--json",
+    ]);
+    assert!(ok, "{err}");
+    let w: Value = serde_json::from_str(&out).unwrap();
+    let r = w["rows"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|r| r["engine"] == "float" && r["weighting"] == "sigma")
+        .unwrap()
+        .clone();
+    assert!(
+        r["source"]
+            .as_str()
+            .unwrap()
+            .contains("published float decoder"),
+        "{r}"
+    );
+    assert_eq!(r["hit_rate"], 1.0);
+    assert_eq!(r["false_alarm_rate"], 0.0);
     let absent = v["absent"].as_array().unwrap();
     assert!(absent
         .iter()
