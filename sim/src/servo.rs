@@ -64,7 +64,8 @@ impl Servo {
     fn new(joint: Joint, position: f64, cfg: &ServoConfig) -> Option<Servo> {
         let l = joint.limits()?;
         let (min, max) = (l.min as f64, l.max as f64);
-        let position = position.clamp(min, max);
+        // A start angle that is not finite starts at 0 (clamped), never as NaN.
+        let position = if position.is_finite() { position } else { 0.0 }.clamp(min, max);
         Some(Servo {
             joint,
             min,

@@ -159,3 +159,11 @@ fn frame_errors_are_not_violations() {
     assert_eq!(b.counters().limit_violations, 0);
     assert_eq!(b.counters().targets, 1);
 }
+
+#[test]
+fn odd_start_angles_are_clamped() {
+    let b = ServoBus::new(ServoConfig::default(), &[(Joint::HeadPitch, f64::NAN), (Joint::HeadYaw, 9.0), (Joint::LElbowRoll, 0.0)]);
+    assert_eq!(b.position(Joint::HeadPitch), 0.0);
+    assert_eq!(b.position(Joint::HeadYaw), Joint::HeadYaw.limits().unwrap().max as f64);
+    assert_eq!(b.position(Joint::LElbowRoll), Joint::LElbowRoll.limits().unwrap().max as f64);
+}
