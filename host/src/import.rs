@@ -666,3 +666,79 @@ fn weight_shift(l: &Dense, in_shift: i8) -> Result<i8> {
         })
         .context("no shift keeps the accumulator within i32")
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    fn random_stack(rng: &mut impl Rng, sizes: &[usize], scale: f32) -> Vec<Dense> {
+        sizes
+            .windows(2)
+            .enumerate()
+            .map(|(i, p)| Dense {
+                n_in: p[0],
+                n_out: p[1],
+                w: (0..p[0] * p[1])
+                    .map(|_| rng.gen_range(-scale..scale))
+                    .collect(),
+                b: (0..p[1]).map(|_| rng.gen_range(-scale..scale)).collect(),
+                act: if i + 2 == sizes.len() {
+                    Activation::Sigmoid
+                } else {
+                    Activation::Tanh
+                },
+            })
+            .collect()
+    }
+
+    #[test]
+    fn shifts_keep_every_accumulator_in_i32_and_weights_close() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        for scale in [0.05f32, 0.5, 3.0, 20.0] {
+            let layers = random_stack(&mut rng, &[2, 12, 64, 128, 6 * 8], scale);
+            let specs = quantize_dense_stack(&layers, HEAD_IN_SHIFT, (6, 8)).unwrap();
+            for (i, (l, q)) in layers.iter().zip(&specs).enumerate() {
+                let Weights::I16(wq) = &q.weights else {
+                    panic!("i16 expected")
+                };
+                // Worst case over any i16 input: |bias| + sum |w| * 32768 must stay in i32.
+                for o in 0..l.n_out {
+                    let worst: i64 = q.bias[o].unsigned_abs() as i64
+                        + wq[o * l.n_in..(o + 1) * l.n_in]
+                            .iter()
+                            .map(|&w| (w as i64).abs() * 32768)
+                            .sum::<i64>();
+                    assert!(
+                        worst < i32::MAX as i64,
+                        "scale {scale} layer {i} row {o}: {worst}"
+                    );
+                }
+                let step = 2f32.powi(-(q.w_shift as i32));
+                for (w, &k) in l.w.iter().zip(wq) {
+                    assert!((w - k as f32 * step).abs() <= step / 2.0 + 1e-7);
+                }
+                if i > 0 {
+                    assert_eq!(q.in_shift, specs[i - 1].out_shift);
+                }
+            }
+            // The result is a blob the board accepts.
+            assert!(specs.len() == 4 && specs[3].output == Shape { c: 1, h: 6, w: 8 });
+        }
+    }
+
+    #[test]
+    fn wrong_face_size_is_an_error() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
+        let layers = random_stack(&mut rng, &[2, 4, 10], 0.5);
+        assert!(quantize_dense_stack(&layers, HEAD_IN_SHIFT, (3, 4)).is_err());
+    }
+
+    #[test]
+    fn q8_8_rounds_and_saturates() {
+        assert_eq!(q8_8(1.0), 256);
+        assert_eq!(q8_8(0.144), 37);
+        assert_eq!(q8_8(-1.0), 0);
+        assert_eq!(q8_8(1e9), u16::MAX);
+    }
+}
