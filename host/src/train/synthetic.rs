@@ -90,7 +90,8 @@ mod arch_probe {
         let train = pick(msr_sim::layout::Split::Train);
         let test = train.clone();
         let specs = vec![
-            ("C 4x29x38 + deconv", DecoderSpec { face_h: h, face_w: w, dense: vec![32, 4 * 29 * 38], conv: Some(ConvStack { base: [4, 29, 38], channels: vec![1], kernel: 4, stride: 2, padding: 1, crop: [0, 0] }) }),
+            ("C48 4x29x38 + deconv", DecoderSpec { face_h: h, face_w: w, dense: vec![48, 4 * 29 * 38], conv: Some(ConvStack { base: [4, 29, 38], channels: vec![1], kernel: 4, stride: 2, padding: 1, crop: [0, 0] }) }),
+            ("C5 5x29x38 + deconv", DecoderSpec { face_h: h, face_w: w, dense: vec![32, 5 * 29 * 38], conv: Some(ConvStack { base: [5, 29, 38], channels: vec![1], kernel: 4, stride: 2, padding: 1, crop: [0, 0] }) }),
         ];
         let device = Device::flex().autodiff();
         for (name, spec) in specs {
