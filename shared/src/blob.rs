@@ -354,7 +354,7 @@ pub struct Reach {
 }
 
 impl Reach {
-    fn to_floats(&self) -> [f32; REACH_FLOATS] {
+    fn to_floats(self) -> [f32; REACH_FLOATS] {
         let mut v = [0f32; REACH_FLOATS];
         let mut i = 0;
         let mut put = |x: f32| {
@@ -787,7 +787,7 @@ mod writer {
     }
 
     fn pad(out: &mut Vec<u8>) {
-        while out.len() % 4 != 0 {
+        while !out.len().is_multiple_of(4) {
             out.push(0);
         }
     }
@@ -883,6 +883,7 @@ mod writer {
 
     impl Reach {
         /// Builds the reach network from flat float rows (e.g. from safetensors).
+        #[allow(clippy::too_many_arguments)] // the eight tensors of the published file, by name
         pub fn from_parts(
             w1: &[f32],
             b1: &[f32],

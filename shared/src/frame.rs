@@ -280,6 +280,7 @@ impl<const N: usize> FrameAccumulator<N> {
 pub struct Sequencer(u16);
 
 impl Sequencer {
+    #[allow(clippy::should_implement_trait)] // never ends, so not an Iterator
     pub fn next(&mut self) -> u16 {
         let s = self.0;
         self.0 = self.0.wrapping_add(1);
