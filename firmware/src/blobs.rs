@@ -43,7 +43,10 @@ impl Blob {
     /// Mean column and row of the pixels.
     pub fn centroid(&self) -> [f32; 2] {
         let a = self.area.max(1) as f64;
-        [(self.sum_x as f64 / a) as f32, (self.sum_y as f64 / a) as f32]
+        [
+            (self.sum_x as f64 / a) as f32,
+            (self.sum_y as f64 / a) as f32,
+        ]
     }
 
     fn merge(&mut self, o: &Blob) {
@@ -83,8 +86,21 @@ struct Run {
     label: u16,
 }
 
-const EMPTY_RUN: Run = Run { x0: 0, x1: 0, label: NONE };
-const EMPTY_BLOB: Blob = Blob { area: 0, x0: 0, y0: 0, x1: 0, y1: 0, sum_x: 0, sum_y: 0, first: 0 };
+const EMPTY_RUN: Run = Run {
+    x0: 0,
+    x1: 0,
+    label: NONE,
+};
+const EMPTY_BLOB: Blob = Blob {
+    area: 0,
+    x0: 0,
+    y0: 0,
+    x1: 0,
+    y1: 0,
+    sum_x: 0,
+    sum_y: 0,
+    first: 0,
+};
 
 #[derive(Clone, Copy)]
 struct Slot {
@@ -96,7 +112,13 @@ struct Slot {
     seen: u16,
 }
 
-const EMPTY_SLOT: Slot = Slot { blob: EMPTY_BLOB, parent: NONE, used: false, tainted: false, seen: 0 };
+const EMPTY_SLOT: Slot = Slot {
+    blob: EMPTY_BLOB,
+    parent: NONE,
+    used: false,
+    tainted: false,
+    seen: 0,
+};
 
 /// A labeller with `LABELS` component slots for masks up to `2 * RUNS - 1` pixels wide.
 pub struct Labeller<const LABELS: usize, const RUNS: usize> {
@@ -145,7 +167,11 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
         }
         self.n_free -= 1;
         let l = self.free[self.n_free];
-        self.slots[l as usize] = Slot { used: true, parent: l, ..EMPTY_SLOT };
+        self.slots[l as usize] = Slot {
+            used: true,
+            parent: l,
+            ..EMPTY_SLOT
+        };
         l
     }
 
@@ -260,7 +286,9 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
         let w = row.len();
         while x < w {
             // Skip empty pixels four at a time: most of a face is not salient.
-            while x + 4 <= w && u32::from_ne_bytes([row[x], row[x + 1], row[x + 2], row[x + 3]]) == 0 {
+            while x + 4 <= w
+                && u32::from_ne_bytes([row[x], row[x + 1], row[x + 2], row[x + 3]]) == 0
+            {
                 x += 4;
             }
             while x < w && row[x] == 0 {
@@ -274,7 +302,11 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
                 x += 1;
             }
             if n < RUNS {
-                runs[n] = Run { x0: x0 as u16, x1: (x - 1) as u16, label: NONE };
+                runs[n] = Run {
+                    x0: x0 as u16,
+                    x1: (x - 1) as u16,
+                    label: NONE,
+                };
                 n += 1;
             }
         }
@@ -299,7 +331,11 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
                     tainted = true;
                 } else {
                     let root = self.find(pl);
-                    label = if label == NONE { root } else { self.union(label, root) };
+                    label = if label == NONE {
+                        root
+                    } else {
+                        self.union(label, root)
+                    };
                 }
                 k += 1;
             }

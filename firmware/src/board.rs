@@ -4,7 +4,10 @@
 //! in-process), QEMU and the real board run the same code.
 
 use crate::confirm::Confirm;
-use crate::link::{read_ready, Assembly, AssemblyError, Rx, Tx, Watchdog, FACE_TIMEOUT_US, READ_CHUNK, SERVO_TIMEOUT_US};
+use crate::link::{
+    read_ready, Assembly, AssemblyError, Rx, Tx, Watchdog, FACE_TIMEOUT_US, READ_CHUNK,
+    SERVO_TIMEOUT_US,
+};
 use crate::model::{self, ModelStore, Upload, UploadError};
 use crate::motion::{Motion, Phase, PERIOD_US};
 use crate::pipeline::{self, Workspace};
@@ -13,8 +16,8 @@ use embedded_io::{Read, ReadReady, Write};
 use msr_shared::blob::Model;
 use msr_shared::joints::REACH_JOINTS;
 use msr_shared::msg::{
-    BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameHeader, HostToBoard, JointTarget, Mode,
-    ServoToBoard, Status,
+    BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameHeader, HostToBoard,
+    JointTarget, Mode, ServoToBoard, Status,
 };
 
 /// Most bytes taken from one link per poll, so a flood cannot starve the control loop.
@@ -119,7 +122,9 @@ impl<S: ModelStore> Board<S> {
             for &b in &buf[..n] {
                 if let Some(Ok(f)) = self.servo_rx.push(b) {
                     match f.message::<ServoToBoard>() {
-                        Ok(ServoToBoard::States { states, .. }) => core.on_states(now_us, &states, host),
+                        Ok(ServoToBoard::States { states, .. }) => {
+                            core.on_states(now_us, &states, host)
+                        }
                         Err(_) => self.servo_rx.count_malformed(),
                     }
                 }
@@ -161,7 +166,11 @@ impl<S: ModelStore> Board<S> {
         if now_us >= due {
             core.tick(now_us, servo);
             let next = due + PERIOD_US;
-            core.next_tick_us = Some(if next <= now_us { now_us + PERIOD_US } else { next });
+            core.next_tick_us = Some(if next <= now_us {
+                now_us + PERIOD_US
+            } else {
+                next
+            });
         }
     }
 
@@ -197,7 +206,11 @@ impl<S: ModelStore> Core<S> {
         self.loaded = None;
         self.settings = None;
         if let Some(m) = self.store.active().and_then(|b| model::validate(b).ok()) {
-            self.loaded = Some(Loaded { crc: m.crc32, face_w: m.face_w, face_h: m.face_h });
+            self.loaded = Some(Loaded {
+                crc: m.crc32,
+                face_w: m.face_w,
+                face_h: m.face_h,
+            });
             self.settings = Some(Settings::of(&m));
         }
         self.confirm.reset();
@@ -234,10 +247,16 @@ impl<S: ModelStore> Core<S> {
     }
 
     fn error<H: Write>(&mut self, host: &mut H, code: ErrorCode, detail: u32) {
-        self.host_tx.send(host, &BoardToHost::Error { code, detail });
+        self.host_tx
+            .send(host, &BoardToHost::Error { code, detail });
     }
 
-    fn on_states<H: Write>(&mut self, now_us: u64, states: &[msr_shared::msg::JointState], host: &mut H) {
+    fn on_states<H: Write>(
+        &mut self,
+        now_us: u64,
+        states: &[msr_shared::msg::JointState],
+        host: &mut H,
+    ) {
         let _ = host;
         let mut any = false;
         for s in states {
@@ -263,7 +282,14 @@ impl<S: ModelStore> Core<S> {
         }
     }
 
-    fn on_host<H: Write>(&mut self, now_us: u64, msg: HostToBoard, ws: &mut Workspace, frame: &mut Assembly, host: &mut H) {
+    fn on_host<H: Write>(
+        &mut self,
+        now_us: u64,
+        msg: HostToBoard,
+        ws: &mut Workspace,
+        frame: &mut Assembly,
+        host: &mut H,
+    ) {
         match msg {
             HostToBoard::Ping { nonce } => {
                 self.host_tx.send(host, &BoardToHost::Pong { nonce });
@@ -278,10 +304,16 @@ impl<S: ModelStore> Core<S> {
                     }
                 }
             },
-            HostToBoard::FrameChunk { frame: id, offset, data } => match frame.chunk(id, offset, data) {
+            HostToBoard::FrameChunk {
+                frame: id,
+                offset,
+                data,
+            } => match frame.chunk(id, offset, data) {
                 Ok(Some(h)) => self.on_frame(now_us, h, frame.pixels(&h), ws, host),
                 Ok(None) => {}
-                Err(AssemblyError::Size | AssemblyError::Chunk) => self.error(host, ErrorCode::BadFrame, id as u32),
+                Err(AssemblyError::Size | AssemblyError::Chunk) => {
+                    self.error(host, ErrorCode::BadFrame, id as u32)
+                }
             },
             HostToBoard::ModelBegin { len, crc32 } => {
                 if let Err(e) = self.upload.begin(&mut self.store, len, crc32) {
@@ -297,9 +329,12 @@ impl<S: ModelStore> Core<S> {
                 Ok(crc) => {
                     frame.clear();
                     self.load_active(ws);
-                    self.host_tx.send(host, &BoardToHost::ModelAccepted { crc32: crc });
+                    self.host_tx
+                        .send(host, &BoardToHost::ModelAccepted { crc32: crc });
                 }
-                Err(e @ UploadError::Invalid(_)) => self.error(host, ErrorCode::BadModel, e.detail()),
+                Err(e @ UploadError::Invalid(_)) => {
+                    self.error(host, ErrorCode::BadModel, e.detail())
+                }
                 Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
             },
             HostToBoard::Configure(c) => {
@@ -312,10 +347,20 @@ impl<S: ModelStore> Core<S> {
 
     /// Applies a configuration, all or nothing.
     fn configure(&mut self, c: &Config) -> bool {
-        let s = Settings { threshold: c.threshold, normalisation: c.normalisation, sided: c.sided, min_area: c.min_area };
-        let Some(confirm) = Confirm::new(c.confirm_k, c.confirm_n) else { return false };
+        let s = Settings {
+            threshold: c.threshold,
+            normalisation: c.normalisation,
+            sided: c.sided,
+            min_area: c.min_area,
+        };
+        let Some(confirm) = Confirm::new(c.confirm_k, c.confirm_n) else {
+            return false;
+        };
         let mut motion = self.motion;
-        if !s.is_valid() || !motion.set_speed_fraction(c.speed_fraction) || !motion.set_hold_ms(c.hold_ms) {
+        if !s.is_valid()
+            || !motion.set_speed_fraction(c.speed_fraction)
+            || !motion.set_hold_ms(c.hold_ms)
+        {
             return false;
         }
         self.motion = motion;
@@ -326,7 +371,14 @@ impl<S: ModelStore> Core<S> {
         true
     }
 
-    fn on_frame<H: Write>(&mut self, now_us: u64, h: FrameHeader, pixels: &[u8], ws: &mut Workspace, host: &mut H) {
+    fn on_frame<H: Write>(
+        &mut self,
+        now_us: u64,
+        h: FrameHeader,
+        pixels: &[u8],
+        ws: &mut Workspace,
+        host: &mut H,
+    ) {
         self.frames = self.frames.saturating_add(1);
         if self.face_wd.feed(now_us) {
             self.motion.go_home();
@@ -341,8 +393,10 @@ impl<S: ModelStore> Core<S> {
         let head = [yaw, pitch];
         let result = match (self.settings, self.store.active()) {
             (Some(settings), Some(bytes)) => match Model::parse_trusted(bytes) {
-                Ok(model) => pipeline::detect(ws, &model, &settings, pixels, [h.crop_x, h.crop_y], head)
-                    .map_err(|_| (ErrorCode::BadFrame, h.frame as u32)),
+                Ok(model) => {
+                    pipeline::detect(ws, &model, &settings, pixels, [h.crop_x, h.crop_y], head)
+                        .map_err(|_| (ErrorCode::BadFrame, h.frame as u32))
+                }
                 Err(_) => Err((ErrorCode::NoModel, 1)),
             },
             _ => Err((ErrorCode::NoModel, 0)),
@@ -358,7 +412,10 @@ impl<S: ModelStore> Core<S> {
             self.detections = self.detections.saturating_add(1);
         }
         let mut confirmed = false;
-        if self.confirm.push(det.blob.is_some()) && !self.servo_wd.tripped() && !self.face_wd.tripped() {
+        if self.confirm.push(det.blob.is_some())
+            && !self.servo_wd.tripped()
+            && !self.face_wd.tripped()
+        {
             if let Some(target) = det.reach {
                 if self.motion.reach(target) {
                     confirmed = true;
@@ -378,15 +435,26 @@ impl<S: ModelStore> Core<S> {
             ],
             centroid: c,
         });
-        let d = Detection { frame: h.frame, head, blob, confirmed, reach: det.reach };
+        let d = Detection {
+            frame: h.frame,
+            head,
+            blob,
+            confirmed,
+            reach: det.reach,
+        };
         self.host_tx.send(host, &BoardToHost::Detection(d));
     }
 
     /// One control period.
     fn tick<V: Write>(&mut self, now_us: u64, servo: &mut V) {
         let time_ms = (now_us / 1000) as u32;
-        let stale = self.servo_wd.last_us().is_none_or(|t| now_us.saturating_sub(t) >= STATE_REQUEST_US);
-        let asked = self.last_request_us.is_some_and(|t| now_us.saturating_sub(t) < STATE_REQUEST_US);
+        let stale = self
+            .servo_wd
+            .last_us()
+            .is_none_or(|t| now_us.saturating_sub(t) >= STATE_REQUEST_US);
+        let asked = self
+            .last_request_us
+            .is_some_and(|t| now_us.saturating_sub(t) < STATE_REQUEST_US);
         if stale && !asked {
             self.servo_tx.send(servo, &BoardToServo::StateRequest);
             self.last_request_us = Some(now_us);
@@ -394,22 +462,32 @@ impl<S: ModelStore> Core<S> {
         if self.servo_wd.tripped() {
             return; // Not streaming until the servos answer again.
         }
-        let posture = if self.face_wd.tripped() { self.motion.hold_still() } else { self.motion.tick() };
+        let posture = if self.face_wd.tripped() {
+            self.motion.hold_still()
+        } else {
+            self.motion.tick()
+        };
         let Some(p) = posture else { return };
         if !self.stiffness_sent {
-            self.stiffness_sent = self.servo_tx.send(servo, &BoardToServo::Stiffness { on: true });
+            self.stiffness_sent = self
+                .servo_tx
+                .send(servo, &BoardToServo::Stiffness { on: true });
         }
         let mut targets = heapless::Vec::new();
         for (j, a) in REACH_JOINTS.iter().zip(p) {
             // The last line of defence: only angles the joint table accepts are ever sent.
             match j.validate(a) {
                 Ok(a) => {
-                    let _ = targets.push(JointTarget { joint: *j, position: a });
+                    let _ = targets.push(JointTarget {
+                        joint: *j,
+                        position: a,
+                    });
                 }
                 Err(_) => self.clamped_targets = self.clamped_targets.saturating_add(1),
             }
         }
-        self.servo_tx.send(servo, &BoardToServo::Targets { time_ms, targets });
+        self.servo_tx
+            .send(servo, &BoardToServo::Targets { time_ms, targets });
     }
 }
 

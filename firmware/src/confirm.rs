@@ -28,7 +28,11 @@ impl Default for Confirm {
 impl Confirm {
     /// [`DEFAULT_K`] of [`DEFAULT_N`].
     pub const fn defaults() -> Self {
-        Confirm { k: DEFAULT_K, n: DEFAULT_N, history: 0 }
+        Confirm {
+            k: DEFAULT_K,
+            n: DEFAULT_N,
+            history: 0,
+        }
     }
 
     /// `None` unless `1 <= k <= n <= MAX_N`.
@@ -50,7 +54,11 @@ impl Confirm {
 
     /// Records one frame; true when at least K of the last N had a mark.
     pub fn push(&mut self, mark: bool) -> bool {
-        let keep = if self.n >= 32 { u32::MAX } else { (1u32 << self.n) - 1 };
+        let keep = if self.n >= 32 {
+            u32::MAX
+        } else {
+            (1u32 << self.n) - 1
+        };
         self.history = ((self.history << 1) | mark as u32) & keep;
         self.history.count_ones() >= self.k as u32
     }

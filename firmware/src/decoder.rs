@@ -39,7 +39,10 @@ impl core::fmt::Display for DecodeError {
             DecodeError::BadInput => f.write_str("head angles must be finite"),
             DecodeError::Shape(i) => write!(f, "decoder layer {i} does not fit the buffers"),
             DecodeError::Scale(i) => {
-                write!(f, "decoder layer {i}: in_shift differs from the previous out_shift")
+                write!(
+                    f,
+                    "decoder layer {i}: in_shift differs from the previous out_shift"
+                )
             }
         }
     }
@@ -76,7 +79,11 @@ impl Default for Decoder {
 
 impl Decoder {
     pub const fn new() -> Self {
-        Decoder { act: [Act([0; MAX_ACTIVATION_LEN]), Act([0; MAX_ACTIVATION_LEN])], face: None, key: None }
+        Decoder {
+            act: [Act([0; MAX_ACTIVATION_LEN]), Act([0; MAX_ACTIVATION_LEN])],
+            face: None,
+            key: None,
+        }
     }
 
     /// Forgets the cached face (e.g. after a model change).
@@ -99,7 +106,11 @@ impl Decoder {
     }
 
     /// Like [`predict`](Self::predict) but always runs the whole network (for benchmarks).
-    pub fn predict_uncached(&mut self, model: &Model, head: [f32; 2]) -> Result<&[u16], DecodeError> {
+    pub fn predict_uncached(
+        &mut self,
+        model: &Model,
+        head: [f32; 2],
+    ) -> Result<&[u16], DecodeError> {
         let input = quantise_input(model, head)?;
         self.run(model, input)?;
         self.key = Some((model.crc32, input));
@@ -123,8 +134,14 @@ impl Decoder {
     pub fn face_and_scratch(&mut self) -> (Option<&[u16]>, &mut [u8]) {
         let [Act(a), Act(b)] = &mut self.act;
         match self.face {
-            Some((0, n)) => (Some(&bytemuck::cast_slice::<i16, u16>(&a[..])[..n]), bytemuck::cast_slice_mut(&mut b[..])),
-            Some((_, n)) => (Some(&bytemuck::cast_slice::<i16, u16>(&b[..])[..n]), bytemuck::cast_slice_mut(&mut a[..])),
+            Some((0, n)) => (
+                Some(&bytemuck::cast_slice::<i16, u16>(&a[..])[..n]),
+                bytemuck::cast_slice_mut(&mut b[..]),
+            ),
+            Some((_, n)) => (
+                Some(&bytemuck::cast_slice::<i16, u16>(&b[..])[..n]),
+                bytemuck::cast_slice_mut(&mut a[..]),
+            ),
             None => (None, bytemuck::cast_slice_mut(&mut b[..])),
         }
     }
@@ -138,7 +155,11 @@ impl Decoder {
         a[1] = input[1];
         let mut cur = 0usize;
         for (i, layer) in model.layers.iter().enumerate() {
-            let (src, dst) = if cur == 0 { (&a[..], &mut b[..]) } else { (&b[..], &mut a[..]) };
+            let (src, dst) = if cur == 0 {
+                (&a[..], &mut b[..])
+            } else {
+                (&b[..], &mut a[..])
+            };
             run_layer(layer, src, dst).map_err(|_| DecodeError::Shape(i as u8))?;
             cur = 1 - cur;
         }
@@ -213,7 +234,12 @@ impl Requant {
             }
             _ => None,
         };
-        Requant { act, acc_bits, out_bits, fast }
+        Requant {
+            act,
+            acc_bits,
+            out_bits,
+            fast,
+        }
     }
 
     #[inline]
@@ -230,7 +256,11 @@ impl Requant {
                 TANH_Q24[LAST]
             } as i32;
             let y = if acc < 0 { -y } else { y };
-            let v = if self.act == Activation::Sigmoid { (1 << 24) + y } else { y };
+            let v = if self.act == Activation::Sigmoid {
+                (1 << 24) + y
+            } else {
+                y
+            };
             let r = ((v >> (k - 1)) >> 1) + ((v >> (k - 1)) & 1);
             return r.clamp(i16::MIN as i32, i16::MAX as i32) as i16;
         }
@@ -322,7 +352,7 @@ pub(crate) fn run_layer(l: &Layer, src: &[i16], dst: &mut [i16]) -> Result<(), (
     // Paired fast paths for i16 weights; anything else is the generic loops.
     if l.weight_type == WeightType::I16 {
         match l.kind {
-            LayerKind::Dense if n_in % 2 == 0 => {
+            LayerKind::Dense if n_in.is_multiple_of(2) => {
                 let w = bytemuck::try_cast_slice::<u8, u32>(l.weights);
                 let x = bytemuck::try_cast_slice::<i16, u32>(x);
                 if let (Ok(w), Ok(x), Some(b)) = (w, x, l.bias_i32()) {

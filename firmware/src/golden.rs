@@ -39,11 +39,18 @@ impl XorShift {
 /// The head pose of golden frame `i`: a grid inside +-5 degrees.
 pub fn head_pose(i: u32) -> [f32; 2] {
     let step = 0.0175f32; // about one degree
-    [((i * 7) % 11) as f32 * step - 5.0 * step, ((i * 5) % 9) as f32 * step - 4.0 * step]
+    [
+        ((i * 7) % 11) as f32 * step - 5.0 * step,
+        ((i * 5) % 9) as f32 * step - 4.0 * step,
+    ]
 }
 
 /// Runs the golden frames. `crop` is scratch for one face (at least `face_h * face_w` bytes).
-pub fn run(ws: &mut Workspace, model: &Model, crop: &mut [u8]) -> Result<GoldenReport, DetectError> {
+pub fn run(
+    ws: &mut Workspace,
+    model: &Model,
+    crop: &mut [u8],
+) -> Result<GoldenReport, DetectError> {
     let (h, w) = (model.face_h as usize, model.face_w as usize);
     let n = h * w;
     let crop = crop.get_mut(..n).ok_or(DetectError::CropSize)?;
@@ -78,16 +85,38 @@ pub fn run(ws: &mut Workspace, model: &Model, crop: &mut [u8]) -> Result<GoldenR
         }
         if let Some(b) = det.blob {
             detections += 1;
-            for v in [b.area, b.x0 as u32, b.y0 as u32, b.x1 as u32, b.y1 as u32, b.sum_x, b.sum_y, b.first] {
+            for v in [
+                b.area,
+                b.x0 as u32,
+                b.y0 as u32,
+                b.x1 as u32,
+                b.y1 as u32,
+                b.sum_x,
+                b.sum_y,
+                b.first,
+            ] {
                 digest.update(&v.to_le_bytes());
             }
         }
-        for c in det.centroid.iter().flatten().chain(det.reach.iter().flatten()) {
+        for c in det
+            .centroid
+            .iter()
+            .flatten()
+            .chain(det.reach.iter().flatten())
+        {
             digest.update(&c.to_bits().to_le_bytes());
         }
-        for v in [det.salient_pixels, det.blobs.components, det.blobs.overflow as u32] {
+        for v in [
+            det.salient_pixels,
+            det.blobs.components,
+            det.blobs.overflow as u32,
+        ] {
             digest.update(&v.to_le_bytes());
         }
     }
-    Ok(GoldenReport { frames: FRAMES, detections, digest: digest.finalize() })
+    Ok(GoldenReport {
+        frames: FRAMES,
+        detections,
+        digest: digest.finalize(),
+    })
 }

@@ -41,6 +41,8 @@
 //! the link buffers make up [`Board`]: about 56 KiB for faces up to 64 x 96, whatever the model.
 //! The model store is separate (a built-in blob stays in flash; uploads need a staging area).
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
+// Index loops read best in the numeric kernels.
+#![allow(clippy::needless_range_loop)]
 
 pub mod blobs;
 pub mod board;

@@ -27,7 +27,10 @@ pub struct Tx {
 
 impl Tx {
     pub const fn new() -> Self {
-        Tx { seq: 0, failures: 0 }
+        Tx {
+            seq: 0,
+            failures: 0,
+        }
     }
 
     /// Frames and writes one message; a failure is counted, never fatal.
@@ -65,7 +68,12 @@ pub struct Watchdog {
 
 impl Watchdog {
     pub const fn new(period_us: u64) -> Self {
-        Watchdog { period_us, last_us: None, tripped: false, trips: 0 }
+        Watchdog {
+            period_us,
+            last_us: None,
+            tripped: false,
+            trips: 0,
+        }
     }
 
     /// Something arrived. Returns true when this ends a trip.
@@ -124,7 +132,11 @@ impl Default for Assembly {
 
 impl Assembly {
     pub const fn new() -> Self {
-        Assembly { header: None, received: 0, buf: [0; MAX_FACE_PIXELS] }
+        Assembly {
+            header: None,
+            received: 0,
+            buf: [0; MAX_FACE_PIXELS],
+        }
     }
 
     /// Drops any frame in progress.
@@ -145,8 +157,15 @@ impl Assembly {
     }
 
     /// `FrameChunk`: in order, no gaps. Returns the header once the image is complete.
-    pub fn chunk(&mut self, frame: u16, offset: u16, data: &[u8]) -> Result<Option<FrameHeader>, AssemblyError> {
-        let Some(h) = self.header else { return Err(AssemblyError::Chunk) };
+    pub fn chunk(
+        &mut self,
+        frame: u16,
+        offset: u16,
+        data: &[u8],
+    ) -> Result<Option<FrameHeader>, AssemblyError> {
+        let Some(h) = self.header else {
+            return Err(AssemblyError::Chunk);
+        };
         let n = h.width as usize * h.height as usize;
         let end = offset as usize + data.len();
         if frame != h.frame || offset as usize != self.received || end > n {

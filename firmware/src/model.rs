@@ -76,7 +76,12 @@ impl<const N: usize> Default for RamStore<N> {
 
 impl<const N: usize> RamStore<N> {
     pub const fn new(builtin: Option<&'static [u8]>) -> Self {
-        RamStore { slots: [Slot([0; N]), Slot([0; N])], lens: [0; 2], active: None, builtin }
+        RamStore {
+            slots: [Slot([0; N]), Slot([0; N])],
+            lens: [0; 2],
+            active: None,
+            builtin,
+        }
     }
 
     fn staging(&self) -> usize {
@@ -107,8 +112,13 @@ impl<const N: usize> ModelStore for RamStore<N> {
     }
     fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError> {
         let s = self.staging();
-        let end = offset.checked_add(data.len()).ok_or(UploadError::Sequence)?;
-        let dst = self.slots[s].0.get_mut(offset..end).ok_or(UploadError::TooLarge)?;
+        let end = offset
+            .checked_add(data.len())
+            .ok_or(UploadError::Sequence)?;
+        let dst = self.slots[s]
+            .0
+            .get_mut(offset..end)
+            .ok_or(UploadError::TooLarge)?;
         dst.copy_from_slice(data);
         Ok(())
     }
@@ -153,20 +163,36 @@ impl Upload {
     }
 
     /// `ModelBegin`: starts over, whatever was in progress.
-    pub fn begin<S: ModelStore>(&mut self, store: &mut S, len: u32, crc32: u32) -> Result<(), UploadError> {
+    pub fn begin<S: ModelStore>(
+        &mut self,
+        store: &mut S,
+        len: u32,
+        crc32: u32,
+    ) -> Result<(), UploadError> {
         self.state = None;
         let len = len as usize;
         if len > store.capacity() {
             return Err(UploadError::TooLarge);
         }
         store.begin(len)?;
-        self.state = Some(UploadState { len, crc32, received: 0 });
+        self.state = Some(UploadState {
+            len,
+            crc32,
+            received: 0,
+        });
         Ok(())
     }
 
     /// `ModelChunk`: chunks must come in order; a gap or overlap aborts the upload.
-    pub fn chunk<S: ModelStore>(&mut self, store: &mut S, offset: u32, data: &[u8]) -> Result<(), UploadError> {
-        let Some(st) = self.state.as_mut() else { return Err(UploadError::Sequence) };
+    pub fn chunk<S: ModelStore>(
+        &mut self,
+        store: &mut S,
+        offset: u32,
+        data: &[u8],
+    ) -> Result<(), UploadError> {
+        let Some(st) = self.state.as_mut() else {
+            return Err(UploadError::Sequence);
+        };
         let end = (offset as usize).checked_add(data.len());
         if offset as usize != st.received || end.is_none_or(|e| e > st.len) {
             self.state = None;

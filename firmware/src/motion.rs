@@ -152,7 +152,11 @@ impl Motion {
         for i in 0..N {
             let step = self.max_step(i);
             let d = (self.goal[i] - c[i]).clamp(-step, step);
-            c[i] = if (self.goal[i] - c[i]).abs() <= step { self.goal[i] } else { c[i] + d };
+            c[i] = if (self.goal[i] - c[i]).abs() <= step {
+                self.goal[i]
+            } else {
+                c[i] + d
+            };
             arrived &= c[i] == self.goal[i];
         }
         let c = safe(c);
@@ -191,7 +195,10 @@ mod tests {
         m.start_from(HOME_POSTURE);
         let target = [0.5, -0.3, -0.2, 0.1, -1.3];
         assert!(m.reach(target));
-        assert!(!m.reach(HOME_POSTURE), "a second reach while one runs is refused");
+        assert!(
+            !m.reach(HOME_POSTURE),
+            "a second reach while one runs is refused"
+        );
         let mut prev = HOME_POSTURE;
         let mut ticks = 0;
         while m.phase() == Phase::Reach {

@@ -24,7 +24,9 @@ pub enum DetectError {
 impl core::fmt::Display for DetectError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            DetectError::CropSize => f.write_str("face crop size differs from the model's face size"),
+            DetectError::CropSize => {
+                f.write_str("face crop size differs from the model's face size")
+            }
             DetectError::Settings => f.write_str("novelty settings out of range"),
             DetectError::Decode(e) => write!(f, "decoder: {e}"),
         }
@@ -68,7 +70,11 @@ impl Default for Workspace {
 
 impl Workspace {
     pub const fn new() -> Self {
-        Workspace { decoder: Decoder::new(), thresholds: Thresholds::new(), labeller: FaceLabeller::new() }
+        Workspace {
+            decoder: Decoder::new(),
+            thresholds: Thresholds::new(),
+            labeller: FaceLabeller::new(),
+        }
     }
 
     /// Forgets every cache (call after a model change; [`detect`] also notices one by its CRC).
@@ -84,7 +90,12 @@ impl Workspace {
 
     /// Stage 2: the saliency mask of `crop` against the last predicted face; returns the count
     /// of salient pixels. Call [`decode`](Self::decode) first. The mask is [`mask`](Self::mask).
-    pub fn saliency(&mut self, model: &Model, s: &Settings, crop: &[u8]) -> Result<u32, DetectError> {
+    pub fn saliency(
+        &mut self,
+        model: &Model,
+        s: &Settings,
+        crop: &[u8],
+    ) -> Result<u32, DetectError> {
         if crop.len() != model.face_pixels() {
             return Err(DetectError::CropSize);
         }
@@ -97,7 +108,14 @@ impl Workspace {
         if face.len() != crop.len() || mask.len() < crop.len() {
             return Err(DetectError::CropSize);
         }
-        Ok(saliency::saliency(crop, face, model.mu, self.thresholds.table(), s.sided, mask))
+        Ok(saliency::saliency(
+            crop,
+            face,
+            model.mu,
+            self.thresholds.table(),
+            s.sided,
+            mask,
+        ))
     }
 
     /// The mask of the last [`saliency`](Self::saliency) call (1 = salient).
@@ -115,7 +133,10 @@ impl Workspace {
         let summary = self
             .labeller
             .label(mask, w, h, |b| winner.offer(b))
-            .unwrap_or(Summary { overflow: true, ..Summary::default() });
+            .unwrap_or(Summary {
+                overflow: true,
+                ..Summary::default()
+            });
         (winner.best, summary)
     }
 }

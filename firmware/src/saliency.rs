@@ -70,14 +70,21 @@ pub fn threshold_q88(sigma_q88: u16, threshold: f32, normalisation: Normalisatio
 
 impl Thresholds {
     pub const fn new() -> Self {
-        Thresholds { tn: [0; MAX_FACE_PIXELS], len: 0, key: None }
+        Thresholds {
+            tn: [0; MAX_FACE_PIXELS],
+            len: 0,
+            key: None,
+        }
     }
 
     /// Makes the table for `model` and `threshold`/`normalisation`, unless it is already made.
     /// Returns true when it was recomputed.
     pub fn prepare(&mut self, model: &Model, s: &Settings) -> bool {
         let key = (model.crc32, s.threshold.to_bits(), s.normalisation);
-        let n = model.face_pixels().min(MAX_FACE_PIXELS).min(model.sigma.len());
+        let n = model
+            .face_pixels()
+            .min(MAX_FACE_PIXELS)
+            .min(model.sigma.len());
         if self.key == Some(key) && self.len == n {
             return false;
         }
@@ -159,7 +166,10 @@ mod tests {
         // Variance: 4.59 * 4 = 18.36 grey -> 4700.16 -> 4700.
         assert_eq!(threshold_q88(512, 4.59, Normalisation::Variance), 4700);
         assert_eq!(threshold_q88(0, 4.59, Normalisation::StdDev), 0);
-        assert_eq!(threshold_q88(u16::MAX, 1e30, Normalisation::Variance), u16::MAX);
+        assert_eq!(
+            threshold_q88(u16::MAX, 1e30, Normalisation::Variance),
+            u16::MAX
+        );
     }
 
     #[test]
@@ -169,17 +179,41 @@ mod tests {
         // Pixel 2: error 3, mu 2: below t*n: never.
         let frame = [110u8, 50, 53];
         let pred = [100 * 256, 50 * 256, 50 * 256];
-        let mu_bytes: Vec<u8> = [2u16 * 256, 8 * 256, 2 * 256].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let mu_bytes: Vec<u8> = [2u16 * 256, 8 * 256, 2 * 256]
+            .iter()
+            .flat_map(|v| v.to_le_bytes())
+            .collect();
         let tn = [4 * 256u16; 3];
         let mut mask = [9u8; 3];
-        let n = saliency(&frame, &pred, U16Table(&mu_bytes), &tn, Sided::One, &mut mask);
+        let n = saliency(
+            &frame,
+            &pred,
+            U16Table(&mu_bytes),
+            &tn,
+            Sided::One,
+            &mut mask,
+        );
         assert_eq!((n, mask), (1, [1, 0, 0]));
-        let n = saliency(&frame, &pred, U16Table(&mu_bytes), &tn, Sided::Two, &mut mask);
+        let n = saliency(
+            &frame,
+            &pred,
+            U16Table(&mu_bytes),
+            &tn,
+            Sided::Two,
+            &mut mask,
+        );
         assert_eq!((n, mask), (2, [1, 1, 0]));
         // Unaligned mu bytes take the other path and agree.
         let mut shifted = vec![0u8];
         shifted.extend_from_slice(&mu_bytes);
-        let n = saliency(&frame, &pred, U16Table(&shifted[1..]), &tn, Sided::Two, &mut mask);
+        let n = saliency(
+            &frame,
+            &pred,
+            U16Table(&shifted[1..]),
+            &tn,
+            Sided::Two,
+            &mut mask,
+        );
         assert_eq!((n, mask), (2, [1, 1, 0]));
     }
 }

@@ -1,7 +1,8 @@
 //! Test fixtures: small model blobs built with `ModelSpec`, and float references.
 
 use msr_shared::blob::{
-    Activation, LayerKind, LayerSpec, ModelSpec, Normalisation, Novelty, Reach, Shape, Sided, Weights,
+    Activation, LayerKind, LayerSpec, ModelSpec, Normalisation, Novelty, Reach, Shape, Sided,
+    Weights,
 };
 
 /// A tiny deterministic generator (tests must not depend on `rand` versions).
@@ -9,7 +10,10 @@ pub struct Lcg(pub u64);
 
 impl Lcg {
     pub fn next_u32(&mut self) -> u32 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         (self.0 >> 32) as u32
     }
     /// Uniform in [-1, 1).
@@ -43,12 +47,20 @@ pub fn layer(
     };
     let wq = |v: f64| (v * (1i64 << w_shift) as f64).round();
     let weights = if i8w {
-        Weights::I8((0..nw).map(|_| wq(rng.unit() * scale).clamp(-127.0, 127.0) as i8).collect())
+        Weights::I8(
+            (0..nw)
+                .map(|_| wq(rng.unit() * scale).clamp(-127.0, 127.0) as i8)
+                .collect(),
+        )
     } else {
         Weights::I16((0..nw).map(|_| wq(rng.unit() * scale) as i16).collect())
     };
     let bias = (0..nb)
-        .map(|_| (rng.unit() * 0.3 * (1i64 << (w_shift + in_shift)) as f64).round().clamp(-1e9, 1e9) as i32)
+        .map(|_| {
+            (rng.unit() * 0.3 * (1i64 << (w_shift + in_shift)) as f64)
+                .round()
+                .clamp(-1e9, 1e9) as i32
+        })
         .collect();
     LayerSpec {
         kind,
@@ -81,7 +93,7 @@ pub fn reach_net(rng: &mut Lcg) -> Reach {
         [130.0, 88.0],
         [203.0, 138.0],
         [-1.0891819, -0.4302188, -0.5001259, -0.3141593, -1.5446163],
-        [0.8774061, 0.4095361, 0.6258302, 0.3052239, -1.1121080],
+        [0.8774061, 0.4095361, 0.6258302, 0.3052239, -1.112108],
     )
     .unwrap()
 }
@@ -99,8 +111,12 @@ fn spec(face_h: u16, face_w: u16, layers: Vec<LayerSpec>, rng: &mut Lcg) -> Mode
             sigma_floor: 0.5,
         },
         layers,
-        mu: (0..n).map(|_| (2.0 + rng.unit().abs() * 2.0) as u16 * 256).collect(),
-        sigma: (0..n).map(|_| ((1.0 + rng.unit().abs()) * 256.0) as u16).collect(),
+        mu: (0..n)
+            .map(|_| (2.0 + rng.unit().abs() * 2.0) as u16 * 256)
+            .collect(),
+        sigma: (0..n)
+            .map(|_| ((1.0 + rng.unit().abs()) * 256.0) as u16)
+            .collect(),
         reach: reach_net(rng),
         template: None,
     }
@@ -111,14 +127,64 @@ pub fn conv_spec(seed: u64, i8w: bool) -> ModelSpec {
     let mut r = Lcg(seed);
     let ws = if i8w { 6 } else { 12 };
     let layers = vec![
-        layer(&mut r, LayerKind::Dense, Activation::Tanh, shape(2, 1, 1), shape(4, 3, 4), (0, 0, 0), (ws, 12, 14), 1.5, i8w),
-        layer(&mut r, LayerKind::ConvTranspose2d, Activation::Tanh, shape(4, 3, 4), shape(3, 6, 8), (4, 2, 1), (ws, 14, 14), 0.4, i8w),
-        layer(&mut r, LayerKind::UpConv, Activation::Relu, shape(3, 6, 8), shape(2, 12, 16), (3, 2, 1), (ws, 14, 13), 0.4, i8w),
-        layer(&mut r, LayerKind::UpConv, Activation::Sigmoid, shape(2, 12, 16), shape(1, 12, 16), (3, 1, 1), (ws, 13, 15), 0.5, i8w),
+        layer(
+            &mut r,
+            LayerKind::Dense,
+            Activation::Tanh,
+            shape(2, 1, 1),
+            shape(4, 3, 4),
+            (0, 0, 0),
+            (ws, 12, 14),
+            1.5,
+            i8w,
+        ),
+        layer(
+            &mut r,
+            LayerKind::ConvTranspose2d,
+            Activation::Tanh,
+            shape(4, 3, 4),
+            shape(3, 6, 8),
+            (4, 2, 1),
+            (ws, 14, 14),
+            0.4,
+            i8w,
+        ),
+        layer(
+            &mut r,
+            LayerKind::UpConv,
+            Activation::Relu,
+            shape(3, 6, 8),
+            shape(2, 12, 16),
+            (3, 2, 1),
+            (ws, 14, 13),
+            0.4,
+            i8w,
+        ),
+        layer(
+            &mut r,
+            LayerKind::UpConv,
+            Activation::Sigmoid,
+            shape(2, 12, 16),
+            shape(1, 12, 16),
+            (3, 1, 1),
+            (ws, 13, 15),
+            0.5,
+            i8w,
+        ),
         LayerSpec {
             crop_top: 1,
             crop_left: 2,
-            ..layer(&mut r, LayerKind::Crop, Activation::Identity, shape(1, 12, 16), shape(1, 10, 12), (0, 0, 0), (0, 15, 15), 0.0, i8w)
+            ..layer(
+                &mut r,
+                LayerKind::Crop,
+                Activation::Identity,
+                shape(1, 12, 16),
+                shape(1, 10, 12),
+                (0, 0, 0),
+                (0, 15, 15),
+                0.0,
+                i8w,
+            )
         },
     ];
     spec(10, 12, layers, &mut r)
@@ -128,9 +194,39 @@ pub fn conv_spec(seed: u64, i8w: bool) -> ModelSpec {
 pub fn mlp_spec(seed: u64, face_h: u16, face_w: u16) -> ModelSpec {
     let mut r = Lcg(seed);
     let layers = vec![
-        layer(&mut r, LayerKind::Dense, Activation::Tanh, shape(2, 1, 1), shape(12, 1, 1), (0, 0, 0), (12, 12, 14), 3.0, false),
-        layer(&mut r, LayerKind::Dense, Activation::Tanh, shape(12, 1, 1), shape(16, 1, 1), (0, 0, 0), (12, 14, 14), 0.8, false),
-        layer(&mut r, LayerKind::Dense, Activation::Sigmoid, shape(16, 1, 1), shape(1, face_h, face_w), (0, 0, 0), (12, 14, 15), 0.8, false),
+        layer(
+            &mut r,
+            LayerKind::Dense,
+            Activation::Tanh,
+            shape(2, 1, 1),
+            shape(12, 1, 1),
+            (0, 0, 0),
+            (12, 12, 14),
+            3.0,
+            false,
+        ),
+        layer(
+            &mut r,
+            LayerKind::Dense,
+            Activation::Tanh,
+            shape(12, 1, 1),
+            shape(16, 1, 1),
+            (0, 0, 0),
+            (12, 14, 14),
+            0.8,
+            false,
+        ),
+        layer(
+            &mut r,
+            LayerKind::Dense,
+            Activation::Sigmoid,
+            shape(16, 1, 1),
+            shape(1, face_h, face_w),
+            (0, 0, 0),
+            (12, 14, 15),
+            0.8,
+            false,
+        ),
     ];
     spec(face_h, face_w, layers, &mut r)
 }
@@ -143,7 +239,11 @@ pub fn float_layer(l: &msr_shared::blob::Layer, x: &[f64]) -> Vec<f64> {
     let w = |i: usize| l.weight(i) as f64 / ws;
     let b = |i: usize| l.bias(i) as f64 / bs;
     let (ic, ih, iw) = (l.input.c as usize, l.input.h as usize, l.input.w as usize);
-    let (oc, oh, ow) = (l.output.c as usize, l.output.h as usize, l.output.w as usize);
+    let (oc, oh, ow) = (
+        l.output.c as usize,
+        l.output.h as usize,
+        l.output.w as usize,
+    );
     let (k, s, p) = (l.kernel as usize, l.stride as usize, l.padding as usize);
     let pre: Vec<f64> = match l.kind {
         LayerKind::Dense => (0..l.output.len())
@@ -163,7 +263,8 @@ pub fn float_layer(l: &msr_shared::blob::Layer, x: &[f64]) -> Vec<f64> {
                                         continue;
                                     }
                                     y[(o * oh + oy as usize) * ow + ox as usize] +=
-                                        w(((c * oc + o) * k + ky) * k + kx) * x[(c * ih + iy) * iw + ix];
+                                        w(((c * oc + o) * k + ky) * k + kx)
+                                            * x[(c * ih + iy) * iw + ix];
                                 }
                             }
                         }
@@ -190,7 +291,11 @@ pub fn float_layer(l: &msr_shared::blob::Layer, x: &[f64]) -> Vec<f64> {
                             for ky in 0..k {
                                 for kx in 0..k {
                                     a += w(((o * ic + c) * k + ky) * k + kx)
-                                        * up(c, (yy + ky) as isize - p as isize, (xx + kx) as isize - p as isize);
+                                        * up(
+                                            c,
+                                            (yy + ky) as isize - p as isize,
+                                            (xx + kx) as isize - p as isize,
+                                        );
                                 }
                             }
                         }

@@ -19,7 +19,11 @@ pub struct Winner {
 
 impl Winner {
     pub const fn new(min_area: u16) -> Self {
-        Winner { min_area: min_area as u32, best: None, candidates: 0 }
+        Winner {
+            min_area: min_area as u32,
+            best: None,
+            candidates: 0,
+        }
     }
 
     pub fn offer(&mut self, b: &Blob) {
@@ -42,7 +46,16 @@ mod tests {
     use super::*;
 
     fn blob(area: u32, first: u32) -> Blob {
-        Blob { area, x0: 0, y0: 0, x1: 0, y1: 0, sum_x: 0, sum_y: 0, first }
+        Blob {
+            area,
+            x0: 0,
+            y0: 0,
+            x1: 0,
+            y1: 0,
+            sum_x: 0,
+            sum_y: 0,
+            first,
+        }
     }
 
     #[test]

@@ -50,7 +50,12 @@ fn reference(mask: &[u8], w: usize, h: usize) -> Vec<Blob> {
     out
 }
 
-fn label_all<const L: usize, const R: usize>(lab: &mut Labeller<L, R>, mask: &[u8], w: usize, h: usize) -> (Vec<Blob>, Summary) {
+fn label_all<const L: usize, const R: usize>(
+    lab: &mut Labeller<L, R>,
+    mask: &[u8],
+    w: usize,
+    h: usize,
+) -> (Vec<Blob>, Summary) {
     let mut got = Vec::new();
     let sum = lab.label(mask, w, h, |b| got.push(*b)).unwrap();
     got.sort_by_key(|b| b.first);
@@ -59,7 +64,10 @@ fn label_all<const L: usize, const R: usize>(lab: &mut Labeller<L, R>, mask: &[u
 
 fn parse(rows: &[&str]) -> (Vec<u8>, usize, usize) {
     let w = rows[0].len();
-    let mask = rows.iter().flat_map(|r| r.bytes().map(|c| (c == '#' as u8) as u8)).collect();
+    let mask = rows
+        .iter()
+        .flat_map(|r| r.bytes().map(|c| (c == b'#') as u8))
+        .collect();
     (mask, w, rows.len())
 }
 
@@ -104,12 +112,22 @@ fn bad_shapes_are_refused() {
     let m = vec![1u8; 200 * 2];
     assert_eq!(lab.label(&m, 0, 1, |_| {}), Err(MaskError::Shape));
     assert_eq!(lab.label(&m, 10, 0, |_| {}), Err(MaskError::Shape));
-    assert_eq!(lab.label(&m, 200, 2, |_| {}), Err(MaskError::Shape), "wider than the run buffers");
-    assert_eq!(lab.label(&m[..10], 4, 3, |_| {}), Err(MaskError::Shape), "mask too short");
+    assert_eq!(
+        lab.label(&m, 200, 2, |_| {}),
+        Err(MaskError::Shape),
+        "wider than the run buffers"
+    );
+    assert_eq!(
+        lab.label(&m[..10], 4, 3, |_| {}),
+        Err(MaskError::Shape),
+        "mask too short"
+    );
     assert_eq!(FaceLabeller::max_width(), 97);
     // The widest face, every other pixel set: the most runs a row can have.
     let w = 96;
-    let m: Vec<u8> = (0..w * 64).map(|i| ((i % w) % 2 == 0 && (i / w) % 2 == 0) as u8).collect();
+    let m: Vec<u8> = (0..w * 64)
+        .map(|i| ((i % w) % 2 == 0 && (i / w) % 2 == 0) as u8)
+        .collect();
     let (got, sum) = label_all(&mut lab, &m, w, 64);
     assert_eq!(got, reference(&m, w, 64));
     assert_eq!((got.len(), sum.overflow), (48 * 32, false));

@@ -96,9 +96,19 @@ impl Rig {
     fn states(&mut self) {
         let mut states = heapless::Vec::new();
         for (j, p) in REACH_JOINTS.iter().zip(self.position) {
-            states.push(JointState { joint: *j, position: p, stiffness: self.stiffness, faults: 0 }).unwrap();
+            states
+                .push(JointState {
+                    joint: *j,
+                    position: p,
+                    stiffness: self.stiffness,
+                    faults: 0,
+                })
+                .unwrap();
         }
-        let w = self.wire(&ServoToBoard::States { time_ms: (self.now / 1000) as u32, states });
+        let w = self.wire(&ServoToBoard::States {
+            time_ms: (self.now / 1000) as u32,
+            states,
+        });
         self.servo.rx.extend(w);
     }
 
@@ -106,7 +116,7 @@ impl Rig {
     fn run(&mut self, ms: u64) {
         for _ in 0..ms {
             self.now += 1000;
-            if self.servos_on && (self.now / 1000) % 10 == 0 {
+            if self.servos_on && (self.now / 1000).is_multiple_of(10) {
                 self.states();
             }
             self.board.poll(self.now, &mut self.host, &mut self.servo);
@@ -139,9 +149,15 @@ impl Rig {
     }
 
     fn upload(&mut self, blob: &[u8], announced_crc: u32) {
-        self.host_send(&HostToBoard::ModelBegin { len: blob.len() as u32, crc32: announced_crc });
+        self.host_send(&HostToBoard::ModelBegin {
+            len: blob.len() as u32,
+            crc32: announced_crc,
+        });
         for (i, c) in blob.chunks(CHUNK).enumerate() {
-            self.host_send(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data: c });
+            self.host_send(&HostToBoard::ModelChunk {
+                offset: (i * CHUNK) as u32,
+                data: c,
+            });
             self.run(1);
         }
         self.host_send(&HostToBoard::ModelCommit);
@@ -149,10 +165,20 @@ impl Rig {
     }
 
     fn frame(&mut self, id: u16, pixels: &[u8]) {
-        let h = FrameHeader { frame: id, crop_x: 140, crop_y: 95, width: FACE.1, height: FACE.0 };
+        let h = FrameHeader {
+            frame: id,
+            crop_x: 140,
+            crop_y: 95,
+            width: FACE.1,
+            height: FACE.0,
+        };
         self.host_send(&HostToBoard::FrameStart(h));
         for (i, c) in pixels.chunks(CHUNK).enumerate() {
-            self.host_send(&HostToBoard::FrameChunk { frame: id, offset: (i * CHUNK) as u16, data: c });
+            self.host_send(&HostToBoard::FrameChunk {
+                frame: id,
+                offset: (i * CHUNK) as u16,
+                data: c,
+            });
         }
     }
 
@@ -191,7 +217,12 @@ impl Rig {
             }
             for i in 0..5 {
                 let lim = REACH_JOINTS[i].limits().unwrap().max_velocity * speed * 0.01 * 1.0001;
-                assert!((b[i] - a[i]).abs() <= lim, "joint {i} at {t1}: {} -> {}", a[i], b[i]);
+                assert!(
+                    (b[i] - a[i]).abs() <= lim,
+                    "joint {i} at {t1}: {} -> {}",
+                    a[i],
+                    b[i]
+                );
             }
         }
     }
@@ -206,7 +237,12 @@ fn blob() -> &'static [u8] {
 fn face(head: [f32; 2], mark: bool) -> Vec<u8> {
     let m = Model::parse(blob()).unwrap();
     let mut d = Box::new(crate::decoder::Decoder::new());
-    let mut f: Vec<u8> = d.predict(&m, head).unwrap().iter().map(|&p| ((p as u32 + 128) >> 8) as u8).collect();
+    let mut f: Vec<u8> = d
+        .predict(&m, head)
+        .unwrap()
+        .iter()
+        .map(|&p| ((p as u32 + 128) >> 8) as u8)
+        .collect();
     if mark {
         for y in 5..9 {
             for x in 10..14 {
@@ -228,7 +264,10 @@ fn streams_from_the_measured_posture_to_home_before_any_model() {
     let first = rig.targets[0].1;
     for (i, (a, b)) in first.iter().zip([0.1, -0.1, 1.0, 0.2, -0.5]).enumerate() {
         let step = REACH_JOINTS[i].limits().unwrap().max_velocity * 0.1 * 0.01;
-        assert!((a - b).abs() <= step * 1.0001 && (a - b).abs() > 0.0, "joint {i}: {a} from {b}");
+        assert!(
+            (a - b).abs() <= step * 1.0001 && (a - b).abs() > 0.0,
+            "joint {i}: {a} from {b}"
+        );
     }
     rig.run(3000);
     assert_eq!(rig.targets.last().unwrap().1, HOME_POSTURE);
@@ -281,7 +320,10 @@ fn detects_confirms_reaches_holds_and_returns() {
         t += 1;
         assert!(t < 200, "stuck in {:?}", rig.board.phase());
     }
-    assert!(rig.targets.iter().any(|(_, p)| *p == target), "reached the target");
+    assert!(
+        rig.targets.iter().any(|(_, p)| *p == target),
+        "reached the target"
+    );
     let held = rig.targets.iter().filter(|(_, p)| *p == target).count();
     assert!((500..=502).contains(&held), "held {held} periods");
     assert_eq!(rig.targets.last().unwrap().1, HOME_POSTURE);
@@ -297,7 +339,9 @@ fn bad_uploads_keep_the_running_model() {
     let good = blob();
     rig.upload(good, CRC32.checksum(good));
     let crc = Model::parse(good).unwrap().crc32;
-    assert!(rig.replies.contains(&BoardToHost::ModelAccepted { crc32: crc }));
+    assert!(rig
+        .replies
+        .contains(&BoardToHost::ModelAccepted { crc32: crc }));
     assert_eq!(rig.board.status().model_crc, crc);
 
     // Corrupted in transit: the announced CRC does not match.
@@ -305,25 +349,46 @@ fn bad_uploads_keep_the_running_model() {
     let mut bad = other.clone();
     bad[100] ^= 0x40;
     rig.upload(&bad, CRC32.checksum(&other));
-    assert!(rig.errors().contains(&(ErrorCode::BadUpload, UploadError::Crc.detail())));
+    assert!(rig
+        .errors()
+        .contains(&(ErrorCode::BadUpload, UploadError::Crc.detail())));
     // Intact transfer of an invalid blob (bad magic): refused with the blob error code.
     let mut invalid = other.clone();
     invalid[0] = b'X';
     rig.upload(&invalid, CRC32.checksum(&invalid));
-    assert!(rig.errors().contains(&(ErrorCode::BadModel, msr_shared::blob::BlobError::BadMagic.code())));
+    assert!(rig.errors().contains(&(
+        ErrorCode::BadModel,
+        msr_shared::blob::BlobError::BadMagic.code()
+    )));
     // Truncated upload: commit before all bytes.
-    rig.host_send(&HostToBoard::ModelBegin { len: other.len() as u32, crc32: CRC32.checksum(&other) });
-    rig.host_send(&HostToBoard::ModelChunk { offset: 0, data: &other[..CHUNK] });
-    rig.host_send(&HostToBoard::ModelChunk { offset: 2 * CHUNK as u32, data: &other[..CHUNK] });
+    rig.host_send(&HostToBoard::ModelBegin {
+        len: other.len() as u32,
+        crc32: CRC32.checksum(&other),
+    });
+    rig.host_send(&HostToBoard::ModelChunk {
+        offset: 0,
+        data: &other[..CHUNK],
+    });
+    rig.host_send(&HostToBoard::ModelChunk {
+        offset: 2 * CHUNK as u32,
+        data: &other[..CHUNK],
+    });
     rig.host_send(&HostToBoard::ModelCommit);
     // Too large, and a commit with nothing begun.
-    rig.host_send(&HostToBoard::ModelBegin { len: STORE as u32 + 1, crc32: 0 });
+    rig.host_send(&HostToBoard::ModelBegin {
+        len: STORE as u32 + 1,
+        crc32: 0,
+    });
     rig.host_send(&HostToBoard::ModelCommit);
     rig.run(5);
     let errs = rig.errors();
     assert!(errs.contains(&(ErrorCode::BadUpload, UploadError::Sequence.detail())));
     assert!(errs.contains(&(ErrorCode::BadUpload, UploadError::TooLarge.detail())));
-    assert_eq!(rig.board.status().model_crc, crc, "the old model still runs");
+    assert_eq!(
+        rig.board.status().model_crc,
+        crc,
+        "the old model still runs"
+    );
     rig.frame(1, &face([0.0, 0.0], true));
     rig.run(30);
     assert!(rig.detections().last().unwrap().blob.is_some());
@@ -348,7 +413,9 @@ fn face_watchdog_holds_still_and_servo_watchdog_stops_streaming() {
     rig.run(200);
     // Still streaming (servos keep their position), but not moving.
     assert!(rig.targets.len() >= n + 19);
-    assert!(rig.targets[n..].iter().all(|(_, t)| *t == rig.targets[n - 1].1));
+    assert!(rig.targets[n..]
+        .iter()
+        .all(|(_, t)| *t == rig.targets[n - 1].1));
     // Frames again: back to observing.
     rig.frame(2, &face([0.0, 0.0], false));
     rig.run(20);
@@ -360,9 +427,17 @@ fn face_watchdog_holds_still_and_servo_watchdog_stops_streaming() {
     rig.run(150);
     assert!(rig.errors().contains(&(ErrorCode::ServoTimeout, 0)));
     let last = rig.targets.last().unwrap().0;
-    assert!(last <= t0 + 110_000, "targets until {} after the last state", last - t0);
+    assert!(
+        last <= t0 + 110_000,
+        "targets until {} after the last state",
+        last - t0
+    );
     rig.run(300);
-    assert_eq!(rig.targets.last().unwrap().0, last, "nothing streamed while the servos are silent");
+    assert_eq!(
+        rig.targets.last().unwrap().0,
+        last,
+        "nothing streamed while the servos are silent"
+    );
     assert_eq!(rig.board.status().servo_watchdog_trips, 1);
     // They come back somewhere else: streaming resumes from there.
     rig.position = [0.3, 0.2, 0.5, 0.1, -1.0];
@@ -384,7 +459,9 @@ fn truncated_oversized_and_garbled_frames_are_counted_and_survived() {
     rig.host.rx.extend(&ping[..ping.len() / 2]);
     rig.host.rx.push_back(0);
     // Oversized: a run of non-zero bytes longer than any frame.
-    rig.host.rx.extend(std::iter::repeat_n(0x55, 3 * MAX_WIRE_FRAME));
+    rig.host
+        .rx
+        .extend(std::iter::repeat_n(0x55, 3 * MAX_WIRE_FRAME));
     rig.host.rx.push_back(0);
     // A flipped bit.
     let mut flipped = ping.clone();
@@ -397,13 +474,37 @@ fn truncated_oversized_and_garbled_frames_are_counted_and_survived() {
     assert!(s.host_link.resyncs() >= 3, "{:?}", s.host_link);
     assert!(rig.replies.contains(&BoardToHost::Pong { nonce: 7 }));
     // Face frames of the wrong size, chunks out of order or past the end.
-    let h = FrameHeader { frame: 9, crop_x: 0, crop_y: 0, width: 10, height: 10 };
+    let h = FrameHeader {
+        frame: 9,
+        crop_x: 0,
+        crop_y: 0,
+        width: 10,
+        height: 10,
+    };
     rig.host_send(&HostToBoard::FrameStart(h));
-    rig.host_send(&HostToBoard::FrameStart(FrameHeader { width: FACE.1, height: FACE.0, ..h }));
-    rig.host_send(&HostToBoard::FrameChunk { frame: 9, offset: 100, data: &[1, 2, 3] });
-    rig.host_send(&HostToBoard::FrameChunk { frame: 3, offset: 0, data: &[1, 2, 3] });
+    rig.host_send(&HostToBoard::FrameStart(FrameHeader {
+        width: FACE.1,
+        height: FACE.0,
+        ..h
+    }));
+    rig.host_send(&HostToBoard::FrameChunk {
+        frame: 9,
+        offset: 100,
+        data: &[1, 2, 3],
+    });
+    rig.host_send(&HostToBoard::FrameChunk {
+        frame: 3,
+        offset: 0,
+        data: &[1, 2, 3],
+    });
     rig.run(5);
-    assert_eq!(rig.errors().iter().filter(|e| e.0 == ErrorCode::BadFrame).count(), 3);
+    assert_eq!(
+        rig.errors()
+            .iter()
+            .filter(|e| e.0 == ErrorCode::BadFrame)
+            .count(),
+        3
+    );
     rig.frame(10, &face([0.0, 0.0], false));
     rig.run(20);
     assert_eq!(rig.detections().len(), 1);
@@ -427,12 +528,31 @@ fn configuration_is_checked_and_applied() {
         hold_ms: 100,
     };
     for bad in [
-        Config { threshold: f32::NAN, ..good },
-        Config { threshold: -1.0, ..good },
-        Config { min_area: 0, ..good },
-        Config { confirm_k: 3, confirm_n: 2, ..good },
-        Config { speed_fraction: 1.5, ..good },
-        Config { hold_ms: 3_600_000, ..good },
+        Config {
+            threshold: f32::NAN,
+            ..good
+        },
+        Config {
+            threshold: -1.0,
+            ..good
+        },
+        Config {
+            min_area: 0,
+            ..good
+        },
+        Config {
+            confirm_k: 3,
+            confirm_n: 2,
+            ..good
+        },
+        Config {
+            speed_fraction: 1.5,
+            ..good
+        },
+        Config {
+            hold_ms: 3_600_000,
+            ..good
+        },
     ] {
         rig.host_send(&HostToBoard::Configure(bad));
     }
@@ -463,9 +583,20 @@ fn event() -> impl Strategy<Value = Event> {
         proptest::collection::vec(any::<u8>(), 0..300).prop_map(Event::Garbage),
         proptest::collection::vec(any::<u8>(), 0..100).prop_map(Event::ServoGarbage),
         (any::<bool>(), -0.1f32..0.1, -0.1f32..0.1).prop_map(|(m, y, p)| Event::Frame(m, y, p)),
-        (any::<f32>(), any::<u16>(), any::<u8>(), any::<u8>(), any::<f32>(), any::<u32>())
+        (
+            any::<f32>(),
+            any::<u16>(),
+            any::<u8>(),
+            any::<u8>(),
+            any::<f32>(),
+            any::<u32>()
+        )
             .prop_map(|(t, a, k, n, s, h)| Event::Config(t, a, k, n, s, h % 2000)),
-        (any::<u32>(), proptest::collection::vec(any::<u8>(), 0..CHUNK)).prop_map(|(o, d)| Event::Chunk(o % 40000, d)),
+        (
+            any::<u32>(),
+            proptest::collection::vec(any::<u8>(), 0..CHUNK)
+        )
+            .prop_map(|(o, d)| Event::Chunk(o % 40000, d)),
         any::<u32>().prop_map(|l| Event::Begin(l % 40000)),
         Just(Event::Commit),
         any::<u8>().prop_map(Event::Wait),
@@ -504,4 +635,13 @@ proptest! {
         prop_assert!(!rig.targets.is_empty());
         prop_assert_eq!(rig.board.status().model_crc, Model::parse(blob()).unwrap().crc32);
     }
+}
+
+#[test]
+fn the_big_state_fits_the_ram_budget() {
+    // Everything but the model store (a built-in blob stays in flash).
+    let board = core::mem::size_of::<Board<RamStore<0>>>();
+    let ws = core::mem::size_of::<Workspace>();
+    println!("Board {board} bytes, of which Workspace {ws}");
+    assert!(board <= 60 * 1024, "Board takes {board} bytes");
 }

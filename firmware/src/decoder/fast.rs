@@ -44,7 +44,9 @@ pub(crate) fn dense_pairs(rq: Requant, w: &[u32], b: &[i32], x: &[u32], y: &mut 
     let mut rows = w.chunks_exact(np);
     let mut o = 0;
     while o + 4 <= y.len() {
-        let (Some(r0), Some(r1), Some(r2), Some(r3)) = (rows.next(), rows.next(), rows.next(), rows.next()) else {
+        let (Some(r0), Some(r1), Some(r2), Some(r3)) =
+            (rows.next(), rows.next(), rows.next(), rows.next())
+        else {
             return;
         };
         let (mut a0, mut a1, mut a2, mut a3) = (b[o], b[o + 1], b[o + 2], b[o + 3]);
@@ -94,7 +96,11 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
     y: &mut [i16],
 ) -> bool {
     let (ic_n, ih, iw) = (l.input.c as usize, l.input.h as usize, l.input.w as usize);
-    let (oc_n, oh, ow) = (l.output.c as usize, l.output.h as usize, l.output.w as usize);
+    let (oc_n, oh, ow) = (
+        l.output.c as usize,
+        l.output.h as usize,
+        l.output.w as usize,
+    );
     let (k, s, p) = (l.kernel as usize, l.stride as usize, l.padding as usize);
     if k > MAX_K || s == 0 || k < 2 || x.len() != ic_n * ih * iw || y.len() != oc_n * oh * ow {
         return false;
@@ -111,8 +117,8 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
     }
     let mut packed = [0u32; MAX_PACKED];
     let mut wt = [0u32; MAX_TERMS];
-    let mut offs = [0isize; MAX_TERMS];
-    let mut rows = [0isize; MAX_TERMS];
+    let mut offs = [0i32; MAX_TERMS];
+    let mut rows = [0i32; MAX_TERMS];
     for oc in 0..oc_n {
         let bias = b.at(oc);
         for px in 0..s.min(ow) {
@@ -127,7 +133,11 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
                     let wrow = ((ic * oc_n + oc) * k + ky) * k;
                     for q in 0..np {
                         let hi = w.at(wrow + kx0 + 2 * q * s) as u16 as u32;
-                        let lo = if 2 * q + 1 < nt { w.at(wrow + kx0 + (2 * q + 1) * s) as u16 as u32 } else { 0 };
+                        let lo = if 2 * q + 1 < nt {
+                            w.at(wrow + kx0 + (2 * q + 1) * s) as u16 as u32
+                        } else {
+                            0
+                        };
                         packed[(ic * k + ky) * np_max + q] = lo | (hi << 16);
                     }
                 }
@@ -148,7 +158,7 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
                 let same = prev.filter(|&(pn, pk, _)| pn == ty.n && pk == ty.k[0] && ty.n > 0);
                 prev = Some((ty.n, ty.k[0], ty.i[0]));
                 if let Some((_, _, pi)) = same {
-                    let d = (ty.i[0] as isize - pi as isize) * iw as isize;
+                    let d = (ty.i[0] as i32 - pi as i32) * iw as i32;
                     for t in 0..n {
                         offs[t] += d;
                         rows[t] += d;
@@ -159,10 +169,10 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
                     for ic in 0..ic_n {
                         for a in 0..ty.n {
                             let ky = ty.k[a] as usize;
-                            let row = ((ic * ih + ty.i[a] as usize) * iw) as isize;
+                            let row = ((ic * ih + ty.i[a] as usize) * iw) as i32;
                             for q in 0..np {
                                 wt[n] = packed[(ic * k + ky) * np_max + q];
-                                offs[n] = row + c0 as isize - 2 * q as isize - 1;
+                                offs[n] = row + c0 as i32 - 2 * q as i32 - 1;
                                 rows[n] = row;
                                 n += 1;
                             }
@@ -173,10 +183,10 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
                 let edge = |m: usize, y: &mut [i16]| {
                     let mut acc = bias;
                     for t in 0..n {
-                        let col = offs[t] - rows[t] + m as isize;
+                        let col = (offs[t] - rows[t]) as isize + m as isize;
                         let at = |c: isize| -> u32 {
                             if c >= 0 && (c as usize) < iw {
-                                x[(rows[t] + c) as usize] as u16 as u32
+                                x[(rows[t] as isize + c) as usize] as u16 as u32
                             } else {
                                 0
                             }
@@ -204,7 +214,7 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
                         // SAFETY: m_lo <= m and m + 3 < m_hi keep every pair read, from
                         // off + m to off + m + 4, inside row `row` of `x` (see m_lo, m_hi).
                         unsafe {
-                            let q = xp.offset(off + m as isize);
+                            let q = xp.offset(off as isize + m as isize);
                             a0 = smlad(wv, rd(q), a0);
                             a1 = smlad(wv, rd(q.add(1)), a1);
                             a2 = smlad(wv, rd(q.add(2)), a2);

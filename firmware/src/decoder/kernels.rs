@@ -80,12 +80,16 @@ pub(crate) fn layer<W: Table, B: Table>(
     let k2 = l.kernel as usize * l.kernel as usize;
     let (want_w, want_b) = match l.kind {
         LayerKind::Dense => (l.input.len() * l.output.len(), l.output.len()),
-        LayerKind::ConvTranspose2d | LayerKind::UpConv => {
-            (l.input.c as usize * l.output.c as usize * k2, l.output.c as usize)
-        }
+        LayerKind::ConvTranspose2d | LayerKind::UpConv => (
+            l.input.c as usize * l.output.c as usize * k2,
+            l.output.c as usize,
+        ),
         LayerKind::Crop => return Err(()),
     };
-    if w.len() != want_w || b.len() != want_b || x.len() != l.input.len() || y.len() != l.output.len()
+    if w.len() != want_w
+        || b.len() != want_b
+        || x.len() != l.input.len()
+        || y.len() != l.output.len()
     {
         return Err(());
     }
@@ -125,9 +129,15 @@ pub(crate) struct Taps {
 impl Taps {
     /// ConvTranspose2d: output `o` takes input `i` through tap `t` when `o + p - t = i * s`.
     pub(crate) fn transpose(o: usize, k: usize, s: usize, p: usize, n_in: usize) -> Taps {
-        let mut taps = Taps { n: 0, k: [0; MAX_K], i: [0; MAX_K] };
+        let mut taps = Taps {
+            n: 0,
+            k: [0; MAX_K],
+            i: [0; MAX_K],
+        };
         for t in 0..k.min(MAX_K) {
-            let Some(v) = (o + p).checked_sub(t) else { continue };
+            let Some(v) = (o + p).checked_sub(t) else {
+                continue;
+            };
             if v % s != 0 || v / s >= n_in {
                 continue;
             }
@@ -140,9 +150,15 @@ impl Taps {
 
     /// UpConv: output `o` reads upsampled position `o + t - p`, i.e. input `(o + t - p) / s`.
     fn upsampled(o: usize, k: usize, s: usize, p: usize, n_in: usize) -> Taps {
-        let mut taps = Taps { n: 0, k: [0; MAX_K], i: [0; MAX_K] };
+        let mut taps = Taps {
+            n: 0,
+            k: [0; MAX_K],
+            i: [0; MAX_K],
+        };
         for t in 0..k.min(MAX_K) {
-            let Some(u) = (o + t).checked_sub(p) else { continue };
+            let Some(u) = (o + t).checked_sub(p) else {
+                continue;
+            };
             if u >= n_in * s {
                 continue;
             }
@@ -163,7 +179,11 @@ fn conv_transpose<W: Table, B: Table>(
     y: &mut [i16],
 ) -> Result<(), ()> {
     let (ic_n, ih, iw) = (l.input.c as usize, l.input.h as usize, l.input.w as usize);
-    let (oc_n, oh, ow) = (l.output.c as usize, l.output.h as usize, l.output.w as usize);
+    let (oc_n, oh, ow) = (
+        l.output.c as usize,
+        l.output.h as usize,
+        l.output.w as usize,
+    );
     let (k, s, p) = (l.kernel as usize, l.stride as usize, l.padding as usize);
     if k > MAX_K || s == 0 {
         return Err(());
@@ -205,7 +225,11 @@ fn up_conv<W: Table, B: Table>(
     y: &mut [i16],
 ) -> Result<(), ()> {
     let (ic_n, ih, iw) = (l.input.c as usize, l.input.h as usize, l.input.w as usize);
-    let (oc_n, oh, ow) = (l.output.c as usize, l.output.h as usize, l.output.w as usize);
+    let (oc_n, oh, ow) = (
+        l.output.c as usize,
+        l.output.h as usize,
+        l.output.w as usize,
+    );
     let (k, s, p) = (l.kernel as usize, l.stride as usize, l.padding as usize);
     if k > MAX_K || s == 0 {
         return Err(());

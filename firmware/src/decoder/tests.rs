@@ -16,7 +16,8 @@ fn tanh_and_sigmoid_by_table_are_within_a_q15_step() {
     let mut worst = 0f64;
     for bits in [0u32, 3, 8, 14, 15, 20, 26, 31, 40] {
         for _ in 0..4000 {
-            let acc = (r.unit() * 2f64.powi(bits as i32 + 4)).clamp(i32::MIN as f64, i32::MAX as f64) as i32;
+            let acc = (r.unit() * 2f64.powi(bits as i32 + 4))
+                .clamp(i32::MIN as f64, i32::MAX as f64) as i32;
             let x = acc as f64 / 2f64.powi(bits as i32);
             let got = tanh_q24(acc, bits) as f64 / (1u64 << 24) as f64;
             worst = worst.max((got - x.tanh()).abs());
@@ -29,7 +30,10 @@ fn tanh_and_sigmoid_by_table_are_within_a_q15_step() {
         let acc = (r.unit() * 2f64.powi(24)) as i32;
         let want = 1.0 / (1.0 + (-(acc as f64) / 2f64.powi(20)).exp()) * 32768.0;
         let got = rq.apply(acc) as f64;
-        assert!((got - want.min(32767.0)).abs() <= 1.0, "{acc}: {got} vs {want}");
+        assert!(
+            (got - want.min(32767.0)).abs() <= 1.0,
+            "{acc}: {got} vs {want}"
+        );
     }
     // Extremes saturate instead of wrapping.
     assert_eq!(rq.apply(i32::MAX), 32767);
@@ -54,14 +58,19 @@ fn layers_match_float(bytes: &[u8]) {
                 .collect();
             let mut y = vec![0i16; l.output.len()];
             run_layer(l, &x, &mut y).unwrap();
-            let xf: Vec<f64> = x.iter().map(|&v| v as f64 / 2f64.powi(l.in_shift as i32)).collect();
+            let xf: Vec<f64> = x
+                .iter()
+                .map(|&v| v as f64 / 2f64.powi(l.in_shift as i32))
+                .collect();
             let yf = float_layer(l, &xf);
             let tol = match l.activation {
                 Activation::Tanh | Activation::Sigmoid => 1.0,
                 _ => 0.0,
             };
             for (i, (&a, &b)) in y.iter().zip(&yf).enumerate() {
-                let want = (b * 2f64.powi(l.out_shift as i32) + 0.5).floor().clamp(-32768.0, 32767.0);
+                let want = (b * 2f64.powi(l.out_shift as i32) + 0.5)
+                    .floor()
+                    .clamp(-32768.0, 32767.0);
                 assert!(
                     (a as f64 - want).abs() <= tol,
                     "layer {li} ({:?}) element {i}: fixed {a}, float {want}",
@@ -89,7 +98,10 @@ fn max_face_error(bytes: &[u8], head: [f32; 2]) -> f64 {
     let s = 2f64.powi(m.layers[0].in_shift as i32);
     let want = float_decoder(&m, [q[0] as f64 / s, q[1] as f64 / s]);
     assert_eq!(face.len(), want.len());
-    face.iter().zip(&want).map(|(&g, &f)| (g as f64 / 65280.0 - f).abs()).fold(0.0, f64::max)
+    face.iter()
+        .zip(&want)
+        .map(|(&g, &f)| (g as f64 / 65280.0 - f).abs())
+        .fold(0.0, f64::max)
 }
 
 #[test]
@@ -135,7 +147,10 @@ fn cache_follows_pose_and_model() {
     let f3 = d.predict(&m1, [0.05, 0.0]).unwrap().to_vec();
     assert_ne!(f1, f3);
     assert_eq!(d.predict(&m1, [f32::NAN, 0.0]), Err(DecodeError::BadInput));
-    assert_eq!(d.predict(&m1, [0.0, f32::INFINITY]), Err(DecodeError::BadInput));
+    assert_eq!(
+        d.predict(&m1, [0.0, f32::INFINITY]),
+        Err(DecodeError::BadInput)
+    );
 }
 
 #[test]
@@ -147,7 +162,10 @@ fn mismatched_scales_are_refused() {
     assert_eq!(check_scales(&m), Err(DecodeError::Scale(2)));
     let mut d = Box::new(Decoder::new());
     assert_eq!(d.predict(&m, [0.0, 0.0]), Err(DecodeError::Scale(2)));
-    assert!(matches!(crate::model::validate(&bytes), Err(msr_shared::blob::BlobError::Chain(2))));
+    assert!(matches!(
+        crate::model::validate(&bytes),
+        Err(msr_shared::blob::BlobError::Chain(2))
+    ));
 }
 
 mod shapes {
@@ -162,10 +180,32 @@ mod shapes {
         let mut r = Lcg(seed);
         // A blob needs a first layer with 2 inputs and a face at the end; run_layer only needs the
         // parsed Layer, so wrap: Dense 2 -> input shape, the layer, then nothing else is checked.
-        let first = layer(&mut r, LayerKind::Dense, Activation::Identity, shape(2, 1, 1), spec.input, (0, 0, 0), (4, 4, spec.in_shift), 0.5, false);
+        let first = layer(
+            &mut r,
+            LayerKind::Dense,
+            Activation::Identity,
+            shape(2, 1, 1),
+            spec.input,
+            (0, 0, 0),
+            (4, 4, spec.in_shift),
+            0.5,
+            false,
+        );
         let out = spec.output;
-        let face = if out.c == 1 { None } else {
-            Some(layer(&mut r, LayerKind::UpConv, Activation::Identity, out, shape(1, out.h, out.w), (1, 1, 0), (4, spec.out_shift, 8), 0.5, false))
+        let face = if out.c == 1 {
+            None
+        } else {
+            Some(layer(
+                &mut r,
+                LayerKind::UpConv,
+                Activation::Identity,
+                out,
+                shape(1, out.h, out.w),
+                (1, 1, 0),
+                (4, spec.out_shift, 8),
+                0.5,
+                false,
+            ))
         };
         let mut ms = crate::testkit::conv_spec(1, false);
         ms.face_h = out.h;
@@ -178,13 +218,20 @@ mod shapes {
         let bytes = ms.to_bytes().unwrap();
         let m = Model::parse(&bytes).unwrap();
         let l = &m.layers[1];
-        let x: Vec<i16> = (0..l.input.len()).map(|_| (r.unit() * 3000.0) as i16).collect();
+        let x: Vec<i16> = (0..l.input.len())
+            .map(|_| (r.unit() * 3000.0) as i16)
+            .collect();
         let mut y = vec![0i16; l.output.len()];
         run_layer(l, &x, &mut y).unwrap();
-        let xf: Vec<f64> = x.iter().map(|&v| v as f64 / 2f64.powi(l.in_shift as i32)).collect();
+        let xf: Vec<f64> = x
+            .iter()
+            .map(|&v| v as f64 / 2f64.powi(l.in_shift as i32))
+            .collect();
         let yf = float_layer(l, &xf);
         for (i, (&a, &b)) in y.iter().zip(&yf).enumerate() {
-            let want = (b * 2f64.powi(l.out_shift as i32) + 0.5).floor().clamp(-32768.0, 32767.0);
+            let want = (b * 2f64.powi(l.out_shift as i32) + 0.5)
+                .floor()
+                .clamp(-32768.0, 32767.0);
             prop_assert_eq!(a as f64, want, "element {}", i);
         }
         Ok(())
@@ -238,7 +285,11 @@ fn fast_activation_path_equals_the_general_one() {
                 let rq = Requant::new(act, acc_bits, out_bits);
                 for _ in 0..40 {
                     let acc = r.next_u32() as i32 >> (r.next_u32() % 32);
-                    assert_eq!(rq.apply(acc), rq.apply_general(acc), "{act:?} {acc_bits} {out_bits} {acc}");
+                    assert_eq!(
+                        rq.apply(acc),
+                        rq.apply_general(acc),
+                        "{act:?} {acc_bits} {out_bits} {acc}"
+                    );
                 }
                 for acc in [0, 1, -1, i32::MAX, i32::MIN] {
                     assert_eq!(rq.apply(acc), rq.apply_general(acc));

@@ -12,11 +12,20 @@ fn saliency_matches_the_float_definition() {
     for norm in [Normalisation::StdDev, Normalisation::Variance] {
         for sided in [Sided::One, Sided::Two] {
             for t in [0.7f32, 2.0, 4.59] {
-                let s = Settings { threshold: t, normalisation: norm, sided, min_area: 1 };
+                let s = Settings {
+                    threshold: t,
+                    normalisation: norm,
+                    sided,
+                    min_area: 1,
+                };
                 let pred = ws.decode(&m, [0.02, -0.01]).unwrap().to_vec();
                 let crop: Vec<u8> = pred
                     .iter()
-                    .map(|&p| ((p as f64 / 256.0) + r.unit() * 25.0).round().clamp(0.0, 255.0) as u8)
+                    .map(|&p| {
+                        ((p as f64 / 256.0) + r.unit() * 25.0)
+                            .round()
+                            .clamp(0.0, 255.0) as u8
+                    })
                     .collect();
                 let n = ws.saliency(&m, &s, &crop).unwrap();
                 let mask = ws.mask(crop.len()).to_vec();
@@ -36,7 +45,11 @@ fn saliency_matches_the_float_definition() {
                     let want = d / nn > t as f64;
                     if want != (mask[i] == 1) {
                         // Only the rounding of t * n to 1/256 grey may flip a pixel.
-                        assert!((d - t as f64 * nn).abs() <= 0.5 / 256.0 + 1e-9, "pixel {i}: d {d} t*n {}", t as f64 * nn);
+                        assert!(
+                            (d - t as f64 * nn).abs() <= 0.5 / 256.0 + 1e-9,
+                            "pixel {i}: d {d} t*n {}",
+                            t as f64 * nn
+                        );
                     }
                     checked += 1;
                 }
@@ -52,17 +65,29 @@ fn reach_matches_f64() {
         let net = reach_net(&mut Lcg(seed));
         let mut r = Lcg(seed + 100);
         for _ in 0..200 {
-            let c = [(166.0 + r.unit() * 45.0) as f32, (113.0 + r.unit() * 30.0) as f32];
+            let c = [
+                (166.0 + r.unit() * 45.0) as f32,
+                (113.0 + r.unit() * 30.0) as f32,
+            ];
             let got = reach::infer(&net, c).unwrap();
-            let u = [0, 1].map(|i| (c[i] as f64 - net.in_min[i] as f64) / (net.in_max[i] as f64 - net.in_min[i] as f64));
+            let u = [0, 1].map(|i| {
+                (c[i] as f64 - net.in_min[i] as f64) / (net.in_max[i] as f64 - net.in_min[i] as f64)
+            });
             let sig = |x: f64| 1.0 / (1.0 + (-x).exp());
             let h: Vec<f64> = (0..10)
-                .map(|j| sig(net.b1[j] as f64 + net.w1[j][0] as f64 * u[0] + net.w1[j][1] as f64 * u[1]))
+                .map(|j| {
+                    sig(net.b1[j] as f64 + net.w1[j][0] as f64 * u[0] + net.w1[j][1] as f64 * u[1])
+                })
                 .collect();
             for k in 0..5 {
                 let a = net.b2[k] as f64 + (0..10).map(|j| net.w2[k][j] as f64 * h[j]).sum::<f64>();
-                let want = sig(a) * (net.out_max[k] as f64 - net.out_min[k] as f64) + net.out_min[k] as f64;
-                assert!((got[k] as f64 - want).abs() < 2e-5, "joint {k}: {} vs {want}", got[k]);
+                let want = sig(a) * (net.out_max[k] as f64 - net.out_min[k] as f64)
+                    + net.out_min[k] as f64;
+                assert!(
+                    (got[k] as f64 - want).abs() < 2e-5,
+                    "joint {k}: {} vs {want}",
+                    got[k]
+                );
             }
         }
     }
@@ -76,7 +101,11 @@ fn reach_matches_f64() {
 }
 
 fn face_of(ws: &mut Workspace, m: &Model, head: [f32; 2]) -> Vec<u8> {
-    ws.decode(m, head).unwrap().iter().map(|&p| ((p as u32 + 128) >> 8).min(255) as u8).collect()
+    ws.decode(m, head)
+        .unwrap()
+        .iter()
+        .map(|&p| ((p as u32 + 128) >> 8).min(255) as u8)
+        .collect()
 }
 
 #[test]
@@ -100,14 +129,31 @@ fn a_mark_is_found_where_it_is_and_nothing_without() {
     let b = d.blob.expect("the mark");
     assert_eq!((b.area, b.x0, b.y0, b.x1, b.y1), (16, 10, 5, 13, 8));
     assert_eq!(d.centroid, Some([150.0 + 11.5, 90.0 + 6.5]));
-    assert_eq!(d.reach, reach::targets(&m.reach, [161.5, 96.5]).map(|r| r.0));
+    assert_eq!(
+        d.reach,
+        reach::targets(&m.reach, [161.5, 96.5]).map(|r| r.0)
+    );
     // A blob under the minimum area is not a mark.
     let small = Settings { min_area: 17, ..s };
-    assert_eq!(detect(&mut ws, &m, &small, &marked, [150, 90], head).unwrap().blob, None);
+    assert_eq!(
+        detect(&mut ws, &m, &small, &marked, [150, 90], head)
+            .unwrap()
+            .blob,
+        None
+    );
     // Wrong crop size and bad settings are errors, not panics.
-    assert_eq!(detect(&mut ws, &m, &s, &marked[1..], [0, 0], head), Err(DetectError::CropSize));
-    let bad = Settings { threshold: f32::NAN, ..s };
-    assert_eq!(detect(&mut ws, &m, &bad, &marked, [0, 0], head), Err(DetectError::Settings));
+    assert_eq!(
+        detect(&mut ws, &m, &s, &marked[1..], [0, 0], head),
+        Err(DetectError::CropSize)
+    );
+    let bad = Settings {
+        threshold: f32::NAN,
+        ..s
+    };
+    assert_eq!(
+        detect(&mut ws, &m, &bad, &marked, [0, 0], head),
+        Err(DetectError::Settings)
+    );
     assert!(detect(&mut ws, &m, &s, &marked, [0, 0], [f32::NAN, 0.0]).is_err());
 }
 
