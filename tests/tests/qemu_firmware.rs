@@ -404,3 +404,99 @@ fn qemu_and_host_builds_agree_bit_for_bit() {
         assert!(found >= 3, "{kind:?}: {found} marks found");
     }
 }
+
+/// Starts the board image with ideal servos and a host link; `None` when QEMU is absent.
+fn start_board(img: &std::path::Path) -> (Qemu, HostLink, Arc<AtomicBool>, std::thread::JoinHandle<()>) {
+    let q = Qemu::start(img).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let log = Arc::new(Mutex::new(ServoLog::default()));
+    let servos = spawn_servos(q.servo.try_clone().unwrap(), stop.clone(), log, Arc::new(Mutex::new(None)));
+    let s = q.host.try_clone().unwrap();
+    s.set_read_timeout(Some(Duration::from_millis(50))).unwrap();
+    (q, HostLink { s, acc: FrameAccumulator::new(), seq: 0 }, stop, servos)
+}
+
+fn status(host: &mut HostLink) -> msr_shared::msg::Status {
+    host.send(&HostToBoard::GetStatus);
+    host.until(Duration::from_secs(30), |m| match m {
+        BoardToHost::Status(s) => Some(*s),
+        _ => None,
+    })
+    .0
+}
+
+fn detection(host: &mut HostLink, model: &Model, id: u16, pixels: &[u8]) -> Detection {
+    host.frame(id, model, pixels);
+    host.until(Duration::from_secs(60), |m| match m {
+        BoardToHost::Detection(d) if d.frame == id => Some(*d),
+        BoardToHost::Error { code: ErrorCode::NoModel | ErrorCode::BadFrame, detail } => {
+            panic!("frame {id} refused ({detail})")
+        }
+        _ => None,
+    })
+    .0
+}
+
+/// A bad upload is refused with the reason, and the model in use stays: same CRC, same results.
+#[test]
+fn bad_upload_keeps_the_running_model() {
+    let Some(img) = image(qemu::BOARD_IMAGE) else { return };
+    let m = synthetic(ArchKind::Conv).unwrap();
+    let model = Model::parse(&m.blob).unwrap();
+    let (q, mut host, stop, servos) = start_board(&img);
+    // Before any model: the status says so.
+    assert_eq!(status(&mut host).model_crc, 0);
+    assert_eq!(host.upload(&m.blob), model.crc32);
+    let pixels = make_frame(&model, [0.0, 0.0], Some((20, 30)), 5);
+    let before = detection(&mut host, &model, 1, &pixels);
+    assert!(before.blob.is_some());
+
+    // Short blobs keep this quick: QEMU's UART moves a few KB per second.
+    // 1. Bytes damaged in transit: the announced CRC-32 does not match.
+    let good = &m.blob[..2048];
+    let mut damaged = good.to_vec();
+    damaged[100] ^= 0x40;
+    host.send(&HostToBoard::ModelBegin { len: damaged.len() as u32, crc32: CRC32.checksum(good) });
+    for (i, c) in damaged.chunks(CHUNK).enumerate() {
+        host.send(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data: c });
+    }
+    host.send(&HostToBoard::ModelCommit);
+    let (code, _) = host.until(Duration::from_secs(60), |m| match m {
+        BoardToHost::Error { code: c @ (ErrorCode::BadUpload | ErrorCode::BadModel), .. } => Some(*c),
+        BoardToHost::ModelAccepted { .. } => panic!("a damaged upload was accepted"),
+        _ => None,
+    });
+    assert_eq!(code, ErrorCode::BadUpload);
+    // 2. Intact transfer of a blob that fails validation (truncated: its header says longer).
+    let (code, _) = {
+        host.send(&HostToBoard::ModelBegin { len: damaged.len() as u32, crc32: CRC32.checksum(&damaged) });
+        for (i, c) in damaged.chunks(CHUNK).enumerate() {
+            host.send(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data: c });
+        }
+        host.send(&HostToBoard::ModelCommit);
+        host.until(Duration::from_secs(60), |m| match m {
+            BoardToHost::Error { code: c @ (ErrorCode::BadUpload | ErrorCode::BadModel), .. } => Some(*c),
+            BoardToHost::ModelAccepted { .. } => panic!("an invalid blob was accepted"),
+            _ => None,
+        })
+    };
+    assert_eq!(code, ErrorCode::BadModel);
+    // 3. A chunk out of order aborts the upload.
+    host.send(&HostToBoard::ModelBegin { len: m.blob.len() as u32, crc32: CRC32.checksum(&m.blob) });
+    host.send(&HostToBoard::ModelChunk { offset: CHUNK as u32, data: &m.blob[CHUNK..2 * CHUNK] });
+    let (code, _) = host.until(Duration::from_secs(30), |m| match m {
+        BoardToHost::Error { code: c @ ErrorCode::BadUpload, .. } => Some(*c),
+        _ => None,
+    });
+    assert_eq!(code, ErrorCode::BadUpload);
+
+    assert_eq!(status(&mut host).model_crc, model.crc32, "the running model changed");
+    let after = detection(&mut host, &model, 2, &pixels);
+    assert_eq!(after.blob, before.blob);
+    assert_eq!(after.reach.map(|r| r.map(f32::to_bits)), before.reach.map(|r| r.map(f32::to_bits)));
+    host.s.write_all(EXIT_SEQUENCE).unwrap();
+    let exit = q.wait(Duration::from_secs(60)).unwrap();
+    stop.store(true, Ordering::Relaxed);
+    servos.join().unwrap();
+    exit.success().unwrap();
+}

@@ -78,10 +78,11 @@ fn main() -> ! {
     let board = unsafe { &mut *core::ptr::addr_of_mut!(BOARD) };
     let sizes = memory::sizes();
     hprintln!(
-        "msr-qemu: ready; built-in model {} bytes; static RAM {} bytes, code {} bytes",
+        "msr-qemu: ready; built-in model {} bytes; static RAM {} bytes, code {} bytes, .data initial values {} bytes",
         model_area::BUILT_IN.len(),
         sizes.static_ram,
-        sizes.flash - model_area::BUILT_IN.len()
+        sizes.code - model_area::BUILT_IN.len(),
+        sizes.data_init
     );
     loop {
         // 25 SysTick ticks of 40 ns per microsecond.

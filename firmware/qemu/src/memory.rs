@@ -27,9 +27,10 @@ fn addr(s: *const u32) -> usize {
 /// Section sizes of the running image, in bytes.
 #[derive(Clone, Copy, Debug)]
 pub struct Sizes {
-    /// Code and read-only data (vector table, .text, .rodata), the model tables included when
-    /// the model is built in.
-    pub flash: usize,
+    /// Vector table, .text and .rodata: code and constants, a built-in model included.
+    pub code: usize,
+    /// Initial values of .data, stored in flash next to the code.
+    pub data_init: usize,
     /// .data + .bss + .uninit: RAM that is not stack.
     pub static_ram: usize,
     /// What is left for the stack.
@@ -41,10 +42,11 @@ pub fn sizes() -> Sizes {
         let data = addr(addr_of!(__edata)) - addr(addr_of!(__sdata));
         let bss = addr(addr_of!(__ebss)) - addr(addr_of!(__sbss));
         let uninit = addr(addr_of!(__euninit)) - addr(addr_of!(__suninit));
-        // The vector table starts the flash; .data's initial values are stored there too.
+        // The vector table starts the flash.
         let code = addr(addr_of!(__erodata)) - FLASH_ORIGIN;
         Sizes {
-            flash: code + data,
+            code,
+            data_init: data,
             static_ram: data + bss + uninit,
             stack_space: addr(addr_of!(_stack_start)) - addr(addr_of!(_stack_end)),
         }

@@ -181,7 +181,7 @@ fn main() -> ! {
         sum.blobs / f,
         sum.reach / f,
         sizes.static_ram,
-        sizes.flash - model_area::BUILT_IN.len(),
+        sizes.code - model_area::BUILT_IN.len(),
         bytes.len(),
         !model_area::BUILT_IN.is_empty(),
         stack_peak,
