@@ -11,8 +11,7 @@ use crate::kin::LeftArm;
 use crate::link::{link, LinkConfig, LinkEnd};
 use crate::servo::{ServoBus, ServoConfig};
 use msr_shared::joints::Joint;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Barrier, Mutex};
+use std::sync::{Condvar, Mutex};
 
 /// The firmware side: called once a tick with the time and its two link ends.
 pub trait Firmware: Send {
@@ -151,15 +150,14 @@ where
         host: host_world,
         servo_end: servo_world,
     };
-    let barrier = Barrier::new(2);
-    let stop = AtomicBool::new(false);
+    let barrier = TickBarrier::default();
     let failed: Mutex<Option<(u64, String)>> = Mutex::new(None);
     let tick = cfg.tick_us;
     let t0 = std::time::Instant::now();
     let mut ticks = 0u64;
 
     std::thread::scope(|scope| {
-        let (barrier, stop, failed) = (&barrier, &stop, &failed);
+        let (barrier, failed) = (&barrier, &failed);
         scope.spawn(move || {
             let mut now = 0u64;
             loop {
@@ -168,6 +166,7 @@ where
                 let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
                     firmware.poll(now, &mut host_fw, &mut servo_fw)
                 }));
+                let mut stop = false;
                 if let Err(e) = r {
                     let msg = e
                         .downcast_ref::<&str>()
@@ -175,29 +174,20 @@ where
                         .or_else(|| e.downcast_ref::<String>().cloned())
                         .unwrap_or_else(|| "unknown panic".into());
                     *failed.lock().unwrap_or_else(|p| p.into_inner()) = Some((now, msg));
-                    stop.store(true, Ordering::SeqCst);
+                    stop = true;
                 }
-                barrier.wait();
-                // Both sides read the flag after the barrier and before the next one.
-                if stop.load(Ordering::SeqCst) {
-                    barrier.wait();
+                if barrier.wait(stop) {
                     return;
                 }
-                barrier.wait();
                 now += tick;
             }
         });
         loop {
             world.step();
             let flow = scenario(&mut world);
-            if flow == Flow::Stop || world.now_us + tick > max_us {
-                stop.store(true, Ordering::SeqCst);
-            }
-            barrier.wait();
+            let stop = flow == Flow::Stop || world.now_us + tick > max_us;
             ticks += 1;
-            let done = stop.load(Ordering::SeqCst);
-            barrier.wait();
-            if done {
+            if barrier.wait(stop) {
                 break;
             }
             world.now_us += tick;
@@ -215,6 +205,45 @@ where
     let wall_s = t0.elapsed().as_secs_f64();
     let end_us = world.now_us;
     Ok((world, RunReport { end_us, ticks, wall_s, speedup: end_us as f64 * 1e-6 / wall_s.max(1e-9) }))
+}
+
+/// A two-party barrier that also agrees on whether to stop: both sides get `true` when either
+/// asked to stop at this tick (one meeting a tick instead of two with `std::sync::Barrier`).
+#[derive(Default)]
+struct TickBarrier {
+    state: Mutex<BarrierState>,
+    cv: Condvar,
+}
+
+#[derive(Default)]
+struct BarrierState {
+    arrived: u32,
+    stop: bool,
+    generation: u64,
+    result: bool,
+}
+
+impl TickBarrier {
+    fn wait(&self, stop: bool) -> bool {
+        let mut s = self.state.lock().unwrap_or_else(|p| p.into_inner());
+        let gen = s.generation;
+        s.stop |= stop;
+        s.arrived += 1;
+        if s.arrived == 2 {
+            s.result = s.stop;
+            s.arrived = 0;
+            s.stop = false;
+            s.generation += 1;
+            self.cv.notify_one();
+            return s.result;
+        }
+        while s.generation == gen {
+            s = self.cv.wait(s).unwrap_or_else(|p| p.into_inner());
+        }
+        // The other side cannot start the next generation before this one has left: it needs
+        // this side to arrive again. So `result` is still this generation's.
+        s.result
+    }
 }
 
 #[cfg(test)]
