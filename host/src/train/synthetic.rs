@@ -66,39 +66,3 @@ mod tests {
     }
 }
 
-#[cfg(test)]
-mod arch_probe {
-    use super::super::fit::{fit, HyperParams, Samples};
-    use crate::models::{ConvStack, Decoder, DecoderSpec};
-    use burn::prelude::*;
-
-    /// `DATA=/tmp/ds/red1300 cargo test -p msr-host --lib arch_probe -- --ignored --nocapture`
-    #[test]
-    #[ignore]
-    fn arch_probe() {
-        let path = std::env::var("DATA").unwrap();
-        let ds = crate::data::Dataset::load(std::path::Path::new(&path)).unwrap();
-        let (h, w) = ds.face_size();
-        let pick = |s: msr_sim::layout::Split| {
-            let mut x = Samples::default();
-            for f in ds.split(s).filter(|f| f.mark.is_none()) {
-                x.heads.push(f.head);
-                x.faces.push(f.face_unit());
-            }
-            x
-        };
-        let train = pick(msr_sim::layout::Split::Train);
-        let test = train.clone();
-        let specs = vec![
-            ("C48 4x29x38 + deconv", DecoderSpec { face_h: h, face_w: w, dense: vec![48, 4 * 29 * 38], conv: Some(ConvStack { base: [4, 29, 38], channels: vec![1], kernel: 4, stride: 2, padding: 1, crop: [0, 0] }) }),
-            ("C5 5x29x38 + deconv", DecoderSpec { face_h: h, face_w: w, dense: vec![32, 5 * 29 * 38], conv: Some(ConvStack { base: [5, 29, 38], channels: vec![1], kernel: 4, stride: 2, padding: 1, crop: [0, 0] }) }),
-        ];
-        let device = Device::flex().autodiff();
-        for (name, spec) in specs {
-            let macs = spec.macs().unwrap();
-            let model = Decoder::new(&spec, 0, &device).unwrap();
-            let (_, hist) = fit(model, &train, &test, &HyperParams::default(), &device, name, false).unwrap();
-            println!("{name}: {macs} MACs, {:.1} s, train {:.5}", hist.seconds, hist.train_loss.last().unwrap());
-        }
-    }
-}
