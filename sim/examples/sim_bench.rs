@@ -19,6 +19,17 @@ fn cpu_s() -> f64 {
         .map_or(f64::NAN, |ns| ns * 1e-9)
 }
 
+/// CPU time of the whole process, all threads (10 ms resolution).
+fn process_cpu_s() -> f64 {
+    let stat = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    // Fields after the command name (which may hold spaces): utime and stime are 14 and 15.
+    let rest = stat.rsplit_once(')').map_or("", |r| r.1);
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let num = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(f64::NAN);
+    // `rest` starts at field 3 (state).
+    (num(14 - 3) + num(15 - 3)) / 100.0
+}
+
 fn main() -> anyhow::Result<()> {
     let only_world = std::env::args().any(|a| a == "world");
     let a = 5f64.to_radians();
@@ -73,6 +84,7 @@ fn main() -> anyhow::Result<()> {
             s.send(&msr_shared::frame::encode_message_vec(0, &m).unwrap());
         }
     };
+    let cpu0 = process_cpu_s();
     let (_, rep) = run(&WorldConfig::default(), &mut fw, |w: &mut World| {
         if mode < 2 && w.now_us.is_multiple_of(100_000) {
             let c = if face_only { cam.capture_face(w, None) } else { cam.capture(w, None) };
@@ -80,8 +92,9 @@ fn main() -> anyhow::Result<()> {
         }
         Flow::Continue
     }, 20_000_000)?;
+    let cpu = process_cpu_s() - cpu0;
     println!(
-        "world ({}): {:.1} s simulated in {:.2} s wall ({} ticks of 1 ms): {:.0}x real time",
+        "world ({}): {:.1} s simulated in {:.2} s wall, {cpu:.2} s CPU of both threads ({} ticks of 1 ms): {:.0}x real time",
         ["full frames", "face-only frames", "no frames"][mode],
         rep.end_us as f64 * 1e-6, rep.wall_s, rep.ticks, rep.speedup
     );
