@@ -500,3 +500,42 @@ fn bad_upload_keeps_the_running_model() {
     servos.join().unwrap();
     exit.success().unwrap();
 }
+
+/// The other way in: a model built into the image at compile time (`MSR_MODEL_BLOB`). Builds that
+/// variant of the board image into its own target folder (about a minute), then runs frames on
+/// it without any upload.
+#[test]
+fn built_in_model_runs_without_upload() {
+    if image(qemu::BOARD_IMAGE).is_none() {
+        return;
+    }
+    let m = synthetic(ArchKind::Conv).unwrap();
+    let model = Model::parse(&m.blob).unwrap();
+    let crate_dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware/qemu");
+    let target_dir = crate_dir.join("target/built-in-test");
+    std::fs::create_dir_all(&target_dir).unwrap();
+    let blob_path = target_dir.join("conv.msrm");
+    std::fs::write(&blob_path, &m.blob).unwrap();
+    let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+    let out = std::process::Command::new(cargo)
+        .args(["build", "--release", "--bin", "msr-qemu"])
+        .current_dir(&crate_dir)
+        .env("MSR_MODEL_BLOB", &blob_path)
+        .env("CARGO_TARGET_DIR", &target_dir)
+        .output()
+        .expect("running cargo");
+    assert!(out.status.success(), "building the image with a built-in model failed:\n{}", String::from_utf8_lossy(&out.stderr));
+    let img = target_dir.join(qemu::TARGET).join("release").join(qemu::BOARD_IMAGE);
+
+    let (q, mut host, stop, servos) = start_board(&img);
+    assert_eq!(status(&mut host).model_crc, model.crc32, "the built-in model is not the one running");
+    let pixels = make_frame(&model, [0.0, 0.0], Some((20, 30)), 9);
+    let d = detection(&mut host, &model, 1, &pixels);
+    assert_eq!(d.blob.map(|b| b.area), Some(225), "{d:?}");
+    host.s.write_all(EXIT_SEQUENCE).unwrap();
+    let exit = q.wait(Duration::from_secs(60)).unwrap();
+    stop.store(true, Ordering::Relaxed);
+    servos.join().unwrap();
+    exit.success().unwrap();
+    assert!(exit.output.contains(&format!("built-in model {} bytes", m.blob.len())), "{}", exit.output);
+}
