@@ -278,7 +278,8 @@ pub fn threshold_from_normal(scores: &[f64], p: f64) -> Result<f64> {
     let finite: Vec<f64> = scores.iter().copied().filter(|s| s.is_finite()).collect();
     ensure!(!finite.is_empty(), "no normal held-out frames to pick a threshold from");
     let t = percentile(&finite, p)?;
-    if !(t > 0.0) {
+    // Scores are finite here, so `<= 0` is the whole "not positive" case.
+    if t <= 0.0 {
         bail!("the {p}th percentile of the normal frames' scores is {t}; a threshold must be positive");
     }
     Ok(t)

@@ -203,7 +203,7 @@ fn samples<'a>(it: impl Iterator<Item = &'a Sample>, keep_marked: bool) -> Sampl
             None => vec![1.0; n],
         });
     }
-    if weights.iter().any(|w: &Vec<f32>| w.iter().any(|&v| v == 0.0)) {
+    if weights.iter().any(|w: &Vec<f32>| w.contains(&0.0)) {
         s.weights = Some(weights);
     }
     s
