@@ -68,6 +68,21 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     assert_eq!(f.len(), h * w);
     assert!(f.iter().all(|v| *v > 0.0 && *v < 1.0));
 
+    // The loaded weights are the trained ones: the saved statistics come back from them.
+    let info_t = m.info().unwrap().clone();
+    let stats = msr_host::train::load_stats(&out, &info_t).unwrap();
+    let ds = msr_host::data::Dataset::load(&data).unwrap();
+    let (heads, faces): (Vec<[f32; 2]>, Vec<Vec<f32>>) = ds
+        .split(msr_sim::layout::Split::Train)
+        .filter(|s| s.mark.is_none())
+        .map(|s| (s.head, s.face_unit()))
+        .unzip();
+    let preds = m.predict_batch(&heads, &faces);
+    let again = msr_host::calibrate::error_stats(h, w, faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..]))).unwrap();
+    assert_eq!(again.frames, stats.frames);
+    let worst = again.mu.iter().zip(&stats.mu).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
+    assert!(worst < 1e-3, "mu from the loaded model differs by {worst} grey levels");
+
     let reach = tmp.path().join("reach.safetensors");
     ok(&[
         "train-reach",
