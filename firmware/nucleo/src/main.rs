@@ -52,8 +52,8 @@ fn main() -> ! {
     host.listen(stm32f4xx_hal::serial::Event::RxNotEmpty);
     servo.listen(stm32f4xx_hal::serial::Event::RxNotEmpty);
     // The ports drive the registers from here on; the HAL objects only did the set-up, and
-    // dropping them leaves the USARTs as configured (they have no Drop).
-    drop((host, servo));
+    // letting them go leaves the USARTs as configured (they have no Drop).
+    let _ = (host, servo);
     // SAFETY: the handlers below only touch their own port's ring.
     unsafe {
         cortex_m::peripheral::NVIC::unmask(pac::Interrupt::USART3);
