@@ -190,9 +190,14 @@ pub fn quantise_input(model: &Model, head: [f32; 2]) -> Result<[i16; 2], DecodeE
 /// `round(y * 255 * 256 / 2^shift)` clamped to `0..=65280`, stored as u16 bit patterns.
 fn to_grey_q88(face: &mut [i16], shift: u32) {
     for v in face.iter_mut() {
-        let y = (*v as i64).max(0) * 65280;
-        let g = round_shift_i64(y, shift).clamp(0, 65280);
-        *v = g as u16 as i16;
+        // 32767 * 65280 < 2^32: u32 holds the product.
+        let y = (*v).max(0) as u32 * 65280;
+        let g = match shift {
+            0 => y,
+            1..=31 => ((y >> (shift - 1)) >> 1) + ((y >> (shift - 1)) & 1),
+            _ => 0,
+        };
+        *v = g.min(65280) as u16 as i16;
     }
 }
 
@@ -244,6 +249,12 @@ impl Requant {
 
     #[inline]
     pub(crate) fn apply(&self, acc: i32) -> i16 {
+        self.apply_inline(acc)
+    }
+
+    /// [`apply`](Self::apply), inlined into the fast kernels' loops.
+    #[inline(always)]
+    pub(crate) fn apply_inline(&self, acc: i32) -> i16 {
         if let Some((sh, k)) = self.fast {
             const LAST: usize = TANH_Q24.len() - 1;
             let t = acc.unsigned_abs() >> sh;

@@ -193,7 +193,7 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
                         };
                         acc = smlad(wt[t], at(col) | (at(col + 1) << 16), acc);
                     }
-                    y[out_row + s * m + px] = rq.apply(acc);
+                    y[out_row + s * m + px] = rq.apply_inline(acc);
                 };
                 for m in (0..m_lo).chain(m_hi..m_n) {
                     edge(m, y);
@@ -222,10 +222,10 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
                         }
                     }
                     let o = out_row + s * m + px;
-                    y[o] = rq.apply(a0);
-                    y[o + s] = rq.apply(a1);
-                    y[o + 2 * s] = rq.apply(a2);
-                    y[o + 3 * s] = rq.apply(a3);
+                    y[o] = rq.apply_inline(a0);
+                    y[o + s] = rq.apply_inline(a1);
+                    y[o + 2 * s] = rq.apply_inline(a2);
+                    y[o + 3 * s] = rq.apply_inline(a3);
                     m += 4;
                 }
                 while m < m_hi {
