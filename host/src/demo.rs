@@ -121,7 +121,10 @@ pub fn run(a: Args) -> Result<()> {
 
     // 5. Evaluation table.
     p.start("5/8 evaluating on the test split (decoder and autoencoder, sigma and none, float and fixed)");
-    let eval = crate::eval::evaluate(&model_path, &data)?;
+    // The evaluation finds the trained float models next to the blob it is given.
+    let beside = models.join("model.msrm");
+    std::fs::write(&beside, &blob)?;
+    let eval = crate::eval::evaluate(&beside, &data)?;
     p.done("eval_s", &format!("{} rows, quantized agreement {:?}", eval.rows.len(), eval.quantized_agreement));
     eprint!("{}", crate::eval::markdown(&eval));
 

@@ -26,3 +26,4 @@ pub mod episode;
 pub mod episode_qemu;
 pub mod model_blob;
 pub mod report;
+pub mod sim_board;

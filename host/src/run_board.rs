@@ -1,9 +1,310 @@
 //! `msr run`: stream frames to a board over a serial port and print what it reports.
-use anyhow::{bail, Result};
+//!
+//! The host side of the host link as it runs against a real board: open the port with
+//! `serialport`, optionally upload a model blob (begin, chunks, commit; the board answers
+//! `ModelAccepted` or an error and keeps its previous model), then for each frame crop the face
+//! with the model's template, send it, and print the board's answer (a detection, an error, a
+//! status). Writes are paced to the line rate: a PTY or a USB bridge without flow control would
+//! otherwise let a large upload overrun the board's receive buffers.
+use crate::crop;
+use crate::episode::HostPort;
+use anyhow::{anyhow, bail, Context, Result};
+use image::GrayImage;
+use msr_shared::msg::{BoardToHost, HostToBoard, Status};
+use msr_sim::Robot;
+use std::io::{Read, Write};
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
 #[derive(clap::Args, Debug)]
-pub struct Args {}
+pub struct Args {
+    /// Serial port of the board (e.g. /dev/ttyACM0, or a PTY the sim serves)
+    #[arg(long)]
+    pub port: String,
+    #[arg(long, default_value_t = 921_600)]
+    pub baud: u32,
+    /// Model blob (.msrm): its face template crops the frames
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Upload the model to the board before streaming
+    #[arg(long)]
+    pub upload: bool,
+    /// Folder of camera frames (PNG, 320x240), streamed in name order
+    #[arg(long, conflicts_with = "sim")]
+    pub frames: Option<PathBuf>,
+    /// Render frames from the sim instead: robot at home, a random mark from the 4th frame on
+    #[arg(long)]
+    pub sim: Option<Robot>,
+    /// Frames to render with --sim
+    #[arg(long, default_value_t = 10)]
+    pub count: usize,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Frames per second
+    #[arg(long, default_value_t = 10.0)]
+    pub fps: f64,
+    /// How long to wait for an upload's or a status request's answer, milliseconds (a frame's
+    /// answer is waited for one frame period at most)
+    #[arg(long, default_value_t = 2000)]
+    pub timeout_ms: u64,
+    /// One JSON object per line
+    #[arg(long)]
+    pub json: bool,
+}
 
-pub fn run(_args: Args) -> Result<()> {
-    bail!("`msr run` is not implemented yet")
+/// Longest a write may make no progress.
+pub const STALL: Duration = Duration::from_secs(2);
+
+/// A board on a serial port.
+pub struct Session {
+    port: Box<dyn serialport::SerialPort>,
+    host: HostPort,
+    byte_time: Duration,
+    pending: Vec<BoardToHost>,
+}
+
+impl Session {
+    pub fn open(path: &str, baud: u32) -> Result<Session> {
+        if baud == 0 {
+            bail!("baud rate must be positive");
+        }
+        let port = serialport::new(path, baud)
+            .timeout(Duration::from_millis(5))
+            .open()
+            .with_context(|| format!("opening serial port {path}"))?;
+        Ok(Session { port, host: HostPort::default(), byte_time: Duration::from_secs_f64(10.0 / baud as f64), pending: Vec::new() })
+    }
+
+    /// Sends bytes at no more than the line rate. A full output buffer (the board, or the PTY
+    /// peer, reading slowly) is waited out for up to [`STALL`].
+    pub fn send(&mut self, bytes: &[u8]) -> Result<()> {
+        for chunk in bytes.chunks(256) {
+            let t0 = Instant::now();
+            let mut rest = chunk;
+            let mut last_progress = Instant::now();
+            while !rest.is_empty() {
+                match self.port.write(rest) {
+                    Ok(n) if n > 0 => {
+                        rest = &rest[n..];
+                        last_progress = Instant::now();
+                    }
+                    Ok(_) => {}
+                    Err(e) if matches!(e.kind(), std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock | std::io::ErrorKind::Interrupted) => {}
+                    Err(e) => return Err(e).context("writing to the board"),
+                }
+                if last_progress.elapsed() > STALL {
+                    bail!("the board has taken no bytes for {STALL:?}");
+                }
+            }
+            let due = self.byte_time * chunk.len() as u32;
+            if let Some(rest) = due.checked_sub(t0.elapsed()) {
+                std::thread::sleep(rest);
+            }
+        }
+        let _ = self.port.flush();
+        Ok(())
+    }
+
+    pub fn send_message(&mut self, msg: &HostToBoard) -> Result<()> {
+        let bytes = self.host.encode(msg);
+        self.send(&bytes)
+    }
+
+    /// Reads what has arrived (waiting at most the port's short timeout).
+    pub fn poll(&mut self) -> Result<Vec<BoardToHost>> {
+        let mut buf = [0u8; 1024];
+        let n = match self.port.read(&mut buf) {
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => 0,
+            Err(e) => return Err(e).context("reading from the board"),
+        };
+        let mut out = std::mem::take(&mut self.pending);
+        out.extend(self.host.receive(&buf[..n]));
+        Ok(out)
+    }
+
+    /// Collects messages until one satisfies `done` (returned last) or `timeout` passes.
+    pub fn wait_for(&mut self, timeout: Duration, mut done: impl FnMut(&BoardToHost) -> bool) -> Result<(Vec<BoardToHost>, bool)> {
+        let t0 = Instant::now();
+        let mut got = Vec::new();
+        while t0.elapsed() < timeout {
+            let msgs = self.poll()?;
+            for (i, m) in msgs.iter().enumerate() {
+                if done(m) {
+                    got.extend_from_slice(&msgs[..=i]);
+                    self.pending = msgs[i + 1..].to_vec();
+                    return Ok((got, true));
+                }
+            }
+            got.extend(msgs);
+        }
+        Ok((got, false))
+    }
+
+    /// Uploads a blob; `Ok(crc)` when the board accepted it, an error with the board's reason
+    /// otherwise (the board then keeps the model it had).
+    pub fn upload(&mut self, blob: &[u8], timeout: Duration) -> Result<u32> {
+        let bytes = self.host.encode_upload(blob);
+        self.send(&bytes)?;
+        let (msgs, ok) = self.wait_for(timeout, |m| matches!(m, BoardToHost::ModelAccepted { .. } | BoardToHost::Error { .. }))?;
+        match msgs.last() {
+            Some(BoardToHost::ModelAccepted { crc32 }) if ok => Ok(*crc32),
+            Some(BoardToHost::Error { code, detail }) if ok => bail!("the board refused the model: {code:?} (detail {detail})"),
+            _ => bail!("no answer to the model upload within {timeout:?}"),
+        }
+    }
+
+    /// Sends one face crop and waits up to `timeout` for the board's answer to it (a detection
+    /// or an error). While the arm is up the board does not answer frames (detection pauses), so
+    /// a streaming caller waits about a frame period, not longer: the face watchdog (500 ms)
+    /// wants frames to keep coming.
+    pub fn send_face(&mut self, face: &crop::Face, timeout: Duration) -> Result<Vec<BoardToHost>> {
+        let bytes = self.host.encode_face(face.crop, &face.grey);
+        self.send(&bytes)?;
+        let (msgs, _) = self.wait_for(timeout, |m| matches!(m, BoardToHost::Detection(_) | BoardToHost::Error { .. }))?;
+        Ok(msgs)
+    }
+
+    pub fn status(&mut self, timeout: Duration) -> Result<Status> {
+        self.send_message(&HostToBoard::GetStatus)?;
+        let (msgs, ok) = self.wait_for(timeout, |m| matches!(m, BoardToHost::Status(_)))?;
+        match msgs.last() {
+            Some(BoardToHost::Status(s)) if ok => Ok(*s),
+            _ => bail!("no status from the board within {timeout:?}"),
+        }
+    }
+
+    /// The host side's own framing counters (CRC errors and resyncs on what the board sent).
+    pub fn counters(&self) -> msr_shared::frame::LinkCounters {
+        *self.host.counters()
+    }
+}
+
+/// The frames of a folder, in name order.
+pub fn folder_frames(dir: &Path) -> Result<Vec<(String, GrayImage)>> {
+    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+        .with_context(|| format!("reading frame folder {}", dir.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
+        .collect();
+    files.sort();
+    if files.is_empty() {
+        bail!("no PNG frames in {}", dir.display());
+    }
+    files.iter().map(|p| Ok((p.display().to_string(), crop::load_grey(p)?))).collect()
+}
+
+/// Frames rendered by the sim at home: the first three without a mark, then one random mark.
+pub fn sim_frames(robot: Robot, count: usize, seed: u64) -> Vec<(String, GrayImage)> {
+    use rand::SeedableRng;
+    let renderer = msr_sim::render::Renderer::new(robot);
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let pose = msr_sim::body::BodyPose::head(0.0, 0.0);
+    let (mark, _) = msr_sim::dataset::render_marked(&renderer, &pose, &msr_sim::render::Variation::CLEAN, &mut rng);
+    (0..count)
+        .map(|i| {
+            let m = (i >= 3).then_some(&mark);
+            let r = renderer.render(&pose, m, &msr_sim::render::Variation::random(&mut rng));
+            let name = format!("sim-{i:03}{}", m.map_or(String::new(), |m| format!(" ({} {})", m.colour, m.kind)));
+            (name, crop::to_grey(&image::DynamicImage::ImageRgb8(r.rgb)))
+        })
+        .collect()
+}
+
+/// One readable line for a board message.
+pub fn describe(m: &BoardToHost) -> String {
+    match m {
+        BoardToHost::Detection(d) => {
+            let blob = d.blob.map_or("no mark".to_string(), |b| {
+                format!("mark at ({:.1}, {:.1}), {} px, box {:?}", b.centroid[0], b.centroid[1], b.area, b.box_xyxy)
+            });
+            let reach = match (d.confirmed, d.reach) {
+                (true, Some(r)) => format!("; REACH {:?}", r.map(|v| (v * 1000.0).round() / 1000.0)),
+                _ => String::new(),
+            };
+            format!("frame {}: head ({:.3}, {:.3}) rad, {blob}{reach}", d.frame, d.head[0], d.head[1])
+        }
+        BoardToHost::Error { code, detail } => format!("error {code:?} (detail {detail})"),
+        BoardToHost::Status(s) => format!(
+            "status: {:?}, model crc {:08x}, {} frames, {} detections, {} reaches, host link {} CRC errors / {} resyncs, \
+             servo bus {} CRC errors / {} resyncs, watchdog trips face {} servo {}, clamped targets {}",
+            s.mode,
+            s.model_crc,
+            s.frames,
+            s.detections,
+            s.reaches,
+            s.host_link.crc_errors,
+            s.host_link.resyncs(),
+            s.servo_link.crc_errors,
+            s.servo_link.resyncs(),
+            s.face_watchdog_trips,
+            s.servo_watchdog_trips,
+            s.clamped_targets
+        ),
+        BoardToHost::ModelAccepted { crc32 } => format!("model accepted, crc {crc32:08x}"),
+        BoardToHost::Pong { nonce } => format!("pong {nonce}"),
+    }
+}
+
+fn print(m: &BoardToHost, json: bool) -> Result<()> {
+    if json {
+        println!("{}", serde_json::to_string(m)?);
+    } else {
+        println!("{}", describe(m));
+    }
+    Ok(())
+}
+
+pub fn run(a: Args) -> Result<()> {
+    if !(a.fps.is_finite() && a.fps > 0.0) {
+        bail!("--fps must be positive");
+    }
+    let blob = crate::episode::read_model(&a.model)?;
+    let model = msr_shared::blob::Model::parse(&blob).map_err(|e| anyhow!("model: {e}"))?;
+    let template = crate::detect::template_of(&model)?;
+    let frames = match (&a.frames, a.sim) {
+        (Some(dir), _) => folder_frames(dir)?,
+        (None, Some(robot)) => sim_frames(robot, a.count, a.seed),
+        (None, None) => bail!("give --frames DIR or --sim red|skin"),
+    };
+    let timeout = Duration::from_millis(a.timeout_ms);
+    let mut s = Session::open(&a.port, a.baud)?;
+    if a.upload {
+        // An upload takes about 11 bits a byte on the line; allow for it.
+        let line = Duration::from_secs_f64(blob.len() as f64 * 11.0 / a.baud as f64);
+        let crc = s.upload(&blob, timeout + line)?;
+        print(&BoardToHost::ModelAccepted { crc32: crc }, a.json)?;
+    }
+    let period = Duration::from_secs_f64(1.0 / a.fps);
+    for (name, frame) in &frames {
+        let t0 = Instant::now();
+        let face = crop::crop_face(frame, &template).with_context(|| format!("frame {name}"))?;
+        let msgs = s.send_face(&face, period.min(timeout))?;
+        if !a.json {
+            println!("{name}: face at ({}, {})", face.crop.x, face.crop.y);
+        }
+        for m in &msgs {
+            print(m, a.json)?;
+        }
+        if let Some(rest) = period.checked_sub(t0.elapsed()) {
+            std::thread::sleep(rest);
+        }
+    }
+    let st = s.status(timeout)?;
+    print(&BoardToHost::Status(st), a.json)?;
+    let _ = std::io::stdout().flush();
+    Ok(())
+}
+
+/// Reads everything a reader has now (for tests).
+pub fn drain(r: &mut dyn Read) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut buf = [0u8; 1024];
+    while let Ok(n) = r.read(&mut buf) {
+        if n == 0 {
+            break;
+        }
+        out.extend_from_slice(&buf[..n]);
+    }
+    out
 }
