@@ -6,10 +6,11 @@
 //!
 //! - Rounding is half-up everywhere (`floor(x + 0.5)`), the accumulator wraps on overflow (the
 //!   quantizer chooses shifts so that it does not), results saturate to i16.
-//! - tanh and sigmoid come from one table ([`tanh_table`]): tanh on [0, 8] in steps of 1/128 with
+//! - tanh and sigmoid come from one table (`tanh_table.rs`): tanh on [0, 8] in steps of 1/128 with
 //!   linear interpolation (error below 2.5e-5, under one Q15 step); `sigmoid(x) = (1 + tanh(x/2)) / 2`.
-//! - On `target_arch = "arm"` the Dense inner loop is hand-written (LDM + SMLAD); the portable
-//!   Rust does the same integer sums, so host and board agree bit for bit.
+//! - i16 weights take paired paths (`fast.rs`: Dense rows and ConvTranspose2d phases) whose
+//!   multiply-accumulates are SMLAD on `target_arch = "arm"` (v7E-M DSP) and the same wrapping
+//!   sums elsewhere, so host and board agree bit for bit; other layers use generic loops.
 //!
 //! The predicted face is kept, converted to Q8.8 grey levels, until the quantised head pose or
 //! the model changes ([`Decoder::predict`]); [`Decoder::predict_uncached`] always runs it.
