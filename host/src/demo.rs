@@ -36,6 +36,9 @@ pub struct Args {
     pub real: Option<PathBuf>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Only rewrite index.html from an earlier run's report.json, model.msrm and dataset in --out
+    #[arg(long)]
+    pub html_only: bool,
 }
 
 struct Progress {
@@ -81,6 +84,13 @@ fn train_args(data: &Path, out: &Path, model: ModelKind, a: &Args) -> train::Arg
 
 pub fn run(a: Args) -> Result<()> {
     let out = a.out.clone();
+    if a.html_only {
+        let report: Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).context("report.json of an earlier run")?)?;
+        let blob = std::fs::read(out.join("model.msrm")).context("model.msrm of an earlier run")?;
+        crate::report::write_html(&out, &report, &blob, &out.join("dataset"))?;
+        eprintln!("wrote {}", out.join("index.html").display());
+        return Ok(());
+    }
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
     let mut p = Progress { t0: Instant::now(), step: Instant::now(), timings: Default::default() };
     let mut notes: Vec<String> = Vec::new();
