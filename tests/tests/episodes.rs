@@ -103,3 +103,19 @@ fn a_200_ms_disconnect_trips_the_servo_watchdog_and_recovers() {
     assert!(s.watchdog_trips >= 3, "{s:?}");
     assert!(s.touched >= 2, "{s:?}\n{trials:#?}");
 }
+
+#[test]
+fn bad_models_are_clear_errors() {
+    let dir = std::env::temp_dir().join(format!("msr-episodes-bad-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let missing = dir.join("missing.msrm");
+    let e = episode::read_model(&missing).unwrap_err();
+    assert!(format!("{e:#}").contains("missing.msrm"), "{e:#}");
+    let junk = dir.join("junk.msrm");
+    std::fs::write(&junk, b"MSRM but not a model").unwrap();
+    let e = episode::read_model(&junk).unwrap_err();
+    assert!(format!("{e:#}").contains("junk.msrm"), "{e:#}");
+    let e = episode::run_inproc(b"junk", &EpisodeConfig::new(Robot::Red), 1, 0, &|_| {}).unwrap_err();
+    assert!(format!("{e:#}").contains("model"), "{e:#}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
