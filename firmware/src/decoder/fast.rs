@@ -45,6 +45,37 @@ fn dot_ldm(w: &[u32], x: &[u32], acc: i32) -> i32 {
         return acc;
     }
     let mut acc = acc;
+    if n.is_multiple_of(2) {
+        // Two groups per turn of the loop: 16 MACs in 14 instructions.
+        // SAFETY: reads n * 4 words from each slice (inside them), writes only the named registers.
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "ldm {xp}!, {{r2, r3, r4, r5}}",
+                "ldm {wp}!, {{r8, r10, r12, lr}}",
+                "smlad {acc}, r2, r8, {acc}",
+                "smlad {acc}, r3, r10, {acc}",
+                "smlad {acc}, r4, r12, {acc}",
+                "smlad {acc}, r5, lr, {acc}",
+                "ldm {xp}!, {{r2, r3, r4, r5}}",
+                "ldm {wp}!, {{r8, r10, r12, lr}}",
+                "smlad {acc}, r2, r8, {acc}",
+                "smlad {acc}, r3, r10, {acc}",
+                "smlad {acc}, r4, r12, {acc}",
+                "smlad {acc}, r5, lr, {acc}",
+                "subs {n}, {n}, #1",
+                "bne 2b",
+                acc = inout(reg) acc,
+                xp = inout(reg) x.as_ptr() => _,
+                wp = inout(reg) w.as_ptr() => _,
+                n = inout(reg) n / 2 => _,
+                out("r2") _, out("r3") _, out("r4") _, out("r5") _,
+                out("r8") _, out("r10") _, out("r12") _, out("lr") _,
+                options(nostack, readonly),
+            );
+        }
+        return acc;
+    }
     // SAFETY: reads n * 4 words from each slice (inside them), writes only the named registers.
     unsafe {
         core::arch::asm!(
@@ -77,7 +108,7 @@ pub(crate) fn dense_pairs(rq: Requant, w: &[u32], b: &[i32], x: &[u32], y: &mut 
     }
     // On the M4, rows of a multiple of 4 words go through LDM + SMLAD one row at a time.
     #[cfg(target_arch = "arm")]
-    if np % 4 == 0 {
+    if np.is_multiple_of(4) {
         for ((row, out), &bias) in w.chunks_exact(np).zip(y.iter_mut()).zip(b) {
             *out = rq.apply(dot_ldm(row, x, bias));
         }
