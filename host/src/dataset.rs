@@ -21,9 +21,12 @@ pub struct Args {
     /// Head angles are uniform in +-this many degrees
     #[arg(long, default_value_t = 5.0)]
     pub max_angle_deg: f64,
-    /// Share of frames in the test split (the marked ones)
+    /// Share of frames in the test split (the only ones that get marks)
     #[arg(long, default_value_t = 0.2)]
     pub test_fraction: f64,
+    /// Share of test frames left unmarked, for false-alarm rates and image AUROC
+    #[arg(long, default_value_t = 0.2)]
+    pub unmarked_test_fraction: f64,
     /// Reach training pairs made by the IK (reach_centroids.csv, reach_joints.csv)
     #[arg(long, default_value_t = 100)]
     pub reach_pairs: usize,
@@ -37,15 +40,18 @@ pub fn run(args: Args) -> Result<()> {
         max_head_angle: args.max_angle_deg.to_radians(),
         test_fraction: args.test_fraction,
         reach_pairs: args.reach_pairs,
+        unmarked_test_fraction: args.unmarked_test_fraction,
     };
     let t = std::time::Instant::now();
     let index = write_dataset(&cfg, &args.out)?;
     let test = index.split(msr_sim::layout::Split::Test).count();
+    let marked = index.frames.iter().filter(|f| f.mark.is_some()).count();
     println!(
-        "wrote {} frames ({} train, {} test with marks) of robot {} to {} in {:.1} s",
+        "wrote {} frames ({} train, {} test of which {} marked) of robot {} to {} in {:.1} s",
         index.frames.len(),
         index.frames.len() - test,
         test,
+        marked,
         index.robot,
         args.out.display(),
         t.elapsed().as_secs_f64()

@@ -35,7 +35,7 @@ fn p(x: &Path) -> &str {
 fn train_writes_the_layout_and_quantize_matches_float() {
     let tmp = tempfile::tempdir().unwrap();
     let (data, out) = (tmp.path().join("data"), tmp.path().join("out"));
-    ok(&["dataset", "--count", "50", "--seed", "3", "--out", p(&data)]);
+    ok(&["dataset", "--count", "50", "--seed", "3", "--unmarked-test-fraction", "0", "--out", p(&data)]);
     // Unmark a few test frames so that there are normal held-out frames for the percentile.
     let ix_path = data.join("dataset.json");
     let mut ix: Value = serde_json::from_str(&std::fs::read_to_string(&ix_path).unwrap()).unwrap();

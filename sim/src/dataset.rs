@@ -31,6 +31,9 @@ pub struct DatasetConfig {
     pub test_fraction: f64,
     /// Reach training pairs to make with the IK (0 for none).
     pub reach_pairs: usize,
+    /// Share of test frames left without a mark. The paper marks every test image; a few
+    /// unmarked ones are what false-alarm rates and image-level AUROC are measured on.
+    pub unmarked_test_fraction: f64,
 }
 
 impl DatasetConfig {
@@ -43,6 +46,7 @@ impl DatasetConfig {
             max_head_angle: 5f64.to_radians(),
             test_fraction: 0.2,
             reach_pairs: 100,
+            unmarked_test_fraction: 0.2,
         }
     }
 
@@ -52,6 +56,9 @@ impl DatasetConfig {
         }
         if !(0.0..=1.0).contains(&self.test_fraction) {
             bail!("test fraction must be in 0..=1, got {}", self.test_fraction);
+        }
+        if !(0.0..=1.0).contains(&self.unmarked_test_fraction) {
+            bail!("unmarked test fraction must be in 0..=1, got {}", self.unmarked_test_fraction);
         }
         let lim = body::MAX_DATASET_HEAD_ANGLE;
         if !(self.max_head_angle.is_finite() && (0.0..=lim).contains(&self.max_head_angle)) {
@@ -70,6 +77,7 @@ struct Plan {
     pitch: f64,
     var: Variation,
     split: Split,
+    marked: bool,
     rng_seed: u64,
 }
 
@@ -92,12 +100,15 @@ pub fn write_dataset(cfg: &DatasetConfig, out: &Path) -> Result<DatasetIndex> {
     let a = cfg.max_head_angle;
     let plans: Vec<Plan> = split
         .into_iter()
-        .map(|split| Plan {
-            yaw: if a > 0.0 { rng.gen_range(-a..=a) } else { 0.0 },
-            pitch: if a > 0.0 { rng.gen_range(-a..=a) } else { 0.0 },
-            var: Variation::random(&mut rng),
-            split,
-            rng_seed: rng.gen(),
+        .map(|split| {
+            let yaw = if a > 0.0 { rng.gen_range(-a..=a) } else { 0.0 };
+            let pitch = if a > 0.0 { rng.gen_range(-a..=a) } else { 0.0 };
+            let var = Variation::random(&mut rng);
+            let rng_seed: u64 = rng.gen();
+            // From the frame's own seed, so that the main draws do not depend on this share.
+            let keep_clean = ChaCha8Rng::seed_from_u64(rng_seed ^ 0x5EED_C1EA).gen::<f64>()
+                < cfg.unmarked_test_fraction;
+            Plan { yaw, pitch, var, split, marked: split == Split::Test && !keep_clean, rng_seed }
         })
         .collect();
 
@@ -107,7 +118,7 @@ pub fn write_dataset(cfg: &DatasetConfig, out: &Path) -> Result<DatasetIndex> {
         let file = format!("frames/{i:06}.png");
         let pose = BodyPose::head(p.yaw, p.pitch);
         let mut mark_record = None;
-        let rendered = if p.split == Split::Test {
+        let rendered = if p.marked {
             let mut mrng = ChaCha8Rng::seed_from_u64(p.rng_seed);
             let (mark, r) = render_marked(&renderer, &pose, &p.var, &mut mrng);
             let px = r.mark.as_ref().expect("a marked render has mark pixels");

@@ -56,7 +56,7 @@ fn layout_is_the_published_one() {
         let img = image::open(dir.path().join(&f.file)).unwrap().to_rgb8();
         assert_eq!(img.dimensions(), (320, 240));
         // Marks on the test split only, with ground truth that matches the mask file.
-        assert_eq!(f.mark.is_some(), f.split == Split::Test);
+        assert!(f.mark.is_none() || f.split == Split::Test);
         if let Some(m) = &f.mark {
             let mask = image::open(dir.path().join(&m.mask)).unwrap().to_luma8();
             let n = mask.pixels().filter(|p| p.0[0] == 255).count() as u32;
@@ -117,6 +117,7 @@ fn bad_configs_are_refused() {
     for cfg in [
         DatasetConfig { count: 0, ..small(Robot::Red, 0) },
         DatasetConfig { test_fraction: 1.5, ..small(Robot::Red, 0) },
+        DatasetConfig { unmarked_test_fraction: -0.1, ..small(Robot::Red, 0) },
         DatasetConfig { max_head_angle: f64::NAN, ..small(Robot::Red, 0) },
         DatasetConfig { max_head_angle: 3.0, ..small(Robot::Red, 0) },
     ] {
@@ -126,4 +127,23 @@ fn bad_configs_are_refused() {
     let file = dir.path().join("plain-file");
     std::fs::write(&file, b"x").unwrap();
     assert!(write_dataset(&small(Robot::Red, 0), &file.join("sub")).is_err());
+}
+
+#[test]
+fn unmarked_test_share_is_honoured_and_leaves_the_draws_alone() {
+    let marked = |frac: f64| {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = DatasetConfig { count: 40, test_fraction: 0.5, reach_pairs: 0, unmarked_test_fraction: frac, ..small(Robot::Red, 3) };
+        let index = write_dataset(&cfg, dir.path()).unwrap();
+        assert!(index.frames.iter().all(|f| f.mark.is_none() || f.split == Split::Test));
+        let angles: Vec<_> = index.frames.iter().map(|f| (f.head_yaw, f.head_pitch, f.split)).collect();
+        (index.frames.iter().filter(|f| f.mark.is_some()).count(), angles)
+    };
+    let (all, a0) = marked(0.0);
+    let (none, a1) = marked(1.0);
+    let (some, a2) = marked(0.5);
+    assert_eq!((all, none), (20, 0));
+    assert!(some > 0 && some < 20, "{some} of 20 test frames marked");
+    // Poses and splits do not depend on the share.
+    assert!(a0 == a1 && a1 == a2);
 }
