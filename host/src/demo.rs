@@ -54,8 +54,12 @@ impl Progress {
     }
     fn done(&mut self, key: &str, detail: &str) {
         let s = self.step.elapsed().as_secs_f64();
-        self.timings.insert(key.into(), json!((s * 100.0).round() / 100.0));
-        eprintln!("[{:>6.1} s]   {detail} ({s:.1} s)", self.t0.elapsed().as_secs_f64());
+        self.timings
+            .insert(key.into(), json!((s * 100.0).round() / 100.0));
+        eprintln!(
+            "[{:>6.1} s]   {detail} ({s:.1} s)",
+            self.t0.elapsed().as_secs_f64()
+        );
     }
 }
 
@@ -85,49 +89,80 @@ fn train_args(data: &Path, out: &Path, model: ModelKind, a: &Args) -> train::Arg
 pub fn run(a: Args) -> Result<()> {
     let out = a.out.clone();
     if a.html_only {
-        let report: Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).context("report.json of an earlier run")?)?;
+        let report: Value = serde_json::from_slice(
+            &std::fs::read(out.join("report.json")).context("report.json of an earlier run")?,
+        )?;
         let blob = std::fs::read(out.join("model.msrm")).context("model.msrm of an earlier run")?;
         crate::report::write_html(&out, &report, &blob, &out.join("dataset"))?;
         eprintln!("wrote {}", out.join("index.html").display());
         return Ok(());
     }
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    let mut p = Progress { t0: Instant::now(), step: Instant::now(), timings: Default::default() };
+    let mut p = Progress {
+        t0: Instant::now(),
+        step: Instant::now(),
+        timings: Default::default(),
+    };
     let mut notes: Vec<String> = Vec::new();
 
     // 1. Dataset.
-    p.start(&format!("1/8 rendering the {} robot's dataset ({} frames, head angles within +-5 deg)", a.robot, a.frames));
+    p.start(&format!(
+        "1/8 rendering the {} robot's dataset ({} frames, head angles within +-5 deg)",
+        a.robot, a.frames
+    ));
     let data = out.join("dataset");
     let mut dcfg = msr_sim::dataset::DatasetConfig::paper(a.robot, a.seed);
     dcfg.count = a.frames;
     let index = msr_sim::dataset::write_dataset(&dcfg, &data)?;
-    p.done("dataset_s", &format!("{} frames in {}", index.frames.len(), data.display()));
+    p.done(
+        "dataset_s",
+        &format!("{} frames in {}", index.frames.len(), data.display()),
+    );
 
     // 2. Decoder and autoencoder, calibrated.
     let models = out.join("models");
     p.start(&format!("2/8 training the decoder ({} epochs, Adam lr 0.005 halved every 10, batch 128) and calibrating", a.epochs));
     train::run(train_args(&data, &models, ModelKind::Decoder, &a))?;
     let dec_info = train::load(&models, "decoder")?.info()?.clone();
-    p.done("train_decoder_s", &format!("decoder test MSE {:.4}", dec_info.final_test_mse));
+    p.done(
+        "train_decoder_s",
+        &format!("decoder test MSE {:.4}", dec_info.final_test_mse),
+    );
     p.start("   training the autoencoder (2-d code, same decoder)");
     train::run(train_args(&data, &models, ModelKind::Autoencoder, &a))?;
     let ae_info = train::load(&models, "autoencoder")?.info()?.clone();
-    p.done("train_autoencoder_s", &format!("autoencoder test MSE {:.4}", ae_info.final_test_mse));
-    notes.push("The decoder is the published fully connected 2-12-64-128-4350 (--arch mlp): the blob here is made by the importer's dense quantizer.".into());
+    p.done(
+        "train_autoencoder_s",
+        &format!("autoencoder test MSE {:.4}", ae_info.final_test_mse),
+    );
+    notes.push(
+        "The decoder is the published fully connected 2-12-64-128-4350 (--arch mlp), not the default convolutional one: \
+         the blob is made by the importer's dense quantizer (crate::model_blob), which covers fully connected decoders only."
+            .into(),
+    );
 
     // 3. Reach.
     p.start("3/8 reach pairs by the sim's IK (70, as the published robot's) and the 2-10-5 reach network");
     let reach = crate::model_blob::train_sim_reach(70, a.seed)?;
     let (xs, ys) = crate::model_blob::sim_reach_pairs(70, a.seed);
     let rms = crate::train_reach::rms(&reach, &xs, &ys);
-    p.done("reach_s", &format!("fit RMS per joint {:?} rad", rms.map(|v| (v * 1000.0).round() / 1000.0)));
+    p.done(
+        "reach_s",
+        &format!(
+            "fit RMS per joint {:?} rad",
+            rms.map(|v| (v * 1000.0).round() / 1000.0)
+        ),
+    );
 
     // 4. Quantize.
     p.start("4/8 quantizing to the fixed-point model blob");
     let blob = crate::model_blob::blob_from_training(&models, "decoder", &reach)?;
     let model_path = out.join("model.msrm");
     std::fs::write(&model_path, &blob)?;
-    p.done("quantize_s", &format!("{} ({} bytes)", model_path.display(), blob.len()));
+    p.done(
+        "quantize_s",
+        &format!("{} ({} bytes)", model_path.display(), blob.len()),
+    );
 
     // 5. Evaluation table.
     p.start("5/8 evaluating on the test split (decoder and autoencoder, sigma and none, float and fixed)");
@@ -135,11 +170,26 @@ pub fn run(a: Args) -> Result<()> {
     let beside = models.join("model.msrm");
     std::fs::write(&beside, &blob)?;
     let eval = crate::eval::evaluate(&beside, &data)?;
-    p.done("eval_s", &format!("{} rows, quantized agreement {:?}", eval.rows.len(), eval.quantized_agreement));
+    p.done(
+        "eval_s",
+        &format!(
+            "{} rows, quantized agreement {:?}",
+            eval.rows.len(),
+            eval.quantized_agreement
+        ),
+    );
     eprint!("{}", crate::eval::markdown(&eval));
 
     // 6. Episodes.
-    p.start(&format!("6/8 mirror-test episodes in-process ({} trials)", a.trials));
+    notes.push(format!(
+        "Episodes: {} in-process trials here (the 200-trial figures come from `msr mirror-test --trials 200`); each trial \
+         judges the first second of the 5 s hold (the arm holds still for the rest).",
+        a.trials
+    ));
+    p.start(&format!(
+        "6/8 mirror-test episodes in-process ({} trials)",
+        a.trials
+    ));
     let cfg = EpisodeConfig::new(a.robot);
     let quiet = |_: &episode::Trial| {};
     let trials = episode::run_inproc(&blob, &cfg, a.trials, a.seed, &quiet)?;
@@ -147,7 +197,10 @@ pub fn run(a: Args) -> Result<()> {
     p.done("episodes_inproc_s", &crate::mirror_test::readable(&inproc));
     let mut mirror = json!({ "inproc": inproc, "trials": trials });
     if msr_sim::qemu::qemu_available() {
-        p.start(&format!("   mirror-test episodes under QEMU ({} trials)", a.qemu_trials));
+        p.start(&format!(
+            "   mirror-test episodes under QEMU ({} trials)",
+            a.qemu_trials
+        ));
         match crate::episode_qemu::run_qemu(&blob, &cfg, a.qemu_trials, a.seed, &quiet) {
             Ok(t) => {
                 let s = episode::summarise(Backend::Qemu, a.robot, &t);
@@ -165,25 +218,46 @@ pub fn run(a: Args) -> Result<()> {
     }
 
     // 7. Real frames.
-    let real_dir = a.real.clone().unwrap_or_else(|| PathBuf::from("../shared/data/nao-red-real"));
+    let real_dir = a
+        .real
+        .clone()
+        .unwrap_or_else(|| PathBuf::from("../shared/data/nao-red-real"));
     let real = if real_dir.join(crate::data::MANIFEST_FILE).exists() {
-        p.start(&format!("7/8 the real-frame check with the imported published model ({})", real_dir.display()));
+        p.start(&format!(
+            "7/8 the real-frame check with the imported published model ({})",
+            real_dir.display()
+        ));
         let r = real_check(&real_dir, &out)?;
         p.done("real_s", &format!("{r}"));
         r
     } else {
-        eprintln!("7/8 no real frames at {}: real-frame check skipped", real_dir.display());
+        eprintln!(
+            "7/8 no real frames at {}: real-frame check skipped",
+            real_dir.display()
+        );
         json!({ "marked": null, "hits": null, "unmarked": null, "false_alarms": null, "skipped": format!("no {}", real_dir.display()) })
     };
 
     // 8. Benchmark (the pipeline on this PC; `msr bench --backend qemu` gives instruction counts).
     p.start("8/8 benchmarking the pipeline on this PC with the demo's model");
-    let bm = crate::bench::BenchModel { name: "demo".into(), source: model_path.display().to_string(), blob: blob.clone() };
+    let bm = crate::bench::BenchModel {
+        name: "demo".into(),
+        source: model_path.display().to_string(),
+        blob: blob.clone(),
+    };
     let bench = crate::bench::bench_host(&bm, 5)?;
-    p.done("bench_s", &format!("decoder {:.0} ns, whole frame {:.0} ns", bench["stages"]["decoder"].as_f64().unwrap_or(f64::NAN), bench["total_ns"].as_f64().unwrap_or(f64::NAN)));
+    p.done(
+        "bench_s",
+        &format!(
+            "decoder {:.0} ns, whole frame {:.0} ns",
+            bench["stages"]["decoder"].as_f64().unwrap_or(f64::NAN),
+            bench["total_ns"].as_f64().unwrap_or(f64::NAN)
+        ),
+    );
 
     let total = p.t0.elapsed().as_secs_f64();
-    p.timings.insert("total_s".into(), json!((total * 10.0).round() / 10.0));
+    p.timings
+        .insert("total_s".into(), json!((total * 10.0).round() / 10.0));
     let report = json!({
         "robot": a.robot.name(),
         "eval": eval,
@@ -197,7 +271,10 @@ pub fn run(a: Args) -> Result<()> {
     });
     std::fs::write(out.join("report.json"), serde_json::to_vec_pretty(&report)?)?;
     crate::report::write_html(&out, &report, &blob, &data)?;
-    eprintln!("[{total:>6.1} s] wrote {0}/model.msrm, {0}/report.json, {0}/index.html", out.display());
+    eprintln!(
+        "[{total:>6.1} s] wrote {0}/model.msrm, {0}/report.json, {0}/index.html",
+        out.display()
+    );
     Ok(())
 }
 
@@ -206,9 +283,13 @@ pub fn run(a: Args) -> Result<()> {
 pub fn real_check(real_dir: &Path, out: &Path) -> Result<Value> {
     let manifest = real_dir.join(crate::data::MANIFEST_FILE);
     let published = crate::import::Published::load(&manifest)?;
-    let bytes = published.to_spec()?.to_bytes().map_err(|e| anyhow::anyhow!("published blob: {e}"))?;
+    let bytes = published
+        .to_spec()?
+        .to_bytes()
+        .map_err(|e| anyhow::anyhow!("published blob: {e}"))?;
     std::fs::write(out.join("published.msrm"), &bytes)?;
-    let model = msr_shared::blob::Model::parse(&bytes).map_err(|e| anyhow::anyhow!("published blob: {e}"))?;
+    let model = msr_shared::blob::Model::parse(&bytes)
+        .map_err(|e| anyhow::anyhow!("published blob: {e}"))?;
     let ds = crate::data::Dataset::load(real_dir)?;
     let (mut marked, mut hits, mut unmarked, mut false_alarms) = (0, 0, 0, 0);
     for s in &ds.samples {
@@ -216,7 +297,10 @@ pub fn real_check(real_dir: &Path, out: &Path) -> Result<Value> {
         match &s.mark {
             Some(m) => {
                 marked += 1;
-                if d.blob.as_ref().is_some_and(|b| m.box_contains(b.centroid[0] as f32, b.centroid[1] as f32)) {
+                if d.blob
+                    .as_ref()
+                    .is_some_and(|b| m.box_contains(b.centroid[0] as f32, b.centroid[1] as f32))
+                {
                     hits += 1;
                 }
             }
@@ -228,5 +312,7 @@ pub fn real_check(real_dir: &Path, out: &Path) -> Result<Value> {
             }
         }
     }
-    Ok(json!({ "marked": marked, "hits": hits, "unmarked": unmarked, "false_alarms": false_alarms }))
+    Ok(
+        json!({ "marked": marked, "hits": hits, "unmarked": unmarked, "false_alarms": false_alarms }),
+    )
 }

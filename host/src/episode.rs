@@ -26,7 +26,9 @@ use image::{DynamicImage, GrayImage};
 use msr_firmware::model::{ModelStore, UploadError};
 use msr_firmware::Board;
 use msr_shared::blob::Model;
-use msr_shared::frame::{encode_message_vec, FrameAccumulator, LinkCounters, Sequencer, MAX_WIRE_FRAME};
+use msr_shared::frame::{
+    encode_message_vec, FrameAccumulator, LinkCounters, Sequencer, MAX_WIRE_FRAME,
+};
 use msr_shared::msg::{BoardToHost, Config, Detection, FrameHeader, HostToBoard, Status, CHUNK};
 use msr_sim::body::BodyPose;
 use msr_sim::link::{FaultConfig, LinkEnd};
@@ -84,6 +86,9 @@ pub struct EpisodeConfig {
     pub board_config: Option<Config>,
     /// Trials run at once (each uses two threads).
     pub parallel: usize,
+    /// Simulated seconds per wall second; `None`: as fast as possible (in-process). A firmware
+    /// with its own clock (QEMU) needs real time.
+    pub pace: Option<f64>,
 }
 
 impl EpisodeConfig {
@@ -98,7 +103,10 @@ impl EpisodeConfig {
             host_faults: FaultConfig::default(),
             servo_faults: FaultConfig::default(),
             board_config: None,
-            parallel: std::thread::available_parallelism().map_or(1, |n| n.get()).min(4),
+            parallel: std::thread::available_parallelism()
+                .map_or(1, |n| n.get())
+                .min(4),
+            pace: None,
         }
     }
 
@@ -122,6 +130,7 @@ impl EpisodeConfig {
         w.host_link.b_to_a = self.host_faults.clone();
         w.servo_link.a_to_b = self.servo_faults.clone();
         w.servo_link.b_to_a = self.servo_faults.clone();
+        w.pace = self.pace;
         w
     }
 
@@ -188,7 +197,11 @@ pub fn median(mut v: Vec<f64>) -> Option<f64> {
     }
     v.sort_by(|a, b| a.total_cmp(b));
     let n = v.len();
-    Some(if n % 2 == 1 { v[n / 2] } else { (v[n / 2 - 1] + v[n / 2]) / 2.0 })
+    Some(if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        (v[n / 2 - 1] + v[n / 2]) / 2.0
+    })
 }
 
 pub fn summarise(backend: Backend, robot: Robot, trials: &[Trial]) -> Summary {
@@ -201,7 +214,11 @@ pub fn summarise(backend: Backend, robot: Robot, trials: &[Trial]) -> Summary {
         trials: trials.len(),
         marked_trials: marked.len(),
         touched,
-        touch_rate: if marked.is_empty() { 0.0 } else { touched as f64 / marked.len() as f64 },
+        touch_rate: if marked.is_empty() {
+            0.0
+        } else {
+            touched as f64 / marked.len() as f64
+        },
         no_mark_trials: trials.len() - marked.len(),
         false_reaches: trials.iter().filter(|t| t.false_reach).count(),
         median_touch_error_mm: median(marked.iter().filter_map(|t| t.touch_error_mm).collect()),
@@ -225,7 +242,12 @@ impl HeapStore {
     /// A store whose uploads may take `capacity` bytes, running `builtin` until an upload.
     pub fn new(builtin: Option<&[u8]>, capacity: usize) -> HeapStore {
         let words = capacity.div_ceil(4);
-        let mut s = HeapStore { slots: [vec![0; words], vec![0; words]], lens: [0; 2], active: None, capacity };
+        let mut s = HeapStore {
+            slots: [vec![0; words], vec![0; words]],
+            lens: [0; 2],
+            active: None,
+            capacity,
+        };
         if let Some(b) = builtin {
             let mut w = vec![0u32; b.len().div_ceil(4)];
             bytemuck::cast_slice_mut::<u32, u8>(&mut w)[..b.len()].copy_from_slice(b);
@@ -246,7 +268,8 @@ impl HeapStore {
 
 impl ModelStore for HeapStore {
     fn active(&self) -> Option<&[u8]> {
-        self.active.map(|i| &bytemuck::cast_slice::<u32, u8>(&self.slots[i])[..self.lens[i]])
+        self.active
+            .map(|i| &bytemuck::cast_slice::<u32, u8>(&self.slots[i])[..self.lens[i]])
     }
     fn capacity(&self) -> usize {
         self.capacity
@@ -264,9 +287,14 @@ impl ModelStore for HeapStore {
     }
     fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError> {
         let s = self.staging();
-        let end = offset.checked_add(data.len()).ok_or(UploadError::Sequence)?;
+        let end = offset
+            .checked_add(data.len())
+            .ok_or(UploadError::Sequence)?;
         let bytes = bytemuck::cast_slice_mut::<u32, u8>(&mut self.slots[s]);
-        bytes.get_mut(offset..end).ok_or(UploadError::TooLarge)?.copy_from_slice(data);
+        bytes
+            .get_mut(offset..end)
+            .ok_or(UploadError::TooLarge)?
+            .copy_from_slice(data);
         Ok(())
     }
     fn staged(&self) -> &[u8] {
@@ -295,7 +323,11 @@ pub struct HostPort {
 
 impl Default for HostPort {
     fn default() -> Self {
-        HostPort { seq: Sequencer::default(), rx: Box::new(FrameAccumulator::new()), frame_id: 0 }
+        HostPort {
+            seq: Sequencer::default(),
+            rx: Box::new(FrameAccumulator::new()),
+            frame_id: 0,
+        }
     }
 }
 
@@ -309,11 +341,21 @@ impl HostPort {
     pub fn encode_face(&mut self, crop: crop::CropBox, grey: &[u8]) -> Vec<u8> {
         self.frame_id = self.frame_id.wrapping_add(1);
         let id = self.frame_id;
-        let h = FrameHeader { frame: id, crop_x: crop.x as u16, crop_y: crop.y as u16, width: crop.width as u16, height: crop.height as u16 };
+        let h = FrameHeader {
+            frame: id,
+            crop_x: crop.x as u16,
+            crop_y: crop.y as u16,
+            width: crop.width as u16,
+            height: crop.height as u16,
+        };
         let mut out = self.encode(&HostToBoard::FrameStart(h));
         for (i, data) in grey.chunks(CHUNK).enumerate() {
             let offset = (i * CHUNK) as u16;
-            out.extend(self.encode(&HostToBoard::FrameChunk { frame: id, offset, data }));
+            out.extend(self.encode(&HostToBoard::FrameChunk {
+                frame: id,
+                offset,
+                data,
+            }));
         }
         out
     }
@@ -321,9 +363,15 @@ impl HostPort {
     /// The wire bytes of a model upload: begin, chunks, commit.
     pub fn encode_upload(&mut self, blob: &[u8]) -> Vec<u8> {
         let crc32 = msr_shared::blob::CRC32.checksum(blob);
-        let mut out = self.encode(&HostToBoard::ModelBegin { len: blob.len() as u32, crc32 });
+        let mut out = self.encode(&HostToBoard::ModelBegin {
+            len: blob.len() as u32,
+            crc32,
+        });
         for (i, data) in blob.chunks(CHUNK).enumerate() {
-            out.extend(self.encode(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data }));
+            out.extend(self.encode(&HostToBoard::ModelChunk {
+                offset: (i * CHUNK) as u32,
+                data,
+            }));
         }
         out.extend(self.encode(&HostToBoard::ModelCommit));
         out
@@ -356,7 +404,12 @@ pub struct Camera<'a> {
 
 impl Camera<'_> {
     /// The grey frame at a pose with an optional mark, and its face crop.
-    pub fn shoot(&self, pose: &BodyPose, mark: Option<&msr_sim::marks::Mark>, rng: &mut ChaCha8Rng) -> Result<(GrayImage, crop::Face)> {
+    pub fn shoot(
+        &self,
+        pose: &BodyPose,
+        mark: Option<&msr_sim::marks::Mark>,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(GrayImage, crop::Face)> {
         let var = Variation::random(rng);
         let r = self.renderer.render(pose, mark, &var);
         let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb));
@@ -369,8 +422,12 @@ impl Camera<'_> {
 enum Stage {
     Watching,
     /// A reach started at this time, towards this target.
-    Reaching { since_us: u64 },
-    Held { since_us: u64 },
+    Reaching {
+        since_us: u64,
+    },
+    Held {
+        since_us: u64,
+    },
     Done,
 }
 
@@ -426,16 +483,27 @@ impl Scenario<'_> {
         }
         // The mark appears: choose one that shows, at the pose the head has now.
         if self.mark_on(now) && self.mark.is_none() {
-            let (m, _) = msr_sim::dataset::render_marked(self.camera.renderer, &w.body_pose(), &Variation::CLEAN, &mut self.rng);
+            let (m, _) = msr_sim::dataset::render_marked(
+                self.camera.renderer,
+                &w.body_pose(),
+                &Variation::CLEAN,
+                &mut self.rng,
+            );
             let p = msr_sim::body::project_head(&m.point_head(), 0.0, 0.0);
             self.trial.mark = Some(format!("{} {}", m.colour, m.kind));
             self.trial.mark_pixel = p;
             self.mark = Some(m);
         }
         let arm_up = !matches!(self.stage, Stage::Watching);
-        let period = if arm_up { ARM_UP_FRAME_PERIOD_US.max(self.cfg.frame_period_us) } else { self.cfg.frame_period_us };
+        let period = if arm_up {
+            ARM_UP_FRAME_PERIOD_US.max(self.cfg.frame_period_us)
+        } else {
+            self.cfg.frame_period_us
+        };
         if now >= self.next_frame_us && w.host.tx_idle_at_us() <= now {
-            let (_, face) = self.camera.shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng)?;
+            let (_, face) = self
+                .camera
+                .shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng)?;
             let bytes = self.port.encode_face(face.crop, &face.grey);
             w.host.send(&bytes);
             self.trial.frames_sent += 1;
@@ -449,7 +517,11 @@ impl Scenario<'_> {
             Stage::Watching => self.cfg.mark_at_us + self.cfg.watch_us,
             _ => self.cfg.max_us(),
         };
-        Ok(if self.stage == Stage::Done || now >= limit { Flow::Stop } else { Flow::Continue })
+        Ok(if self.stage == Stage::Done || now >= limit {
+            Flow::Stop
+        } else {
+            Flow::Continue
+        })
     }
 
     fn on_reach(&mut self, now: u64, d: Detection) {
@@ -471,7 +543,10 @@ impl Scenario<'_> {
     fn sample(&mut self, now: u64, w: &World) {
         let q = w.servos.reach_angles();
         let Some(t) = self.target else { return };
-        let near = q.iter().zip(t).all(|(a, b)| (a - b as f64).abs() <= HELD_TOLERANCE_RAD);
+        let near = q
+            .iter()
+            .zip(t)
+            .all(|(a, b)| (a - b as f64).abs() <= HELD_TOLERANCE_RAD);
         match self.stage {
             Stage::Reaching { .. } if near => {
                 self.stage = Stage::Held { since_us: now };
@@ -481,7 +556,8 @@ impl Scenario<'_> {
                 if !near {
                     // The board left the target early (a watchdog): not a held reach.
                     self.stage = Stage::Watching;
-                    self.trial.failure = Some("the arm left the reach target before the hold was judged".into());
+                    self.trial.failure =
+                        Some("the arm left the reach target before the hold was judged".into());
                     self.held.clear();
                 } else {
                     self.held.push(q);
@@ -513,19 +589,32 @@ impl Scenario<'_> {
         if let Some(f) = &self.trial.failure {
             return Some(f.clone());
         }
-        let after: Vec<&Detection> = self.detections.iter().filter(|(t, _)| *t >= self.cfg.mark_at_us).map(|(_, d)| d).collect();
+        let after: Vec<&Detection> = self
+            .detections
+            .iter()
+            .filter(|(t, _)| *t >= self.cfg.mark_at_us)
+            .map(|(_, d)| d)
+            .collect();
         let seen = after.iter().filter(|d| d.blob.is_some()).count();
         Some(match (self.stage, seen) {
             (_, 0) => format!("detection: no blob in {} frames with the mark", after.len()),
             (Stage::Watching, n) => format!("confirm: blob in only {n} of {} frames", after.len()),
-            (Stage::Reaching { .. }, _) => "motion: the arm never settled at the reach target".into(),
+            (Stage::Reaching { .. }, _) => {
+                "motion: the arm never settled at the reach target".into()
+            }
             _ => "unknown".into(),
         })
     }
 }
 
 /// Runs one trial with the in-process board. `seed` makes the trial (mark, noise, link faults).
-pub fn run_trial_inproc(blob: &[u8], camera: Camera, cfg: &EpisodeConfig, index: usize, seed: u64) -> Result<Trial> {
+pub fn run_trial_inproc(
+    blob: &[u8],
+    camera: Camera,
+    cfg: &EpisodeConfig,
+    index: usize,
+    seed: u64,
+) -> Result<Trial> {
     let mut board = inproc_board(blob);
     let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| board.poll(now, h, s);
     let (mut trial, _) = run_trial_with(&mut fw, camera, cfg, index, seed)?;
@@ -620,11 +709,18 @@ pub fn run_trial_with<F: world::Firmware>(
 
 /// Seed of trial `i` of a run seeded `seed`.
 pub fn trial_seed(seed: u64, i: usize) -> u64 {
-    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(i as u64 * 0x2545_F491_4F6C_DD1D + 1)
+    seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        .wrapping_add(i as u64 * 0x2545_F491_4F6C_DD1D + 1)
 }
 
 /// Runs `n` in-process trials, `cfg.parallel` at a time; `progress` is told after each.
-pub fn run_inproc(blob: &[u8], cfg: &EpisodeConfig, n: usize, seed: u64, progress: &(dyn Fn(&Trial) + Sync)) -> Result<Vec<Trial>> {
+pub fn run_inproc(
+    blob: &[u8],
+    cfg: &EpisodeConfig,
+    n: usize,
+    seed: u64,
+    progress: &(dyn Fn(&Trial) + Sync),
+) -> Result<Vec<Trial>> {
     let model = Model::parse(blob).map_err(|e| anyhow!("model blob: {e}"))?;
     let template = crate::detect::template_of(&model)?;
     let renderer = Renderer::new(cfg.robot);
@@ -638,7 +734,10 @@ pub fn run_inproc(blob: &[u8], cfg: &EpisodeConfig, n: usize, seed: u64, progres
                 if i >= n || first_error.lock().unwrap().is_some() {
                     return;
                 }
-                let camera = Camera { renderer: &renderer, template: &template };
+                let camera = Camera {
+                    renderer: &renderer,
+                    template: &template,
+                };
                 match run_trial_inproc(blob, camera, cfg, i, trial_seed(seed, i)) {
                     Ok(t) => {
                         progress(&t);

@@ -92,10 +92,17 @@ pub fn describe(t: &Trial) -> String {
     let what = match (&t.mark, t.false_reach, t.touched) {
         (_, true, _) => "FALSE REACH".to_string(),
         (None, _, _) => "no mark, no reach".to_string(),
-        (Some(m), _, true) => format!("{m}: touched, {:.1} mm, {:.0} ms", t.touch_error_mm.unwrap_or(f64::NAN), t.latency_ms.unwrap_or(f64::NAN)),
+        (Some(m), _, true) => format!(
+            "{m}: touched, {:.1} mm, {:.0} ms",
+            t.touch_error_mm.unwrap_or(f64::NAN),
+            t.latency_ms.unwrap_or(f64::NAN)
+        ),
         (Some(m), _, false) => format!("{m}: MISSED ({})", t.failure.as_deref().unwrap_or("?")),
     };
-    format!("trial {:>3}: {what} [{:.1} s sim, {:.2} s wall]", t.index, t.sim_s, t.wall_s)
+    format!(
+        "trial {:>3}: {what} [{:.1} s sim, {:.2} s wall]",
+        t.index, t.sim_s, t.wall_s
+    )
 }
 
 pub fn readable(s: &Summary) -> String {

@@ -12,14 +12,25 @@ use std::path::Path;
 /// Reach pairs made by the sim's IK: (mark pixel at head (0, 0), five joint angles).
 pub fn sim_reach_pairs(n: usize, seed: u64) -> (Vec<[f64; 2]>, Vec<[f64; 5]>) {
     let pairs = msr_sim::dataset::reach_pairs(n, seed);
-    (pairs.iter().map(|p| p.pixel).collect(), pairs.iter().map(|p| p.joints).collect())
+    (
+        pairs.iter().map(|p| p.pixel).collect(),
+        pairs.iter().map(|p| p.joints).collect(),
+    )
 }
 
 /// Trains the 2-10-5 reach network on `n` sim IK pairs (the paper's 10^4 Adam iterations).
 pub fn train_sim_reach(n: usize, seed: u64) -> Result<ReachModel> {
     let (xs, ys) = sim_reach_pairs(n, seed);
     ensure!(xs.len() >= 10, "the IK gave only {} reach pairs", xs.len());
-    train_reach::train(&xs, &ys, &train_reach::Opts { seed, restarts: 3, ..Default::default() })
+    train_reach::train(
+        &xs,
+        &ys,
+        &train_reach::Opts {
+            seed,
+            restarts: 3,
+            ..Default::default()
+        },
+    )
 }
 
 /// The blob of decoder `name` in training folder `dir` with `reach`.
@@ -32,16 +43,27 @@ pub fn blob_from_training(dir: &Path, name: &str, reach: &ReachModel) -> Result<
         if l.kind != LayerKind::Dense {
             bail!("decoder layer {:?}: only fully connected decoders (--arch mlp) can be turned into a blob here", l.kind);
         }
-        dense.push(Dense { n_in: l.input.len(), n_out: l.output.len(), w: l.weights.clone(), b: l.bias.clone(), act: l.activation });
+        dense.push(Dense {
+            n_in: l.input.len(),
+            n_out: l.output.len(),
+            w: l.weights.clone(),
+            b: l.bias.clone(),
+            act: l.activation,
+        });
     }
     if info.novelty.normalisation != Normalisation::StdDev {
         bail!("only the standard-deviation normalisation is supported here");
     }
     let stats = crate::train::load_stats(dir, &info)?;
     let floor = info.novelty.sigma_floor;
-    let template = crate::crop::load_grey(&dir.join(&info.files.template)).context("the model's face template")?;
+    let template = crate::crop::load_grey(&dir.join(&info.files.template))
+        .context("the model's face template")?;
     let p = Published {
-        decoder: DenseDecoder { layers: dense, face_h: info.face_h, face_w: info.face_w },
+        decoder: DenseDecoder {
+            layers: dense,
+            face_h: info.face_h,
+            face_w: info.face_w,
+        },
         mu: stats.mu.clone(),
         sigma: stats.sigma.iter().map(|s| s.max(floor)).collect(),
         template,
@@ -51,5 +73,7 @@ pub fn blob_from_training(dir: &Path, name: &str, reach: &ReachModel) -> Result<
         min_area: info.novelty.min_area,
         head_angles: None,
     };
-    p.to_spec()?.to_bytes().map_err(|e| anyhow::anyhow!("model blob: {e}"))
+    p.to_spec()?
+        .to_bytes()
+        .map_err(|e| anyhow::anyhow!("model blob: {e}"))
 }

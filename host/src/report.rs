@@ -16,11 +16,18 @@ use std::path::Path;
 const ZOOM: u32 = 3;
 
 fn esc(s: &str) -> String {
-    s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
 }
 
 fn zoom(img: &RgbImage) -> RgbImage {
-    imageops::resize(img, img.width() * ZOOM, img.height() * ZOOM, imageops::FilterType::Nearest)
+    imageops::resize(
+        img,
+        img.width() * ZOOM,
+        img.height() * ZOOM,
+        imageops::FilterType::Nearest,
+    )
 }
 
 fn grey_rgb(w: u32, h: u32, px: impl Fn(u32, u32) -> u8) -> RgbImage {
@@ -36,51 +43,105 @@ fn heat(v: f32) -> Rgb<u8> {
 }
 
 /// The strip of one test frame; returns the picture's file names.
-fn frame_pictures(model: &Model, data: &Path, f: &msr_sim::layout::FrameRecord, i: usize, pics: &Path) -> Result<(Vec<String>, String)> {
+fn frame_pictures(
+    model: &Model,
+    data: &Path,
+    f: &msr_sim::layout::FrameRecord,
+    i: usize,
+    pics: &Path,
+) -> Result<(Vec<String>, String)> {
     let frame = crop::load_grey(&data.join(&f.file))?;
-    let rgb_frame = image::open(data.join(&f.file)).with_context(|| format!("frame {}", f.file))?.to_rgb8();
+    let rgb_frame = image::open(data.join(&f.file))
+        .with_context(|| format!("frame {}", f.file))?
+        .to_rgb8();
     let tpl = crate::detect::template_of(model)?;
     let face = crop::crop_face(&frame, &tpl)?;
     let head = [f.head_yaw as f32, f.head_pitch as f32];
     let d = crate::fixed::detect(model, &face, head)?;
     let (w, h) = (face.crop.width, face.crop.height);
     let mut full = rgb_frame.clone();
-    draw_hollow_rect_mut(&mut full, Rect::at(face.crop.x as i32, face.crop.y as i32).of_size(w, h), Rgb([40, 220, 40]));
+    draw_hollow_rect_mut(
+        &mut full,
+        Rect::at(face.crop.x as i32, face.crop.y as i32).of_size(w, h),
+        Rgb([40, 220, 40]),
+    );
     if let Some(m) = &f.mark {
         let [x0, y0, x1, y1] = m.box_xyxy_inclusive;
-        draw_hollow_rect_mut(&mut full, Rect::at(x0 as i32 - 1, y0 as i32 - 1).of_size(x1 - x0 + 3, y1 - y0 + 3), Rgb([60, 120, 255]));
+        draw_hollow_rect_mut(
+            &mut full,
+            Rect::at(x0 as i32 - 1, y0 as i32 - 1).of_size(x1 - x0 + 3, y1 - y0 + 3),
+            Rgb([60, 120, 255]),
+        );
     }
     if let Some(b) = d.blob {
         let [x0, y0, x1, y1] = b.box_xyxy;
-        draw_hollow_rect_mut(&mut full, Rect::at(x0 as i32, y0 as i32).of_size(x1 - x0 + 1, y1 - y0 + 1), Rgb([255, 40, 40]));
-        draw_cross_mut(&mut full, Rgb([255, 255, 0]), b.centroid[0].round() as i32, b.centroid[1].round() as i32);
+        draw_hollow_rect_mut(
+            &mut full,
+            Rect::at(x0 as i32, y0 as i32).of_size(x1 - x0 + 1, y1 - y0 + 1),
+            Rgb([255, 40, 40]),
+        );
+        draw_cross_mut(
+            &mut full,
+            Rgb([255, 255, 0]),
+            b.centroid[0].round() as i32,
+            b.centroid[1].round() as i32,
+        );
     }
     let crop_img = grey_rgb(w, h, |x, y| face.grey[(y * w + x) as usize]);
-    let pred = grey_rgb(w, h, |x, y| (d.predicted[(y * w + x) as usize] * 255.0).round().clamp(0.0, 255.0) as u8);
+    let pred = grey_rgb(w, h, |x, y| {
+        (d.predicted[(y * w + x) as usize] * 255.0)
+            .round()
+            .clamp(0.0, 255.0) as u8
+    });
     let sal = RgbImage::from_fn(w, h, |x, y| heat(d.saliency[(y * w + x) as usize]));
-    let mut bin = grey_rgb(w, h, |x, y| if d.mask[(y * w + x) as usize] { 255 } else { 0 });
+    let mut bin = grey_rgb(
+        w,
+        h,
+        |x, y| if d.mask[(y * w + x) as usize] { 255 } else { 0 },
+    );
     if let Some(b) = d.blob {
         let [x0, y0, x1, y1] = b.box_xyxy;
         let (cx, cy) = (face.crop.x as i32, face.crop.y as i32);
-        draw_hollow_rect_mut(&mut bin, Rect::at(x0 as i32 - cx, y0 as i32 - cy).of_size(x1 - x0 + 1, y1 - y0 + 1), Rgb([255, 40, 40]));
+        draw_hollow_rect_mut(
+            &mut bin,
+            Rect::at(x0 as i32 - cx, y0 as i32 - cy).of_size(x1 - x0 + 1, y1 - y0 + 1),
+            Rgb([255, 40, 40]),
+        );
     }
     let names = ["frame", "crop", "predicted", "saliency", "binarised"];
     let imgs = [full, zoom(&crop_img), zoom(&pred), zoom(&sal), zoom(&bin)];
     let mut files = Vec::new();
     for (n, img) in names.iter().zip(imgs) {
         let file = format!("test{i}_{n}.png");
-        img.save(pics.join(&file)).with_context(|| format!("writing {file}"))?;
+        img.save(pics.join(&file))
+            .with_context(|| format!("writing {file}"))?;
         files.push(format!("pictures/{file}"));
     }
-    let truth = f.mark.as_ref().map_or("no mark".to_string(), |m| format!("{} {} at box {:?}", m.colour, m.shape, m.box_xyxy_inclusive));
+    let truth = f.mark.as_ref().map_or("no mark".to_string(), |m| {
+        format!("{} {} at box {:?}", m.colour, m.shape, m.box_xyxy_inclusive)
+    });
     let found = d.blob.map_or("nothing found".to_string(), |b| {
         let hit = f.mark.as_ref().is_some_and(|m| {
             let [x0, y0, x1, y1] = m.box_xyxy_inclusive;
-            (x0 as f64..=x1 as f64).contains(&b.centroid[0]) && (y0 as f64..=y1 as f64).contains(&b.centroid[1])
+            (x0 as f64..=x1 as f64).contains(&b.centroid[0])
+                && (y0 as f64..=y1 as f64).contains(&b.centroid[1])
         });
-        format!("blob of {} px at ({:.1}, {:.1}){}", b.area, b.centroid[0], b.centroid[1], if hit { ", on the mark" } else { ", off the mark" })
+        format!(
+            "blob of {} px at ({:.1}, {:.1}){}",
+            b.area,
+            b.centroid[0],
+            b.centroid[1],
+            if hit {
+                ", on the mark"
+            } else {
+                ", off the mark"
+            }
+        )
     });
-    let caption = format!("{} - head ({:.3}, {:.3}) rad - truth: {truth} - detection: {found}", f.file, f.head_yaw, f.head_pitch);
+    let caption = format!(
+        "{} - head ({:.3}, {:.3}) rad - truth: {truth} - detection: {found}",
+        f.file, f.head_yaw, f.head_pitch
+    );
     Ok((files, caption))
 }
 
@@ -90,15 +151,24 @@ fn reach_picture(robot: msr_sim::Robot, q: [f32; 5], file: &Path) -> Result<()> 
     let q64 = q.map(f64::from);
     let mut pose = msr_sim::body::BodyPose::head(q64[0], q64[1]);
     pose.left_arm = msr_sim::kin::LeftArm::from_reach(&q64);
-    let img = r.render(&pose, None, &msr_sim::render::Variation::CLEAN).rgb;
-    img.save(file).with_context(|| format!("writing {}", file.display()))?;
+    let img = r
+        .render(&pose, None, &msr_sim::render::Variation::CLEAN)
+        .rgb;
+    img.save(file)
+        .with_context(|| format!("writing {}", file.display()))?;
     Ok(())
 }
 
 fn num(v: &Value) -> String {
     match v {
         Value::Null => "-".into(),
-        Value::Number(n) => n.as_f64().map_or(n.to_string(), |f| if f.fract() == 0.0 && f.abs() < 1e9 { format!("{f}") } else { format!("{f:.3}") }),
+        Value::Number(n) => n.as_f64().map_or(n.to_string(), |f| {
+            if f.fract() == 0.0 && f.abs() < 1e9 {
+                format!("{f}")
+            } else {
+                format!("{f:.3}")
+            }
+        }),
         Value::String(s) => esc(s),
         other => esc(&other.to_string()),
     }
@@ -138,8 +208,13 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
     let pics = out.join("pictures");
     std::fs::create_dir_all(&pics)?;
     let model = Model::parse(blob).map_err(|e| anyhow::anyhow!("model blob: {e}"))?;
-    let index: DatasetIndex = serde_json::from_slice(&std::fs::read(data.join(msr_sim::layout::INDEX_FILE))?)?;
-    let robot: msr_sim::Robot = report["robot"].as_str().unwrap_or("red").parse().unwrap_or(msr_sim::Robot::Red);
+    let index: DatasetIndex =
+        serde_json::from_slice(&std::fs::read(data.join(msr_sim::layout::INDEX_FILE))?)?;
+    let robot: msr_sim::Robot = report["robot"]
+        .as_str()
+        .unwrap_or("red")
+        .parse()
+        .unwrap_or(msr_sim::Robot::Red);
 
     let mut h = String::new();
     let _ = write!(
@@ -154,18 +229,28 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
 
     // Test frames.
     let _ = write!(h, "<h2>Test frames through the board's pipeline</h2><p>Left to right: the camera frame (green: face crop, blue: the mark's true box, red: detected blob, yellow: its centroid), the crop, the face the decoder predicts for the head angles the servos report, the saliency (red at the threshold, yellow at 3x), the binarised map with the winning blob.</p>");
-    let test: Vec<&msr_sim::layout::FrameRecord> = index.split(Split::Test).map(|(_, f)| f).take(4).collect();
+    let test: Vec<&msr_sim::layout::FrameRecord> =
+        index.split(Split::Test).map(|(_, f)| f).take(4).collect();
     for (i, f) in test.iter().enumerate() {
         match frame_pictures(&model, data, f, i, &pics) {
             Ok((files, cap)) => {
                 h.push_str("<div class=strip>");
-                for (file, name) in files.iter().zip(["frame", "crop", "predicted", "saliency", "binarised"]) {
+                for (file, name) in
+                    files
+                        .iter()
+                        .zip(["frame", "crop", "predicted", "saliency", "binarised"])
+                {
                     let _ = write!(h, "<figure><img src=\"{file}\" alt=\"{name}\"><figcaption>{name}</figcaption></figure>");
                 }
                 let _ = write!(h, "</div><div class=cap>{}</div>", esc(&cap));
             }
             Err(e) => {
-                let _ = write!(h, "<p>frame {}: {}</p>", esc(&f.file), esc(&format!("{e:#}")));
+                let _ = write!(
+                    h,
+                    "<p>frame {}: {}</p>",
+                    esc(&f.file),
+                    esc(&format!("{e:#}"))
+                );
             }
         }
     }
@@ -187,14 +272,38 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
                 "final train MSE": t["final_train_mse"], "final test MSE": t["final_test_mse"], "training s": t["training_seconds"]})
         })
         .collect();
-    h.push_str(&table(&rows, &["model", "arch", "train frames", "epochs", "final train MSE", "final test MSE", "training s"]));
+    h.push_str(&table(
+        &rows,
+        &[
+            "model",
+            "arch",
+            "train frames",
+            "epochs",
+            "final train MSE",
+            "final test MSE",
+            "training s",
+        ],
+    ));
 
     // Tables.
     let ev = &report["eval"];
     let _ = write!(h, "<h2>Detection on the test split (the paper's table)</h2><p>{} test frames ({} marked, {} unmarked), threshold {}, min area {}. Quantized agreement (float vs fixed decoder, sigma weighting): {}.</p>",
         num(&ev["test_frames"]), num(&ev["marked"]), num(&ev["unmarked"]), num(&ev["threshold"]), num(&ev["min_area"]), num(&ev["quantized_agreement"]));
     let rows = ev["rows"].as_array().cloned().unwrap_or_default();
-    h.push_str(&table(&rows, &["model", "weighting", "engine", "overlap_over_mark_area", "precision_ai_over_ai_ad", "hit_rate", "false_alarm_rate", "image_auroc", "pixel_auroc"]));
+    h.push_str(&table(
+        &rows,
+        &[
+            "model",
+            "weighting",
+            "engine",
+            "overlap_over_mark_area",
+            "precision_ai_over_ai_ad",
+            "hit_rate",
+            "false_alarm_rate",
+            "image_auroc",
+            "pixel_auroc",
+        ],
+    ));
     if let Some(abs) = ev["absent"].as_array().filter(|a| !a.is_empty()) {
         h.push_str(&table(abs, &["model", "weighting", "engine", "reason"]));
     }
@@ -205,24 +314,54 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
     if mt["qemu"].is_object() && mt["qemu"].get("error").is_none() {
         sums.push(mt["qemu"].clone());
     }
-    h.push_str(&table(&sums, &["backend", "robot", "trials", "marked_trials", "touched", "touch_rate", "no_mark_trials", "false_reaches", "median_touch_error_mm", "latency_ms_median", "limit_violations", "crc_errors", "resyncs", "watchdog_trips"]));
+    h.push_str(&table(
+        &sums,
+        &[
+            "backend",
+            "robot",
+            "trials",
+            "marked_trials",
+            "touched",
+            "touch_rate",
+            "no_mark_trials",
+            "false_reaches",
+            "median_touch_error_mm",
+            "latency_ms_median",
+            "limit_violations",
+            "crc_errors",
+            "resyncs",
+            "watchdog_trips",
+        ],
+    ));
     if let Some(e) = mt["qemu"].get("error") {
         let _ = write!(h, "<p>QEMU: {}</p>", num(e));
     }
     let trials = mt["trials"].as_array().cloned().unwrap_or_default();
-    let misses: Vec<Value> = trials.iter().filter(|t| t["mark"].is_string() && t["touched"] == false || t["false_reach"] == true).cloned().collect();
+    let misses: Vec<Value> = trials
+        .iter()
+        .filter(|t| t["mark"].is_string() && t["touched"] == false || t["false_reach"] == true)
+        .cloned()
+        .collect();
     if !misses.is_empty() {
         let _ = write!(h, "<p>Trials that did not touch (and why):</p>");
-        h.push_str(&table(&misses, &["index", "mark", "reached", "false_reach", "failure"]));
+        h.push_str(&table(
+            &misses,
+            &["index", "mark", "reached", "false_reach", "failure"],
+        ));
     }
 
     // Reach poses.
     let _ = write!(h, "<h2>Reach poses</h2><p>The robot at the posture the board streamed, as its camera sees it in the mirror, for a few touched trials.</p>");
     for t in trials.iter().filter(|t| t["touched"] == true).take(4) {
         let Some(q) = t["reach_target"].as_array().and_then(|a| {
-            let v: Vec<f32> = a.iter().filter_map(|x| x.as_f64().map(|f| f as f32)).collect();
+            let v: Vec<f32> = a
+                .iter()
+                .filter_map(|x| x.as_f64().map(|f| f as f32))
+                .collect();
             <[f32; 5]>::try_from(v).ok()
-        }) else { continue };
+        }) else {
+            continue;
+        };
         let file = format!("reach{}.png", t["index"]);
         if reach_picture(robot, q, &pics.join(&file)).is_ok() {
             let _ = write!(h, "<figure><img src=\"pictures/{file}\"><figcaption>trial {}: {} - {} mm<br>[{:.2}, {:.2}, {:.2}, {:.2}, {:.2}] rad</figcaption></figure>",
@@ -230,10 +369,25 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
         }
     }
 
-    let _ = write!(h, "<h2>The published model on the real frames</h2>{}", kv(&report["real"]));
-    let _ = write!(h, "<h2>The pipeline's cost on this PC</h2>{}", kv(&report["bench"]));
+    let _ = write!(
+        h,
+        "<h2>The published model on the real frames</h2>{}",
+        kv(&report["real"])
+    );
+    let _ = write!(
+        h,
+        "<h2>The pipeline's cost on this PC</h2>{}",
+        kv(&report["bench"])
+    );
     if let Some(st) = report["bench"]["stages"].as_object() {
-        let _ = write!(h, "<p>Stages (ns): {}</p>", st.iter().map(|(k, v)| format!("{k} {}", num(v))).collect::<Vec<_>>().join(", "));
+        let _ = write!(
+            h,
+            "<p>Stages (ns): {}</p>",
+            st.iter()
+                .map(|(k, v)| format!("{k} {}", num(v)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
     }
     let _ = write!(h, "<h2>Timings (s)</h2>{}", kv(&report["timings"]));
     if let Some(n) = report["notes"].as_array() {

@@ -72,7 +72,12 @@ impl Session {
             .timeout(Duration::from_millis(5))
             .open()
             .with_context(|| format!("opening serial port {path}"))?;
-        Ok(Session { port, host: HostPort::default(), byte_time: Duration::from_secs_f64(10.0 / baud as f64), pending: Vec::new() })
+        Ok(Session {
+            port,
+            host: HostPort::default(),
+            byte_time: Duration::from_secs_f64(10.0 / baud as f64),
+            pending: Vec::new(),
+        })
     }
 
     /// Sends bytes at no more than the line rate. A full output buffer (the board, or the PTY
@@ -89,7 +94,13 @@ impl Session {
                         last_progress = Instant::now();
                     }
                     Ok(_) => {}
-                    Err(e) if matches!(e.kind(), std::io::ErrorKind::TimedOut | std::io::ErrorKind::WouldBlock | std::io::ErrorKind::Interrupted) => {}
+                    Err(e)
+                        if matches!(
+                            e.kind(),
+                            std::io::ErrorKind::TimedOut
+                                | std::io::ErrorKind::WouldBlock
+                                | std::io::ErrorKind::Interrupted
+                        ) => {}
                     Err(e) => return Err(e).context("writing to the board"),
                 }
                 if last_progress.elapsed() > STALL {
@@ -124,7 +135,11 @@ impl Session {
     }
 
     /// Collects messages until one satisfies `done` (returned last) or `timeout` passes.
-    pub fn wait_for(&mut self, timeout: Duration, mut done: impl FnMut(&BoardToHost) -> bool) -> Result<(Vec<BoardToHost>, bool)> {
+    pub fn wait_for(
+        &mut self,
+        timeout: Duration,
+        mut done: impl FnMut(&BoardToHost) -> bool,
+    ) -> Result<(Vec<BoardToHost>, bool)> {
         let t0 = Instant::now();
         let mut got = Vec::new();
         while t0.elapsed() < timeout {
@@ -146,10 +161,17 @@ impl Session {
     pub fn upload(&mut self, blob: &[u8], timeout: Duration) -> Result<u32> {
         let bytes = self.host.encode_upload(blob);
         self.send(&bytes)?;
-        let (msgs, ok) = self.wait_for(timeout, |m| matches!(m, BoardToHost::ModelAccepted { .. } | BoardToHost::Error { .. }))?;
+        let (msgs, ok) = self.wait_for(timeout, |m| {
+            matches!(
+                m,
+                BoardToHost::ModelAccepted { .. } | BoardToHost::Error { .. }
+            )
+        })?;
         match msgs.last() {
             Some(BoardToHost::ModelAccepted { crc32 }) if ok => Ok(*crc32),
-            Some(BoardToHost::Error { code, detail }) if ok => bail!("the board refused the model: {code:?} (detail {detail})"),
+            Some(BoardToHost::Error { code, detail }) if ok => {
+                bail!("the board refused the model: {code:?} (detail {detail})")
+            }
             _ => bail!("no answer to the model upload within {timeout:?}"),
         }
     }
@@ -161,7 +183,9 @@ impl Session {
     pub fn send_face(&mut self, face: &crop::Face, timeout: Duration) -> Result<Vec<BoardToHost>> {
         let bytes = self.host.encode_face(face.crop, &face.grey);
         self.send(&bytes)?;
-        let (msgs, _) = self.wait_for(timeout, |m| matches!(m, BoardToHost::Detection(_) | BoardToHost::Error { .. }))?;
+        let (msgs, _) = self.wait_for(timeout, |m| {
+            matches!(m, BoardToHost::Detection(_) | BoardToHost::Error { .. })
+        })?;
         Ok(msgs)
     }
 
@@ -191,7 +215,10 @@ pub fn folder_frames(dir: &Path) -> Result<Vec<(String, GrayImage)>> {
     if files.is_empty() {
         bail!("no PNG frames in {}", dir.display());
     }
-    files.iter().map(|p| Ok((p.display().to_string(), crop::load_grey(p)?))).collect()
+    files
+        .iter()
+        .map(|p| Ok((p.display().to_string(), crop::load_grey(p)?)))
+        .collect()
 }
 
 /// Frames rendered by the sim at home: the first three without a mark, then one random mark.
@@ -200,12 +227,20 @@ pub fn sim_frames(robot: Robot, count: usize, seed: u64) -> Vec<(String, GrayIma
     let renderer = msr_sim::render::Renderer::new(robot);
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     let pose = msr_sim::body::BodyPose::head(0.0, 0.0);
-    let (mark, _) = msr_sim::dataset::render_marked(&renderer, &pose, &msr_sim::render::Variation::CLEAN, &mut rng);
+    let (mark, _) = msr_sim::dataset::render_marked(
+        &renderer,
+        &pose,
+        &msr_sim::render::Variation::CLEAN,
+        &mut rng,
+    );
     (0..count)
         .map(|i| {
             let m = (i >= 3).then_some(&mark);
             let r = renderer.render(&pose, m, &msr_sim::render::Variation::random(&mut rng));
-            let name = format!("sim-{i:03}{}", m.map_or(String::new(), |m| format!(" ({} {})", m.colour, m.kind)));
+            let name = format!(
+                "sim-{i:03}{}",
+                m.map_or(String::new(), |m| format!(" ({} {})", m.colour, m.kind))
+            );
             (name, crop::to_grey(&image::DynamicImage::ImageRgb8(r.rgb)))
         })
         .collect()

@@ -33,41 +33,57 @@ impl SimBoard {
         let path = pty.path().to_string();
         let stop = Arc::new(AtomicBool::new(false));
         let stop2 = stop.clone();
-        let thread = std::thread::Builder::new().name("sim-board".into()).spawn(move || -> Result<Served> {
-            let mut board = match &blob {
-                Some(b) => inproc_board(b),
-                None => Box::new(msr_firmware::Board::new(crate::episode::HeapStore::new(None, 2 * 1024 * 1024))),
-            };
-            let mut bridge = PtyBridge::new(pty);
-            let mut io_error = None;
-            let cfg = WorldConfig { pace: Some(1.0), ..WorldConfig::default() };
-            let (w, _) = {
-                let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| board.poll(now, h, s);
-                world::run(
-                    &cfg,
-                    &mut fw,
-                    |w: &mut World| {
-                        if let Err(e) = bridge.pump(&mut w.host) {
-                            io_error = Some(e);
-                            return Flow::Stop;
-                        }
-                        if stop2.load(Ordering::SeqCst) { Flow::Stop } else { Flow::Continue }
-                    },
-                    u64::MAX / 2,
-                )
-                .map_err(|e| anyhow!("{e}"))?
-            };
-            if let Some(e) = io_error {
-                return Err(anyhow!("PTY: {e}"));
-            }
-            Ok(Served {
-                status: board.status(),
-                limit_violations: w.servos.counters().limit_violations,
-                to_board_bytes: bridge.to_link,
-                from_board_bytes: bridge.to_pty,
-            })
-        })?;
-        Ok(SimBoard { path, stop, thread: Some(thread) })
+        let thread = std::thread::Builder::new().name("sim-board".into()).spawn(
+            move || -> Result<Served> {
+                let mut board = match &blob {
+                    Some(b) => inproc_board(b),
+                    None => Box::new(msr_firmware::Board::new(crate::episode::HeapStore::new(
+                        None,
+                        2 * 1024 * 1024,
+                    ))),
+                };
+                let mut bridge = PtyBridge::new(pty);
+                let mut io_error = None;
+                let cfg = WorldConfig {
+                    pace: Some(1.0),
+                    ..WorldConfig::default()
+                };
+                let (w, _) = {
+                    let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| board.poll(now, h, s);
+                    world::run(
+                        &cfg,
+                        &mut fw,
+                        |w: &mut World| {
+                            if let Err(e) = bridge.pump(&mut w.host) {
+                                io_error = Some(e);
+                                return Flow::Stop;
+                            }
+                            if stop2.load(Ordering::SeqCst) {
+                                Flow::Stop
+                            } else {
+                                Flow::Continue
+                            }
+                        },
+                        u64::MAX / 2,
+                    )
+                    .map_err(|e| anyhow!("{e}"))?
+                };
+                if let Some(e) = io_error {
+                    return Err(anyhow!("PTY: {e}"));
+                }
+                Ok(Served {
+                    status: board.status(),
+                    limit_violations: w.servos.counters().limit_violations,
+                    to_board_bytes: bridge.to_link,
+                    from_board_bytes: bridge.to_pty,
+                })
+            },
+        )?;
+        Ok(SimBoard {
+            path,
+            stop,
+            thread: Some(thread),
+        })
     }
 
     /// The device path to open, e.g. `/dev/pts/5`.
@@ -78,8 +94,12 @@ impl SimBoard {
     /// Stops the world and returns what the board did.
     pub fn stop(mut self) -> Result<Served> {
         self.stop.store(true, Ordering::SeqCst);
-        let t = self.thread.take().ok_or_else(|| anyhow!("already stopped"))?;
-        t.join().map_err(|_| anyhow!("the simulated board's thread panicked"))?
+        let t = self
+            .thread
+            .take()
+            .ok_or_else(|| anyhow!("already stopped"))?;
+        t.join()
+            .map_err(|_| anyhow!("the simulated board's thread panicked"))?
     }
 }
 

@@ -8,7 +8,10 @@ use msr_sim::Robot;
 
 fn run(robot: Robot, cfg: &EpisodeConfig, n: usize, seed: u64) -> (Summary, Vec<Trial>) {
     let blob = common::trained_model(robot);
-    let trials = episode::run_inproc(&blob, cfg, n, seed, &|t| eprintln!("{}", msr_host::mirror_test::describe(t))).unwrap();
+    let trials = episode::run_inproc(&blob, cfg, n, seed, &|t| {
+        eprintln!("{}", msr_host::mirror_test::describe(t))
+    })
+    .unwrap();
     let s = episode::summarise(Backend::Inproc, robot, &trials);
     eprintln!("{}", msr_host::mirror_test::readable(&s));
     (s, trials)
@@ -34,7 +37,11 @@ fn check_touches(robot: Robot, min_touched: usize) {
     // The reach starts after K = 3 confirming frames at 10 frames a second.
     let lat = s.latency_ms_median.unwrap();
     assert!((150.0..1500.0).contains(&lat), "{lat}");
-    assert_eq!((s.crc_errors, s.resyncs, s.watchdog_trips), (0, 0, 0), "clean links");
+    assert_eq!(
+        (s.crc_errors, s.resyncs, s.watchdog_trips),
+        (0, 0, 0),
+        "clean links"
+    );
 }
 
 #[test]
@@ -57,7 +64,10 @@ fn no_mark_no_reach() {
     let (s, trials) = run(Robot::Red, &c, 4, 5);
     assert_eq!(s.no_mark_trials, 4);
     assert_eq!(s.false_reaches, 0, "{trials:#?}");
-    assert!(trials.iter().all(|t| t.frames_sent >= 20), "frames kept flowing");
+    assert!(
+        trials.iter().all(|t| t.frames_sent >= 20),
+        "frames kept flowing"
+    );
 }
 
 #[test]
@@ -69,11 +79,17 @@ fn bit_errors_are_counted_and_never_unsafe() {
         let c = marked_only(Robot::Red).with_ber(ber);
         let (s, trials) = run(Robot::Red, &c, 2, 21);
         assert_eq!(s.limit_violations, 0, "ber {ber}");
-        assert!(s.crc_errors > 0 && s.resyncs >= s.crc_errors, "ber {ber}: {s:?}");
+        assert!(
+            s.crc_errors > 0 && s.resyncs >= s.crc_errors,
+            "ber {ber}: {s:?}"
+        );
         assert_eq!(s.false_reaches, 0);
         if ber >= 1e-3 {
             // Not one whole frame: no detection, so no reach; the arm stays home.
-            assert!(trials.iter().all(|t| t.detections == 0 && !t.reached), "{trials:#?}");
+            assert!(
+                trials.iter().all(|t| t.detections == 0 && !t.reached),
+                "{trials:#?}"
+            );
         }
     }
 }
@@ -82,7 +98,11 @@ fn bit_errors_are_counted_and_never_unsafe() {
 fn bursts_are_resynchronised_past() {
     let mut c = marked_only(Robot::Red);
     // About one burst a second on the host link, a few on the servo bus.
-    let burst = FaultConfig { burst_rate: 2e-5, burst_len: 16, ..Default::default() };
+    let burst = FaultConfig {
+        burst_rate: 2e-5,
+        burst_len: 16,
+        ..Default::default()
+    };
     c.host_faults = burst.clone();
     c.servo_faults = burst;
     let (s, _) = run(Robot::Red, &c, 3, 31);
@@ -115,7 +135,8 @@ fn bad_models_are_clear_errors() {
     std::fs::write(&junk, b"MSRM but not a model").unwrap();
     let e = episode::read_model(&junk).unwrap_err();
     assert!(format!("{e:#}").contains("junk.msrm"), "{e:#}");
-    let e = episode::run_inproc(b"junk", &EpisodeConfig::new(Robot::Red), 1, 0, &|_| {}).unwrap_err();
+    let e =
+        episode::run_inproc(b"junk", &EpisodeConfig::new(Robot::Red), 1, 0, &|_| {}).unwrap_err();
     assert!(format!("{e:#}").contains("model"), "{e:#}");
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -23,16 +23,31 @@ fn frames_from_the_sim_over_a_pty_come_back_as_detections_and_a_reach() {
     for (name, frame) in &frames {
         let face = msr_host::crop::crop_face(frame, &template).unwrap();
         let msgs = s.send_face(&face, Duration::from_millis(150)).unwrap();
-        let d = msgs.iter().find_map(|m| if let BoardToHost::Detection(d) = m { Some(*d) } else { None });
-        eprintln!("{name}: {:?}", msgs.iter().map(run_board::describe).collect::<Vec<_>>());
+        let d = msgs.iter().find_map(|m| {
+            if let BoardToHost::Detection(d) = m {
+                Some(*d)
+            } else {
+                None
+            }
+        });
+        eprintln!(
+            "{name}: {:?}",
+            msgs.iter().map(run_board::describe).collect::<Vec<_>>()
+        );
         if let Some(d) = d {
             dets.push(d);
         }
     }
     // Detection pauses once the arm goes up, so answers stop at the confirming frame.
     assert!(dets.len() >= 6, "{dets:?}");
-    assert!(dets[..3].iter().all(|d| d.blob.is_none()), "no mark yet: {dets:?}");
-    assert!(dets.iter().any(|d| d.confirmed && d.reach.is_some()), "a reach: {dets:?}");
+    assert!(
+        dets[..3].iter().all(|d| d.blob.is_none()),
+        "no mark yet: {dets:?}"
+    );
+    assert!(
+        dets.iter().any(|d| d.confirmed && d.reach.is_some()),
+        "a reach: {dets:?}"
+    );
     let st = s.status(T).unwrap();
     assert_eq!(st.model_crc, model.crc32);
     assert!(matches!(st.mode, Mode::Reach | Mode::Hold), "{st:?}");
@@ -73,7 +88,10 @@ fn msr_run_streams_a_frame_folder_and_uploads_over_the_pty() {
     msr_host::run_board::run(args).unwrap();
     let served = board.stop().unwrap();
     let model = msr_shared::blob::Model::parse(&blob).unwrap();
-    assert_eq!(served.status.model_crc, model.crc32, "the upload went through the PTY");
+    assert_eq!(
+        served.status.model_crc, model.crc32,
+        "the upload went through the PTY"
+    );
     assert_eq!(served.status.frames, 4);
     assert_eq!(served.status.host_link.crc_errors, 0);
     let _ = std::fs::remove_dir_all(&dir);
@@ -88,13 +106,20 @@ fn a_bad_upload_over_the_pty_is_refused() {
     let err = s.upload(&garbage, T).unwrap_err().to_string();
     assert!(err.contains("refused"), "{err}");
     let st = s.status(T).unwrap();
-    assert_eq!(st.model_crc, msr_shared::blob::Model::parse(&blob).unwrap().crc32, "old model kept");
+    assert_eq!(
+        st.model_crc,
+        msr_shared::blob::Model::parse(&blob).unwrap().crc32,
+        "old model kept"
+    );
     drop(s);
     board.stop().unwrap();
 }
 
 #[test]
 fn a_missing_port_is_a_clear_error() {
-    let e = Session::open("/dev/msr-no-such-port", 921_600).err().expect("no such port").to_string();
+    let e = Session::open("/dev/msr-no-such-port", 921_600)
+        .err()
+        .expect("no such port")
+        .to_string();
     assert!(e.contains("/dev/msr-no-such-port"), "{e}");
 }

@@ -65,7 +65,8 @@ pub fn trained_model(robot: Robot) -> Vec<u8> {
     })
     .expect("train the decoder");
     let reach = msr_host::model_blob::train_sim_reach(70, 0).expect("train the reach network");
-    let blob = msr_host::model_blob::blob_from_training(&models, "decoder", &reach).expect("make the blob");
+    let blob = msr_host::model_blob::blob_from_training(&models, "decoder", &reach)
+        .expect("make the blob");
     // Write then rename, so a concurrent test binary never reads half a file.
     let tmp = dir.join(format!("{key}.{}.tmp", std::process::id()));
     std::fs::write(&tmp, &blob).unwrap();
@@ -100,7 +101,10 @@ pub struct Pc<'a> {
 impl Pc<'_> {
     /// Renders a frame at the pose the servos hold (with `mark`), crops it, sends it.
     pub fn send_frame(&mut self, w: &mut World, mark: Option<&msr_sim::marks::Mark>) {
-        let (_, face) = self.camera.shoot(&w.body_pose(), mark, &mut self.rng).unwrap();
+        let (_, face) = self
+            .camera
+            .shoot(&w.body_pose(), mark, &mut self.rng)
+            .unwrap();
         let bytes = self.port.encode_face(face.crop, &face.grey);
         w.host.send(&bytes);
     }
@@ -118,15 +122,23 @@ pub fn scripted(
     use rand::SeedableRng;
     let mut board = match blob {
         Some(b) => inproc_board(b),
-        None => Box::new(msr_firmware::Board::new(msr_host::episode::HeapStore::new(None, 2 << 20))),
+        None => Box::new(msr_firmware::Board::new(msr_host::episode::HeapStore::new(
+            None,
+            2 << 20,
+        ))),
     };
-    let tpl_blob = blob.map(|b| b.to_vec()).unwrap_or_else(|| trained_model(robot));
+    let tpl_blob = blob
+        .map(|b| b.to_vec())
+        .unwrap_or_else(|| trained_model(robot));
     let model = msr_shared::blob::Model::parse(&tpl_blob).unwrap();
     let template = msr_host::detect::template_of(&model).unwrap();
     let renderer = msr_sim::render::Renderer::new(robot);
     let mut pc = Pc {
         port: HostPort::default(),
-        camera: Camera { renderer: &renderer, template: &template },
+        camera: Camera {
+            renderer: &renderer,
+            template: &template,
+        },
         rng: rand_chacha::ChaCha8Rng::seed_from_u64(1),
     };
     let mut msgs = Vec::new();
@@ -147,7 +159,12 @@ pub fn scripted(
         .unwrap()
     };
     let pc_counters = *pc.port.counters();
-    Seen { world: w, msgs, status: board.status(), pc: pc_counters }
+    Seen {
+        world: w,
+        msgs,
+        status: board.status(),
+        pc: pc_counters,
+    }
 }
 
 /// A mark the camera sees at home.
