@@ -67,7 +67,7 @@ fn train_args(data: &Path, out: &Path, model: ModelKind, a: &Args) -> train::Arg
     train::Args {
         data: data.to_path_buf(),
         model,
-        arch: ArchKind::Mlp,
+        arch: ArchKind::Conv,
         out: out.to_path_buf(),
         epochs: a.epochs,
         batch: 128,
@@ -134,11 +134,6 @@ pub fn run(a: Args) -> Result<()> {
     p.done(
         "train_autoencoder_s",
         &format!("autoencoder test MSE {:.4}", ae_info.final_test_mse),
-    );
-    notes.push(
-        "The decoder is the published fully connected 2-12-64-128-4350 (--arch mlp), not the default convolutional one: \
-         the blob is made by the importer's dense quantizer (crate::model_blob), which covers fully connected decoders only."
-            .into(),
     );
 
     // 3. Reach.

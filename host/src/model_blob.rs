@@ -1,12 +1,8 @@
 //! A model blob from a training folder and a reach network, for the demo and the end-to-end
-//! tests, until `msr quantize` covers every decoder: fully connected decoders (`--arch mlp`, the
-//! published architecture) go through the importer's quantizer (`crate::import::Published`), the
-//! same path the published model takes; the sigma floor and novelty settings come from the
-//! model's JSON.
-use crate::import::{Dense, DenseDecoder, Published};
+//! tests: the quantizer of `msr quantize`, without its report.
+use crate::quantize;
 use crate::train_reach::{self, ReachModel};
-use anyhow::{bail, ensure, Context, Result};
-use msr_shared::blob::{LayerKind, Normalisation};
+use anyhow::{ensure, Context, Result};
 use std::path::Path;
 
 /// Reach pairs made by the sim's IK: (mark pixel at head (0, 0), five joint angles).
@@ -33,47 +29,27 @@ pub fn train_sim_reach(n: usize, seed: u64) -> Result<ReachModel> {
     )
 }
 
-/// The blob of decoder `name` in training folder `dir` with `reach`.
+/// The blob of decoder `name` in training folder `dir` with `reach`, quantized as `msr quantize`
+/// does (per-layer shifts searched against the firmware's own decoder, i8 weights when they keep
+/// 40 dB), calibrated on a grid of head poses over the paper's +-5 degrees.
 pub fn blob_from_training(dir: &Path, name: &str, reach: &ReachModel) -> Result<Vec<u8>> {
     let model = crate::train::load(dir, name)?;
     let info = model.info()?.clone();
-    let layers = model.decoder_layers()?;
-    let mut dense = Vec::new();
-    for l in &layers {
-        if l.kind != LayerKind::Dense {
-            bail!("decoder layer {:?}: only fully connected decoders (--arch mlp) can be turned into a blob here", l.kind);
-        }
-        dense.push(Dense {
-            n_in: l.input.len(),
-            n_out: l.output.len(),
-            w: l.weights.clone(),
-            b: l.bias.clone(),
-            act: l.activation,
-        });
-    }
-    if info.novelty.normalisation != Normalisation::StdDev {
-        bail!("only the standard-deviation normalisation is supported here");
-    }
     let stats = crate::train::load_stats(dir, &info)?;
-    let floor = info.novelty.sigma_floor;
-    let template = crate::crop::load_grey(&dir.join(&info.files.template))
-        .context("the model's face template")?;
-    let p = Published {
-        decoder: DenseDecoder {
-            layers: dense,
-            face_h: info.face_h,
-            face_w: info.face_w,
-        },
-        mu: stats.mu.clone(),
-        sigma: stats.sigma.iter().map(|s| s.max(floor)).collect(),
-        template,
+    let tpl_path = dir.join(&info.files.template);
+    let tpl = image::open(&tpl_path)
+        .with_context(|| format!("the model's face template {}", tpl_path.display()))?
+        .to_luma8();
+    let x = quantize::Extras {
+        face: (info.face_h, info.face_w),
+        novelty: info.novelty,
+        stats,
         reach: reach.to_blob()?,
-        threshold: info.novelty.threshold as f32,
-        sided: info.novelty.sided,
-        min_area: info.novelty.min_area,
-        head_angles: None,
+        template: Some((tpl.height() as u16, tpl.width() as u16, tpl.into_raw())),
     };
-    p.to_spec()?
-        .to_bytes()
-        .map_err(|e| anyhow::anyhow!("model blob: {e}"))
+    let a = 5f32.to_radians();
+    let grid = |i: usize| -a + 2.0 * a * i as f32 / 8.0;
+    let heads: Vec<[f32; 2]> = (0..9).flat_map(|i| (0..9).map(move |j| [grid(i), grid(j)])).collect();
+    let layers = model.decoder_layers()?;
+    Ok(quantize::choose(&layers, &x, &heads, quantize::WeightArg::Auto)?.blob)
 }
