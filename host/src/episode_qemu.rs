@@ -90,7 +90,11 @@ fn exchange(s: &mut UnixStream, port: &mut HostPort, bytes: &[u8], timeout: Dura
             Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => 0,
             Err(e) => return Err(e).context("reading QEMU's UART0"),
         };
-        if let Some(m) = port.receive(&buf[..n]).into_iter().find(|m| done(m)) {
+        let msgs = port.receive(&buf[..n]);
+        if std::env::var_os("MSR_QEMU_DEBUG").is_some() && n > 0 {
+            eprintln!("UART0: {n} bytes, messages {msgs:?}");
+        }
+        if let Some(m) = msgs.into_iter().find(|m| done(m)) {
             return Ok(Some(m));
         }
     }
@@ -126,7 +130,9 @@ fn run_one(image: &std::path::Path, blob: &[u8], camera: Camera, cfg: &EpisodeCo
     }
     drop(h);
     drop(s);
-    let get = port.encode(&HostToBoard::GetStatus);
+    // A leading delimiter ends whatever partial frame the bridge left on the wire.
+    let mut get = vec![0u8];
+    get.extend(port.encode(&HostToBoard::GetStatus));
     let st: Status = match exchange(&mut host, &mut port, &get, Duration::from_secs(10), |m| matches!(m, BoardToHost::Status(_)))? {
         Some(BoardToHost::Status(st)) => st,
         _ => bail!("trial {index}: no status from the QEMU board\n{}", q.output_so_far()),

@@ -9,6 +9,14 @@ use std::time::Duration;
 
 use msr_sim::qemu::{self, Qemu};
 
+/// The board's watchdogs run on QEMU's instruction clock while the test's servos answer in real
+/// time: tests that share two cores with other QEMUs (or with the built-in test's cargo build)
+/// can starve the servo thread past the 100 ms watchdog. They take turns.
+fn one_at_a_time() -> std::sync::MutexGuard<'static, ()> {
+    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
+    LOCK.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
 /// `None` (with a message) when QEMU is not installed.
 fn image(name: &str) -> Option<std::path::PathBuf> {
     if !qemu::qemu_available() {
@@ -20,6 +28,7 @@ fn image(name: &str) -> Option<std::path::PathBuf> {
 
 #[test]
 fn selftest_clock_and_uarts() {
+    let _turn = one_at_a_time();
     let Some(img) = image("msr-qemu-selftest") else { return };
     let mut q = Qemu::start(&img).unwrap();
     let msg: Vec<u8> = (1..=255u8).collect();
@@ -312,6 +321,7 @@ fn marked(model: &Model, head: [f32; 2], k: usize) -> Vec<u8> {
 
 #[test]
 fn board_image_detects_reaches_and_matches_the_host_build() {
+    let _turn = one_at_a_time();
     let m = synthetic(ArchKind::Conv).unwrap();
     // Frames 1, 2, 3 carry the mark: the third confirms and the arm goes up (detection pauses).
     let Some(run) = drive_board(&m, marked, 4, None, Duration::from_secs(3)) else { return };
@@ -372,6 +382,7 @@ fn board_image_detects_reaches_and_matches_the_host_build() {
 /// decoders; marks on every third frame only, so no reach interrupts detection.
 #[test]
 fn qemu_and_host_builds_agree_bit_for_bit() {
+    let _turn = one_at_a_time();
     let heads: Vec<[f32; 2]> = (0..9)
         .map(|k| {
             let a = k as f32 * 0.7;
@@ -440,6 +451,7 @@ fn detection(host: &mut HostLink, model: &Model, id: u16, pixels: &[u8]) -> Dete
 /// A bad upload is refused with the reason, and the model in use stays: same CRC, same results.
 #[test]
 fn bad_upload_keeps_the_running_model() {
+    let _turn = one_at_a_time();
     let Some(img) = image(qemu::BOARD_IMAGE) else { return };
     let m = synthetic(ArchKind::Conv).unwrap();
     let model = Model::parse(&m.blob).unwrap();
@@ -506,6 +518,7 @@ fn bad_upload_keeps_the_running_model() {
 /// it without any upload.
 #[test]
 fn built_in_model_runs_without_upload() {
+    let _turn = one_at_a_time();
     if image(qemu::BOARD_IMAGE).is_none() {
         return;
     }
