@@ -324,9 +324,20 @@ fn board_image_detects_reaches_and_matches_the_host_build() {
     let _turn = one_at_a_time();
     let m = synthetic(ArchKind::Conv).unwrap();
     // Frames 1, 2, 3 carry the mark: the third confirms and the arm goes up (detection pauses).
-    let Some(run) = drive_board(&m, marked, 4, None, Duration::from_secs(3)) else { return };
-    run.exit.success().unwrap();
-    println!("{}", run.exit.output);
+    // The board's 100 ms servo watchdog runs on QEMU's instruction clock, which can outrun this
+    // test's servo thread; a run where it tripped (the board then rightly stops) is tried again,
+    // at most twice, and the last run is judged whatever happened.
+    let mut attempt = 0;
+    let run = loop {
+        let Some(run) = drive_board(&m, marked, 4, None, Duration::from_secs(3)) else { return };
+        run.exit.success().unwrap();
+        println!("{}", run.exit.output);
+        attempt += 1;
+        if run.exit.output.contains("servo_watchdog_trips: 0") || attempt == 3 {
+            break run;
+        }
+        println!("attempt {attempt}: the servo watchdog tripped under emulation timing; trying again");
+    };
     let model = Model::parse(&m.blob).unwrap();
     let settings = Settings::of(&model);
 
