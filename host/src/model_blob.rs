@@ -2,7 +2,7 @@
 //! tests: the quantizer of `msr quantize`, without its report.
 use crate::quantize;
 use crate::train_reach::{self, ReachModel};
-use anyhow::{ensure, Context, Result};
+use anyhow::{ensure, Result};
 use std::path::Path;
 
 /// Reach pairs made by the sim's IK: (mark pixel at head (0, 0), five joint angles).
@@ -35,18 +35,7 @@ pub fn train_sim_reach(n: usize, seed: u64) -> Result<ReachModel> {
 pub fn blob_from_training(dir: &Path, name: &str, reach: &ReachModel) -> Result<Vec<u8>> {
     let model = crate::train::load(dir, name)?;
     let info = model.info()?.clone();
-    let stats = crate::train::load_stats(dir, &info)?;
-    let tpl_path = dir.join(&info.files.template);
-    let tpl = image::open(&tpl_path)
-        .with_context(|| format!("the model's face template {}", tpl_path.display()))?
-        .to_luma8();
-    let x = quantize::Extras {
-        face: (info.face_h, info.face_w),
-        novelty: info.novelty,
-        stats,
-        reach: reach.to_blob()?,
-        template: Some((tpl.height() as u16, tpl.width() as u16, tpl.into_raw())),
-    };
+    let x = quantize::extras_of(dir, &info, reach.to_blob()?)?;
     let a = 5f32.to_radians();
     let grid = |i: usize| -a + 2.0 * a * i as f32 / 8.0;
     let heads: Vec<[f32; 2]> = (0..9).flat_map(|i| (0..9).map(move |j| [grid(i), grid(j)])).collect();

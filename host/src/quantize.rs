@@ -36,7 +36,7 @@ use msr_shared::blob::{
 };
 use msr_sim::layout::Split;
 use serde::Serialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// Head angles go in with 13 fraction bits: +-4 rad covers every Nao head joint limit (the same
 /// as `msr import`).
@@ -258,6 +258,21 @@ pub struct Extras {
     pub template: Option<(u16, u16, Vec<u8>)>,
 }
 
+/// What goes into a blob beside the decoder, from a training folder: its statistics, novelty
+/// settings and face template, with `reach`.
+pub fn extras_of(dir: &Path, info: &train::ModelInfo, reach: Reach) -> Result<Extras> {
+    let stats = train::load_stats(dir, info)?;
+    let tpl_path = dir.join(&info.files.template);
+    let tpl = image::open(&tpl_path).with_context(|| format!("cannot read {}", tpl_path.display()))?.to_luma8();
+    Ok(Extras {
+        face: (info.face_h, info.face_w),
+        novelty: info.novelty,
+        stats,
+        reach,
+        template: Some((tpl.height() as u16, tpl.width() as u16, tpl.into_raw())),
+    })
+}
+
 pub fn grey_q88(v: f64) -> u16 {
     (v * 256.0).round().clamp(0.0, u16::MAX as f64) as u16
 }
@@ -363,18 +378,13 @@ pub fn run(args: Args) -> Result<()> {
     let model = train::load(&args.train, "decoder")
         .with_context(|| format!("loading the trained decoder from {}", args.train.display()))?;
     let info = model.info()?.clone();
-    let stats = train::load_stats(&args.train, &info)?;
     let reach = train_reach::load(&args.reach)?.to_blob()?;
-    let mut novelty = info.novelty;
+    let mut x = extras_of(&args.train, &info, reach)?;
     if let Some(t) = args.threshold {
-        novelty.threshold = t;
+        x.novelty.threshold = t;
     }
-    novelty.check()?;
-    let tpl_path = args.train.join(&info.files.template);
-    let tpl = image::open(&tpl_path).with_context(|| format!("cannot read {}", tpl_path.display()))?.to_luma8();
-    let template = Some((tpl.height() as u16, tpl.width() as u16, tpl.into_raw()));
-    let (h, w) = (info.face_h, info.face_w);
-    let x = Extras { face: (h, w), novelty, stats, reach, template };
+    x.novelty.check()?;
+    let (h, w) = x.face;
     let layers = model.decoder_layers()?;
 
     let data_path = args.data.clone().unwrap_or_else(|| PathBuf::from(&info.data));
