@@ -710,7 +710,8 @@ pub fn run_trial_with<F: world::Firmware>(
 /// Seed of trial `i` of a run seeded `seed`.
 pub fn trial_seed(seed: u64, i: usize) -> u64 {
     seed.wrapping_mul(0x9E37_79B9_7F4A_7C15)
-        .wrapping_add(i as u64 * 0x2545_F491_4F6C_DD1D + 1)
+        .wrapping_add((i as u64).wrapping_mul(0x2545_F491_4F6C_DD1D))
+        .wrapping_add(1)
 }
 
 /// Runs `n` in-process trials, `cfg.parallel` at a time; `progress` is told after each.
