@@ -17,11 +17,13 @@
 
 use msr_shared::blob::{Activation, Layer, LayerKind, Model, WeightType, MAX_ACTIVATION_LEN};
 
+#[cfg(target_arch = "arm")]
+mod arm;
 mod fast;
 mod kernels;
 mod tanh_table;
 
-use tanh_table::TANH_Q24;
+use tanh_table::{GREY_Q88, TANH_Q15};
 
 /// Why the decoder did not run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -151,6 +153,7 @@ impl Decoder {
         self.face = None;
         self.key = None;
         check_scales(model)?;
+        let grey_at = grey_layer(model);
         let [Act(a), Act(b)] = &mut self.act;
         a[0] = input[0];
         a[1] = input[1];
@@ -161,7 +164,12 @@ impl Decoder {
             } else {
                 (&b[..], &mut a[..])
             };
-            run_layer(layer, src, dst).map_err(|_| DecodeError::Shape(i as u8))?;
+            let rq = if grey_at == Some(i) {
+                Requant::of(layer).last()
+            } else {
+                Requant::of(layer)
+            };
+            run_layer_as(layer, rq, src, dst).map_err(|_| DecodeError::Shape(i as u8))?;
             cur = 1 - cur;
         }
         let n = model.face_pixels();
@@ -170,10 +178,23 @@ impl Decoder {
         if n > face.len() {
             return Err(DecodeError::Shape(model.layers.len() as u8 - 1));
         }
-        to_grey_q88(&mut face[..n], last.out_shift as u32);
+        if grey_at.is_none() {
+            to_grey_q88(&mut face[..n], last.out_shift as u32);
+        }
         self.face = Some((cur, n));
         Ok(())
     }
+}
+
+/// The layer that writes the face as Q8.8 grey directly: the last one that is not a crop, when
+/// it is a sigmoid and every crop after it copies exactly (same shift in and out). Its output
+/// then skips the `out_shift` step (see [`Requant::apply`]).
+fn grey_layer(model: &Model) -> Option<usize> {
+    let i = model.layers.iter().rposition(|l| l.kind != LayerKind::Crop)?;
+    let exact_crops = model.layers[i + 1..]
+        .iter()
+        .all(|l| l.in_shift == l.out_shift);
+    (model.layers[i].activation == Activation::Sigmoid && exact_crops).then_some(i)
 }
 
 /// The first layer's input: the angles with `in_shift` fraction bits, rounded half-up, saturated.
@@ -219,9 +240,157 @@ pub(crate) struct Requant {
     /// Fraction bits of the accumulator (`w_shift + in_shift`).
     acc_bits: u32,
     out_bits: u32,
-    /// tanh/sigmoid when both shifts are plain right shifts (the usual case): the shift of
-    /// |acc| to the table's Q19 and the final rounding shift. Same results as the general path.
-    fast: Option<(u32, u32)>,
+    /// Sigmoid straight to Q8.8 grey levels (the decoder's last layer), see [`GREY_Q88`].
+    grey: bool,
+}
+
+/// One accumulator to one output, as the kernels inline it (one type per form, so that each
+/// kernel is compiled for each without a branch per output).
+pub(crate) trait Activate: Copy {
+    fn act(self, acc: i32) -> i16;
+    /// The same step for the assembly kernels, when they have it.
+    #[allow(dead_code)]
+    fn asm_act(self) -> Option<AsmAct> {
+        None
+    }
+}
+
+/// A table activation as the assembly kernels take it (`table` points at index 0).
+#[allow(dead_code)]
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum AsmAct {
+    Tanh {
+        table: *const i16,
+        sh: u32,
+        rnd: i32,
+        k: u32,
+    },
+    Grey {
+        table: *const i16,
+        sh: u32,
+    },
+}
+
+/// tanh: `TANH_Q15[sat13(acc >> sh)]`, then `(y + rnd) >> k` (k = 15 - out_bits): a shift, a
+/// saturation, one load and the rounding shift. Same bits as [`Requant::apply`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct TanhAct {
+    sh: u32,
+    k: u32,
+    rnd: i32,
+}
+
+/// The last layer's sigmoid: `GREY_Q88[sat12(acc >> sh)]`. Same bits as [`Requant::apply`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct GreyAct {
+    sh: u32,
+}
+
+impl Activate for TanhAct {
+    #[inline(always)]
+    fn act(self, acc: i32) -> i16 {
+        let i = sat13(acc >> self.sh);
+        // SAFETY: sat13 keeps i + 4096 in 0..8192, the table's length.
+        let y = unsafe { *TANH_Q15.as_ptr().offset(i as isize + 4096) } as i32;
+        ((y + self.rnd) >> self.k) as i16
+    }
+    fn asm_act(self) -> Option<AsmAct> {
+        Some(AsmAct::Tanh {
+            table: TANH_Q15.as_ptr().wrapping_add(4096),
+            sh: self.sh,
+            rnd: self.rnd,
+            k: self.k,
+        })
+    }
+}
+
+impl Activate for GreyAct {
+    #[inline(always)]
+    fn act(self, acc: i32) -> i16 {
+        let i = sat12(acc >> self.sh);
+        // SAFETY: sat12 keeps i + 2048 in 0..4096, the table's length.
+        (unsafe { *GREY_Q88.as_ptr().offset(i as isize + 2048) }) as i16
+    }
+    fn asm_act(self) -> Option<AsmAct> {
+        Some(AsmAct::Grey {
+            table: GREY_Q88.as_ptr().wrapping_add(2048) as *const i16,
+            sh: self.sh,
+        })
+    }
+}
+
+impl Activate for Requant {
+    #[inline(always)]
+    fn act(self, acc: i32) -> i16 {
+        self.apply(acc)
+    }
+}
+
+/// Runs `$body` with `$a` bound to the fastest [`Activate`] for `$rq`.
+macro_rules! with_act {
+    ($rq:expr, |$a:ident| $body:expr) => {{
+        let rq: $crate::decoder::Requant = $rq;
+        if let Some(t) = rq.tanh_act() {
+            let $a = t;
+            $body
+        } else if let Some(g) = rq.grey_act() {
+            let $a = g;
+            $body
+        } else {
+            let $a = rq;
+            $body
+        }
+    }};
+}
+
+/// Table cell of `x = acc * 2^-bits` in steps of `2^-frac`: `floor(x * 2^frac)` clamped to
+/// `-half..half`, plus `half` (an index into a table of `2 * half` entries).
+#[inline]
+fn cell(acc: i32, bits: u32, frac: u32, half: i32) -> usize {
+    let i = if bits >= frac {
+        acc >> (bits - frac).min(31)
+    } else {
+        ((acc as i64) << (frac - bits)).clamp(i32::MIN as i64, i32::MAX as i64) as i32
+    };
+    (i.clamp(-half, half - 1) + half) as usize
+}
+
+/// `v` clamped to the 13-bit signed range (`SSAT #13` on the Cortex-M4).
+#[inline(always)]
+pub(crate) fn sat13(v: i32) -> i32 {
+    #[cfg(target_arch = "arm")]
+    {
+        let r: i32;
+        // SAFETY: SSAT reads one register and writes one.
+        unsafe {
+            core::arch::asm!("ssat {r}, #13, {v}", r = lateout(reg) r, v = in(reg) v,
+                options(pure, nomem, nostack));
+        }
+        r
+    }
+    #[cfg(not(target_arch = "arm"))]
+    {
+        v.clamp(-4096, 4095)
+    }
+}
+
+/// `v` clamped to the 12-bit signed range (`SSAT #12`).
+#[inline(always)]
+pub(crate) fn sat12(v: i32) -> i32 {
+    #[cfg(target_arch = "arm")]
+    {
+        let r: i32;
+        // SAFETY: SSAT reads one register and writes one.
+        unsafe {
+            core::arch::asm!("ssat {r}, #12, {v}", r = lateout(reg) r, v = in(reg) v,
+                options(pure, nomem, nostack));
+        }
+        r
+    }
+    #[cfg(not(target_arch = "arm"))]
+    {
+        v.clamp(-2048, 2047)
+    }
 }
 
 impl Requant {
@@ -231,62 +400,63 @@ impl Requant {
     }
 
     pub(crate) fn new(act: Activation, acc_bits: u32, out_bits: u32) -> Requant {
-        let fast = match act {
-            Activation::Tanh if (19..51).contains(&acc_bits) && (1..=23).contains(&out_bits) => {
-                Some((acc_bits - 19, 24 - out_bits))
-            }
-            Activation::Sigmoid if (18..50).contains(&acc_bits) && (1..=24).contains(&out_bits) => {
-                Some((acc_bits + 1 - 19, 25 - out_bits))
-            }
-            _ => None,
-        };
         Requant {
             act,
             acc_bits,
             out_bits,
-            fast,
+            grey: false,
         }
     }
 
-    #[inline]
+    /// The same layer as the decoder's last: a sigmoid writes Q8.8 grey levels.
+    pub(crate) fn last(self) -> Requant {
+        Requant {
+            grey: self.act == Activation::Sigmoid,
+            ..self
+        }
+    }
+
+    /// The inlined tanh, when the shifts allow it.
+    pub(crate) fn tanh_act(&self) -> Option<TanhAct> {
+        if self.act != Activation::Tanh || self.acc_bits < 9 || self.out_bits > 15 {
+            return None;
+        }
+        let k = 15 - self.out_bits;
+        Some(TanhAct {
+            sh: (self.acc_bits - 9).min(31),
+            k,
+            rnd: (1 << k) >> 1,
+        })
+    }
+
+    /// The inlined last-layer sigmoid, when the shifts allow it.
+    pub(crate) fn grey_act(&self) -> Option<GreyAct> {
+        if self.act != Activation::Sigmoid || !self.grey || self.acc_bits < 7 {
+            return None;
+        }
+        Some(GreyAct {
+            sh: (self.acc_bits - 7).min(31),
+        })
+    }
+
+    /// The definition: identity and ReLU rescale exactly; tanh is `TANH_Q15` at `x` in steps
+    /// of 2^-9 (error below 2^-10), sigmoid `(1 + tanh(x / 2)) / 2` from the same table, and
+    /// the last layer's sigmoid `GREY_Q88` at `x` in steps of 2^-7 (error below a quarter grey
+    /// level); the result is rounded half-up to `out_bits` and saturated.
     pub(crate) fn apply(&self, acc: i32) -> i16 {
-        self.apply_inline(acc)
-    }
-
-    /// [`apply`](Self::apply), inlined into the fast kernels' loops.
-    #[inline(always)]
-    pub(crate) fn apply_inline(&self, acc: i32) -> i16 {
-        if let Some((sh, k)) = self.fast {
-            const LAST: usize = TANH_Q24.len() - 1;
-            let t = acc.unsigned_abs() >> sh;
-            let idx = (t >> 12) as usize;
-            let y = if idx < LAST {
-                let lo = TANH_Q24[idx];
-                let hi = TANH_Q24[idx + 1];
-                lo + (((hi - lo) * (t & 4095)) >> 12)
-            } else {
-                TANH_Q24[LAST]
-            } as i32;
-            let y = if acc < 0 { -y } else { y };
-            let v = if self.act == Activation::Sigmoid {
-                (1 << 24) + y
-            } else {
-                y
-            };
-            let r = ((v >> (k - 1)) >> 1) + ((v >> (k - 1)) & 1);
-            return r.clamp(i16::MIN as i32, i16::MAX as i32) as i16;
-        }
-        self.apply_general(acc)
-    }
-
-    fn apply_general(&self, acc: i32) -> i16 {
         match self.act {
             Activation::Identity => rescale(acc as i64, self.acc_bits, self.out_bits),
             Activation::Relu => rescale(acc.max(0) as i64, self.acc_bits, self.out_bits),
-            Activation::Tanh => rescale(tanh_q24(acc, self.acc_bits) as i64, 24, self.out_bits),
+            Activation::Tanh => {
+                let y = TANH_Q15[cell(acc, self.acc_bits, 9, 4096)];
+                rescale(y as i64, 15, self.out_bits)
+            }
+            Activation::Sigmoid if self.grey => {
+                GREY_Q88[cell(acc, self.acc_bits, 7, 2048)] as i16
+            }
             Activation::Sigmoid => {
-                let t = tanh_q24(acc, self.acc_bits + 1);
-                rescale(((1i32 << 24) + t) as i64, 25, self.out_bits)
+                let y = TANH_Q15[cell(acc, self.acc_bits, 8, 4096)];
+                rescale((1i64 << 15) + y as i64, 16, self.out_bits)
             }
         }
     }
@@ -314,43 +484,20 @@ fn rescale(v: i64, from: u32, to: u32) -> i16 {
     r.clamp(i16::MIN as i64, i16::MAX as i64) as i16
 }
 
-/// `tanh(acc * 2^-bits)` in Q24, by table and linear interpolation.
-#[inline]
-pub(crate) fn tanh_q24(acc: i32, bits: u32) -> i32 {
-    const LAST: usize = TANH_Q24.len() - 1;
-    let a = acc.unsigned_abs();
-    // |x| in Q19: table index (steps of 2^-7) in the top bits, interpolation weight in the low 12.
-    let t = if bits >= 19 {
-        a.checked_shr(bits - 19).unwrap_or(0)
-    } else if a >= (8u32 << bits) {
-        u32::MAX
-    } else {
-        a << (19 - bits)
-    };
-    let idx = (t >> 12) as usize;
-    let y = if idx >= LAST {
-        TANH_Q24[LAST]
-    } else {
-        let lo = TANH_Q24[idx];
-        let hi = TANH_Q24[idx + 1];
-        lo + (((hi - lo) * (t & 4095)) >> 12)
-    } as i32;
-    if acc < 0 {
-        -y
-    } else {
-        y
-    }
+/// Runs one layer from `src` into `dst`. Errors only on shapes the parser would refuse.
+#[cfg(test)]
+pub(crate) fn run_layer(l: &Layer, src: &[i16], dst: &mut [i16]) -> Result<(), ()> {
+    run_layer_as(l, Requant::of(l), src, dst)
 }
 
-/// Runs one layer from `src` into `dst`. Errors only on shapes the parser would refuse.
-pub(crate) fn run_layer(l: &Layer, src: &[i16], dst: &mut [i16]) -> Result<(), ()> {
+/// [`run_layer`] with the output step given.
+pub(crate) fn run_layer_as(l: &Layer, rq: Requant, src: &[i16], dst: &mut [i16]) -> Result<(), ()> {
     let n_in = l.input.len();
     let n_out = l.output.len();
     if n_in > src.len() || n_out > dst.len() {
         return Err(());
     }
     let (x, y) = (&src[..n_in], &mut dst[..n_out]);
-    let rq = Requant::of(l);
     if l.kind == LayerKind::Crop {
         return crop(l, rq, x, y);
     }
@@ -368,13 +515,15 @@ pub(crate) fn run_layer(l: &Layer, src: &[i16], dst: &mut [i16]) -> Result<(), (
                 let w = bytemuck::try_cast_slice::<u8, u32>(l.weights);
                 let x = bytemuck::try_cast_slice::<i16, u32>(x);
                 if let (Ok(w), Ok(x), Some(b)) = (w, x, l.bias_i32()) {
-                    fast::dense_pairs(rq, w, b, x, y);
+                    with_act!(rq, |a| fast::dense_pairs(a, w, b, x, y));
                     return Ok(());
                 }
             }
             LayerKind::ConvTranspose2d => {
                 let done = match (l.weights_i16(), l.bias_i32()) {
-                    (Some(w), Some(b)) => fast::conv_transpose(l, rq, &w, &b, x, y),
+                    (Some(w), Some(b)) => {
+                        with_act!(rq, |a| fast::conv_transpose(l, a, &w, &b, x, y))
+                    }
                     _ => fast::conv_transpose(l, rq, &kernels::Raw(l), &kernels::RawBias(l), x, y),
                 };
                 if done {

@@ -341,6 +341,16 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
         .find_map(|l| l.strip_prefix("MSR-BENCH "))
         .with_context(|| format!("no MSR-BENCH line in the image's output:\n{}", exit.output))?;
     let r: Value = serde_json::from_str(line).with_context(|| format!("parsing {line}"))?;
+    // The board's faces must be the host build's, bit for bit.
+    let host_crcs = host_face_crcs(&model)?;
+    let board_crcs: Vec<u64> = r["face_crc32"]
+        .as_array()
+        .map(|a| a.iter().filter_map(Value::as_u64).collect())
+        .unwrap_or_default();
+    ensure!(
+        board_crcs == host_crcs,
+        "the board's predicted faces differ from the host build's (CRC-32 {board_crcs:?} vs {host_crcs:?})"
+    );
     let stage = |k: &str| r["stages"][k].as_u64().unwrap_or(0);
     let stages = [stage("decoder"), stage("saliency"), stage("blobs"), stage("reach")];
     let total: u64 = stages.iter().sum();
@@ -369,6 +379,7 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
         "data_init_bytes": board.data_init,
         "model_bytes": m.blob.len(),
         "stack_peak_bytes": stack,
+        "faces_match_host": true,
         "frames": r["frames"],
         "marks_found": r["marks_found"],
         "bench_image": {"static_ram_bytes": r["static_ram_bytes"], "code_bytes": r["code_bytes"]},
@@ -380,6 +391,23 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
             "code_bytes": {"max": TARGET_CODE, "met": code <= TARGET_CODE},
         },
     }))
+}
+
+/// CRC-32 of the host build's predicted face (u16 little-endian) for each of [`POSES`], as the
+/// benchmark image computes it.
+pub fn host_face_crcs(model: &Model) -> Result<Vec<u64>> {
+    let mut dec = Box::new(msr_firmware::decoder::Decoder::new());
+    POSES
+        .iter()
+        .map(|&head| {
+            let face = dec
+                .predict_uncached(model, head)
+                .map_err(|e| anyhow::anyhow!("host decoder: {e}"))?;
+            let mut d = msr_shared::blob::CRC32.digest();
+            face.iter().for_each(|v| d.update(&v.to_le_bytes()));
+            Ok(d.finalize() as u64)
+        })
+        .collect()
 }
 
 fn round3(x: f64) -> f64 {

@@ -11,7 +11,7 @@
 //! [`smlad`] is the instruction on ARM and the same wrapping sum elsewhere: bit-identical.
 
 use super::kernels::{Table, Taps, MAX_K};
-use super::Requant;
+use super::Activate;
 use msr_shared::blob::Layer;
 
 /// `acc + a.lo * b.lo + a.hi * b.hi` (signed halves), wrapping.
@@ -101,16 +101,19 @@ fn dot_ldm(w: &[u32], x: &[u32], acc: i32) -> i32 {
 }
 
 /// Dense with `w` as `[out][in/2]` words and `x` as `in/2` words.
-pub(crate) fn dense_pairs(rq: Requant, w: &[u32], b: &[i32], x: &[u32], y: &mut [i16]) {
+pub(crate) fn dense_pairs<A: Activate>(rq: A, w: &[u32], b: &[i32], x: &[u32], y: &mut [i16]) {
     let np = x.len();
     if np == 0 || w.len() != np * y.len() || b.len() != y.len() {
         return;
     }
-    // On the M4, rows of a multiple of 4 words go through LDM + SMLAD one row at a time.
+    // On the M4, rows of a multiple of 4 words go through LDM + SMLAD: in pairs with the
+    // activation in assembly where it has one, else one row at a time.
     #[cfg(target_arch = "arm")]
     if np.is_multiple_of(4) {
-        for ((row, out), &bias) in w.chunks_exact(np).zip(y.iter_mut()).zip(b) {
-            *out = rq.apply(dot_ldm(row, x, bias));
+        let done = super::arm::dense2(rq, w, b, x, y);
+        let rows = w[done * np..].chunks_exact(np);
+        for ((row, out), &bias) in rows.zip(y[done..].iter_mut()).zip(&b[done..]) {
+            *out = rq.act(dot_ldm(row, x, bias));
         }
         return;
     }
@@ -129,10 +132,10 @@ pub(crate) fn dense_pairs(rq: Requant, w: &[u32], b: &[i32], x: &[u32], y: &mut 
             a2 = smlad(w2, xi, a2);
             a3 = smlad(w3, xi, a3);
         }
-        y[o] = rq.apply(a0);
-        y[o + 1] = rq.apply(a1);
-        y[o + 2] = rq.apply(a2);
-        y[o + 3] = rq.apply(a3);
+        y[o] = rq.act(a0);
+        y[o + 1] = rq.act(a1);
+        y[o + 2] = rq.act(a2);
+        y[o + 3] = rq.act(a3);
         o += 4;
     }
     for (row, (out, &bias)) in rows.zip(y[o..].iter_mut().zip(&b[o..])) {
@@ -140,7 +143,7 @@ pub(crate) fn dense_pairs(rq: Requant, w: &[u32], b: &[i32], x: &[u32], y: &mut 
         for (&wi, &xi) in row.iter().zip(x) {
             a = smlad(wi, xi, a);
         }
-        *out = rq.apply(a);
+        *out = rq.act(a);
     }
 }
 
@@ -160,9 +163,9 @@ unsafe fn rd(p: *const i16) -> u32 {
 
 /// ConvTranspose2d by output phase with paired taps. Returns false (nothing written) when the
 /// layer does not suit it, and the caller takes the generic path.
-pub(crate) fn conv_transpose<W: Table, B: Table>(
+pub(crate) fn conv_transpose<W: Table, B: Table, A: Activate>(
     l: &Layer,
-    rq: Requant,
+    rq: A,
     w: &W,
     b: &B,
     x: &[i16],
@@ -266,7 +269,7 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
                         };
                         acc = smlad(wt[t], at(col) | (at(col + 1) << 16), acc);
                     }
-                    y[out_row + s * m + px] = rq.apply_inline(acc);
+                    y[out_row + s * m + px] = rq.act(acc);
                 };
                 for m in (0..m_lo).chain(m_hi..m_n) {
                     edge(m, y);
@@ -295,10 +298,10 @@ pub(crate) fn conv_transpose<W: Table, B: Table>(
                         }
                     }
                     let o = out_row + s * m + px;
-                    y[o] = rq.apply_inline(a0);
-                    y[o + s] = rq.apply_inline(a1);
-                    y[o + 2 * s] = rq.apply_inline(a2);
-                    y[o + 3 * s] = rq.apply_inline(a3);
+                    y[o] = rq.act(a0);
+                    y[o + s] = rq.act(a1);
+                    y[o + 2 * s] = rq.act(a2);
+                    y[o + 3 * s] = rq.act(a3);
                     m += 4;
                 }
                 while m < m_hi {

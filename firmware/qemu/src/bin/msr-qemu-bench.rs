@@ -48,6 +48,8 @@ struct Line {
     components: u32,
     blob: Option<(u32, [u16; 4])>,
     reach: Option<[f32; 5]>,
+    /// CRC-32 of the predicted face (u16 little-endian): the host compares it with its own build.
+    face_crc: u32,
 }
 
 fn read_exact(uart: &mut Uart, buf: &mut [u8]) {
@@ -147,12 +149,18 @@ fn main() -> ! {
             exit(1);
         }
         found += blob.is_some() as u32;
+        let face_crc = ws.decoder.face().map_or(0, |f| {
+            let mut d = msr_shared::blob::CRC32.digest();
+            f.iter().for_each(|v| d.update(&v.to_le_bytes()));
+            d.finalize()
+        });
         lines[k] = Line {
             stages: Stages { decoder: t1 - t0, saliency: t2 - t1, blobs: t3 - t2, reach: t4 - t3 },
             salient: salient.unwrap_or(0),
             components: summary.components,
             blob: blob.map(|b| (b.area, [b.x0, b.y0, b.x1, b.y1])),
             reach: r.map(|x| x.0),
+            face_crc,
         };
     }
     // Before anything is printed: formatting takes stack the pipeline does not.
@@ -172,7 +180,7 @@ fn main() -> ! {
     let f = POSES.len() as u64;
     let sizes = memory::sizes();
     hprintln!(
-        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{}}}",
+        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}]}}",
         f,
         found,
         model.decoder_macs(),
@@ -185,7 +193,11 @@ fn main() -> ! {
         bytes.len(),
         !model_area::BUILT_IN.is_empty(),
         stack_peak,
-        core::mem::size_of::<Workspace>()
+        core::mem::size_of::<Workspace>(),
+        lines[0].face_crc,
+        lines[1].face_crc,
+        lines[2].face_crc,
+        lines[3].face_crc
     );
     exit(0)
 }
