@@ -5,11 +5,18 @@
 //! 1 ns, so the image's SysTick counts instructions and its timing (watchdogs, the 10 ms motion
 //! period) is virtual time, independent of how fast this machine is.
 //!
-//! UART0 (the host link) and UART1 (the servo bus) are unix-domain sockets: this side listens,
-//! QEMU connects as a client at start-up. What the image prints through semihosting lands in
-//! [`QemuExit::output`]; its semihosting exit code is QEMU's exit status.
+//! UART0 (the host link), UART1 (the servo bus) and UART2 (the board image's clock channel) are
+//! unix-domain sockets: this side listens, QEMU connects as a client at start-up. What the image
+//! prints through semihosting lands in [`QemuExit::output`]; its semihosting exit code is QEMU's
+//! exit status.
+//!
+//! The board image's own clock is virtual time, which runs at no fixed rate against this
+//! machine's clock (a spinning image under `-icount` saw 30 ms of it per real second; a sleeping
+//! one about real time; a busy host stretches everything). [`Lockstep`] therefore drives the
+//! image's clock from the simulation: one command per tick, with the exact bytes of that tick,
+//! so the firmware sees the world as the in-process firmware does, at any host load.
 
-use std::io::{self, Read};
+use std::io::{self, Read, Write};
 use std::os::unix::net::{UnixListener, UnixStream};
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
@@ -28,6 +35,8 @@ pub const BOARD_IMAGE: &str = "msr-qemu";
 pub const BENCH_IMAGE: &str = "msr-qemu-bench";
 /// How long QEMU gets to connect its UART sockets.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
+/// UART sockets: host link, servo bus, clock channel.
+const UARTS: usize = 3;
 
 /// The QEMU binary: `$MSR_QEMU` or `qemu-system-arm` on the `PATH`.
 pub fn qemu_binary() -> String {
@@ -103,6 +112,8 @@ pub struct Qemu {
     pub host: UnixStream,
     /// UART1: the servo bus.
     pub servo: UnixStream,
+    /// UART2: the board image's clock channel (see [`Lockstep`]).
+    pub clock: UnixStream,
     stdout: Option<JoinHandle<Vec<u8>>>,
     stderr: Option<JoinHandle<Vec<u8>>>,
     /// Captured output so far, for error messages while running.
@@ -121,7 +132,7 @@ impl Qemu {
             RUN_ID.fetch_add(1, Ordering::Relaxed)
         ));
         std::fs::create_dir_all(&dir).with_context(|| format!("creating {}", dir.display()))?;
-        let paths = [dir.join("uart0.sock"), dir.join("uart1.sock")];
+        let paths: Vec<PathBuf> = (0..UARTS).map(|i| dir.join(format!("uart{i}.sock"))).collect();
         let listeners = paths
             .iter()
             .map(|p| {
@@ -156,6 +167,7 @@ impl Qemu {
             // Placeholders until QEMU connects; replaced below.
             host: UnixStream::pair()?.0,
             servo: UnixStream::pair()?.0,
+            clock: UnixStream::pair()?.0,
             stdout,
             stderr,
             live,
@@ -166,8 +178,9 @@ impl Qemu {
         for l in &listeners {
             streams.push(qemu.accept(l, deadline)?);
         }
-        qemu.servo = streams.pop().expect("two listeners");
-        qemu.host = streams.pop().expect("two listeners");
+        qemu.clock = streams.pop().expect("three listeners");
+        qemu.servo = streams.pop().expect("three listeners");
+        qemu.host = streams.pop().expect("three listeners");
         Ok(qemu)
     }
 
@@ -280,4 +293,175 @@ pub fn run_image(
         return Err(e.context(format!("while driving the QEMU image; it printed:\n{}", out.output)));
     }
     q.wait(timeout)
+}
+
+/// The board image (`msr-qemu`) with its clock driven by the caller: each [`Lockstep::tick`]
+/// hands it the bytes that reached its two links during one tick, it runs one `Board::poll` at
+/// that tick's time, and what it wrote comes back. Between [`Lockstep::enter`] calls the image
+/// runs on its own clock (free running), e.g. for a model upload.
+///
+/// The protocol on UART2 is documented in `firmware/qemu/src/main.rs` (module `ctl`).
+pub struct Lockstep {
+    qemu: Qemu,
+    host: UnixStream,
+    servo: UnixStream,
+    clock: UnixStream,
+    /// The longest wait for the image to answer.
+    pub timeout: Duration,
+    /// Ticks since the last `enter`.
+    pub ticks: u64,
+}
+
+/// Most bytes one tick may bring to one link (the image's buffer).
+pub const LOCKSTEP_MAX_TICK_BYTES: usize = 4096;
+
+impl Lockstep {
+    /// Starts `image` and waits for its start-up message; returns the CRC of the model it runs
+    /// (0: none).
+    pub fn start(image: &Path) -> Result<(Lockstep, u32)> {
+        let qemu = Qemu::start(image)?;
+        let mut ls = Lockstep {
+            host: qemu.host.try_clone()?,
+            servo: qemu.servo.try_clone()?,
+            clock: qemu.clock.try_clone()?,
+            qemu,
+            timeout: Duration::from_secs(60),
+            ticks: 0,
+        };
+        let crc = ls.hello()?;
+        Ok((ls, crc))
+    }
+
+    /// The running image, for its output or the host link in free-running mode.
+    pub fn qemu(&self) -> &Qemu {
+        &self.qemu
+    }
+
+    /// UART0, for talking to the board while it runs free.
+    pub fn host_link(&self) -> &UnixStream {
+        &self.host
+    }
+
+    /// UART1. While the board runs free it keeps asking for servo states there: read it (or
+    /// [`Lockstep::drain_servo`]) or the board stalls (see [`Lockstep::drain_servo`]).
+    pub fn servo_link(&self) -> &UnixStream {
+        &self.servo
+    }
+
+    /// Throws away what the board wrote on the servo bus so far, without waiting.
+    ///
+    /// QEMU writes a UART's bytes to its socket one at a time, and every one-byte write takes
+    /// about a kilobyte of the socket's buffer: a link nobody reads is full after about a
+    /// thousand bytes, then the UART stays "transmitter full" and the firmware, waiting to
+    /// send, stops reading its other link. That is what stalled model uploads: the board's
+    /// servo state requests piled up on an unread UART1.
+    pub fn drain_servo(&mut self) -> Result<usize> {
+        let s = &self.servo;
+        s.set_nonblocking(true)?;
+        let mut total = 0;
+        let mut buf = [0u8; 4096];
+        while let Ok(n) = (&*s).read(&mut buf) {
+            if n == 0 {
+                break;
+            }
+            total += n;
+        }
+        s.set_nonblocking(false)?;
+        Ok(total)
+    }
+
+    fn read_ctl(&mut self, n: usize, what: &str) -> Result<Vec<u8>> {
+        let mut b = vec![0u8; n];
+        self.clock.set_read_timeout(Some(self.timeout))?;
+        if let Err(e) = self.clock.read_exact(&mut b) {
+            bail!("the board image did not answer {what} within {:?} ({e}); it printed:\n{}", self.timeout, self.qemu.output_so_far());
+        }
+        if b[0] == b'E' {
+            let mut code = [0u8; 1];
+            let _ = self.clock.read_exact(&mut code);
+            bail!("the board image refused {what} (error {})", code[0]);
+        }
+        Ok(b)
+    }
+
+    fn hello(&mut self) -> Result<u32> {
+        let b = self.read_ctl(5, "start-up")?;
+        if b[0] != b'H' {
+            bail!("the board image's start-up message is {b:?}, not H");
+        }
+        Ok(u32::from_le_bytes([b[1], b[2], b[3], b[4]]))
+    }
+
+    /// Resets the board (the model it holds in its flash slots stays) and returns the CRC of the
+    /// model it runs after the restart. It runs free until the next [`Lockstep::enter`].
+    pub fn reset(&mut self) -> Result<u32> {
+        // Nothing of the old run may reach the new one.
+        self.drain()?;
+        self.clock.write_all(b"R")?;
+        let crc = self.hello()?;
+        Ok(crc)
+    }
+
+    /// Throws away what the board wrote on its links.
+    fn drain(&mut self) -> Result<()> {
+        for s in [&self.host, &self.servo] {
+            s.set_nonblocking(true)?;
+            let mut buf = [0u8; 4096];
+            while let Ok(n) = (&*s).read(&mut buf) {
+                if n == 0 {
+                    break;
+                }
+            }
+            s.set_nonblocking(false)?;
+        }
+        Ok(())
+    }
+
+    /// Enters lockstep at time 0 with ticks of `tick_us`.
+    pub fn enter(&mut self, tick_us: u32) -> Result<()> {
+        let mut cmd = vec![b'L'];
+        cmd.extend(tick_us.to_le_bytes());
+        self.clock.write_all(&cmd)?;
+        self.read_ctl(1, "lockstep")?;
+        self.ticks = 0;
+        Ok(())
+    }
+
+    /// One tick: `host_in` and `servo_in` reach the board's UART0 and UART1, the board runs
+    /// once, and what it wrote on them is appended to `host_out` and `servo_out`.
+    pub fn tick(&mut self, host_in: &[u8], servo_in: &[u8], host_out: &mut Vec<u8>, servo_out: &mut Vec<u8>) -> Result<()> {
+        if host_in.len() > LOCKSTEP_MAX_TICK_BYTES || servo_in.len() > LOCKSTEP_MAX_TICK_BYTES {
+            bail!(
+                "{} + {} bytes in one tick: at most {LOCKSTEP_MAX_TICK_BYTES} per link",
+                host_in.len(),
+                servo_in.len()
+            );
+        }
+        self.host.write_all(host_in)?;
+        self.servo.write_all(servo_in)?;
+        let mut cmd = [b'T', 0, 0, 0, 0];
+        cmd[1..3].copy_from_slice(&(host_in.len() as u16).to_le_bytes());
+        cmd[3..5].copy_from_slice(&(servo_in.len() as u16).to_le_bytes());
+        self.clock.write_all(&cmd)?;
+        let a = self.read_ctl(5, "a tick")?;
+        if a[0] != b'T' {
+            bail!("the board image answered a tick with {a:?}");
+        }
+        let (nh, ns) = (u16::from_le_bytes([a[1], a[2]]) as usize, u16::from_le_bytes([a[3], a[4]]) as usize);
+        for (s, n, out) in [(&self.host, nh, host_out), (&self.servo, ns, servo_out)] {
+            let start = out.len();
+            out.resize(start + n, 0);
+            s.set_read_timeout(Some(self.timeout))?;
+            (&*s).read_exact(&mut out[start..]).context("reading what the board wrote in a tick")?;
+        }
+        self.ticks += 1;
+        Ok(())
+    }
+
+    /// Ends the run: the image prints its status and exits.
+    pub fn exit(mut self, timeout: Duration) -> Result<QemuExit> {
+        let _ = self.drain();
+        self.clock.write_all(b"X")?;
+        self.qemu.wait(timeout)
+    }
 }

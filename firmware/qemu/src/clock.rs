@@ -27,18 +27,29 @@ fn SysTick() {
 pub struct Clock {
     _syst: SYST,
     base: u64,
+    reload: u32,
 }
 
+/// A SysTick period of 1 ms, for images that sleep between events and must wake for their
+/// timers.
+pub const RELOAD_1MS: u32 = SYSCLK_HZ / 1000 - 1;
+
 impl Clock {
-    pub fn start(mut syst: SYST) -> Clock {
+    pub fn start(syst: SYST) -> Clock {
+        Self::start_with_reload(syst, RELOAD)
+    }
+
+    /// Starts with a SysTick wrap every `reload + 1` ticks (at most 2^24).
+    pub fn start_with_reload(mut syst: SYST, reload: u32) -> Clock {
+        let reload = reload.clamp(1, RELOAD);
         syst.set_clock_source(SystClkSource::Core);
-        syst.set_reload(RELOAD);
+        syst.set_reload(reload);
         syst.clear_current();
         syst.enable_interrupt();
         syst.enable_counter();
         // The counter starts at 0 and loads RELOAD on the first tick; start counting after that.
         while SYST::get_current() == 0 {}
-        let mut c = Clock { _syst: syst, base: 0 };
+        let mut c = Clock { _syst: syst, base: 0, reload };
         c.base = c.raw();
         c
     }
@@ -54,8 +65,8 @@ impl Clock {
             }
             // Wrapped, but the exception is not taken yet (QEMU delivers it at the end of a
             // translation block): count the wrap here. A large value means it came before `val`.
-            let wraps = hi as u64 + (pending && val > RELOAD / 2) as u64;
-            return (wraps << 24) + (RELOAD - val) as u64;
+            let wraps = hi as u64 + (pending && val > self.reload / 2) as u64;
+            return wraps * (self.reload as u64 + 1) + (self.reload - val) as u64;
         }
     }
 

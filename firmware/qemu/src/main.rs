@@ -1,24 +1,36 @@
 //! The board image for QEMU's mps2-an386: the firmware library's [`Board`] on UART0 (host link)
-//! and UART1 (servo bus), with SysTick as its microsecond clock (virtual time: 1 ns per
-//! instruction under `-icount shift=0`).
+//! and UART1 (servo bus).
 //!
-//! The model is the built-in one (`MSR_MODEL_BLOB` at build time) or whatever the host uploads
-//! (`ModelBegin` / `ModelChunk` / `ModelCommit`) into the two flash slots.
+//! Two clocks, chosen by the host:
+//! - **free running** (from reset): SysTick is the board's microsecond clock, as on a real board.
+//!   Under `-icount shift=0` that is QEMU's virtual time; the image sleeps (`wfi`) when it has
+//!   nothing to do, so virtual time follows real time while idle (see [`uart::idle`]).
+//! - **lockstep** (after `L` on UART2, see [`ctl`]): the simulation drives the clock. Each `T`
+//!   command is one tick: it says how many bytes the host wrote to UART0 and UART1 during the
+//!   tick; the image reads exactly those, runs one `Board::poll` at the tick's time, and answers
+//!   with how many bytes the board wrote. The simulated world and the board then share one time
+//!   base whatever the host's load, exactly as the in-process firmware does.
 //!
-//! For tests, [`EXIT_SEQUENCE`] on UART0 ends the run: the image prints its status, stack peak
-//! and sizes on the semihosting console and exits with code 0. The sequence cannot occur inside
-//! a COBS frame (it holds zeros) and is not a valid frame, so no real traffic triggers it.
+//! The model is the built-in one (`MSR_MODEL_BLOB` at build time), whatever the host uploads
+//! (`ModelBegin` / `ModelChunk` / `ModelCommit`) into the two flash slots, or the one a reset
+//! (`R` on UART2) left active in them.
+//!
+//! For tests, [`EXIT_SEQUENCE`] on UART0 (or `X` on UART2) ends the run: the image prints its
+//! status, stack peak and sizes on the semihosting console and exits with code 0. The sequence
+//! cannot occur inside a COBS frame (it holds zeros) and is not a valid frame, so no real
+//! traffic triggers it.
 #![no_std]
 #![no_main]
 
-use cortex_m_rt::entry;
+use cortex_m_rt::{entry, exception};
 use cortex_m_semihosting::hprintln;
 use msr_firmware::board::Board;
-use msr_qemu::clock::Clock;
+use msr_firmware::model::ModelStore;
+use msr_qemu::clock::{Clock, RELOAD_1MS};
 use msr_qemu::exit::exit;
-use msr_qemu::model_area::{self, FlashStore};
-use msr_qemu::uart::{Uart, UART0, UART1};
 use msr_qemu::memory;
+use msr_qemu::model_area::{self, FlashStore};
+use msr_qemu::uart::{self, Uart, UART0, UART1, UART2};
 
 /// Three delimiters, an ASCII word, a delimiter.
 pub const EXIT_SEQUENCE: &[u8; 12] = b"\0\0\0MSR-EXIT\0";
@@ -26,27 +38,104 @@ pub const EXIT_SEQUENCE: &[u8; 12] = b"\0\0\0MSR-EXIT\0";
 // SAFETY (FlashStore::new): the one store of this image; the bench area is not used here.
 static mut BOARD: Board<FlashStore> = Board::new(unsafe { FlashStore::new() });
 
-/// UART0 with a watch for [`EXIT_SEQUENCE`] on what the board reads.
-struct HostLink {
+/// The clock channel on UART2. Host to board, one opcode byte then little-endian fields:
+/// - `L tick_us:u32`: enter lockstep at time 0 with this tick; answered `L`.
+/// - `T host:u16 servo:u16`: one tick; the host wrote `host` bytes to UART0 and `servo` to UART1
+///   since the last tick. Answered `T host:u16 servo:u16` with the bytes the board wrote.
+/// - `R`: reset the board (the model in the flash slots stays); it comes back with `H`.
+/// - `X`: print the status and exit with code 0.
+///
+/// Board to host at every start: `H crc:u32`, the CRC of the model in use (0: none).
+/// A command it cannot take is answered `E code:u8` (1: unknown opcode, 2: more bytes announced
+/// than fit the receive buffer).
+mod ctl {
+    pub const LOCKSTEP: u8 = b'L';
+    pub const TICK: u8 = b'T';
+    pub const RESET: u8 = b'R';
+    pub const EXIT: u8 = b'X';
+    pub const HELLO: u8 = b'H';
+    pub const ERROR: u8 = b'E';
+
+    /// Bytes after the opcode.
+    pub fn args(op: u8) -> Option<usize> {
+        match op {
+            LOCKSTEP => Some(4),
+            TICK => Some(4),
+            RESET | EXIT => Some(0),
+            _ => None,
+        }
+    }
+}
+
+/// Bytes a link may hold between the UART and the board in lockstep: more than a tick brings at
+/// any baud rate the sim uses (921600 baud: 92 bytes per millisecond).
+const FIFO: usize = 4096;
+
+/// One UART as the board sees it: read straight from the UART (free running) or from what the
+/// tick brought (lockstep); bytes written are counted for the tick's answer.
+struct Port {
     uart: Uart,
-    /// The last bytes read, newest last.
+    buf: &'static mut [u8; FIFO],
+    head: usize,
+    len: usize,
+    lockstep: bool,
+    written: u32,
+    /// The last bytes read, newest last (UART0 only: the exit sequence).
     recent: [u8; EXIT_SEQUENCE.len()],
     exit: bool,
 }
 
-impl embedded_io::ErrorType for HostLink {
-    type Error = core::convert::Infallible;
-}
+impl Port {
+    fn new(uart: Uart, buf: &'static mut [u8; FIFO]) -> Port {
+        Port { uart, buf, head: 0, len: 0, lockstep: false, written: 0, recent: [0xFF; 12], exit: false }
+    }
 
-impl embedded_io::ReadReady for HostLink {
-    fn read_ready(&mut self) -> Result<bool, Self::Error> {
-        self.uart.read_ready()
+    /// Moves up to `n` bytes from the UART into the buffer, sleeping while they are on their
+    /// way. Returns false when they do not fit.
+    fn take(&mut self, mut n: usize) -> bool {
+        if n > FIFO - self.len {
+            return false;
+        }
+        while n > 0 {
+            match self.uart.try_read() {
+                Some(b) => {
+                    self.buf[(self.head + self.len) % FIFO] = b;
+                    self.len += 1;
+                    n -= 1;
+                }
+                None => {
+                    let u = &self.uart;
+                    uart::idle(|| u.rx_ready());
+                }
+            }
+        }
+        true
     }
 }
 
-impl embedded_io::Read for HostLink {
+impl embedded_io::ErrorType for Port {
+    type Error = core::convert::Infallible;
+}
+
+impl embedded_io::ReadReady for Port {
+    fn read_ready(&mut self) -> Result<bool, Self::Error> {
+        Ok(if self.lockstep { self.len > 0 } else { self.uart.rx_ready() })
+    }
+}
+
+impl embedded_io::Read for Port {
     fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
-        let n = embedded_io::Read::read(&mut self.uart, buf)?;
+        let n = if self.lockstep {
+            let n = buf.len().min(self.len);
+            for b in &mut buf[..n] {
+                *b = self.buf[self.head];
+                self.head = (self.head + 1) % FIFO;
+            }
+            self.len -= n;
+            n
+        } else {
+            embedded_io::Read::read(&mut self.uart, buf)?
+        };
         for &b in &buf[..n] {
             self.recent.copy_within(1.., 0);
             self.recent[EXIT_SEQUENCE.len() - 1] = b;
@@ -56,8 +145,9 @@ impl embedded_io::Read for HostLink {
     }
 }
 
-impl embedded_io::Write for HostLink {
+impl embedded_io::Write for Port {
     fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        self.written = self.written.wrapping_add(buf.len() as u32);
         embedded_io::Write::write(&mut self.uart, buf)
     }
     fn flush(&mut self) -> Result<(), Self::Error> {
@@ -65,37 +155,150 @@ impl embedded_io::Write for HostLink {
     }
 }
 
+/// Assembles clock-channel commands from UART2.
+struct Ctl {
+    uart: Uart,
+    cmd: [u8; 5],
+    have: usize,
+}
+
+impl Ctl {
+    /// A complete command, if one has arrived; never waits.
+    fn poll(&mut self) -> Option<[u8; 5]> {
+        while let Some(b) = self.uart.try_read() {
+            self.cmd[self.have] = b;
+            self.have += 1;
+            match ctl::args(self.cmd[0]) {
+                Some(n) if self.have == n + 1 => {
+                    self.have = 0;
+                    return Some(self.cmd);
+                }
+                Some(_) => {}
+                None => {
+                    self.have = 0;
+                    self.send(&[ctl::ERROR, 1]);
+                }
+            }
+        }
+        None
+    }
+
+    fn send(&mut self, bytes: &[u8]) {
+        embedded_io::Write::write_all(&mut self.uart, bytes).ok();
+    }
+}
+
+fn u16_at(b: &[u8], i: usize) -> u16 {
+    u16::from_le_bytes([b[i], b[i + 1]])
+}
+
+#[exception]
+unsafe fn DefaultHandler(_irqn: i16) {
+    // Only the UART RX lines are enabled: acknowledge; the main loop reads the data.
+    uart::clear_rx_interrupts();
+}
 
 #[entry]
 fn main() -> ! {
     memory::paint_stack();
     let cp = cortex_m::Peripherals::take().unwrap_or_else(|| exit(3));
-    let clock = Clock::start(cp.SYST);
-    // SAFETY: this image owns both UARTs.
-    let (host, mut servo) = unsafe { (Uart::new(UART0), Uart::new(UART1)) };
-    let mut host = HostLink { uart: host, recent: [0xFF; EXIT_SEQUENCE.len()], exit: false };
+    // A 1 ms SysTick: the sleeping loop wakes for the board's 10 ms motion period.
+    let clock = Clock::start_with_reload(cp.SYST, RELOAD_1MS);
+    // Static buffers: the stack stays small (its peak is one of the image's figures).
+    let host_buf = cortex_m::singleton!(: [u8; FIFO] = [0; FIFO]).unwrap_or_else(|| exit(3));
+    let servo_buf = cortex_m::singleton!(: [u8; FIFO] = [0; FIFO]).unwrap_or_else(|| exit(3));
+    // SAFETY: this image owns the three UARTs.
+    let (mut host, mut servo, mut ctl) = unsafe {
+        (
+            Port::new(Uart::new(UART0), host_buf),
+            Port::new(Uart::new(UART1), servo_buf),
+            Ctl { uart: Uart::new(UART2), cmd: [0; 5], have: 0 },
+        )
+    };
+    host.uart.enable_rx_interrupt();
+    servo.uart.enable_rx_interrupt();
+    ctl.uart.enable_rx_interrupt();
+    uart::enable_rx_irqs();
     // SAFETY: the only reference to BOARD, taken once in this single-threaded image.
     let board = unsafe { &mut *core::ptr::addr_of_mut!(BOARD) };
     let sizes = memory::sizes();
+    let crc = board
+        .store()
+        .active()
+        .and_then(|b| msr_firmware::model::validate(b).ok())
+        .map_or(0, |m| m.crc32);
     hprintln!(
-        "msr-qemu: ready; built-in model {} bytes; static RAM {} bytes, code {} bytes, .data initial values {} bytes",
+        "msr-qemu: ready; built-in model {} bytes; model in use crc {:#010x}; static RAM {} bytes, code {} bytes, .data initial values {} bytes",
         model_area::BUILT_IN.len(),
+        crc,
         sizes.static_ram,
         sizes.code - model_area::BUILT_IN.len(),
         sizes.data_init
     );
+    let mut hello = [ctl::HELLO, 0, 0, 0, 0];
+    hello[1..].copy_from_slice(&crc.to_le_bytes());
+    ctl.send(&hello);
+
+    // Lockstep state: the next tick's time and the tick length.
+    let mut lockstep: Option<(u64, u64)> = None;
     loop {
-        // 25 SysTick ticks of 40 ns per microsecond.
-        let now_us = clock.ticks() / 25;
-        board.poll(now_us, &mut host, &mut servo);
+        if lockstep.is_none() {
+            // 25 SysTick ticks of 40 ns per microsecond.
+            let now_us = clock.ticks() / 25;
+            board.poll(now_us, &mut host, &mut servo);
+        }
         if host.exit {
-            let s = board.status();
-            hprintln!("msr-qemu: exit requested at {} us virtual", now_us);
-            hprintln!("msr-qemu: status {:?}", s);
-            hprintln!("msr-qemu: stack peak {} bytes", memory::stack_peak());
-            exit(0);
+            finish(board, "exit sequence on UART0");
+        }
+        let Some(cmd) = ctl.poll() else {
+            let (h, s, c) = (&host.uart, &servo.uart, &ctl.uart);
+            if lockstep.is_some() {
+                uart::idle(|| c.rx_ready());
+            } else {
+                uart::idle(|| h.rx_ready() || s.rx_ready() || c.rx_ready());
+            }
+            continue;
+        };
+        match cmd[0] {
+            ctl::LOCKSTEP => {
+                let tick = u32::from_le_bytes([cmd[1], cmd[2], cmd[3], cmd[4]]) as u64;
+                lockstep = Some((0, tick.max(1)));
+                host.lockstep = true;
+                servo.lockstep = true;
+                ctl.send(&[ctl::LOCKSTEP]);
+            }
+            ctl::TICK => {
+                let Some((now_us, tick)) = lockstep else {
+                    ctl.send(&[ctl::ERROR, 3]);
+                    continue;
+                };
+                if !host.take(u16_at(&cmd, 1) as usize) || !servo.take(u16_at(&cmd, 3) as usize) {
+                    ctl.send(&[ctl::ERROR, 2]);
+                    continue;
+                }
+                host.written = 0;
+                servo.written = 0;
+                board.poll(now_us, &mut host, &mut servo);
+                lockstep = Some((now_us + tick, tick));
+                let (h, s) = (host.written.min(u16::MAX as u32) as u16, servo.written.min(u16::MAX as u32) as u16);
+                let mut a = [ctl::TICK, 0, 0, 0, 0];
+                a[1..3].copy_from_slice(&h.to_le_bytes());
+                a[3..5].copy_from_slice(&s.to_le_bytes());
+                ctl.send(&a);
+            }
+            ctl::RESET => cortex_m::peripheral::SCB::sys_reset(),
+            ctl::EXIT => finish(board, "exit command on UART2"),
+            _ => {}
         }
     }
+}
+
+fn finish(board: &Board<FlashStore>, why: &str) -> ! {
+    let s = board.status();
+    hprintln!("msr-qemu: {}", why);
+    hprintln!("msr-qemu: status {:?}", s);
+    hprintln!("msr-qemu: stack peak {} bytes", memory::stack_peak());
+    exit(0)
 }
 
 #[panic_handler]

@@ -12,16 +12,24 @@ use core::ptr::{read_volatile, write_volatile};
 pub const UART0: usize = 0x4000_4000;
 /// UART1: the servo bus.
 pub const UART1: usize = 0x4000_5000;
+/// UART2: the simulation clock channel (see `main.rs`).
+pub const UART2: usize = 0x4000_6000;
+/// The three UARTs' RX interrupt lines on mps2-an386 (each TX line is one above).
+pub const RX_IRQS: [u32; 3] = [0, 2, 4];
+const NVIC_ISER0: usize = 0xE000_E100;
 
 const DATA: usize = 0x00;
 const STATE: usize = 0x04;
 const CTRL: usize = 0x08;
+const INTCLEAR: usize = 0x0C;
 const BAUDDIV: usize = 0x10;
 
 const STATE_TX_FULL: u32 = 1 << 0;
 const STATE_RX_FULL: u32 = 1 << 1;
 const CTRL_TX_EN: u32 = 1 << 0;
 const CTRL_RX_EN: u32 = 1 << 1;
+const CTRL_RX_INT_EN: u32 = 1 << 3;
+const INT_RX: u32 = 1 << 1;
 
 /// The 25 MHz peripheral clock over 115200 baud; QEMU wants at least 16.
 const BAUD_115200: u32 = 25_000_000 / 115_200;
@@ -52,6 +60,18 @@ impl Uart {
         unsafe { write_volatile((self.base + off) as *mut u32, v) }
     }
 
+    /// Raises the UART's RX interrupt when a byte arrives, so that the image can sleep (`wfi`)
+    /// until there is work instead of spinning on the status register (which, under `-icount`,
+    /// also keeps QEMU's virtual clock far behind real time: see [`idle`]).
+    pub fn enable_rx_interrupt(&mut self) {
+        self.write_reg(CTRL, CTRL_TX_EN | CTRL_RX_EN | CTRL_RX_INT_EN);
+    }
+
+    /// Whether a received byte waits.
+    pub fn rx_ready(&self) -> bool {
+        self.read_reg(STATE) & STATE_RX_FULL != 0
+    }
+
     /// One received byte, if there is one.
     pub fn try_read(&mut self) -> Option<u8> {
         if self.read_reg(STATE) & STATE_RX_FULL != 0 {
@@ -66,6 +86,39 @@ impl Uart {
         while self.read_reg(STATE) & STATE_TX_FULL != 0 {}
         self.write_reg(DATA, b as u32);
     }
+}
+
+/// Enables the RX interrupt lines of UART0..2 in the NVIC. The handler ([`clear_rx_interrupts`])
+/// only acknowledges: the data stays in the UART for the polling code.
+pub fn enable_rx_irqs() {
+    let mask = RX_IRQS.iter().fold(0u32, |m, i| m | 1 << i);
+    // SAFETY: the NVIC's set-enable register; setting bits only enables those lines.
+    unsafe { write_volatile(NVIC_ISER0 as *mut u32, mask) };
+}
+
+/// Acknowledges the RX interrupts of UART0..2 (call from the interrupt handler).
+pub fn clear_rx_interrupts() {
+    for base in [UART0, UART1, UART2] {
+        // SAFETY: write-one-to-clear of the interrupt status; no other effect.
+        unsafe { write_volatile((base + INTCLEAR) as *mut u32, INT_RX) };
+    }
+}
+
+/// Sleeps until an interrupt (a received byte, SysTick) unless `ready()` says there is work.
+/// Interrupts are masked around the check, so a byte that arrives between the check and the
+/// `wfi` still wakes it (a pending interrupt ends `wfi` even while masked).
+///
+/// Why sleep: spinning on the UART status is slow under QEMU (every register read is an I/O
+/// exit), so with `-icount shift=0` a spinning image saw about 30 ms of virtual time per second
+/// of real time; a sleeping vCPU lets virtual time follow real time (`-icount sleep=on`) and
+/// leaves the host's cores to the other side of the links.
+pub fn idle(ready: impl Fn() -> bool) {
+    cortex_m::interrupt::disable();
+    if !ready() {
+        cortex_m::asm::wfi();
+    }
+    // SAFETY: single-threaded image; the only handlers are the clock's and the UART ack.
+    unsafe { cortex_m::interrupt::enable() };
 }
 
 impl embedded_io::ErrorType for Uart {
