@@ -158,19 +158,36 @@ impl Decoder {
         a[0] = input[0];
         a[1] = input[1];
         let mut cur = 0usize;
-        for (i, layer) in model.layers.iter().enumerate() {
+        let rq = |i: usize| {
+            let r = Requant::of(&model.layers[i]);
+            if grey_at == Some(i) {
+                r.last()
+            } else {
+                r
+            }
+        };
+        let mut i = 0;
+        while let Some(layer) = model.layers.get(i) {
             let (src, dst) = if cur == 0 {
-                (&a[..], &mut b[..])
+                (&mut a[..], &mut b[..])
             } else {
-                (&b[..], &mut a[..])
+                (&mut b[..], &mut a[..])
             };
-            let rq = if grey_at == Some(i) {
-                Requant::of(layer).last()
-            } else {
-                Requant::of(layer)
-            };
-            run_layer_as(layer, rq, src, dst).map_err(|_| DecodeError::Shape(i as u8))?;
+            // On the M4, a Dense feeding the last ConvTranspose2d may run fused (same bits).
+            #[cfg(target_arch = "arm")]
+            if let Some(f) = model
+                .layers
+                .get(i + 1)
+                .filter(|_| grey_at == Some(i + 1))
+                .and_then(|next| arm::Fused::of(layer, rq(i), next, rq(i + 1)))
+            {
+                f.run(src, dst).map_err(|_| DecodeError::Shape(i as u8))?;
+                i += 2;
+                continue;
+            }
+            run_layer_as(layer, rq(i), src, dst).map_err(|_| DecodeError::Shape(i as u8))?;
             cur = 1 - cur;
+            i += 1;
         }
         let n = model.face_pixels();
         let last = model.layers.last().ok_or(DecodeError::Shape(0))?;

@@ -10,7 +10,8 @@
 //! wrapping i32 (order does not matter) and the activation is [`TanhAct`] / [`GreyAct`] step for
 //! step, so both give the same bits (the QEMU tests compare the board with the host build).
 
-use super::{Activate, AsmAct};
+use super::{Activate, AsmAct, Requant};
+use msr_shared::blob::{Layer, LayerKind, WeightType, MAX_ACTIVATION_LEN};
 
 /// Most groups of four words a row may have here (the unrolled block's length).
 pub(crate) const MAX_GROUPS: usize = 16;
@@ -34,7 +35,7 @@ struct Job {
 /// One 4-word group of two rows: x in r5-r8, row 0 (r1) and row 1 (r2) through r9-r12; 44 bytes
 /// (every instruction 32-bit, so that the computed jump can count them).
 macro_rules! dense2_asm {
-    ($name:literal, $act:literal) => {
+    ($name:literal, $act:expr) => {
         core::arch::global_asm!(
             concat!(".section .text.", $name, ",\"ax\",%progbits"),
             concat!(".global ", $name),
@@ -98,21 +99,23 @@ macro_rules! dense2_asm {
     };
 }
 
-dense2_asm!(
-    "msr_dense2_tanh",
-    "asr r3, r3, r11
-    ssat r3, #13, r3
-    ldrsh.w r3, [r10, r3, lsl #1]
-    add r3, r3, r12
-    asr r3, r3, lr
-    strh r3, [r7], #2
-    asr r4, r4, r11
-    ssat r4, #13, r4
-    ldrsh.w r4, [r10, r4, lsl #1]
-    add r4, r4, r12
-    asr r4, r4, lr
-    strh r4, [r7], #2"
-);
+/// The tanh step of one accumulator (`$a`) into the halfword at r7, r7 then moved by `$inc`.
+macro_rules! tanh_step {
+    ($a:literal, $inc:literal) => {
+        concat!(
+            "asr ", $a, ", ", $a, ", r11\n",
+            "ssat ", $a, ", #13, ", $a, "\n",
+            "ldrsh.w ", $a, ", [r10, ", $a, ", lsl #1]\n",
+            "add ", $a, ", ", $a, ", r12\n",
+            "asr ", $a, ", ", $a, ", lr\n",
+            "strh ", $a, ", [r7], #", $inc, "\n"
+        )
+    };
+}
+
+dense2_asm!("msr_dense2_tanh", concat!(tanh_step!("r3", "2"), tanh_step!("r4", "2")));
+// Outputs 4 halfwords apart: a 4-channel interleaved (HWC) image for the transposed convolution.
+dense2_asm!("msr_dense2_tanh_x4", concat!(tanh_step!("r3", "8"), tanh_step!("r4", "8")));
 
 dense2_asm!(
     "msr_dense2_grey",
@@ -126,8 +129,92 @@ dense2_asm!(
     strh r4, [r7], #2"
 );
 
+// ConvTranspose2d k4 s2 over a 4-channel interleaved, zero-padded input, last-layer sigmoid to
+// grey: two outputs of one phase per pass (columns m and m + 1 read input columns a, a+1 and
+// a+1, a+2 of two input rows; one weight load serves both).
+//
+// Job on the stack: sp+0 y, +4 table, +8 sh, +12 bias, +16 row_bytes; r0 row A, r1 row B,
+// r2 the phase's 8 weight words (row A then row B), lr pairs left.
+core::arch::global_asm!(
+    ".section .text.msr_convt_k4s2c4_grey,\"ax\",%progbits",
+    ".global msr_convt_k4s2c4_grey",
+    ".type msr_convt_k4s2c4_grey,%function",
+    ".p2align 2",
+    ".thumb_func",
+    "msr_convt_k4s2c4_grey:",
+    "push {{r4-r11, lr}}",
+    "sub sp, sp, #24",
+    // r1 x, r2 w, r3 y, r4 pairs, r5 table, r6 sh, r7 bias, r8 row_bytes.
+    "ldm r0, {{r1-r8}}",
+    "str r3, [sp, #0]",
+    "str r5, [sp, #4]",
+    "str r6, [sp, #8]",
+    "str r7, [sp, #12]",
+    "mov r0, r1",
+    "add r1, r1, r8",
+    "mov lr, r4",
+    "1:",
+    "ldr r3, [sp, #12]",
+    "mov r4, r3",
+    "ldm r0, {{r5-r8}}",
+    "ldm r2!, {{r9-r12}}",
+    "smlad r3, r5, r9, r3",
+    "smlad r3, r6, r10, r3",
+    "smlad r3, r7, r11, r3",
+    "smlad r3, r8, r12, r3",
+    "smlad r4, r7, r9, r4",
+    "smlad r4, r8, r10, r4",
+    "ldrd r5, r6, [r0, #16]",
+    "smlad r4, r5, r11, r4",
+    "smlad r4, r6, r12, r4",
+    "ldm r1, {{r5-r8}}",
+    "ldm r2, {{r9-r12}}",
+    "smlad r3, r5, r9, r3",
+    "smlad r3, r6, r10, r3",
+    "smlad r3, r7, r11, r3",
+    "smlad r3, r8, r12, r3",
+    "smlad r4, r7, r9, r4",
+    "smlad r4, r8, r10, r4",
+    "ldrd r5, r6, [r1, #16]",
+    "smlad r4, r5, r11, r4",
+    "smlad r4, r6, r12, r4",
+    "sub r2, r2, #16",
+    "add r0, r0, #16",
+    "add r1, r1, #16",
+    // r7 y, r9 table, r10 sh.
+    "ldm sp, {{r7, r9, r10}}",
+    "asr r3, r3, r10",
+    "ssat r3, #12, r3",
+    "ldrh.w r3, [r9, r3, lsl #1]",
+    "strh r3, [r7], #4",
+    "asr r4, r4, r10",
+    "ssat r4, #12, r4",
+    "ldrh.w r4, [r9, r4, lsl #1]",
+    "strh r4, [r7], #4",
+    "str r7, [sp, #0]",
+    "subs lr, lr, #1",
+    "bne 1b",
+    "add sp, sp, #24",
+    "pop {{r4-r11, pc}}",
+    ".size msr_convt_k4s2c4_grey, . - msr_convt_k4s2c4_grey",
+);
+
+#[repr(C)]
+struct ConvJob {
+    x: *const i16,
+    w: *const u32,
+    y: *mut i16,
+    pairs: u32,
+    table: *const i16,
+    sh: u32,
+    bias: i32,
+    row_bytes: u32,
+}
+
 extern "C" {
+    fn msr_convt_k4s2c4_grey(job: *const ConvJob);
     fn msr_dense2_tanh(job: *const Job);
+    fn msr_dense2_tanh_x4(job: *const Job);
     fn msr_dense2_grey(job: *const Job);
 }
 
@@ -135,20 +222,39 @@ extern "C" {
 /// number, from the start of `y`); 0 when the layer does not suit it (the caller does the rest).
 /// `w` is `[out][np]` words, `x` is `np` words, `np = 4 * g` with `1 <= g <= MAX_GROUPS`.
 pub(crate) fn dense2<A: Activate>(rq: A, w: &[u32], b: &[i32], x: &[u32], y: &mut [i16]) -> usize {
-    let np = x.len();
     let pairs = y.len() / 2;
+    if !dense_suits(x.len(), pairs, w, b) {
+        return 0;
+    }
     let Some(act) = rq.asm_act() else {
         return 0;
     };
-    if np == 0
-        || !np.is_multiple_of(4)
-        || np / 4 > MAX_GROUPS
-        || pairs == 0
-        || w.len() < 2 * pairs * np
-        || b.len() < 2 * pairs
-    {
-        return 0;
-    }
+    // SAFETY: shapes checked by dense_suits; y holds 2 * pairs adjacent halfwords.
+    unsafe { dense2_raw(act, w, b, x, y.as_mut_ptr(), pairs, false) };
+    2 * pairs
+}
+
+fn dense_suits(np: usize, pairs: usize, w: &[u32], b: &[i32]) -> bool {
+    np > 0
+        && np.is_multiple_of(4)
+        && np / 4 <= MAX_GROUPS
+        && pairs > 0
+        && w.len() >= 2 * pairs * np
+        && b.len() >= 2 * pairs
+}
+
+/// # Safety
+/// `dense_suits(x.len(), pairs, w, b)`, and `y` valid for `2 * pairs` halfwords, 4 apart when
+/// `x4`, else adjacent.
+unsafe fn dense2_raw(
+    act: AsmAct,
+    w: &[u32],
+    b: &[i32],
+    x: &[u32],
+    y: *mut i16,
+    pairs: usize,
+    x4: bool,
+) {
     let (table, sh, rnd, k, grey) = match act {
         AsmAct::Tanh { table, sh, rnd, k } => (table, sh, rnd, k, false),
         AsmAct::Grey { table, sh } => (table, sh, 0, 0, true),
@@ -156,9 +262,9 @@ pub(crate) fn dense2<A: Activate>(rq: A, w: &[u32], b: &[i32], x: &[u32], y: &mu
     let job = Job {
         x: x.as_ptr(),
         bias: b.as_ptr(),
-        y: y.as_mut_ptr(),
+        y,
         pairs: pairs as u32,
-        row_bytes: (np * 4) as u32,
+        row_bytes: (x.len() * 4) as u32,
         table,
         sh,
         rnd,
@@ -166,15 +272,188 @@ pub(crate) fn dense2<A: Activate>(rq: A, w: &[u32], b: &[i32], x: &[u32], y: &mu
         w: w.as_ptr(),
     };
     // SAFETY: the routine reads `np` words of `x` per pair, `2 * pairs` rows of `np` words of
-    // `w`, `2 * pairs` biases, the table within its saturated index range, and writes
-    // `2 * pairs` halfwords of `y`; all checked above. It keeps the AAPCS (saves r4-r11, lr;
+    // `w`, `2 * pairs` biases, the table within its saturated index range, and writes the
+    // `2 * pairs` halfwords of `y` (caller's contract). It keeps the AAPCS (saves r4-r11, lr;
     // restores sp).
     unsafe {
-        if grey {
-            msr_dense2_grey(&job);
-        } else {
-            msr_dense2_tanh(&job);
+        match (grey, x4) {
+            (true, _) => msr_dense2_grey(&job),
+            (false, false) => msr_dense2_tanh(&job),
+            (false, true) => msr_dense2_tanh_x4(&job),
         }
     }
-    2 * pairs
+}
+
+/// Channels of the interleaved image between the fused Dense and ConvTranspose2d.
+const FUSED_C: usize = 4;
+
+/// A Dense layer (tanh) whose output is a 4 x h x w image read by a ConvTranspose2d k4 s2 that
+/// writes the face (sigmoid to grey): the Dense writes the image channel-interleaved with a zero
+/// border, so the convolution reads each tap row of two outputs with one `LDM` and never tests
+/// a border.
+pub(crate) struct Fused<'l, 'a> {
+    dense: &'l Layer<'a>,
+    dact: AsmAct,
+    conv: &'l Layer<'a>,
+    cact: AsmAct,
+}
+
+impl<'l, 'a> Fused<'l, 'a> {
+    /// The pair, when both suit the kernels; every read of the convolution then stays inside
+    /// the padded image (checked here).
+    pub(crate) fn of(
+        dense: &'l Layer<'a>,
+        drq: Requant,
+        conv: &'l Layer<'a>,
+        crq: Requant,
+    ) -> Option<Self> {
+        let dact = drq.tanh_act()?.asm_act()?;
+        let cact = crq.grey_act()?.asm_act()?;
+        let (h, w) = (conv.input.h as usize, conv.input.w as usize);
+        let (oh, ow) = (conv.output.h as usize, conv.output.w as usize);
+        let p = conv.padding as usize;
+        let ok = dense.kind == LayerKind::Dense
+            && dense.weight_type == WeightType::I16
+            && dense.input.len().is_multiple_of(8)
+            && dense.input.len() / 8 <= MAX_GROUPS
+            && conv.kind == LayerKind::ConvTranspose2d
+            && conv.weight_type == WeightType::I16
+            && conv.kernel == 4
+            && conv.stride == 2
+            && p <= 3
+            && conv.input.c as usize == FUSED_C
+            && dense.output.len() == conv.input.len()
+            && w.is_multiple_of(2)
+            && ow >= 4
+            && (h + 2) * (w + 2) * FUSED_C <= MAX_ACTIVATION_LEN
+            && dense.weights_i16().is_some()
+            && dense.bias_i32().is_some()
+            && conv.weights_i16().is_some()
+            && conv.bias_i32().is_some();
+        if !ok {
+            return None;
+        }
+        // Output row 2n + py reads padded rows n + r0 and n + r0 + 1; the pair m, m + 1 of
+        // phase px reads padded columns m + c0 .. m + c0 + 2, for m + 1 < outputs of the phase.
+        for ph in 0..2 {
+            let r0 = (ph + p) / 2;
+            if oh > ph && (oh - 1 - ph) / 2 + r0 + 1 > h + 1 {
+                return None;
+            }
+            let c0 = (ph + p) / 2;
+            if (ow - ph).div_ceil(2) + c0 > w + 1 {
+                return None;
+            }
+        }
+        Some(Fused {
+            dense,
+            dact,
+            conv,
+            cact,
+        })
+    }
+
+    /// The Dense from `buf` into `mid` (interleaved, padded), then the convolution into `buf`.
+    pub(crate) fn run(&self, buf: &mut [i16], mid: &mut [i16]) -> Result<(), ()> {
+        let (d, c) = (self.dense, self.conv);
+        let (h, w) = (c.input.h as usize, c.input.w as usize);
+        let pw = w + 2;
+        let n_in = d.input.len();
+        let (Some(dw), Some(db), Some(cw), Some(cb)) =
+            (d.weights_i16(), d.bias_i32(), c.weights_i16(), c.bias_i32())
+        else {
+            return Err(());
+        };
+        let dw: &[u32] = bytemuck::try_cast_slice(dw).map_err(|_| ())?;
+        let np = n_in / 2;
+        // The input is at most 4 * MAX_GROUPS words: copied out, `buf` takes the output.
+        let mut xw = [0u32; 4 * MAX_GROUPS];
+        let xin: &[u32] = bytemuck::try_cast_slice(buf.get(..n_in).ok_or(())?).map_err(|_| ())?;
+        xw.get_mut(..np).ok_or(())?.copy_from_slice(xin);
+        let x = &xw[..np];
+        let y = buf;
+        let (oc_n, oh, ow) = (
+            c.output.c as usize,
+            c.output.h as usize,
+            c.output.w as usize,
+        );
+        if mid.len() < (h + 2) * pw * FUSED_C || y.len() < c.output.len() || cb.len() < oc_n {
+            return Err(());
+        }
+        // The zero border.
+        mid[..pw * FUSED_C].fill(0);
+        mid[(h + 1) * pw * FUSED_C..(h + 2) * pw * FUSED_C].fill(0);
+        for iy in 1..=h {
+            let r = iy * pw * FUSED_C;
+            mid[r..r + FUSED_C].fill(0);
+            mid[r + (w + 1) * FUSED_C..r + pw * FUSED_C].fill(0);
+        }
+        // Dense rows of one channel and image row at a time: w outputs, 4 halfwords apart.
+        for ch in 0..FUSED_C {
+            for iy in 0..h {
+                let r = (ch * h + iy) * w;
+                let (wr, br) = (&dw[r * np..(r + w) * np], &db[r..r + w]);
+                if !dense_suits(np, w / 2, wr, br) {
+                    return Err(());
+                }
+                let at = ((iy + 1) * pw + 1) * FUSED_C + ch;
+                // SAFETY: the last write, at + 4 * (w - 1), is inside row iy + 1 of `mid`.
+                unsafe { dense2_raw(self.dact, wr, br, x, mid.as_mut_ptr().add(at), w / 2, true) };
+            }
+        }
+        let AsmAct::Grey { table, sh } = self.cact else {
+            return Err(());
+        };
+        let p = c.padding as usize;
+        let wt = |ic: usize, oc: usize, ky: usize, kx: usize| -> u32 {
+            cw[((ic * oc_n + oc) * 4 + ky) * 4 + kx] as u16 as u32
+        };
+        for oc in 0..oc_n {
+            // Weight words per phase (py, px): row A (tap ky0 + 2) then row B (ky0); in each,
+            // column A (kx0 + 2) then B (kx0), channel pairs (0, 1) and (2, 3).
+            let mut packs = [[0u32; 8]; 4];
+            for (ph, pack) in packs.iter_mut().enumerate() {
+                let (ky0, kx0) = ((ph / 2 + p) % 2, (ph % 2 + p) % 2);
+                for (rw, ky) in [ky0 + 2, ky0].into_iter().enumerate() {
+                    for (cl, kx) in [kx0 + 2, kx0].into_iter().enumerate() {
+                        for cp in 0..2 {
+                            pack[rw * 4 + cl * 2 + cp] =
+                                wt(2 * cp, oc, ky, kx) | (wt(2 * cp + 1, oc, ky, kx) << 16);
+                        }
+                    }
+                }
+            }
+            for oy in 0..oh {
+                let (py, n) = (oy % 2, oy / 2);
+                let r0 = (py + p) / 2;
+                for px in 0..2 {
+                    let c0 = (px + p) / 2;
+                    let m_n = (ow - px).div_ceil(2);
+                    let xa = ((n + r0) * pw + c0) * FUSED_C;
+                    let yo = (oc * oh + oy) * ow + px;
+                    let (xp, yp) = (mid.as_ptr(), y.as_mut_ptr());
+                    let job = |m: usize, pairs: usize| ConvJob {
+                        x: xp.wrapping_add(xa + m * FUSED_C),
+                        w: packs[py * 2 + px].as_ptr(),
+                        y: yp.wrapping_add(yo + 2 * m),
+                        pairs: pairs as u32,
+                        table,
+                        sh,
+                        bias: cb[oc],
+                        row_bytes: (pw * FUSED_C * 2) as u32,
+                    };
+                    // SAFETY: `of` checked that every read stays inside the padded image;
+                    // the writes are outputs (oc, oy, px + 2m) for m < m_n, inside `y`.
+                    unsafe {
+                        msr_convt_k4s2c4_grey(&job(0, m_n / 2));
+                        if m_n % 2 == 1 {
+                            // The last output: the pair ending there (one written twice).
+                            msr_convt_k4s2c4_grey(&job(m_n - 2, 1));
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
 }
