@@ -16,7 +16,7 @@
 //! real second), and the sim's servos and camera would run on the host's clock.
 use crate::episode::{self, Camera, EpisodeConfig, HostPort, Trial};
 use anyhow::{anyhow, bail, Context, Result};
-use msr_shared::msg::{BoardToHost, HostToBoard, Status};
+use msr_shared::msg::{BoardToHost, Status};
 use msr_sim::link::LinkEnd;
 use msr_sim::qemu::{self, Lockstep};
 use msr_sim::render::Renderer;
@@ -85,84 +85,111 @@ fn upload(ls: &mut Lockstep, blob: &[u8]) -> Result<u32> {
     }
 }
 
-/// Asks for the board's counters over the link, a few ticks at most.
+/// The board's counters, read beside the links (as the in-process trial reads its board's).
 fn status(ls: &mut Lockstep) -> Result<Status> {
     let mut port = HostPort::default();
-    let get = port.encode(&HostToBoard::GetStatus);
-    let (mut h, mut s) = (Vec::new(), Vec::new());
-    ls.tick(&get, &[], &mut h, &mut s)?;
-    for _ in 0..100 {
-        for m in port.receive(&h) {
-            if let BoardToHost::Status(st) = m {
-                return Ok(st);
-            }
+    for m in port.receive(&ls.status_frame()?) {
+        if let BoardToHost::Status(st) = m {
+            return Ok(st);
         }
-        h.clear();
-        ls.tick(&[], &[], &mut h, &mut s)?;
     }
-    bail!("no status from the QEMU board within 100 ticks")
+    bail!("the QEMU board's status did not decode")
 }
 
-fn run_one(ls: &mut Lockstep, crc: u32, camera: Camera, cfg: &EpisodeConfig, index: usize, seed: u64) -> Result<Trial> {
-    let got = ls.reset()?;
-    if got != crc {
-        bail!("trial {index}: after its reset the QEMU board runs model {got:#010x}, not the uploaded {crc:#010x}");
-    }
-    ls.enter(TICK_US)?;
-    let mut io_error: Option<anyhow::Error> = None;
-    let (mut ho, mut so) = (Vec::new(), Vec::new());
-    let mut fw = |now: u64, he: &mut LinkEnd, se: &mut LinkEnd| {
-        if io_error.is_some() {
-            return;
+/// The board image running in QEMU with a model uploaded, ready for trials. Each
+/// [`QemuBoard::trial`] resets the board first, so trials are independent.
+pub struct QemuBoard {
+    ls: Lockstep,
+    crc: u32,
+    /// Seconds the model upload took.
+    pub upload_s: f64,
+}
+
+impl QemuBoard {
+    /// Starts QEMU with the board image and uploads `blob` (checked by the board).
+    pub fn start(blob: &[u8]) -> Result<QemuBoard> {
+        if !qemu::qemu_available() {
+            bail!("{} is not installed (Debian: apt-get install qemu-system-arm)", qemu::qemu_binary());
         }
-        debug_assert_eq!(now, ls.ticks * TICK_US as u64);
-        let (hi, si) = (he.receive(), se.receive());
-        ho.clear();
-        so.clear();
-        match ls.tick(&hi, &si, &mut ho, &mut so) {
-            Ok(()) => {
-                he.send(&ho);
-                se.send(&so);
+        let image = qemu::find_image(qemu::BOARD_IMAGE)?;
+        let model = msr_shared::blob::Model::parse(blob).map_err(|e| anyhow!("model blob: {e}"))?;
+        let (mut ls, _) = Lockstep::start(&image)?;
+        let t0 = Instant::now();
+        let crc = upload(&mut ls, blob)?;
+        if crc != model.crc32 {
+            bail!("the QEMU board accepted model {crc:#010x}, not {:#010x}", model.crc32);
+        }
+        Ok(QemuBoard { ls, crc, upload_s: t0.elapsed().as_secs_f64() })
+    }
+
+    /// One trial, as [`episode::run_trial_inproc`] runs it, with this board.
+    pub fn trial(&mut self, camera: Camera, cfg: &EpisodeConfig, index: usize, seed: u64) -> Result<Trial> {
+        let ls = &mut self.ls;
+        let got = ls.reset()?;
+        if got != self.crc {
+            bail!("trial {index}: after its reset the QEMU board runs model {got:#010x}, not the uploaded {:#010x}", self.crc);
+        }
+        ls.enter(TICK_US)?;
+        let mut io_error: Option<anyhow::Error> = None;
+        let (mut ho, mut so) = (Vec::new(), Vec::new());
+        let mut fw = |now: u64, he: &mut LinkEnd, se: &mut LinkEnd| {
+            if io_error.is_some() {
+                return;
             }
-            Err(e) => io_error = Some(e),
+            debug_assert_eq!(now, ls.ticks * TICK_US as u64);
+            let (hi, si) = (he.receive(), se.receive());
+            ho.clear();
+            so.clear();
+            match ls.tick(&hi, &si, &mut ho, &mut so) {
+                Ok(()) => {
+                    he.send(&ho);
+                    se.send(&so);
+                }
+                Err(e) => io_error = Some(e),
+            }
+        };
+        // The world's own pacing is not wanted: the board follows the world's clock.
+        let mut c = cfg.clone();
+        c.pace = None;
+        let (mut trial, _) = episode::run_trial_with(&mut fw, camera, &c, index, seed)?;
+        if let Some(e) = io_error {
+            return Err(e.context(format!("trial {index}: QEMU board")));
         }
-    };
-    let (mut trial, _) = episode::run_trial_with(&mut fw, camera, cfg, index, seed)?;
-    if let Some(e) = io_error {
-        return Err(e.context(format!("trial {index}: QEMU board")));
+        let st = status(ls).with_context(|| format!("trial {index}"))?;
+        episode::add_board_counters(&mut trial, &st);
+        Ok(trial)
     }
-    let st = status(ls).with_context(|| format!("trial {index}"))?;
-    episode::add_board_counters(&mut trial, &st);
-    Ok(trial)
+
+    /// Ends QEMU; fails unless the image exits cleanly. Returns what it printed (its counters
+    /// and stack peak).
+    pub fn finish(self) -> Result<String> {
+        let exit = self.ls.exit(Duration::from_secs(10))?;
+        if exit.timed_out || exit.code != Some(0) {
+            bail!("the QEMU board did not exit cleanly ({:?}):\n{}", exit.code, exit.output);
+        }
+        Ok(exit.output)
+    }
 }
 
 /// Runs `n` trials with the board image in QEMU, one at a time, on one QEMU.
 pub fn run_qemu(blob: &[u8], cfg: &EpisodeConfig, n: usize, seed: u64, progress: &(dyn Fn(&Trial) + Sync)) -> Result<Vec<Trial>> {
-    if !qemu::qemu_available() {
-        bail!("{} is not installed (Debian: apt-get install qemu-system-arm)", qemu::qemu_binary());
-    }
-    let image = qemu::find_image(qemu::BOARD_IMAGE)?;
     let model = msr_shared::blob::Model::parse(blob).map_err(|e| anyhow!("model blob: {e}"))?;
     let template = crate::detect::template_of(&model)?;
     let renderer = Renderer::new(cfg.robot);
-    let (mut ls, _) = Lockstep::start(&image)?;
-    let crc = upload(&mut ls, blob)?;
-    if crc != model.crc32 {
-        bail!("the QEMU board accepted model {crc:#010x}, not {:#010x}", model.crc32);
+    let mut board = QemuBoard::start(blob)?;
+    if debug() {
+        eprintln!("model upload: {:.1} s", board.upload_s);
     }
     let mut out = Vec::with_capacity(n);
     for i in 0..n {
         let camera = Camera { renderer: &renderer, template: &template };
-        let t = run_one(&mut ls, crc, camera, cfg, i, episode::trial_seed(seed, i))?;
+        let t = board.trial(camera, cfg, i, episode::trial_seed(seed, i))?;
         progress(&t);
         out.push(t);
     }
-    let exit = ls.exit(Duration::from_secs(10))?;
-    if exit.timed_out || exit.code != Some(0) {
-        bail!("the QEMU board did not exit cleanly ({:?}):\n{}", exit.code, exit.output);
-    }
+    let output = board.finish()?;
     if debug() {
-        eprintln!("{}", exit.output);
+        eprintln!("{output}");
     }
     Ok(out)
 }

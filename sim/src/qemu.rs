@@ -458,6 +458,20 @@ impl Lockstep {
         Ok(())
     }
 
+    /// The board's status message, read out of band on the clock channel: the framed
+    /// `BoardToHost::Status` bytes (decode them like the host link's).
+    pub fn status_frame(&mut self) -> Result<Vec<u8>> {
+        self.clock.write_all(b"S")?;
+        let h = self.read_ctl(3, "a status request")?;
+        if h[0] != b'S' {
+            bail!("the board image answered a status request with {h:?}");
+        }
+        let n = u16::from_le_bytes([h[1], h[2]]) as usize;
+        let mut b = vec![0u8; n];
+        self.clock.read_exact(&mut b).context("reading the board's status")?;
+        Ok(b)
+    }
+
     /// Ends the run: the image prints its status and exits.
     pub fn exit(mut self, timeout: Duration) -> Result<QemuExit> {
         let _ = self.drain();

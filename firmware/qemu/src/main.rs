@@ -31,6 +31,8 @@ use msr_qemu::exit::exit;
 use msr_qemu::memory;
 use msr_qemu::model_area::{self, FlashStore};
 use msr_qemu::uart::{self, Uart, UART0, UART1, UART2};
+use msr_shared::frame::{encode_message, MAX_WIRE_FRAME};
+use msr_shared::msg::BoardToHost;
 
 /// Three delimiters, an ASCII word, a delimiter.
 pub const EXIT_SEQUENCE: &[u8; 12] = b"\0\0\0MSR-EXIT\0";
@@ -42,6 +44,9 @@ static mut BOARD: Board<FlashStore> = Board::new(unsafe { FlashStore::new() });
 /// - `L tick_us:u32`: enter lockstep at time 0 with this tick; answered `L`.
 /// - `T host:u16 servo:u16`: one tick; the host wrote `host` bytes to UART0 and `servo` to UART1
 ///   since the last tick. Answered `T host:u16 servo:u16` with the bytes the board wrote.
+/// - `S`: the board's status, out of band (the links are not touched, so a frame the sim cut off
+///   at the end of a trial costs no error): answered `S len:u16` and one framed
+///   `BoardToHost::Status` message of `len` bytes.
 /// - `R`: reset the board (the model in the flash slots stays); it comes back with `H`.
 /// - `X`: print the status and exit with code 0.
 ///
@@ -53,6 +58,7 @@ mod ctl {
     pub const TICK: u8 = b'T';
     pub const RESET: u8 = b'R';
     pub const EXIT: u8 = b'X';
+    pub const STATUS: u8 = b'S';
     pub const HELLO: u8 = b'H';
     pub const ERROR: u8 = b'E';
 
@@ -61,7 +67,7 @@ mod ctl {
         match op {
             LOCKSTEP => Some(4),
             TICK => Some(4),
-            RESET | EXIT => Some(0),
+            RESET | EXIT | STATUS => Some(0),
             _ => None,
         }
     }
@@ -245,7 +251,7 @@ fn main() -> ! {
         if lockstep.is_none() {
             // 25 SysTick ticks of 40 ns per microsecond.
             let now_us = clock.ticks() / 25;
-            board.poll(now_us, &mut host, &mut servo);
+            poll(board, now_us, &mut host, &mut servo);
         }
         if host.exit {
             finish(board, "exit sequence on UART0");
@@ -278,7 +284,7 @@ fn main() -> ! {
                 }
                 host.written = 0;
                 servo.written = 0;
-                board.poll(now_us, &mut host, &mut servo);
+                poll(board, now_us, &mut host, &mut servo);
                 lockstep = Some((now_us + tick, tick));
                 let (h, s) = (host.written.min(u16::MAX as u32) as u16, servo.written.min(u16::MAX as u32) as u16);
                 let mut a = [ctl::TICK, 0, 0, 0, 0];
@@ -286,11 +292,28 @@ fn main() -> ! {
                 a[3..5].copy_from_slice(&s.to_le_bytes());
                 ctl.send(&a);
             }
+            ctl::STATUS => send_status(board, &mut ctl),
             ctl::RESET => cortex_m::peripheral::SCB::sys_reset(),
             ctl::EXIT => finish(board, "exit command on UART2"),
             _ => {}
         }
     }
+}
+
+/// One board step, kept out of line: inlined at both call sites, its frame would add to
+/// `main`'s twice and raise the stack peak.
+#[inline(never)]
+fn poll(board: &mut Board<FlashStore>, now_us: u64, host: &mut Port, servo: &mut Port) {
+    board.poll(now_us, host, servo);
+}
+
+#[inline(never)]
+fn send_status(board: &Board<FlashStore>, ctl: &mut Ctl) {
+    let mut wire = [0u8; MAX_WIRE_FRAME];
+    let n = encode_message(0, &BoardToHost::Status(board.status()), &mut wire).unwrap_or(0);
+    let len = (n as u16).to_le_bytes();
+    ctl.send(&[ctl::STATUS, len[0], len[1]]);
+    ctl.send(&wire[..n]);
 }
 
 fn finish(board: &Board<FlashStore>, why: &str) -> ! {
