@@ -538,9 +538,8 @@ pub(crate) fn run_layer_as(l: &Layer, rq: Requant, src: &[i16], dst: &mut [i16])
             }
             LayerKind::ConvTranspose2d => {
                 let done = match (l.weights_i16(), l.bias_i32()) {
-                    (Some(w), Some(b)) => {
-                        with_act!(rq, |a| fast::conv_transpose(l, a, &w, &b, x, y))
-                    }
+                    // One instantiation (code size): the table step through Requant::apply.
+                    (Some(w), Some(b)) => fast::conv_transpose(l, rq, &w, &b, x, y),
                     _ => fast::conv_transpose(l, rq, &kernels::Raw(l), &kernels::RawBias(l), x, y),
                 };
                 if done {

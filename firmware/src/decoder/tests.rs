@@ -1,6 +1,6 @@
 use super::*;
 use crate::testkit::{conv_spec, float_decoder, float_layer, mlp_spec, Lcg};
-use msr_shared::blob::Model;
+use msr_shared::blob::{LayerKind, Model};
 
 #[test]
 fn tables_match_f64() {
@@ -318,6 +318,38 @@ fn fast_activation_path_equals_the_general_one() {
                         check(acc);
                     }
                 }
+            }
+        }
+    }
+}
+
+/// The paired kernels with the inlined table steps (what the M4 assembly does, in portable
+/// Rust) give the generic loops' bits, layer by layer, including the last layer's grey step.
+#[test]
+fn fast_kernels_equal_the_generic_loops() {
+    for seed in 1..5 {
+        for bytes in [
+            conv_spec(seed, false).to_bytes().unwrap(),
+            mlp_spec(seed, 6, 7).to_bytes().unwrap(),
+        ] {
+            let m = Model::parse(&bytes).unwrap();
+            let grey = grey_layer(&m);
+            assert!(grey.is_some(), "the test models end in a sigmoid");
+            let mut r = Lcg(seed);
+            for (li, l) in m.layers.iter().enumerate() {
+                if l.kind == LayerKind::Crop {
+                    continue;
+                }
+                let rq = if grey == Some(li) { Requant::of(l).last() } else { Requant::of(l) };
+                let x: Vec<i16> = (0..l.input.len())
+                    .map(|_| (r.unit() * 2f64.powi(l.in_shift as i32)) as i16)
+                    .collect();
+                let mut fast = vec![0i16; l.output.len()];
+                run_layer_as(l, rq, &x, &mut fast).unwrap();
+                let mut slow = vec![0i16; l.output.len()];
+                let (w, b) = (l.weights_i16().unwrap(), l.bias_i32().unwrap());
+                kernels::layer(l, rq, &w, &b, &x, &mut slow).unwrap();
+                assert_eq!(fast, slow, "seed {seed} layer {li} ({:?})", l.kind);
             }
         }
     }
