@@ -174,16 +174,24 @@ impl Decoder {
                 (&mut b[..], &mut a[..])
             };
             // On the M4, a Dense feeding the last ConvTranspose2d may run fused (same bits).
+            // With the crop after it, the convolution writes only the window. The result is
+            // in `src` either way.
             #[cfg(target_arch = "arm")]
-            if let Some(f) = model
-                .layers
-                .get(i + 1)
-                .filter(|_| grey_at == Some(i + 1))
-                .and_then(|next| arm::Fused::of(layer, rq(i), next, rq(i + 1)))
             {
-                f.run(src, dst).map_err(|_| DecodeError::Shape(i as u8))?;
-                i += 2;
-                continue;
+                let fused = || {
+                    let next = model.layers.get(i + 1).filter(|_| grey_at == Some(i + 1))?;
+                    arm::Fused::of(layer, rq(i), next, rq(i + 1))
+                };
+                let with_crop = model
+                    .layers
+                    .get(i + 2)
+                    .and_then(|c| fused()?.with_crop(c))
+                    .map(|f| (f, 3));
+                if let Some((f, n)) = with_crop.or_else(|| fused().map(|f| (f, 2))) {
+                    f.run(src, dst).map_err(|_| DecodeError::Shape(i as u8))?;
+                    i += n;
+                    continue;
+                }
             }
             run_layer_as(layer, rq(i), src, dst).map_err(|_| DecodeError::Shape(i as u8))?;
             cur = 1 - cur;
@@ -341,9 +349,16 @@ impl Activate for Requant {
     fn act(self, acc: i32) -> i16 {
         self.apply(acc)
     }
+    fn asm_act(self) -> Option<AsmAct> {
+        match self.tanh_act() {
+            Some(t) => t.asm_act(),
+            None => self.grey_act()?.asm_act(),
+        }
+    }
 }
 
 /// Runs `$body` with `$a` bound to the fastest [`Activate`] for `$rq`.
+#[cfg_attr(target_arch = "arm", allow(unused_macros))]
 macro_rules! with_act {
     ($rq:expr, |$a:ident| $body:expr) => {{
         let rq: $crate::decoder::Requant = $rq;
@@ -532,18 +547,21 @@ pub(crate) fn run_layer_as(l: &Layer, rq: Requant, src: &[i16], dst: &mut [i16])
                 let w = bytemuck::try_cast_slice::<u8, u32>(l.weights);
                 let x = bytemuck::try_cast_slice::<i16, u32>(x);
                 if let (Ok(w), Ok(x), Some(b)) = (w, x, l.bias_i32()) {
+                    // The M4 takes the table steps in assembly (one instantiation: code size).
+                    #[cfg(target_arch = "arm")]
+                    fast::dense_pairs(rq, w, b, x, y);
+                    #[cfg(not(target_arch = "arm"))]
                     with_act!(rq, |a| fast::dense_pairs(a, w, b, x, y));
                     return Ok(());
                 }
             }
+            // Aligned tables only (an unaligned blob takes the generic loops); one
+            // instantiation (code size): the table step through Requant::apply.
             LayerKind::ConvTranspose2d => {
-                let done = match (l.weights_i16(), l.bias_i32()) {
-                    // One instantiation (code size): the table step through Requant::apply.
-                    (Some(w), Some(b)) => fast::conv_transpose(l, rq, &w, &b, x, y),
-                    _ => fast::conv_transpose(l, rq, &kernels::Raw(l), &kernels::RawBias(l), x, y),
-                };
-                if done {
-                    return Ok(());
+                if let (Some(w), Some(b)) = (l.weights_i16(), l.bias_i32()) {
+                    if fast::conv_transpose(l, rq, &w, &b, x, y) {
+                        return Ok(());
+                    }
                 }
             }
             _ => {}

@@ -296,6 +296,8 @@ pub(crate) struct Fused<'l, 'a> {
     dact: AsmAct,
     conv: &'l Layer<'a>,
     cact: AsmAct,
+    /// The exact crop that follows, written directly: (top, left, height, width).
+    crop: Option<(usize, usize, usize, usize)>,
 }
 
 impl<'l, 'a> Fused<'l, 'a> {
@@ -350,7 +352,25 @@ impl<'l, 'a> Fused<'l, 'a> {
             dact,
             conv,
             cact,
+            crop: None,
         })
+    }
+
+    /// Also takes the crop `l` that follows (an exact copy of a window at least 4 wide), so
+    /// that the convolution computes and writes only the window.
+    pub(crate) fn with_crop(mut self, l: &Layer) -> Option<Self> {
+        let (top, left) = (l.crop_top as usize, l.crop_left as usize);
+        let (fh, fw) = (l.output.h as usize, l.output.w as usize);
+        let c = self.conv;
+        let ok = l.kind == LayerKind::Crop
+            && l.in_shift == l.out_shift
+            && l.input == c.output
+            && l.output.c == c.output.c
+            && top + fh <= c.output.h as usize
+            && left + fw <= c.output.w as usize
+            && fw >= 4;
+        self.crop = Some((top, left, fh, fw));
+        ok.then_some(self)
     }
 
     /// The Dense from `buf` into `mid` (interleaved, padded), then the convolution into `buf`.
@@ -377,7 +397,8 @@ impl<'l, 'a> Fused<'l, 'a> {
             c.output.h as usize,
             c.output.w as usize,
         );
-        if mid.len() < (h + 2) * pw * FUSED_C || y.len() < c.output.len() || cb.len() < oc_n {
+        let out_len = self.crop.map_or(c.output.len(), |(_, _, fh, fw)| oc_n * fh * fw);
+        if mid.len() < (h + 2) * pw * FUSED_C || y.len() < out_len || cb.len() < oc_n {
             return Err(());
         }
         // The zero border.
@@ -423,17 +444,22 @@ impl<'l, 'a> Fused<'l, 'a> {
                     }
                 }
             }
-            for oy in 0..oh {
+            // The window written: all of the output, or the crop's.
+            let (top, left, fh, fw) = self.crop.unwrap_or((0, 0, oh, ow));
+            for oy in top..top + fh {
                 let (py, n) = (oy % 2, oy / 2);
                 let r0 = (py + p) / 2;
                 for px in 0..2 {
                     let c0 = (px + p) / 2;
-                    let m_n = (ow - px).div_ceil(2);
+                    // Outputs ox = 2m + px inside [left, left + fw): m in m0..m1.
+                    let m0 = left.saturating_sub(px).div_ceil(2);
+                    let m1 = (left + fw - px).div_ceil(2);
+                    let m_n = m1 - m0;
                     let xa = ((n + r0) * pw + c0) * FUSED_C;
-                    let yo = (oc * oh + oy) * ow + px;
+                    let yo = (oc * fh + oy - top) * fw + 2 * m0 + px - left;
                     let (xp, yp) = (mid.as_ptr(), y.as_mut_ptr());
                     let job = |m: usize, pairs: usize| ConvJob {
-                        x: xp.wrapping_add(xa + m * FUSED_C),
+                        x: xp.wrapping_add(xa + (m0 + m) * FUSED_C),
                         w: packs[py * 2 + px].as_ptr(),
                         y: yp.wrapping_add(yo + 2 * m),
                         pairs: pairs as u32,
@@ -443,7 +469,8 @@ impl<'l, 'a> Fused<'l, 'a> {
                         row_bytes: (pw * FUSED_C * 2) as u32,
                     };
                     // SAFETY: `of` checked that every read stays inside the padded image;
-                    // the writes are outputs (oc, oy, px + 2m) for m < m_n, inside `y`.
+                    // the writes are the window's outputs (oc, oy, 2(m0 + m) + px), m < m_n,
+                    // inside `y` (`with_crop` checked the window). m_n >= 2 as fw >= 4.
                     unsafe {
                         msr_convt_k4s2c4_grey(&job(0, m_n / 2));
                         if m_n % 2 == 1 {
