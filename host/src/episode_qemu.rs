@@ -125,11 +125,10 @@ impl QemuBoard {
     /// One trial, as [`episode::run_trial_inproc`] runs it, with this board.
     pub fn trial(&mut self, camera: Camera, cfg: &EpisodeConfig, index: usize, seed: u64) -> Result<Trial> {
         let ls = &mut self.ls;
-        let got = ls.reset()?;
+        let got = ls.reset(Some(TICK_US))?;
         if got != self.crc {
             bail!("trial {index}: after its reset the QEMU board runs model {got:#010x}, not the uploaded {:#010x}", self.crc);
         }
-        ls.enter(TICK_US)?;
         let mut io_error: Option<anyhow::Error> = None;
         let (mut ho, mut so) = (Vec::new(), Vec::new());
         let mut fw = |now: u64, he: &mut LinkEnd, se: &mut LinkEnd| {

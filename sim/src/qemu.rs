@@ -297,8 +297,9 @@ pub fn run_image(
 
 /// The board image (`msr-qemu`) with its clock driven by the caller: each [`Lockstep::tick`]
 /// hands it the bytes that reached its two links during one tick, it runs one `Board::poll` at
-/// that tick's time, and what it wrote comes back. Between [`Lockstep::enter`] calls the image
-/// runs on its own clock (free running), e.g. for a model upload.
+/// that tick's time, and what it wrote comes back. From its start until a
+/// [`Lockstep::reset`] into lockstep the image runs on its own clock (free running), e.g. for a
+/// model upload.
 ///
 /// The protocol on UART2 is documented in `firmware/qemu/src/main.rs` (module `ctl`).
 pub struct Lockstep {
@@ -308,7 +309,7 @@ pub struct Lockstep {
     clock: UnixStream,
     /// The longest wait for the image to answer.
     pub timeout: Duration,
-    /// Ticks since the last `enter`.
+    /// Ticks since the last reset.
     pub ticks: u64,
 }
 
@@ -393,12 +394,17 @@ impl Lockstep {
     }
 
     /// Resets the board (the model it holds in its flash slots stays) and returns the CRC of the
-    /// model it runs after the restart. It runs free until the next [`Lockstep::enter`].
-    pub fn reset(&mut self) -> Result<u32> {
+    /// model it runs after the restart. With `lockstep_tick_us` it comes back in lockstep at
+    /// time 0 (from its power-on state: nothing runs before the first tick); without, it runs
+    /// free.
+    pub fn reset(&mut self, lockstep_tick_us: Option<u32>) -> Result<u32> {
         // Nothing of the old run may reach the new one.
         self.drain()?;
-        self.clock.write_all(b"R")?;
+        let mut cmd = vec![b'R'];
+        cmd.extend(lockstep_tick_us.unwrap_or(0).to_le_bytes());
+        self.clock.write_all(&cmd)?;
         let crc = self.hello()?;
+        self.ticks = 0;
         Ok(crc)
     }
 
@@ -414,16 +420,6 @@ impl Lockstep {
             }
             s.set_nonblocking(false)?;
         }
-        Ok(())
-    }
-
-    /// Enters lockstep at time 0 with ticks of `tick_us`.
-    pub fn enter(&mut self, tick_us: u32) -> Result<()> {
-        let mut cmd = vec![b'L'];
-        cmd.extend(tick_us.to_le_bytes());
-        self.clock.write_all(&cmd)?;
-        self.read_ctl(1, "lockstep")?;
-        self.ticks = 0;
         Ok(())
     }
 

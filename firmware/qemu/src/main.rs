@@ -5,7 +5,8 @@
 //! - **free running** (from reset): SysTick is the board's microsecond clock, as on a real board.
 //!   Under `-icount shift=0` that is QEMU's virtual time; the image sleeps (`wfi`) when it has
 //!   nothing to do, so virtual time follows real time while idle (see [`uart::idle`]).
-//! - **lockstep** (after `L` on UART2, see [`ctl`]): the simulation drives the clock. Each `T`
+//! - **lockstep** (after a reset asked for with `R tick` on UART2, see [`ctl`]): the simulation
+//!   drives the clock. Each `T`
 //!   command is one tick: it says how many bytes the host wrote to UART0 and UART1 during the
 //!   tick; the image reads exactly those, runs one `Board::poll` at the tick's time, and answers
 //!   with how many bytes the board wrote. The simulated world and the board then share one time
@@ -37,24 +38,40 @@ use msr_shared::msg::BoardToHost;
 /// Three delimiters, an ASCII word, a delimiter.
 pub const EXIT_SEQUENCE: &[u8; 12] = b"\0\0\0MSR-EXIT\0";
 
+/// What the host asked the next start to be (`R`): [`BOOT_MAGIC`] and the lockstep tick. In
+/// `.uninit`, which start-up code leaves alone and QEMU's reset does not clear.
+#[link_section = ".uninit.msr_boot"]
+static mut BOOT_REQUEST: core::mem::MaybeUninit<[u32; 2]> = core::mem::MaybeUninit::uninit();
+const BOOT_MAGIC: u32 = 0x4D53_5242; // "MSRB"
+
+/// Takes the boot request: the lockstep tick asked for, if any.
+fn boot_request() -> Option<u64> {
+    // SAFETY: read and cleared once at start-up, before anything else uses it.
+    // Any bit pattern is a valid [u32; 2]; garbage after power-on fails the magic.
+    let p = core::ptr::addr_of_mut!(BOOT_REQUEST) as *mut [u32; 2];
+    let [magic, tick] = unsafe { core::ptr::read_volatile(p) };
+    unsafe { core::ptr::write_volatile(p, [0; 2]) };
+    (magic == BOOT_MAGIC && tick > 0).then_some(tick as u64)
+}
+
 // SAFETY (FlashStore::new): the one store of this image; the bench area is not used here.
 static mut BOARD: Board<FlashStore> = Board::new(unsafe { FlashStore::new() });
 
 /// The clock channel on UART2. Host to board, one opcode byte then little-endian fields:
-/// - `L tick_us:u32`: enter lockstep at time 0 with this tick; answered `L`.
 /// - `T host:u16 servo:u16`: one tick; the host wrote `host` bytes to UART0 and `servo` to UART1
 ///   since the last tick. Answered `T host:u16 servo:u16` with the bytes the board wrote.
 /// - `S`: the board's status, out of band (the links are not touched, so a frame the sim cut off
 ///   at the end of a trial costs no error): answered `S len:u16` and one framed
 ///   `BoardToHost::Status` message of `len` bytes.
-/// - `R`: reset the board (the model in the flash slots stays); it comes back with `H`.
+/// - `R tick_us:u32`: reset the board (the model in the flash slots stays); it comes back with
+///   `H`, in lockstep at time 0 with this tick when `tick_us` > 0 (no free-running poll comes
+///   first, so a lockstep run starts from the board's power-on state), free running otherwise.
 /// - `X`: print the status and exit with code 0.
 ///
 /// Board to host at every start: `H crc:u32`, the CRC of the model in use (0: none).
-/// A command it cannot take is answered `E code:u8` (1: unknown opcode, 2: more bytes announced
+/// A command it cannot take is answered `E code:u8` (1: unknown opcode, 3: a tick while free running, 2: more bytes announced
 /// than fit the receive buffer).
 mod ctl {
-    pub const LOCKSTEP: u8 = b'L';
     pub const TICK: u8 = b'T';
     pub const RESET: u8 = b'R';
     pub const EXIT: u8 = b'X';
@@ -65,9 +82,9 @@ mod ctl {
     /// Bytes after the opcode.
     pub fn args(op: u8) -> Option<usize> {
         match op {
-            LOCKSTEP => Some(4),
             TICK => Some(4),
-            RESET | EXIT | STATUS => Some(0),
+            RESET => Some(4),
+            EXIT | STATUS => Some(0),
             _ => None,
         }
     }
@@ -246,7 +263,9 @@ fn main() -> ! {
     ctl.send(&hello);
 
     // Lockstep state: the next tick's time and the tick length.
-    let mut lockstep: Option<(u64, u64)> = None;
+    let mut lockstep: Option<(u64, u64)> = boot_request().map(|tick| (0, tick));
+    host.lockstep = lockstep.is_some();
+    servo.lockstep = lockstep.is_some();
     loop {
         if lockstep.is_none() {
             // 25 SysTick ticks of 40 ns per microsecond.
@@ -266,13 +285,6 @@ fn main() -> ! {
             continue;
         };
         match cmd[0] {
-            ctl::LOCKSTEP => {
-                let tick = u32::from_le_bytes([cmd[1], cmd[2], cmd[3], cmd[4]]) as u64;
-                lockstep = Some((0, tick.max(1)));
-                host.lockstep = true;
-                servo.lockstep = true;
-                ctl.send(&[ctl::LOCKSTEP]);
-            }
             ctl::TICK => {
                 let Some((now_us, tick)) = lockstep else {
                     ctl.send(&[ctl::ERROR, 3]);
@@ -293,7 +305,12 @@ fn main() -> ! {
                 ctl.send(&a);
             }
             ctl::STATUS => send_status(board, &mut ctl),
-            ctl::RESET => cortex_m::peripheral::SCB::sys_reset(),
+            ctl::RESET => {
+                let tick = u32::from_le_bytes([cmd[1], cmd[2], cmd[3], cmd[4]]);
+                // SAFETY: a plain store; read once after the reset.
+                unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(BOOT_REQUEST) as *mut [u32; 2], [BOOT_MAGIC, tick]) };
+                cortex_m::peripheral::SCB::sys_reset()
+            }
             ctl::EXIT => finish(board, "exit command on UART2"),
             _ => {}
         }
