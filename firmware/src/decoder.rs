@@ -571,7 +571,19 @@ pub(crate) fn run_layer_as(l: &Layer, rq: Requant, src: &[i16], dst: &mut [i16])
     match (l.weight_type, l.weights_i16(), l.bias_i32()) {
         (WeightType::I16, Some(w), Some(b)) => kernels::layer(l, rq, &w, &b, x, y),
         (WeightType::I8, _, Some(b)) => match l.weights_i8() {
-            Some(w) => kernels::layer(l, rq, &w, &b, x, y),
+            Some(w) => {
+                // On the M4, Dense rows in pairs in assembly; the rest (an odd last row) here.
+                #[cfg(target_arch = "arm")]
+                if l.kind == LayerKind::Dense && w.len() == n_in * n_out && b.len() == n_out {
+                    let done = arm::dense2_i8(rq, w, b, x, y);
+                    if done > 0 {
+                        let (w, b) = (&w[done * n_in..], &b[done..]);
+                        kernels::dense(rq, &w, &b, x, &mut y[done..]);
+                        return Ok(());
+                    }
+                }
+                kernels::layer(l, rq, &w, &b, x, y)
+            }
             None => Err(()),
         },
         _ => kernels::layer(l, rq, &kernels::Raw(l), &kernels::RawBias(l), x, y),

@@ -129,6 +129,145 @@ dense2_asm!(
     strh r4, [r7], #2"
 );
 
+/// Dense with i8 weights, two rows per pass: each weight word (four i8) becomes two pairs by
+/// `SXTB16` (bytes 0, 2 and, rotated, 1, 3), multiplied by the input re-paired the same way
+/// ((x0, x2), (x1, x3)) with `SMLAD`. Blocks of 32 inputs (8 words of one row), looped.
+/// Same job layout as the i16 routine (row_bytes = inputs); [sp, #36] holds the blocks per row.
+macro_rules! dense2_i8_asm {
+    ($name:literal, $act:expr) => {
+        core::arch::global_asm!(
+            concat!(".section .text.", $name, ",\"ax\",%progbits"),
+            concat!(".global ", $name),
+            concat!(".type ", $name, ",%function"),
+            ".p2align 2",
+            ".thumb_func",
+            concat!($name, ":"),
+            "push {{r4-r11, lr}}",
+            "sub sp, sp, #40",
+            "ldm r0, {{r1-r10}}",
+            "stm sp, {{r1-r10}}",
+            "lsrs r11, r5, #5",
+            "str r11, [sp, #36]",
+            "mov r0, r1",
+            "ldrd r3, r4, [r2], #8",
+            "str r2, [sp, #4]",
+            "mov r1, r10",
+            "add r2, r10, r5",
+            "mov lr, r11",
+            "3:",
+            ".rept 4",
+            "ldm.w r0!, {{r5-r8}}",
+            "ldrd r9, r10, [r1], #8",
+            "sxtb16 r11, r9",
+            "smlad r3, r11, r5, r3",
+            "sxtb16 r11, r9, ror #8",
+            "smlad r3, r11, r6, r3",
+            "sxtb16 r11, r10",
+            "smlad r3, r11, r7, r3",
+            "sxtb16 r11, r10, ror #8",
+            "smlad r3, r11, r8, r3",
+            "ldrd r9, r10, [r2], #8",
+            "sxtb16 r11, r9",
+            "smlad r4, r11, r5, r4",
+            "sxtb16 r11, r9, ror #8",
+            "smlad r4, r11, r6, r4",
+            "sxtb16 r11, r10",
+            "smlad r4, r11, r7, r4",
+            "sxtb16 r11, r10, ror #8",
+            "smlad r4, r11, r8, r4",
+            ".endr",
+            "subs lr, lr, #1",
+            "bne 3b",
+            "ldm sp, {{r5-r12, lr}}",
+            "mov r1, r2",
+            "add r2, r2, r9",
+            $act,
+            "subs r8, r8, #1",
+            "beq 5f",
+            "ldrd r3, r4, [r6], #8",
+            "mov r0, r5",
+            "stm sp, {{r5-r8}}",
+            "ldr lr, [sp, #36]",
+            "b 3b",
+            "5:",
+            "add sp, sp, #40",
+            "pop {{r4-r11, pc}}",
+            concat!(".size ", $name, ", . - ", $name),
+        );
+    };
+}
+
+dense2_i8_asm!("msr_dense2_i8_tanh", concat!(tanh_step!("r3", "2"), tanh_step!("r4", "2")));
+dense2_i8_asm!(
+    "msr_dense2_i8_grey",
+    "asr r3, r3, r11
+    ssat r3, #12, r3
+    ldrh.w r3, [r10, r3, lsl #1]
+    strh r3, [r7], #2
+    asr r4, r4, r11
+    ssat r4, #12, r4
+    ldrh.w r4, [r10, r4, lsl #1]
+    strh r4, [r7], #2"
+);
+
+/// Inputs per block of the i8 routine, and the most it takes (its re-paired copy of the input
+/// is on the stack).
+const I8_BLOCK: usize = 32;
+const I8_MAX_IN: usize = 128;
+
+/// Dense rows with i8 weights in pairs with a table activation (see [`dense2`]).
+pub(crate) fn dense2_i8<A: Activate>(rq: A, w: &[i8], b: &[i32], x: &[i16], y: &mut [i16]) -> usize {
+    let n_in = x.len();
+    let pairs = y.len() / 2;
+    if n_in == 0
+        || !n_in.is_multiple_of(I8_BLOCK)
+        || n_in > I8_MAX_IN
+        || pairs == 0
+        || w.len() < 2 * pairs * n_in
+        || b.len() < 2 * pairs
+        || !(w.as_ptr() as usize).is_multiple_of(4)
+        || !n_in.is_multiple_of(4)
+    {
+        return 0;
+    }
+    let Some(act) = rq.asm_act() else {
+        return 0;
+    };
+    // The input re-paired as SXTB16 splits a weight word: (x0, x2), (x1, x3) per four.
+    let mut xp = [0u32; I8_MAX_IN / 2];
+    for (q, c) in xp.chunks_exact_mut(2).zip(x.chunks_exact(4)) {
+        q[0] = c[0] as u16 as u32 | (c[2] as u16 as u32) << 16;
+        q[1] = c[1] as u16 as u32 | (c[3] as u16 as u32) << 16;
+    }
+    let (table, sh, rnd, k, grey) = match act {
+        AsmAct::Tanh { table, sh, rnd, k } => (table, sh, rnd, k, false),
+        AsmAct::Grey { table, sh } => (table, sh, 0, 0, true),
+    };
+    let job = Job {
+        x: xp.as_ptr(),
+        bias: b.as_ptr(),
+        y: y.as_mut_ptr(),
+        pairs: pairs as u32,
+        row_bytes: n_in as u32,
+        table,
+        sh,
+        rnd,
+        k,
+        w: w.as_ptr() as *const u32,
+    };
+    // SAFETY: reads n_in / 2 words of xp per pair, 2 * pairs word-aligned rows of n_in bytes of
+    // `w` (LDRD: aligned, checked), 2 * pairs biases, the table within its saturated range;
+    // writes 2 * pairs halfwords of `y`. AAPCS kept.
+    unsafe {
+        if grey {
+            msr_dense2_i8_grey(&job);
+        } else {
+            msr_dense2_i8_tanh(&job);
+        }
+    }
+    2 * pairs
+}
+
 // ConvTranspose2d k4 s2 over a 4-channel interleaved, zero-padded input, last-layer sigmoid to
 // grey: two outputs of one phase per pass (columns m and m + 1 read input columns a, a+1 and
 // a+1, a+2 of two input rows; one weight load serves both).
@@ -213,6 +352,8 @@ struct ConvJob {
 
 extern "C" {
     fn msr_convt_k4s2c4_grey(job: *const ConvJob);
+    fn msr_dense2_i8_tanh(job: *const Job);
+    fn msr_dense2_i8_grey(job: *const Job);
     fn msr_dense2_tanh(job: *const Job);
     fn msr_dense2_tanh_x4(job: *const Job);
     fn msr_dense2_grey(job: *const Job);
