@@ -540,31 +540,27 @@ pub(crate) fn run_layer_as(l: &Layer, rq: Requant, src: &[i16], dst: &mut [i16])
     if l.bias_count() != bias_n {
         return Err(());
     }
-    // Paired fast paths for i16 weights; anything else is the generic loops.
-    if l.weight_type == WeightType::I16 {
-        match l.kind {
-            LayerKind::Dense if n_in.is_multiple_of(2) => {
-                let w = bytemuck::try_cast_slice::<u8, u32>(l.weights);
-                let x = bytemuck::try_cast_slice::<i16, u32>(x);
-                if let (Ok(w), Ok(x), Some(b)) = (w, x, l.bias_i32()) {
-                    // The M4 takes the table steps in assembly (one instantiation: code size).
-                    #[cfg(target_arch = "arm")]
-                    fast::dense_pairs(rq, w, b, x, y);
-                    #[cfg(not(target_arch = "arm"))]
-                    with_act!(rq, |a| fast::dense_pairs(a, w, b, x, y));
-                    return Ok(());
-                }
+    // Dense rows in pairs for i16 weights.
+    if l.weight_type == WeightType::I16 && l.kind == LayerKind::Dense && n_in.is_multiple_of(2) {
+        let w = bytemuck::try_cast_slice::<u8, u32>(l.weights);
+        let x = bytemuck::try_cast_slice::<i16, u32>(x);
+        if let (Ok(w), Ok(x), Some(b)) = (w, x, l.bias_i32()) {
+            // The M4 takes the table steps in assembly (one instantiation: code size).
+            #[cfg(target_arch = "arm")]
+            fast::dense_pairs(rq, w, b, x, y);
+            #[cfg(not(target_arch = "arm"))]
+            with_act!(rq, |a| fast::dense_pairs(a, w, b, x, y));
+            return Ok(());
+        }
+    }
+    // ConvTranspose2d by phase with packed weight pairs, i8 or i16 (aligned tables only: an
+    // unaligned blob takes the generic loops); one instantiation (code size), the table step
+    // through Requant::apply.
+    if l.kind == LayerKind::ConvTranspose2d {
+        if let (Some(w), Some(b)) = (kernels::AnyWeights::of(l), l.bias_i32()) {
+            if fast::conv_transpose(l, rq, &w, &b, x, y) {
+                return Ok(());
             }
-            // Aligned tables only (an unaligned blob takes the generic loops); one
-            // instantiation (code size): the table step through Requant::apply.
-            LayerKind::ConvTranspose2d => {
-                if let (Some(w), Some(b)) = (l.weights_i16(), l.bias_i32()) {
-                    if fast::conv_transpose(l, rq, &w, &b, x, y) {
-                        return Ok(());
-                    }
-                }
-            }
-            _ => {}
         }
     }
     // Aligned tables are read as slices; anything else through the byte accessors.

@@ -59,6 +59,16 @@ pub struct Args {
     /// Host backend: repetitions per stage and frame.
     #[arg(long, default_value_t = 50)]
     pub reps: usize,
+    /// Weight type of the synthetic blobs (`msr quantize --weights auto` takes i8 when the
+    /// PSNR allows; the board runs both, i16 faster).
+    #[arg(long, value_enum, default_value = "i16")]
+    pub weights: SynthWeights,
+}
+
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SynthWeights {
+    I8,
+    I16,
 }
 
 /// Face size of the default models (the published crop).
@@ -81,7 +91,8 @@ pub struct BenchModel {
 
 pub fn run(args: Args) -> Result<()> {
     let models = if args.model.is_empty() {
-        vec![synthetic(ArchKind::Conv)?, synthetic(ArchKind::Mlp)?]
+        let i8w = args.weights == SynthWeights::I8;
+        vec![synthetic_with(ArchKind::Conv, i8w)?, synthetic_with(ArchKind::Mlp, i8w)?]
     } else {
         args.model.iter().map(|p| from_file(p)).collect::<Result<Vec<_>>>()?
     };
@@ -140,6 +151,11 @@ pub fn arch_name(model: &Model) -> Option<String> {
 
 /// A blob with the architecture of `kind` at 58 x 75 and deterministic weights.
 pub fn synthetic(kind: ArchKind) -> Result<BenchModel> {
+    synthetic_with(kind, false)
+}
+
+/// [`synthetic`] with i8 weights when `i8w` (the same values scaled to 7 bits).
+pub fn synthetic_with(kind: ArchKind, i8w: bool) -> Result<BenchModel> {
     let (h, w) = FACE;
     let spec = DecoderSpec::new(kind, h as usize, w as usize);
     let shapes = spec.layer_shapes()?;
@@ -165,10 +181,15 @@ pub fn synthetic(kind: ArchKind) -> Result<BenchModel> {
         let bound = 1.0 / (fan_in as f64).sqrt();
         // As many weight bits as fit, keeping |acc| < 2^30 for inputs up to 1.0.
         let taps = (fan_in as f64).log2().ceil() as i32;
-        let w_shift = ((32767.0 / bound).log2().floor() as i32).min(30 - in_shift as i32 - taps).clamp(0, 31) as i8;
+        let w_max = if i8w { 127.0 } else { 32767.0 };
+        let w_shift = ((w_max / bound).log2().floor() as i32).min(30 - in_shift as i32 - taps).clamp(0, 31) as i8;
         let scale = (w_shift as f64).exp2();
-        let weights: Vec<i16> =
-            (0..n_w).map(|_| (rng.gen_range(-bound..bound) * scale).round() as i16).collect();
+        let values: Vec<f64> = (0..n_w).map(|_| (rng.gen_range(-bound..bound) * scale).round()).collect();
+        let weights = if i8w {
+            Weights::I8(values.iter().map(|&v| v as i8).collect())
+        } else {
+            Weights::I16(values.iter().map(|&v| v as i16).collect())
+        };
         let acc_scale = ((w_shift + in_shift) as f64).exp2();
         let bias: Vec<i32> =
             (0..n_b).map(|_| (rng.gen_range(-bound..bound) * acc_scale).round() as i32).collect();
@@ -186,7 +207,7 @@ pub fn synthetic(kind: ArchKind) -> Result<BenchModel> {
             w_shift: if kind == LayerKind::Crop { 0 } else { w_shift },
             in_shift,
             out_shift,
-            weights: Weights::I16(weights),
+            weights,
             bias,
         });
         in_shift = out_shift;
@@ -227,7 +248,8 @@ pub fn synthetic(kind: ArchKind) -> Result<BenchModel> {
         ArchKind::Conv => "conv",
         ArchKind::Mlp => "published-mlp",
     };
-    Ok(BenchModel { name: name.into(), source: "synthetic".into(), blob })
+    let source = if i8w { "synthetic, i8 weights" } else { "synthetic" };
+    Ok(BenchModel { name: name.into(), source: source.into(), blob })
 }
 
 /// Head poses of the benchmark frames; the QEMU image uses the same ones.

@@ -45,6 +45,39 @@ impl Table for &[i32] {
     }
 }
 
+/// i8 or i16 weights behind one type, for kernels that read weights only to pack them (one
+/// instantiation for both).
+#[derive(Clone, Copy)]
+pub(crate) enum AnyWeights<'a> {
+    I8(&'a [i8]),
+    I16(&'a [i16]),
+}
+
+impl<'a> AnyWeights<'a> {
+    /// The layer's aligned weight table, if it has one.
+    pub(crate) fn of(l: &Layer<'a>) -> Option<Self> {
+        match l.weights_i16() {
+            Some(w) => Some(AnyWeights::I16(w)),
+            None => l.weights_i8().map(AnyWeights::I8),
+        }
+    }
+}
+
+impl Table for AnyWeights<'_> {
+    fn len(&self) -> usize {
+        match self {
+            AnyWeights::I8(w) => w.len(),
+            AnyWeights::I16(w) => w.len(),
+        }
+    }
+    fn at(&self, i: usize) -> i32 {
+        match self {
+            AnyWeights::I8(w) => w[i] as i32,
+            AnyWeights::I16(w) => w[i] as i32,
+        }
+    }
+}
+
 /// Weights or biases read through the blob's byte accessors (unaligned blobs).
 pub(crate) struct Raw<'l, 'a>(pub &'l Layer<'a>);
 
