@@ -4,7 +4,8 @@
 //! clock advances exactly 1 ns per emulated instruction, so one SysTick tick (40 ns) is exactly
 //! [`INSTRUCTIONS_PER_TICK`] instructions: differences of [`Clock::now`] are instruction counts
 //! with a resolution of 40 instructions. The calibration is checked at start-up by
-//! [`Clock::calibrate`] against a loop of known length.
+//! [`Clock::calibrate`] against a loop of known length. While the image sleeps (`wfi`) QEMU's
+//! virtual clock follows real time (`-icount` with its default `sleep=on`).
 
 use core::sync::atomic::{AtomicU32, Ordering};
 use cortex_m::peripheral::syst::SystClkSource;

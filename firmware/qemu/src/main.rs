@@ -244,20 +244,7 @@ fn main() -> ! {
     uart::enable_rx_irqs();
     // SAFETY: the only reference to BOARD, taken once in this single-threaded image.
     let board = unsafe { &mut *core::ptr::addr_of_mut!(BOARD) };
-    let sizes = memory::sizes();
-    let crc = board
-        .store()
-        .active()
-        .and_then(|b| msr_firmware::model::validate(b).ok())
-        .map_or(0, |m| m.crc32);
-    hprintln!(
-        "msr-qemu: ready; built-in model {} bytes; model in use crc {:#010x}; static RAM {} bytes, code {} bytes, .data initial values {} bytes",
-        model_area::BUILT_IN.len(),
-        crc,
-        sizes.static_ram,
-        sizes.code - model_area::BUILT_IN.len(),
-        sizes.data_init
-    );
+    let crc = announce(board);
     let mut hello = [ctl::HELLO, 0, 0, 0, 0];
     hello[1..].copy_from_slice(&crc.to_le_bytes());
     ctl.send(&hello);
@@ -333,6 +320,28 @@ fn send_status(board: &Board<FlashStore>, ctl: &mut Ctl) {
     ctl.send(&wire[..n]);
 }
 
+/// Prints the start-up line and returns the CRC of the model in use (0: none). Out of line:
+/// its formatting would otherwise sit in `main`'s frame under every poll.
+#[inline(never)]
+fn announce(board: &Board<FlashStore>) -> u32 {
+    let sizes = memory::sizes();
+    let crc = board
+        .store()
+        .active()
+        .and_then(|b| msr_firmware::model::validate(b).ok())
+        .map_or(0, |m| m.crc32);
+    hprintln!(
+        "msr-qemu: ready; built-in model {} bytes; model in use crc {:#010x}; static RAM {} bytes, code {} bytes, .data initial values {} bytes",
+        model_area::BUILT_IN.len(),
+        crc,
+        sizes.static_ram,
+        sizes.code - model_area::BUILT_IN.len(),
+        sizes.data_init
+    );
+    crc
+}
+
+#[inline(never)]
 fn finish(board: &Board<FlashStore>, why: &str) -> ! {
     let s = board.status();
     hprintln!("msr-qemu: {}", why);
