@@ -23,7 +23,7 @@ mod fast;
 mod kernels;
 mod tanh_table;
 
-use tanh_table::{GREY_Q88, TANH_Q15};
+use tanh_table::TANH_Q15;
 
 /// Why the decoder did not run.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -265,7 +265,7 @@ pub(crate) struct Requant {
     /// Fraction bits of the accumulator (`w_shift + in_shift`).
     acc_bits: u32,
     out_bits: u32,
-    /// Sigmoid straight to Q8.8 grey levels (the decoder's last layer), see [`GREY_Q88`].
+    /// Sigmoid straight to Q8.8 grey levels (the decoder's last layer), see [`GreyAct`].
     grey: bool,
 }
 
@@ -305,7 +305,8 @@ pub(crate) struct TanhAct {
     rnd: i32,
 }
 
-/// The last layer's sigmoid: `GREY_Q88[sat12(acc >> sh)]`. Same bits as [`Requant::apply`].
+/// The last layer's sigmoid as Q8.8 grey: `s = 2^15 + TANH_Q15[sat13(acc >> sh)]` (sigmoid in
+/// Q16), then `s - (s >> 8)` (times 255/256). Same bits as [`Requant::apply`].
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct GreyAct {
     sh: u32,
@@ -332,13 +333,14 @@ impl Activate for TanhAct {
 impl Activate for GreyAct {
     #[inline(always)]
     fn act(self, acc: i32) -> i16 {
-        let i = sat12(acc >> self.sh);
-        // SAFETY: sat12 keeps i + 2048 in 0..4096, the table's length.
-        (unsafe { *GREY_Q88.as_ptr().offset(i as isize + 2048) }) as i16
+        let i = sat13(acc >> self.sh);
+        // SAFETY: sat13 keeps i + 4096 in 0..8192, the table's length.
+        let s = (1 << 15) + unsafe { *TANH_Q15.as_ptr().offset(i as isize + 4096) } as i32;
+        (s - (s >> 8)) as u16 as i16
     }
     fn asm_act(self) -> Option<AsmAct> {
         Some(AsmAct::Grey {
-            table: GREY_Q88.as_ptr().wrapping_add(2048) as *const i16,
+            table: TANH_Q15.as_ptr().wrapping_add(4096),
             sh: self.sh,
         })
     }
@@ -406,25 +408,6 @@ pub(crate) fn sat13(v: i32) -> i32 {
     }
 }
 
-/// `v` clamped to the 12-bit signed range (`SSAT #12`).
-#[inline(always)]
-pub(crate) fn sat12(v: i32) -> i32 {
-    #[cfg(target_arch = "arm")]
-    {
-        let r: i32;
-        // SAFETY: SSAT reads one register and writes one.
-        unsafe {
-            core::arch::asm!("ssat {r}, #12, {v}", r = lateout(reg) r, v = in(reg) v,
-                options(pure, nomem, nostack));
-        }
-        r
-    }
-    #[cfg(not(target_arch = "arm"))]
-    {
-        v.clamp(-2048, 2047)
-    }
-}
-
 impl Requant {
     pub(crate) fn of(l: &Layer) -> Requant {
         let acc_bits = (l.w_shift as i32 + l.in_shift as i32).max(0) as u32;
@@ -463,18 +446,19 @@ impl Requant {
 
     /// The inlined last-layer sigmoid, when the shifts allow it.
     pub(crate) fn grey_act(&self) -> Option<GreyAct> {
-        if self.act != Activation::Sigmoid || !self.grey || self.acc_bits < 7 {
+        if self.act != Activation::Sigmoid || !self.grey || self.acc_bits < 8 {
             return None;
         }
         Some(GreyAct {
-            sh: (self.acc_bits - 7).min(31),
+            sh: (self.acc_bits - 8).min(31),
         })
     }
 
     /// The definition: identity and ReLU rescale exactly; tanh is `TANH_Q15` at `x` in steps
-    /// of 2^-9 (error below 2^-10), sigmoid `(1 + tanh(x / 2)) / 2` from the same table, and
-    /// the last layer's sigmoid `GREY_Q88` at `x` in steps of 2^-7 (error below a quarter grey
-    /// level); the result is rounded half-up to `out_bits` and saturated.
+    /// of 2^-9 (error below 2^-10), sigmoid `(1 + tanh(x / 2)) / 2` from the same table (x in
+    /// steps of 2^-8); the result is rounded half-up to `out_bits` and saturated. The last
+    /// layer's sigmoid goes to Q8.8 grey instead: `s - (s >> 8)` of the Q16 sigmoid `s`
+    /// (error below 0.13 grey levels).
     pub(crate) fn apply(&self, acc: i32) -> i16 {
         match self.act {
             Activation::Identity => rescale(acc as i64, self.acc_bits, self.out_bits),
@@ -484,7 +468,8 @@ impl Requant {
                 rescale(y as i64, 15, self.out_bits)
             }
             Activation::Sigmoid if self.grey => {
-                GREY_Q88[cell(acc, self.acc_bits, 7, 2048)] as i16
+                let s = (1i32 << 15) + TANH_Q15[cell(acc, self.acc_bits, 8, 4096)] as i32;
+                (s - (s >> 8)) as u16 as i16
             }
             Activation::Sigmoid => {
                 let y = TANH_Q15[cell(acc, self.acc_bits, 8, 4096)];

@@ -10,6 +10,7 @@
 //! wrapping i32 (order does not matter) and the activation is [`TanhAct`] / [`GreyAct`] step for
 //! step, so both give the same bits (the QEMU tests compare the board with the host build).
 
+use super::kernels::{AnyWeights, Table};
 use super::{Activate, AsmAct, Requant};
 use msr_shared::blob::{Layer, LayerKind, WeightType, MAX_ACTIVATION_LEN};
 
@@ -35,7 +36,7 @@ struct Job {
 /// One 4-word group of two rows: x in r5-r8, row 0 (r1) and row 1 (r2) through r9-r12; 44 bytes
 /// (every instruction 32-bit, so that the computed jump can count them).
 macro_rules! dense2_asm {
-    ($name:literal, $act:expr) => {
+    ($name:literal, $act:expr, $groups:literal) => {
         core::arch::global_asm!(
             concat!(".section .text.", $name, ",\"ax\",%progbits"),
             concat!(".global ", $name),
@@ -64,7 +65,7 @@ macro_rules! dense2_asm {
             "bx r12",
             ".p2align 2",
             "3:",
-            ".rept 16",
+            concat!(".rept ", $groups),
             "ldm.w r0!, {{r5-r8}}",
             "ldm.w r1!, {{r9-r12}}",
             "smlad r3, r5, r9, r3",
@@ -113,21 +114,33 @@ macro_rules! tanh_step {
     };
 }
 
-dense2_asm!("msr_dense2_tanh", concat!(tanh_step!("r3", "2"), tanh_step!("r4", "2")));
-// Outputs 4 halfwords apart: a 4-channel interleaved (HWC) image for the transposed convolution.
-dense2_asm!("msr_dense2_tanh_x4", concat!(tanh_step!("r3", "8"), tanh_step!("r4", "8")));
+/// The last-layer step of `$a`: Q16 sigmoid from the tanh table, times 255/256, stored at r7.
+macro_rules! grey_step {
+    ($a:literal) => {
+        concat!(
+            "asr ", $a, ", ", $a, ", r11\n",
+            "ssat ", $a, ", #13, ", $a, "\n",
+            "ldrsh.w ", $a, ", [r10, ", $a, ", lsl #1]\n",
+            "add ", $a, ", ", $a, ", #32768\n",
+            "sub ", $a, ", ", $a, ", ", $a, ", lsr #8\n",
+            "strh ", $a, ", [r7], #2\n"
+        )
+    };
+}
+
+dense2_asm!("msr_dense2_tanh", concat!(tanh_step!("r3", "2"), tanh_step!("r4", "2")), "16");
+// Outputs 4 halfwords apart: a 4-channel interleaved (HWC) image for the transposed convolution;
+// rows of at most X4_GROUPS groups.
+dense2_asm!("msr_dense2_tanh_x4", concat!(tanh_step!("r3", "8"), tanh_step!("r4", "8")), "4");
 
 dense2_asm!(
     "msr_dense2_grey",
-    "asr r3, r3, r11
-    ssat r3, #12, r3
-    ldrh.w r3, [r10, r3, lsl #1]
-    strh r3, [r7], #2
-    asr r4, r4, r11
-    ssat r4, #12, r4
-    ldrh.w r4, [r10, r4, lsl #1]
-    strh r4, [r7], #2"
+concat!(grey_step!("r3"), grey_step!("r4")),
+    "16"
 );
+
+/// Groups of the x4 routine's unrolled block (code size: the fused Dense is small).
+const X4_GROUPS: usize = 4;
 
 /// Dense with i8 weights, two rows per pass: each weight word (four i8) becomes two pairs by
 /// `SXTB16` (bytes 0, 2 and, rotated, 1, 3), multiplied by the input re-paired the same way
@@ -198,16 +211,10 @@ macro_rules! dense2_i8_asm {
 }
 
 dense2_i8_asm!("msr_dense2_i8_tanh", concat!(tanh_step!("r3", "2"), tanh_step!("r4", "2")));
+dense2_i8_asm!("msr_dense2_i8_tanh_x4", concat!(tanh_step!("r3", "8"), tanh_step!("r4", "8")));
 dense2_i8_asm!(
     "msr_dense2_i8_grey",
-    "asr r3, r3, r11
-    ssat r3, #12, r3
-    ldrh.w r3, [r10, r3, lsl #1]
-    strh r3, [r7], #2
-    asr r4, r4, r11
-    ssat r4, #12, r4
-    ldrh.w r4, [r10, r4, lsl #1]
-    strh r4, [r7], #2"
+concat!(grey_step!("r3"), grey_step!("r4"))
 );
 
 /// Inputs per block of the i8 routine, and the most it takes (its re-paired copy of the input
@@ -217,28 +224,53 @@ const I8_MAX_IN: usize = 128;
 
 /// Dense rows with i8 weights in pairs with a table activation (see [`dense2`]).
 pub(crate) fn dense2_i8<A: Activate>(rq: A, w: &[i8], b: &[i32], x: &[i16], y: &mut [i16]) -> usize {
-    let n_in = x.len();
     let pairs = y.len() / 2;
-    if n_in == 0
-        || !n_in.is_multiple_of(I8_BLOCK)
-        || n_in > I8_MAX_IN
-        || pairs == 0
-        || w.len() < 2 * pairs * n_in
-        || b.len() < 2 * pairs
-        || !(w.as_ptr() as usize).is_multiple_of(4)
-        || !n_in.is_multiple_of(4)
-    {
+    if !i8_suits(x.len(), pairs, w, b) {
         return 0;
     }
     let Some(act) = rq.asm_act() else {
         return 0;
     };
-    // The input re-paired as SXTB16 splits a weight word: (x0, x2), (x1, x3) per four.
+    let xp = pair_i8(x);
+    // SAFETY: shapes checked by i8_suits; y holds 2 * pairs adjacent halfwords.
+    unsafe { dense2_i8_raw(act, w, b, &xp, x.len(), y.as_mut_ptr(), pairs, false) };
+    2 * pairs
+}
+
+fn i8_suits(n_in: usize, pairs: usize, w: &[i8], b: &[i32]) -> bool {
+    n_in > 0
+        && n_in.is_multiple_of(I8_BLOCK)
+        && n_in <= I8_MAX_IN
+        && pairs > 0
+        && w.len() >= 2 * pairs * n_in
+        && b.len() >= 2 * pairs
+        && (w.as_ptr() as usize).is_multiple_of(4)
+}
+
+/// The input re-paired as SXTB16 splits a weight word: (x0, x2), (x1, x3) per four.
+fn pair_i8(x: &[i16]) -> [u32; I8_MAX_IN / 2] {
     let mut xp = [0u32; I8_MAX_IN / 2];
     for (q, c) in xp.chunks_exact_mut(2).zip(x.chunks_exact(4)) {
         q[0] = c[0] as u16 as u32 | (c[2] as u16 as u32) << 16;
         q[1] = c[1] as u16 as u32 | (c[3] as u16 as u32) << 16;
     }
+    xp
+}
+
+/// # Safety
+/// `i8_suits(n_in, pairs, w, b)`, `xp` from [`pair_i8`], and `y` valid for `2 * pairs`
+/// halfwords, 4 apart when `x4`, else adjacent.
+#[allow(clippy::too_many_arguments)]
+unsafe fn dense2_i8_raw(
+    act: AsmAct,
+    w: &[i8],
+    b: &[i32],
+    xp: &[u32; I8_MAX_IN / 2],
+    n_in: usize,
+    y: *mut i16,
+    pairs: usize,
+    x4: bool,
+) {
     let (table, sh, rnd, k, grey) = match act {
         AsmAct::Tanh { table, sh, rnd, k } => (table, sh, rnd, k, false),
         AsmAct::Grey { table, sh } => (table, sh, 0, 0, true),
@@ -246,7 +278,7 @@ pub(crate) fn dense2_i8<A: Activate>(rq: A, w: &[i8], b: &[i32], x: &[i16], y: &
     let job = Job {
         x: xp.as_ptr(),
         bias: b.as_ptr(),
-        y: y.as_mut_ptr(),
+        y,
         pairs: pairs as u32,
         row_bytes: n_in as u32,
         table,
@@ -256,16 +288,15 @@ pub(crate) fn dense2_i8<A: Activate>(rq: A, w: &[i8], b: &[i32], x: &[i16], y: &
         w: w.as_ptr() as *const u32,
     };
     // SAFETY: reads n_in / 2 words of xp per pair, 2 * pairs word-aligned rows of n_in bytes of
-    // `w` (LDRD: aligned, checked), 2 * pairs biases, the table within its saturated range;
-    // writes 2 * pairs halfwords of `y`. AAPCS kept.
+    // `w` (LDRD: aligned), 2 * pairs biases, the table within its saturated range; writes the
+    // 2 * pairs halfwords of `y` (caller's contract). AAPCS kept.
     unsafe {
-        if grey {
-            msr_dense2_i8_grey(&job);
-        } else {
-            msr_dense2_i8_tanh(&job);
+        match (grey, x4) {
+            (true, _) => msr_dense2_i8_grey(&job),
+            (false, false) => msr_dense2_i8_tanh(&job),
+            (false, true) => msr_dense2_i8_tanh_x4(&job),
         }
     }
-    2 * pairs
 }
 
 // ConvTranspose2d k4 s2 over a 4-channel interleaved, zero-padded input, last-layer sigmoid to
@@ -323,12 +354,16 @@ core::arch::global_asm!(
     // r7 y, r9 table, r10 sh.
     "ldm sp, {{r7, r9, r10}}",
     "asr r3, r3, r10",
-    "ssat r3, #12, r3",
-    "ldrh.w r3, [r9, r3, lsl #1]",
+    "ssat r3, #13, r3",
+    "ldrsh.w r3, [r9, r3, lsl #1]",
+    "add r3, r3, #32768",
+    "sub r3, r3, r3, lsr #8",
     "strh r3, [r7], #4",
     "asr r4, r4, r10",
-    "ssat r4, #12, r4",
-    "ldrh.w r4, [r9, r4, lsl #1]",
+    "ssat r4, #13, r4",
+    "ldrsh.w r4, [r9, r4, lsl #1]",
+    "add r4, r4, #32768",
+    "sub r4, r4, r4, lsr #8",
     "strh r4, [r7], #4",
     "str r7, [sp, #0]",
     "subs lr, lr, #1",
@@ -354,6 +389,7 @@ extern "C" {
     fn msr_convt_k4s2c4_grey(job: *const ConvJob);
     fn msr_dense2_i8_tanh(job: *const Job);
     fn msr_dense2_i8_grey(job: *const Job);
+    fn msr_dense2_i8_tanh_x4(job: *const Job);
     fn msr_dense2_tanh(job: *const Job);
     fn msr_dense2_tanh_x4(job: *const Job);
     fn msr_dense2_grey(job: *const Job);
@@ -455,12 +491,14 @@ impl<'l, 'a> Fused<'l, 'a> {
         let (h, w) = (conv.input.h as usize, conv.input.w as usize);
         let (oh, ow) = (conv.output.h as usize, conv.output.w as usize);
         let p = conv.padding as usize;
+        let n_in = dense.input.len();
+        let dense_ok = match dense.weight_type {
+            WeightType::I16 => n_in.is_multiple_of(8) && n_in / 8 <= X4_GROUPS,
+            WeightType::I8 => n_in.is_multiple_of(I8_BLOCK) && n_in <= I8_MAX_IN,
+        };
         let ok = dense.kind == LayerKind::Dense
-            && dense.weight_type == WeightType::I16
-            && dense.input.len().is_multiple_of(8)
-            && dense.input.len() / 8 <= MAX_GROUPS
+            && dense_ok
             && conv.kind == LayerKind::ConvTranspose2d
-            && conv.weight_type == WeightType::I16
             && conv.kernel == 4
             && conv.stride == 2
             && p <= 3
@@ -469,9 +507,9 @@ impl<'l, 'a> Fused<'l, 'a> {
             && w.is_multiple_of(2)
             && ow >= 4
             && (h + 2) * (w + 2) * FUSED_C <= MAX_ACTIVATION_LEN
-            && dense.weights_i16().is_some()
+            && AnyWeights::of(dense).is_some()
             && dense.bias_i32().is_some()
-            && conv.weights_i16().is_some()
+            && AnyWeights::of(conv).is_some()
             && conv.bias_i32().is_some();
         if !ok {
             return None;
@@ -521,17 +559,23 @@ impl<'l, 'a> Fused<'l, 'a> {
         let pw = w + 2;
         let n_in = d.input.len();
         let (Some(dw), Some(db), Some(cw), Some(cb)) =
-            (d.weights_i16(), d.bias_i32(), c.weights_i16(), c.bias_i32())
+            (AnyWeights::of(d), d.bias_i32(), AnyWeights::of(c), c.bias_i32())
         else {
             return Err(());
         };
-        let dw: &[u32] = bytemuck::try_cast_slice(dw).map_err(|_| ())?;
         let np = n_in / 2;
-        // The input is at most 4 * MAX_GROUPS words: copied out, `buf` takes the output.
-        let mut xw = [0u32; 4 * MAX_GROUPS];
-        let xin: &[u32] = bytemuck::try_cast_slice(buf.get(..n_in).ok_or(())?).map_err(|_| ())?;
-        xw.get_mut(..np).ok_or(())?.copy_from_slice(xin);
-        let x = &xw[..np];
+        // The input, copied out (`buf` takes the output): words of i16 pairs for i16 weights,
+        // re-paired for i8 ones.
+        let x = buf.get(..n_in).ok_or(())?;
+        let xw = match dw {
+            AnyWeights::I16(_) => {
+                let mut xw = [0u32; I8_MAX_IN / 2];
+                let xin: &[u32] = bytemuck::try_cast_slice(x).map_err(|_| ())?;
+                xw.get_mut(..np).ok_or(())?.copy_from_slice(xin);
+                xw
+            }
+            AnyWeights::I8(_) => pair_i8(x),
+        };
         let y = buf;
         let (oc_n, oh, ow) = (
             c.output.c as usize,
@@ -554,13 +598,32 @@ impl<'l, 'a> Fused<'l, 'a> {
         for ch in 0..FUSED_C {
             for iy in 0..h {
                 let r = (ch * h + iy) * w;
-                let (wr, br) = (&dw[r * np..(r + w) * np], &db[r..r + w]);
-                if !dense_suits(np, w / 2, wr, br) {
-                    return Err(());
-                }
+                let br = &db[r..r + w];
                 let at = ((iy + 1) * pw + 1) * FUSED_C + ch;
-                // SAFETY: the last write, at + 4 * (w - 1), is inside row iy + 1 of `mid`.
-                unsafe { dense2_raw(self.dact, wr, br, x, mid.as_mut_ptr().add(at), w / 2, true) };
+                // The row's w outputs go 4 apart from `at`: the last, at + 4 * (w - 1), is
+                // inside row iy + 1 of `mid`.
+                let out = mid[at..at + 4 * (w - 1) + 1].as_mut_ptr();
+                match dw {
+                    AnyWeights::I16(dw) => {
+                        let dw: &[u32] = bytemuck::try_cast_slice(dw).map_err(|_| ())?;
+                        let wr = &dw[r * np..(r + w) * np];
+                        if !dense_suits(np, w / 2, wr, br) || np / 4 > X4_GROUPS {
+                            return Err(());
+                        }
+                        // SAFETY: checked by dense_suits and the slice of `mid` above.
+                        unsafe { dense2_raw(self.dact, wr, br, &xw[..np], out, w / 2, true) };
+                    }
+                    AnyWeights::I8(dw) => {
+                        let wr = &dw[r * n_in..(r + w) * n_in];
+                        if !i8_suits(n_in, w / 2, wr, br) {
+                            return Err(());
+                        }
+                        // SAFETY: checked by i8_suits and the slice of `mid` above.
+                        unsafe {
+                            dense2_i8_raw(self.dact, wr, br, &xw, n_in, out, w / 2, true)
+                        };
+                    }
+                }
             }
         }
         let AsmAct::Grey { table, sh } = self.cact else {
@@ -568,7 +631,7 @@ impl<'l, 'a> Fused<'l, 'a> {
         };
         let p = c.padding as usize;
         let wt = |ic: usize, oc: usize, ky: usize, kx: usize| -> u32 {
-            cw[((ic * oc_n + oc) * 4 + ky) * 4 + kx] as u16 as u32
+            cw.at(((ic * oc_n + oc) * 4 + ky) * 4 + kx) as u16 as u32
         };
         for oc in 0..oc_n {
             // Weight words per phase (py, px): row A (tap ky0 + 2) then row B (ky0); in each,

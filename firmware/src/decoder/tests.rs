@@ -9,16 +9,11 @@ fn tables_match_f64() {
         let want = (x.tanh() * 32768.0).round().clamp(-32767.0, 32767.0);
         assert_eq!(v as f64, want, "tanh entry {j}");
     }
-    for (j, &v) in GREY_Q88.iter().enumerate() {
-        let x = (j as f64 - 2048.0 + 0.5) / 128.0;
-        let want = (65280.0 / (1.0 + (-x).exp())).round();
-        assert_eq!(v as f64, want, "grey entry {j}");
-    }
 }
 
 /// Error bounds of the tables (midpoint of a cell, slope at most 1 for tanh, 1/4 for sigmoid),
-/// in units of the output: tanh 2^-10 + rounding, sigmoid 2^-10 + rounding, grey a quarter
-/// grey level + rounding.
+/// in units of the output: tanh 2^-10 + rounding, sigmoid 2^-11 + rounding, grey 0.13 grey
+/// levels.
 const TANH_ERR: f64 = 1.0 / 1024.0 + 1.0 / 65536.0;
 
 #[test]
@@ -40,7 +35,7 @@ fn tanh_and_sigmoid_by_table_are_within_their_bounds() {
                 let got = sig.apply(acc) as f64 / step;
                 assert!((got - s).abs() <= TANH_ERR / 2.0 + 0.5 / step, "sigmoid {x}: {got}");
                 let got = grey.apply(acc) as u16 as f64 / 256.0;
-                assert!((got - 255.0 * s).abs() <= 0.25 + 1.0 / 512.0, "grey {x}: {got}");
+                assert!((got - 255.0 * s).abs() <= 0.13, "grey {x}: {got}");
             }
         }
     }
@@ -50,7 +45,7 @@ fn tanh_and_sigmoid_by_table_are_within_their_bounds() {
     // The table's tanh stops at -32767 / 2^15: sigmoid's floor is one Q16 step.
     assert!(rq.apply(i32::MIN) <= 1);
     assert_eq!(rq.last().apply(i32::MAX) as u16, 65280);
-    assert_eq!(rq.last().apply(i32::MIN), 0);
+    assert!(rq.last().apply(i32::MIN) <= 1);
     let rq = Requant::new(Activation::Identity, 0, 31);
     assert_eq!(rq.apply(-5), i16::MIN);
     let rq = Requant::new(Activation::Identity, 62, 0);
