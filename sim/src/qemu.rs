@@ -372,15 +372,20 @@ impl Lockstep {
     }
 
     fn read_ctl(&mut self, n: usize, what: &str) -> Result<Vec<u8>> {
-        let mut b = vec![0u8; n];
+        let mut b = vec![0u8; n.max(1)];
         self.clock.set_read_timeout(Some(self.timeout))?;
-        if let Err(e) = self.clock.read_exact(&mut b) {
+        let r = self.clock.read_exact(&mut b[..1]).and_then(|_| {
+            if b[0] == b'E' {
+                // An error answer is two bytes, whatever was asked.
+                b.truncate(2);
+            }
+            self.clock.read_exact(&mut b[1..])
+        });
+        if let Err(e) = r {
             bail!("the board image did not answer {what} within {:?} ({e}); it printed:\n{}", self.timeout, self.qemu.output_so_far());
         }
         if b[0] == b'E' {
-            let mut code = [0u8; 1];
-            let _ = self.clock.read_exact(&mut code);
-            bail!("the board image refused {what} (error {})", code[0]);
+            bail!("the board image refused {what} (error {})", b[1]);
         }
         Ok(b)
     }
