@@ -6,14 +6,21 @@
 //!
 //! - Rounding is half-up everywhere (`floor(x + 0.5)`), the accumulator wraps on overflow (the
 //!   quantizer chooses shifts so that it does not), results saturate to i16.
-//! - tanh and sigmoid come from one table (`tanh_table.rs`): tanh on [0, 8] in steps of 1/128 with
-//!   linear interpolation (error below 2.5e-5, under one Q15 step); `sigmoid(x) = (1 + tanh(x/2)) / 2`.
-//! - i16 weights take paired paths (`fast.rs`: Dense rows and ConvTranspose2d phases) whose
-//!   multiply-accumulates are SMLAD on `target_arch = "arm"` (v7E-M DSP) and the same wrapping
-//!   sums elsewhere, so host and board agree bit for bit; other layers use generic loops.
+//! - Activations by table without interpolation (`Requant::apply` is the definition): tanh is
+//!   `TANH_Q15` (`tanh_table.rs`) at the midpoint of `x`'s cell of 2^-9 (error below 2^-10),
+//!   sigmoid `(1 + tanh(x/2)) / 2` from the same table. So an activation is a shift, a
+//!   saturation (`SSAT`) and one load on the Cortex-M4.
+//! - The last layer, when it is a sigmoid (crops after it allowed), writes the face in Q8.8 grey
+//!   directly: `s - (s >> 8)` of the Q16 sigmoid `s` (error below 0.13 grey levels); its
+//!   `out_shift` is then not used. Otherwise the last output is converted by `to_grey_q88`.
+//! - Fast paths: Dense rows in pairs and ConvTranspose2d by phase with packed weight pairs
+//!   (`fast.rs`, SMLAD on the M4); on the M4 Dense layers run in assembly (`arm.rs`, i16 and i8
+//!   weights), and a tanh Dense feeding a last ConvTranspose2d k4 s2 over 4 channels (the
+//!   default conv decoder) runs fused, crop included. Sums wrap in any order and the table steps
+//!   are the same, so host and board agree bit for bit (the QEMU tests and `msr bench` check it).
 //!
-//! The predicted face is kept, converted to Q8.8 grey levels, until the quantised head pose or
-//! the model changes ([`Decoder::predict`]); [`Decoder::predict_uncached`] always runs it.
+//! The predicted face is kept, in Q8.8 grey levels, until the quantised head pose or the model
+//! changes ([`Decoder::predict`]); [`Decoder::predict_uncached`] always runs it.
 
 use msr_shared::blob::{Activation, Layer, LayerKind, Model, WeightType, MAX_ACTIVATION_LEN};
 

@@ -5,6 +5,8 @@
 //!   Cortex-M4 with `-icount shift=0`; stage figures are emulated instructions per frame
 //!   (SysTick, 40-instruction resolution), the mean over 4 built-in frames (two with a mark),
 //!   the decoder always run in full (uncached). Stack peak: painted stack of the benchmark run.
+//!   The image also reports a CRC-32 of each predicted face; the bench fails unless they equal
+//!   the host build's (`"faces_match_host": true`).
 //!   Static RAM and code size: the board image (`msr-qemu`) as linked, read from its ELF
 //!   (what runs on the robot): `code_bytes` = vector table + .text + .rodata (the target's "code
 //!   without the model tables"), `flash_bytes` = code + .data's initial values + the model blob.
@@ -15,7 +17,8 @@
 //!
 //! Models: `--model FILE` (repeatable) benchmarks those blobs. Without it, two blobs are made
 //! here with the architectures of the default conv decoder and the published MLP decoder
-//! (58 x 75), deterministic pseudo-random weights, i16; the output says `"source": "synthetic"`.
+//! (58 x 75), deterministic pseudo-random weights, i16 (or i8 with `--weights i8`, what
+//! `msr quantize --weights auto` usually picks); the output says `"source": "synthetic"`.
 //! Timing does not depend on the weight values, only on shapes and types.
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
