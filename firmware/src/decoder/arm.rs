@@ -90,8 +90,8 @@ macro_rules! dense2_asm {
             "ldrd r3, r4, [r6], #8",
             "mov r0, r5",
             "stm sp, {{r5-r8}}",
-            "ldr r12, [sp, #36]",
-            "bx r12",
+            // Into the unrolled block again (the entry address has its Thumb bit).
+            "ldr pc, [sp, #36]",
             "5:",
             "add sp, sp, #40",
             "pop {{r4-r11, pc}}",
@@ -303,8 +303,8 @@ unsafe fn dense2_i8_raw(
 // grey: two outputs of one phase per pass (columns m and m + 1 read input columns a, a+1 and
 // a+1, a+2 of two input rows; one weight load serves both).
 //
-// Job on the stack: sp+0 y, +4 table, +8 sh, +12 bias, +16 row_bytes; r0 row A, r1 row B,
-// r2 the phase's 8 weight words (row A then row B), lr pairs left.
+// Frame: sp+0 y, +4 table, +8 sh, +12 and +16 bias; r0 row A, r1 row B, r2 the phase's
+// row B weights (row A's 4 words just before), lr pairs left.
 core::arch::global_asm!(
     ".section .text.msr_convt_k4s2c4_grey,\"ax\",%progbits",
     ".global msr_convt_k4s2c4_grey",
@@ -320,24 +320,28 @@ core::arch::global_asm!(
     "str r5, [sp, #4]",
     "str r6, [sp, #8]",
     "str r7, [sp, #12]",
+    "str r7, [sp, #16]",
     "mov r0, r1",
     "add r1, r1, r8",
+    // r2 at row B's weights: row A's are the 16 bytes before.
+    "add r2, r2, #16",
     "mov lr, r4",
     "1:",
-    "ldr r3, [sp, #12]",
-    "mov r4, r3",
-    "ldm r0, {{r5-r8}}",
-    "ldm r2!, {{r9-r12}}",
+    "ldrd r3, r4, [sp, #12]",
+    // Row A: columns a, a+1 (r0 moves on two columns), then a+2 for the second output.
+    "ldm r0!, {{r5-r8}}",
+    "ldmdb r2, {{r9-r12}}",
     "smlad r3, r5, r9, r3",
     "smlad r3, r6, r10, r3",
     "smlad r3, r7, r11, r3",
     "smlad r3, r8, r12, r3",
     "smlad r4, r7, r9, r4",
     "smlad r4, r8, r10, r4",
-    "ldrd r5, r6, [r0, #16]",
+    "ldrd r5, r6, [r0]",
     "smlad r4, r5, r11, r4",
     "smlad r4, r6, r12, r4",
-    "ldm r1, {{r5-r8}}",
+    // Row B.
+    "ldm r1!, {{r5-r8}}",
     "ldm r2, {{r9-r12}}",
     "smlad r3, r5, r9, r3",
     "smlad r3, r6, r10, r3",
@@ -345,12 +349,9 @@ core::arch::global_asm!(
     "smlad r3, r8, r12, r3",
     "smlad r4, r7, r9, r4",
     "smlad r4, r8, r10, r4",
-    "ldrd r5, r6, [r1, #16]",
+    "ldrd r5, r6, [r1]",
     "smlad r4, r5, r11, r4",
     "smlad r4, r6, r12, r4",
-    "sub r2, r2, #16",
-    "add r0, r0, #16",
-    "add r1, r1, #16",
     // r7 y, r9 table, r10 sh.
     "ldm sp, {{r7, r9, r10}}",
     "asr r3, r3, r10",
