@@ -1,14 +1,21 @@
-//! Cortex-M4 kernels in assembly: a whole Dense layer with a table activation, two rows per pass.
+//! Cortex-M4 kernels in assembly (QEMU counts each instruction once, an `LDM` of four words
+//! included; the comments count instructions).
 //!
-//! Per pass two rows share each load of four input words (`LDM`), their weights come four words
-//! per `LDM`, and each word pair is one `SMLAD` (two multiply-accumulates). The groups of four
-//! words are unrolled 16 times and entered by a computed jump, so a row of `4 * g` words
-//! (g <= 16) has no loop overhead. The activation is the table's: shift, `SSAT`, one load (and
-//! for tanh the rounding shift to `out_shift`), then a halfword store.
+//! - Dense, i16 weights (`msr_dense2_*`): two rows per pass share each load of four input words
+//!   (`LDM`), their weights come four words per `LDM`, each word pair is one `SMLAD`. The groups
+//!   of four words are unrolled and entered by a computed jump (no loop in a row).
+//! - Dense, i8 weights (`msr_dense2_i8_*`): `SXTB16` splits each weight word into two pairs
+//!   against the input re-paired ((x0, x2), (x1, x3)); blocks of 32 inputs, looped.
+//! - [`Fused`]: a tanh Dense writing a 4-channel interleaved, zero-padded image, then the last
+//!   ConvTranspose2d k4 s2 (sigmoid to grey) two outputs of a phase per pass
+//!   (`msr_convt_k4s2c4_grey`), the crop after it written directly.
 //!
-//! The portable definition is [`super::fast::dense_pairs`] with the same [`Activate`]: sums are
-//! wrapping i32 (order does not matter) and the activation is [`TanhAct`] / [`GreyAct`] step for
-//! step, so both give the same bits (the QEMU tests compare the board with the host build).
+//! Each output ends with the table step: shift, `SSAT`, one load (tanh: the rounding shift to
+//! `out_shift`; grey: `s - (s >> 8)`), halfword store. The portable definitions are
+//! `super::fast::dense_pairs` / `super::kernels` with `Requant::apply`: sums wrap in i32 (order
+//! does not matter) and the steps are [`super::TanhAct`] / [`super::GreyAct`] instruction for
+//! instruction, so both give the same bits (`msr bench` and the QEMU tests compare the board's
+//! faces with the host build's).
 
 use super::kernels::{AnyWeights, Table};
 use super::{Activate, AsmAct, Requant};
