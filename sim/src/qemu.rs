@@ -409,6 +409,11 @@ impl Lockstep {
         cmd.extend(lockstep_tick_us.unwrap_or(0).to_le_bytes());
         self.clock.write_all(&cmd)?;
         let crc = self.hello()?;
+        // What the board wrote between the drain above and its reset (a running-free board
+        // keeps asking its servos) is in the sockets by now: QEMU writes a UART's bytes as they
+        // are sent, and the start-up message came after them. In lockstep the board writes only
+        // within ticks, so whatever is there is old.
+        self.drain()?;
         self.ticks = 0;
         Ok(crc)
     }
