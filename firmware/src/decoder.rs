@@ -222,7 +222,10 @@ impl Decoder {
 /// it is a sigmoid and every crop after it copies exactly (same shift in and out). Its output
 /// then skips the `out_shift` step (see [`Requant::apply`]).
 fn grey_layer(model: &Model) -> Option<usize> {
-    let i = model.layers.iter().rposition(|l| l.kind != LayerKind::Crop)?;
+    let i = model
+        .layers
+        .iter()
+        .rposition(|l| l.kind != LayerKind::Crop)?;
     let exact_crops = model.layers[i + 1..]
         .iter()
         .all(|l| l.in_shift == l.out_shift);

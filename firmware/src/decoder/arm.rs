@@ -108,6 +108,7 @@ macro_rules! dense2_asm {
 }
 
 /// The tanh step of one accumulator (`$a`) into the halfword at r7, r7 then moved by `$inc`.
+#[rustfmt::skip]
 macro_rules! tanh_step {
     ($a:literal, $inc:literal) => {
         concat!(
@@ -122,6 +123,7 @@ macro_rules! tanh_step {
 }
 
 /// The last-layer step of `$a`: Q16 sigmoid from the tanh table, times 255/256, stored at r7.
+#[rustfmt::skip]
 macro_rules! grey_step {
     ($a:literal) => {
         concat!(
@@ -135,14 +137,22 @@ macro_rules! grey_step {
     };
 }
 
-dense2_asm!("msr_dense2_tanh", concat!(tanh_step!("r3", "2"), tanh_step!("r4", "2")), "16");
+dense2_asm!(
+    "msr_dense2_tanh",
+    concat!(tanh_step!("r3", "2"), tanh_step!("r4", "2")),
+    "16"
+);
 // Outputs 4 halfwords apart: a 4-channel interleaved (HWC) image for the transposed convolution;
 // rows of at most X4_GROUPS groups.
-dense2_asm!("msr_dense2_tanh_x4", concat!(tanh_step!("r3", "8"), tanh_step!("r4", "8")), "4");
+dense2_asm!(
+    "msr_dense2_tanh_x4",
+    concat!(tanh_step!("r3", "8"), tanh_step!("r4", "8")),
+    "4"
+);
 
 dense2_asm!(
     "msr_dense2_grey",
-concat!(grey_step!("r3"), grey_step!("r4")),
+    concat!(grey_step!("r3"), grey_step!("r4")),
     "16"
 );
 
@@ -217,11 +227,17 @@ macro_rules! dense2_i8_asm {
     };
 }
 
-dense2_i8_asm!("msr_dense2_i8_tanh", concat!(tanh_step!("r3", "2"), tanh_step!("r4", "2")));
-dense2_i8_asm!("msr_dense2_i8_tanh_x4", concat!(tanh_step!("r3", "8"), tanh_step!("r4", "8")));
+dense2_i8_asm!(
+    "msr_dense2_i8_tanh",
+    concat!(tanh_step!("r3", "2"), tanh_step!("r4", "2"))
+);
+dense2_i8_asm!(
+    "msr_dense2_i8_tanh_x4",
+    concat!(tanh_step!("r3", "8"), tanh_step!("r4", "8"))
+);
 dense2_i8_asm!(
     "msr_dense2_i8_grey",
-concat!(grey_step!("r3"), grey_step!("r4"))
+    concat!(grey_step!("r3"), grey_step!("r4"))
 );
 
 /// Inputs per block of the i8 routine, and the most it takes (its re-paired copy of the input
@@ -230,7 +246,13 @@ const I8_BLOCK: usize = 32;
 const I8_MAX_IN: usize = 128;
 
 /// Dense rows with i8 weights in pairs with a table activation (see [`dense2`]).
-pub(crate) fn dense2_i8<A: Activate>(rq: A, w: &[i8], b: &[i32], x: &[i16], y: &mut [i16]) -> usize {
+pub(crate) fn dense2_i8<A: Activate>(
+    rq: A,
+    w: &[i8],
+    b: &[i32],
+    x: &[i16],
+    y: &mut [i16],
+) -> usize {
     let pairs = y.len() / 2;
     if !i8_suits(x.len(), pairs, w, b) {
         return 0;
@@ -566,9 +588,12 @@ impl<'l, 'a> Fused<'l, 'a> {
         let (h, w) = (c.input.h as usize, c.input.w as usize);
         let pw = w + 2;
         let n_in = d.input.len();
-        let (Some(dw), Some(db), Some(cw), Some(cb)) =
-            (AnyWeights::of(d), d.bias_i32(), AnyWeights::of(c), c.bias_i32())
-        else {
+        let (Some(dw), Some(db), Some(cw), Some(cb)) = (
+            AnyWeights::of(d),
+            d.bias_i32(),
+            AnyWeights::of(c),
+            c.bias_i32(),
+        ) else {
             return Err(());
         };
         let np = n_in / 2;
@@ -590,7 +615,9 @@ impl<'l, 'a> Fused<'l, 'a> {
             c.output.h as usize,
             c.output.w as usize,
         );
-        let out_len = self.crop.map_or(c.output.len(), |(_, _, fh, fw)| oc_n * fh * fw);
+        let out_len = self
+            .crop
+            .map_or(c.output.len(), |(_, _, fh, fw)| oc_n * fh * fw);
         if mid.len() < (h + 2) * pw * FUSED_C || y.len() < out_len || cb.len() < oc_n {
             return Err(());
         }
@@ -627,9 +654,7 @@ impl<'l, 'a> Fused<'l, 'a> {
                             return Err(());
                         }
                         // SAFETY: checked by i8_suits and the slice of `mid` above.
-                        unsafe {
-                            dense2_i8_raw(self.dact, wr, br, &xw, n_in, out, w / 2, true)
-                        };
+                        unsafe { dense2_i8_raw(self.dact, wr, br, &xw, n_in, out, w / 2, true) };
                     }
                 }
             }

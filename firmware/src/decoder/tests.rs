@@ -30,10 +30,16 @@ fn tanh_and_sigmoid_by_table_are_within_their_bounds() {
                     .clamp(i32::MIN as f64, i32::MAX as f64) as i32;
                 let x = acc as f64 / 2f64.powi(bits as i32);
                 let got = tanh.apply(acc) as f64 / step;
-                assert!((got - x.tanh()).abs() <= TANH_ERR + 0.5 / step, "tanh {x}: {got}");
+                assert!(
+                    (got - x.tanh()).abs() <= TANH_ERR + 0.5 / step,
+                    "tanh {x}: {got}"
+                );
                 let s = 1.0 / (1.0 + (-x).exp());
                 let got = sig.apply(acc) as f64 / step;
-                assert!((got - s).abs() <= TANH_ERR / 2.0 + 0.5 / step, "sigmoid {x}: {got}");
+                assert!(
+                    (got - s).abs() <= TANH_ERR / 2.0 + 0.5 / step,
+                    "sigmoid {x}: {got}"
+                );
                 let got = grey.apply(acc) as u16 as f64 / 256.0;
                 assert!((got - 255.0 * s).abs() <= 0.13, "grey {x}: {got}");
             }
@@ -335,7 +341,11 @@ fn fast_kernels_equal_the_generic_loops() {
                 if l.kind == LayerKind::Crop {
                     continue;
                 }
-                let rq = if grey == Some(li) { Requant::of(l).last() } else { Requant::of(l) };
+                let rq = if grey == Some(li) {
+                    Requant::of(l).last()
+                } else {
+                    Requant::of(l)
+                };
                 let x: Vec<i16> = (0..l.input.len())
                     .map(|_| (r.unit() * 2f64.powi(l.in_shift as i32)) as i16)
                     .collect();
