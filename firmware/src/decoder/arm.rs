@@ -17,6 +17,8 @@
 //! instruction, so both give the same bits (`msr bench` and the QEMU tests compare the board's
 //! faces with the host build's).
 
+#![cfg_attr(not(target_arch = "arm"), allow(unused_macros))]
+
 use super::kernels::{AnyWeights, Table};
 use super::{Activate, AsmAct, Requant};
 use msr_shared::blob::{Layer, LayerKind, WeightType, MAX_ACTIVATION_LEN};
@@ -137,6 +139,7 @@ macro_rules! grey_step {
     };
 }
 
+#[cfg(target_arch = "arm")]
 dense2_asm!(
     "msr_dense2_tanh",
     concat!(tanh_step!("r3", "2"), tanh_step!("r4", "2")),
@@ -144,12 +147,14 @@ dense2_asm!(
 );
 // Outputs 4 halfwords apart: a 4-channel interleaved (HWC) image for the transposed convolution;
 // rows of at most X4_GROUPS groups.
+#[cfg(target_arch = "arm")]
 dense2_asm!(
     "msr_dense2_tanh_x4",
     concat!(tanh_step!("r3", "8"), tanh_step!("r4", "8")),
     "4"
 );
 
+#[cfg(target_arch = "arm")]
 dense2_asm!(
     "msr_dense2_grey",
     concat!(grey_step!("r3"), grey_step!("r4")),
@@ -227,14 +232,17 @@ macro_rules! dense2_i8_asm {
     };
 }
 
+#[cfg(target_arch = "arm")]
 dense2_i8_asm!(
     "msr_dense2_i8_tanh",
     concat!(tanh_step!("r3", "2"), tanh_step!("r4", "2"))
 );
+#[cfg(target_arch = "arm")]
 dense2_i8_asm!(
     "msr_dense2_i8_tanh_x4",
     concat!(tanh_step!("r3", "8"), tanh_step!("r4", "8"))
 );
+#[cfg(target_arch = "arm")]
 dense2_i8_asm!(
     "msr_dense2_i8_grey",
     concat!(grey_step!("r3"), grey_step!("r4"))
@@ -334,6 +342,7 @@ unsafe fn dense2_i8_raw(
 //
 // Frame: sp+0 y, +4 table, +8 sh, +12 and +16 bias; r0 row A, r1 row B, r2 the phase's
 // row B weights (row A's 4 words just before), lr pairs left.
+#[cfg(target_arch = "arm")]
 core::arch::global_asm!(
     ".section .text.msr_convt_k4s2c4_grey,\"ax\",%progbits",
     ".global msr_convt_k4s2c4_grey",
@@ -415,6 +424,7 @@ struct ConvJob {
     row_bytes: u32,
 }
 
+#[cfg(target_arch = "arm")]
 extern "C" {
     fn msr_convt_k4s2c4_grey(job: *const ConvJob);
     fn msr_dense2_i8_tanh(job: *const Job);
@@ -423,6 +433,123 @@ extern "C" {
     fn msr_dense2_tanh(job: *const Job);
     fn msr_dense2_tanh_x4(job: *const Job);
     fn msr_dense2_grey(job: *const Job);
+}
+
+// Elsewhere (the host's tests), the same routines in Rust, step for step: what the fused path
+// does around them (padding, packing, phases, crop) is then tested against the generic loops.
+#[cfg(not(target_arch = "arm"))]
+use portable::*;
+
+#[cfg(not(target_arch = "arm"))]
+mod portable {
+    use super::{ConvJob, Job};
+    use crate::decoder::fast::smlad;
+
+    /// The table step of the assembly: tanh (rounded to out_shift) or grey.
+    unsafe fn step(job: &Job, acc: i32, grey: bool) -> i16 {
+        let i = (acc >> job.sh).clamp(-4096, 4095);
+        // SAFETY: `table` is the tanh table's centre, i within its half-length.
+        let y = unsafe { *job.table.offset(i as isize) } as i32;
+        if grey {
+            let s = (1 << 15) + y;
+            (s - (s >> 8)) as u16 as i16
+        } else {
+            ((y + job.rnd) >> job.k) as i16
+        }
+    }
+
+    /// SXTB16 of `w` (rotated right by `rot` bits first).
+    fn sxtb16(w: u32, rot: u32) -> u32 {
+        let v = w.rotate_right(rot);
+        (v as u8 as i8 as i16 as u16 as u32)
+            | ((((v >> 16) as u8 as i8 as i16) as u16 as u32) << 16)
+    }
+
+    /// # Safety
+    /// As the assembly's callers guarantee.
+    unsafe fn dense2(job: *const Job, i8w: bool, grey: bool, y_step: usize) {
+        let job = unsafe { &*job };
+        // Words of one row: n_in / 2 of i16 pairs, or n_in / 4 of four i8.
+        let words = job.row_bytes as usize / 4;
+        let (mut w, mut b, mut y) = (job.w, job.bias, job.y);
+        for _ in 0..job.pairs {
+            for _ in 0..2 {
+                let mut acc = unsafe { *b };
+                for j in 0..words {
+                    let wv = unsafe { *w.add(j) };
+                    if i8w {
+                        let (x0, x1) = unsafe { (*job.x.add(2 * j), *job.x.add(2 * j + 1)) };
+                        acc = smlad(sxtb16(wv, 0), x0, acc);
+                        acc = smlad(sxtb16(wv, 8), x1, acc);
+                    } else {
+                        acc = smlad(wv, unsafe { *job.x.add(j) }, acc);
+                    }
+                }
+                unsafe {
+                    *y = step(job, acc, grey);
+                    y = y.add(y_step);
+                    b = b.add(1);
+                    w = w.add(words);
+                }
+            }
+        }
+    }
+
+    pub(super) unsafe fn msr_dense2_tanh(job: *const Job) {
+        unsafe { dense2(job, false, false, 1) }
+    }
+    pub(super) unsafe fn msr_dense2_tanh_x4(job: *const Job) {
+        unsafe { dense2(job, false, false, 4) }
+    }
+    pub(super) unsafe fn msr_dense2_grey(job: *const Job) {
+        unsafe { dense2(job, false, true, 1) }
+    }
+    pub(super) unsafe fn msr_dense2_i8_tanh(job: *const Job) {
+        unsafe { dense2(job, true, false, 1) }
+    }
+    pub(super) unsafe fn msr_dense2_i8_tanh_x4(job: *const Job) {
+        unsafe { dense2(job, true, false, 4) }
+    }
+    pub(super) unsafe fn msr_dense2_i8_grey(job: *const Job) {
+        unsafe { dense2(job, true, true, 1) }
+    }
+
+    /// Two outputs of one phase per pass, as `msr_convt_k4s2c4_grey`.
+    pub(super) unsafe fn msr_convt_k4s2c4_grey(job: *const ConvJob) {
+        let c = unsafe { &*job };
+        let step_job = Job {
+            x: core::ptr::null(),
+            bias: core::ptr::null(),
+            y: core::ptr::null_mut(),
+            pairs: 0,
+            row_bytes: 0,
+            table: c.table,
+            sh: c.sh,
+            rnd: 0,
+            k: 0,
+            w: core::ptr::null(),
+        };
+        let rb = c.row_bytes as usize / 4;
+        let (mut xa, mut y) = (c.x as *const u32, c.y);
+        for _ in 0..c.pairs {
+            let (mut a0, mut a1) = (c.bias, c.bias);
+            for row in 0..2 {
+                let xr = unsafe { xa.add(row * rb) };
+                let w = unsafe { core::slice::from_raw_parts(c.w.add(4 * row), 4) };
+                let x = unsafe { core::slice::from_raw_parts(xr, 6) };
+                for t in 0..4 {
+                    a0 = smlad(x[t], w[t], a0);
+                    a1 = smlad(x[t + 2], w[t], a1);
+                }
+            }
+            unsafe {
+                *y = step(&step_job, a0, true);
+                *y.add(2) = step(&step_job, a1, true);
+                y = y.add(4);
+                xa = xa.add(4);
+            }
+        }
+    }
 }
 
 /// Dense rows in pairs with a table activation. Returns how many outputs it wrote (an even

@@ -359,3 +359,124 @@ fn fast_kernels_equal_the_generic_loops() {
         }
     }
 }
+
+/// The M4's fused Dense -> ConvTranspose2d k4 s2 (-> crop) path, run here with the Rust
+/// stand-ins of its assembly routines, equals the layers run one by one through the generic
+/// loops: padding, weight packing, phases and crop windows over paddings 0..=3, odd and even
+/// widths, i8 and i16 weights.
+#[test]
+fn fused_dense_conv_transpose_equals_the_layers() {
+    use crate::testkit::{layer, shape};
+    use msr_shared::blob::{LayerSpec, MAX_ACTIVATION_LEN};
+    for seed in 0..48u64 {
+        let mut r = Lcg(seed + 100);
+        let i8w = seed % 2 == 1;
+        let n_in = if i8w {
+            [32, 64][(seed / 2 % 2) as usize]
+        } else {
+            [8, 16, 32][(seed / 2 % 3) as usize]
+        };
+        let p = (seed / 3 % 4) as u8;
+        let (h, w) = (3 + (seed % 4) as u16, 4 + 2 * (seed % 4) as u16);
+        let (oh, ow) = (
+            (h - 1) * 2 + 4 - 2 * p as u16,
+            (w - 1) * 2 + 4 - 2 * p as u16,
+        );
+        let crop = seed % 3 != 0 && ow >= 5;
+        let (fh, fw) = if crop { (oh - 1, ow - 1) } else { (oh, ow) };
+        let ws = if i8w { 6 } else { 12 };
+        let mut layers = vec![
+            layer(
+                &mut r,
+                LayerKind::Dense,
+                Activation::Tanh,
+                shape(2, 1, 1),
+                shape(n_in as u16, 1, 1),
+                (0, 0, 0),
+                (12, 12, 14),
+                1.0,
+                false,
+            ),
+            layer(
+                &mut r,
+                LayerKind::Dense,
+                Activation::Tanh,
+                shape(n_in as u16, 1, 1),
+                shape(4, h, w),
+                (0, 0, 0),
+                (ws, 14, 14),
+                0.4,
+                i8w,
+            ),
+            layer(
+                &mut r,
+                LayerKind::ConvTranspose2d,
+                Activation::Sigmoid,
+                shape(4, h, w),
+                shape(1, oh, ow),
+                (4, 2, p),
+                (ws, 14, 15),
+                0.5,
+                i8w,
+            ),
+        ];
+        if crop {
+            layers.push(LayerSpec {
+                crop_top: 1,
+                crop_left: 1,
+                ..layer(
+                    &mut r,
+                    LayerKind::Crop,
+                    Activation::Identity,
+                    shape(1, oh, ow),
+                    shape(1, fh, fw),
+                    (0, 0, 0),
+                    (0, 15, 15),
+                    0.0,
+                    false,
+                )
+            });
+        }
+        let mut ms = conv_spec(1, false);
+        (ms.face_h, ms.face_w) = (fh, fw);
+        ms.mu = vec![256; fh as usize * fw as usize];
+        ms.sigma = vec![256; fh as usize * fw as usize];
+        ms.layers = layers;
+        let bytes = ms.to_bytes().unwrap();
+        let m = Model::parse(&bytes).unwrap();
+        assert_eq!(grey_layer(&m), Some(2));
+        let (d, c) = (&m.layers[1], &m.layers[2]);
+        let (drq, crq) = (Requant::of(d), Requant::of(c).last());
+        let x: Vec<i16> = (0..n_in)
+            .map(|_| (r.unit() * 0.9 * 16384.0) as i16)
+            .collect();
+        // The layers one by one.
+        let mut mid = vec![0i16; d.output.len()];
+        run_layer_as(d, drq, &x, &mut mid).unwrap();
+        let mut want = vec![0i16; c.output.len()];
+        run_layer_as(c, crq, &mid, &mut want).unwrap();
+        if crop {
+            let l = &m.layers[3];
+            let mut cropped = vec![0i16; l.output.len()];
+            run_layer_as(l, Requant::of(l), &want, &mut cropped).unwrap();
+            want = cropped;
+        }
+        // Fused, in word-aligned buffers as the decoder's.
+        let f = arm::Fused::of(d, drq, c, crq).unwrap_or_else(|| panic!("seed {seed}: not fused"));
+        let f = if crop {
+            f.with_crop(&m.layers[3]).expect("crop fused")
+        } else {
+            f
+        };
+        let mut buf = vec![0u32; MAX_ACTIVATION_LEN / 2];
+        let mut mid = vec![0x5a5a_5a5au32; MAX_ACTIVATION_LEN / 2];
+        let b16: &mut [i16] = bytemuck::cast_slice_mut(&mut buf);
+        b16[..n_in].copy_from_slice(&x);
+        f.run(b16, bytemuck::cast_slice_mut(&mut mid)).unwrap();
+        assert_eq!(
+            &b16[..want.len()],
+            &want[..],
+            "seed {seed}: p {p} {h}x{w} i8 {i8w} crop {crop}"
+        );
+    }
+}
