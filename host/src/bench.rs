@@ -499,3 +499,33 @@ fn print_table(v: &Value) {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The benchmark image's faces equal the host build's for both weight types (the assembly
+    /// kernels differ: SMLAD on i16 pairs, SXTB16 + SMLAD on i8), and it reports every stage.
+    #[test]
+    fn qemu_bench_faces_match_the_host_for_i8_and_i16() {
+        use msr_sim::qemu;
+        if !qemu::qemu_available()
+            || qemu::find_image(qemu::BENCH_IMAGE).is_err()
+            || qemu::find_image(qemu::BOARD_IMAGE).is_err()
+        {
+            eprintln!("skipped: QEMU or the firmware images are missing (cargo xtask images)");
+            return;
+        }
+        for i8w in [false, true] {
+            for kind in [ArchKind::Conv, ArchKind::Mlp] {
+                let m = synthetic_with(kind, i8w).unwrap();
+                let v = bench_qemu(&m).unwrap();
+                assert_eq!(v["faces_match_host"], true);
+                for s in ["decoder", "saliency", "blobs", "reach"] {
+                    assert!(v["stages"][s].as_u64().unwrap() > 0, "{kind:?} i8 {i8w}: {s}");
+                }
+                assert_eq!(v["marks_found"], 2, "{kind:?} i8 {i8w}");
+            }
+        }
+    }
+}
