@@ -1,12 +1,13 @@
-//! Fast paths for i16 weights: multiply-accumulates in pairs (SMLAD on the Cortex-M4).
+//! Fast paths: multiply-accumulates in pairs (SMLAD on the Cortex-M4).
 //!
-//! - Dense: a weight row and the input are read as words of two i16; four outputs share each
-//!   input word.
+//! - Dense (i16 weights): a weight row and the input are read as words of two i16; four outputs
+//!   share each input word. On the M4 rows of a multiple of four words go to the assembly
+//!   (`super::arm`), in pairs when the activation has a table step, else one at a time.
 //! - ConvTranspose2d: split by output phase (`ox mod stride`), each output of a phase reads a
 //!   fixed set of taps; two horizontally adjacent taps read two adjacent input pixels, i.e. one
 //!   word, so a tap pair is one SMLAD with a pre-packed weight pair. Four outputs of a phase
-//!   share each weight pair. Border outputs, whose taps fall outside the input, take the
-//!   generic path.
+//!   share each weight pair (packed from i8 or i16 weights). Border outputs, whose taps fall
+//!   outside the input, take the generic path.
 //!
 //! [`smlad`] is the instruction on ARM and the same wrapping sum elsewhere: bit-identical.
 
