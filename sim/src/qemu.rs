@@ -314,7 +314,7 @@ pub struct Lockstep {
 }
 
 /// Most bytes one tick may bring to one link (the image's buffer).
-pub const LOCKSTEP_MAX_TICK_BYTES: usize = 4096;
+pub const LOCKSTEP_MAX_TICK_BYTES: usize = 1024;
 
 impl Lockstep {
     /// Starts `image` and waits for its start-up message; returns the CRC of the model it runs

@@ -65,8 +65,9 @@ use std::collections::VecDeque;
 const CROP: [u16; 2] = [120, 60];
 /// The board's tick, as the sim's world ticks.
 const TICK_US: u32 = 1000;
-/// Host bytes per tick: a fast link (the QEMU UART is the bottleneck, not this).
-const HOST_BYTES_PER_TICK: usize = 2048;
+/// Host bytes per tick: a fast link (the QEMU UART is the bottleneck, not this), within what
+/// the board image buffers per tick (`msr_sim::qemu::LOCKSTEP_MAX_TICK_BYTES`).
+const HOST_BYTES_PER_TICK: usize = 1024;
 
 /// What the emulated servos saw.
 #[derive(Default)]

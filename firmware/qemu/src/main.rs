@@ -90,9 +90,9 @@ mod ctl {
     }
 }
 
-/// Bytes a link may hold between the UART and the board in lockstep: more than a tick brings at
-/// any baud rate the sim uses (921600 baud: 92 bytes per millisecond).
-const FIFO: usize = 4096;
+/// Bytes a link may hold between the UART and the board in lockstep: ten times what a 1 ms tick
+/// brings at the sim's 921600 baud (92 bytes), small because static RAM is budgeted (64 KiB).
+const FIFO: usize = 1024;
 
 /// One UART as the board sees it: read straight from the UART (free running) or from what the
 /// tick brought (lockstep); bytes written are counted for the tick's answer.
