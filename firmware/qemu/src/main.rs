@@ -6,11 +6,11 @@
 //!   Under `-icount shift=0` that is QEMU's virtual time; the image sleeps (`wfi`) when it has
 //!   nothing to do, so virtual time follows real time while idle (see [`uart::idle`]).
 //! - **lockstep** (after a reset asked for with `R tick` on UART2, see [`ctl`]): the simulation
-//!   drives the clock. Each `T`
-//!   command is one tick: it says how many bytes the host wrote to UART0 and UART1 during the
-//!   tick; the image reads exactly those, runs one `Board::poll` at the tick's time, and answers
-//!   with how many bytes the board wrote. The simulated world and the board then share one time
-//!   base whatever the host's load, exactly as the in-process firmware does.
+//!   drives the clock. Each `T` command is one tick: it says how many bytes the host wrote to
+//!   UART0 and UART1 during the tick; the image reads exactly those, runs one `Board::poll` at the
+//!   tick's time, and answers with how many bytes the board wrote. The simulated world and the
+//!   board then share one time base whatever the host's load, exactly as the in-process firmware
+//!   does.
 //!
 //! The model is the built-in one (`MSR_MODEL_BLOB` at build time), whatever the host uploads
 //! (`ModelBegin` / `ModelChunk` / `ModelCommit`) into the two flash slots, or the one a reset
