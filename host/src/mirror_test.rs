@@ -30,7 +30,8 @@ pub struct Args {
     /// Share of trials without a mark
     #[arg(long, default_value_t = 0.2)]
     pub no_mark_share: f64,
-    /// Trials run at once (each takes two threads); default: the machine's cores, at most 4
+    /// Trials run at once in-process (each takes two threads); default: the machine's cores, at
+    /// most 4. QEMU trials run one after another on one QEMU, reset between trials.
     #[arg(long)]
     pub parallel: Option<usize>,
     /// Also write every trial (mark, reach, error, why it failed) to this JSON file
