@@ -765,3 +765,20 @@ pub fn read_model(path: &std::path::Path) -> Result<Vec<u8>> {
     Model::parse(&bytes).map_err(|e| anyhow!("model {}: {e}", path.display()))?;
     Ok(bytes)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn trial_seeds_wrap_and_differ() {
+        // Debug builds check overflow: large indices and seeds must wrap, not panic.
+        let seeds: Vec<u64> = (0..300).map(|i| trial_seed(u64::MAX, i)).collect();
+        let mut unique = seeds.clone();
+        unique.sort_unstable();
+        unique.dedup();
+        assert_eq!(unique.len(), seeds.len());
+        assert_eq!(trial_seed(0, 0), 1);
+        assert_ne!(trial_seed(0, 7), trial_seed(1, 7));
+    }
+}
