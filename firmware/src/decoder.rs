@@ -28,6 +28,8 @@ use msr_shared::blob::{Activation, Layer, LayerKind, Model, WeightType, MAX_ACTI
 #[cfg_attr(not(target_arch = "arm"), allow(dead_code))]
 mod arm;
 mod fast;
+#[cfg_attr(not(target_arch = "arm"), allow(dead_code))]
+mod fused;
 mod kernels;
 mod tanh_table;
 
@@ -188,7 +190,7 @@ impl Decoder {
             {
                 let fused = || {
                     let next = model.layers.get(i + 1).filter(|_| grey_at == Some(i + 1))?;
-                    arm::Fused::of(layer, rq(i), next, rq(i + 1))
+                    fused::Fused::of(layer, rq(i), next, rq(i + 1))
                 };
                 let with_crop = model
                     .layers
@@ -535,6 +537,14 @@ pub(crate) fn run_layer_as(l: &Layer, rq: Requant, src: &[i16], dst: &mut [i16])
     };
     if l.bias_count() != bias_n {
         return Err(());
+    }
+    // The blocked order (see msr_shared::blob) as stored, or through the PyTorch-order
+    // accessors when the tables are not aligned.
+    if !l.torch_order() {
+        return match (kernels::AnyWeights::of(l), l.bias_i32()) {
+            (Some(w), Some(b)) => kernels::dense_blocked(l, rq, &w, &b, x, y),
+            _ => kernels::layer(l, rq, &kernels::Raw(l), &kernels::RawBias(l), x, y),
+        };
     }
     // Dense rows in pairs for i16 weights.
     if l.weight_type == WeightType::I16 && l.kind == LayerKind::Dense && n_in.is_multiple_of(2) {

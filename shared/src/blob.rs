@@ -11,7 +11,7 @@
 //!  32  sigma_floor f32       36  reserved u32 (0)
 //! n_layers x layer:
 //!   descriptor (LAYER_DESC_LEN = 32 bytes)
-//!     0 kind u8  1 activation u8  2 weight dtype u8  3 reserved u8 (0)
+//!     0 kind u8  1 activation u8  2 weight dtype u8  3 weight order u8 (0 PyTorch, 1 blocked)
 //!     4 in_c u16  6 in_h u16  8 in_w u16  10 out_c u16  12 out_h u16  14 out_w u16
 //!    16 kernel u8  17 stride u8  18 padding u8  19 reserved u8 (0)
 //!    20 crop_top u16  22 crop_left u16
@@ -35,6 +35,15 @@
 //! `padding`) `[out_c][in_c][k][k]`. Bias: Dense one per output element; the convolutions one per
 //! output channel.
 //!
+//! Weight order 1 ([`WeightOrder::Blocked`], version 2; Dense only, inputs a multiple of
+//! [`BLOCK`]): the weights of an output `C x H x W` are stored `[y][x][g][c][BLOCK]` for input
+//! `BLOCK * g + r`, and the biases `[y][x][c]`: per output pixel, in blocks of 8 inputs, the C
+//! channels' rows in turn, the order in which the board's kernel reads them (all channels of a
+//! pixel per pass, one load after the other). [`Layer::weight`] and [`Layer::bias`] take PyTorch
+//! indices whatever the order. The writer uses it for an i16 Dense of 4 channels feeding a
+//! ConvTranspose2d (the conv decoder's big layer) and writes version 1, which older readers
+//! take, when no layer uses it.
+//!
 //! [`Model::parse`] checks all of it (magic, version, lengths, CRC, every shape and the chaining of
 //! layers) and borrows the tables from the input bytes, so a blob in flash costs no RAM.
 
@@ -42,7 +51,10 @@ use core::fmt;
 use serde::{Deserialize, Serialize};
 
 pub const MAGIC: [u8; 4] = *b"MSRM";
-pub const VERSION: u16 = 1;
+/// The newest version this build reads and writes (version 1 has no weight order byte).
+pub const VERSION: u16 = 2;
+/// Inputs per block of the blocked weight order.
+pub const BLOCK: usize = 8;
 pub const HEADER_LEN: usize = 40;
 pub const LAYER_DESC_LEN: usize = 32;
 /// Largest face the board handles.
@@ -100,6 +112,15 @@ pub enum Activation {
     Tanh,
     Sigmoid,
     Relu,
+}
+
+/// How a layer's weights are ordered in the blob (see the module notes).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum WeightOrder {
+    /// PyTorch's order.
+    Torch,
+    /// Dense only: `[y][x][g][c][BLOCK]` over the output pixels, input blocks and channels.
+    Blocked,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -198,7 +219,7 @@ impl fmt::Display for BlobError {
             BlobError::Truncated => f.write_str("model blob is truncated"),
             BlobError::BadMagic => f.write_str("not a model blob (bad magic)"),
             BlobError::UnsupportedVersion(v) => {
-                write!(f, "model blob version {v}, this build reads {VERSION}")
+                write!(f, "model blob version {v}, this build reads 1..={VERSION}")
             }
             BlobError::BadHeader => f.write_str("model blob header is malformed"),
             BlobError::LengthMismatch => f.write_str("model blob length disagrees with its header"),
@@ -242,6 +263,7 @@ pub struct Layer<'a> {
     pub kind: LayerKind,
     pub activation: Activation,
     pub weight_type: WeightType,
+    pub order: WeightOrder,
     pub input: Shape,
     pub output: Shape,
     pub kernel: u8,
@@ -263,9 +285,10 @@ impl<'a> Layer<'a> {
         self.weights.len() / self.weight_type.size()
     }
 
-    /// Weight `i` as an integer. Panics if out of range, like slice indexing.
+    /// Weight `i` (PyTorch index) as an integer. Panics if out of range, like slice indexing.
     #[inline]
     pub fn weight(&self, i: usize) -> i32 {
+        let i = self.stored_index(i);
         match self.weight_type {
             WeightType::I8 => self.weights[i] as i8 as i32,
             WeightType::I16 => {
@@ -274,17 +297,46 @@ impl<'a> Layer<'a> {
         }
     }
 
+    /// Where weight `i` (PyTorch index) is stored in [`Layer::weights`].
+    #[inline]
+    pub fn stored_index(&self, i: usize) -> usize {
+        match self.order {
+            WeightOrder::Torch => i,
+            WeightOrder::Blocked => {
+                let n_in = self.input.len();
+                let (c_n, hw) = (self.output.c as usize, self.output.h as usize * self.output.w as usize);
+                let (o, j) = (i / n_in, i % n_in);
+                let (c, px) = (o / hw, o % hw);
+                ((px * (n_in / BLOCK) + j / BLOCK) * c_n + c) * BLOCK + j % BLOCK
+            }
+        }
+    }
+
+    /// The raw tables ([`Layer::weights_i16`], [`Layer::weights_i8`]) are in PyTorch order.
+    pub fn torch_order(&self) -> bool {
+        self.order == WeightOrder::Torch
+    }
+
     pub fn bias_count(&self) -> usize {
         self.bias.len() / 4
     }
 
+    /// Bias `i` (PyTorch index).
     #[inline]
     pub fn bias(&self, i: usize) -> i32 {
+        let i = match self.order {
+            WeightOrder::Torch => i,
+            WeightOrder::Blocked => {
+                let hw = self.output.h as usize * self.output.w as usize;
+                (i % hw) * self.output.c as usize + i / hw
+            }
+        };
         let b = &self.bias[4 * i..4 * i + 4];
         i32::from_le_bytes([b[0], b[1], b[2], b[3]])
     }
 
-    /// The i16 weights as a slice, when the blob sits 2-byte aligned in memory.
+    /// The i16 weights as a slice, when the blob sits 2-byte aligned in memory, in the stored
+    /// order (see [`Layer::torch_order`]).
     #[cfg(target_endian = "little")]
     pub fn weights_i16(&self) -> Option<&'a [i16]> {
         match self.weight_type {
@@ -293,7 +345,7 @@ impl<'a> Layer<'a> {
         }
     }
 
-    /// The i8 weights as a slice.
+    /// The i8 weights as a slice, in the stored order.
     pub fn weights_i8(&self) -> Option<&'a [i8]> {
         match self.weight_type {
             WeightType::I8 => Some(bytemuck::cast_slice(self.weights)),
@@ -301,7 +353,7 @@ impl<'a> Layer<'a> {
         }
     }
 
-    /// The biases as a slice, when the blob sits 4-byte aligned in memory.
+    /// The biases as a slice, when the blob sits 4-byte aligned in memory, in the stored order.
     #[cfg(target_endian = "little")]
     pub fn bias_i32(&self) -> Option<&'a [i32]> {
         bytemuck::try_cast_slice(self.bias).ok()
@@ -494,7 +546,7 @@ impl<'a> Model<'a> {
             return Err(BlobError::BadMagic);
         }
         let version = r.u16()?;
-        if version != VERSION {
+        if !(1..=VERSION).contains(&version) {
             return Err(BlobError::UnsupportedVersion(version));
         }
         if r.u16()? as usize != HEADER_LEN {
@@ -552,6 +604,9 @@ impl<'a> Model<'a> {
         let mut prev = Shape { c: 2, h: 1, w: 1 };
         for i in 0..n_layers {
             let layer = parse_layer(&mut r, i as u8)?;
+            if version < 2 && layer.order != WeightOrder::Torch {
+                return Err(BlobError::BadLayer(i as u8));
+            }
             if i == 0 {
                 if layer.input.len() != 2 || layer.kind != LayerKind::Dense {
                     return Err(BlobError::ModelShape);
@@ -645,9 +700,11 @@ fn parse_layer<'a>(r: &mut Reader<'a>, i: u8) -> Result<Layer<'a>, BlobError> {
         2 => WeightType::I16,
         _ => return Err(bad),
     };
-    if r.u8()? != 0 {
-        return Err(bad);
-    }
+    let order = match r.u8()? {
+        0 => WeightOrder::Torch,
+        1 => WeightOrder::Blocked,
+        _ => return Err(bad),
+    };
     let input = Shape { c: r.u16()?, h: r.u16()?, w: r.u16()? };
     let output = Shape { c: r.u16()?, h: r.u16()?, w: r.u16()? };
     let kernel = r.u8()?;
@@ -672,6 +729,10 @@ fn parse_layer<'a>(r: &mut Reader<'a>, i: u8) -> Result<Layer<'a>, BlobError> {
     let weight_bytes = r.u32()? as usize;
     if input.is_empty() || output.is_empty() {
         return Err(shape_err);
+    }
+    if order == WeightOrder::Blocked && (kind != LayerKind::Dense || !input.len().is_multiple_of(BLOCK))
+    {
+        return Err(bad);
     }
     let (k, s, p) = (kernel as usize, stride as usize, padding as usize);
     let (weights, bias) = match kind {
@@ -723,6 +784,7 @@ fn parse_layer<'a>(r: &mut Reader<'a>, i: u8) -> Result<Layer<'a>, BlobError> {
         kind,
         activation,
         weight_type,
+        order,
         input,
         output,
         kernel,
@@ -796,9 +858,11 @@ mod writer {
         /// Serialises and then checks the result with [`Model::parse`], so a blob that this
         /// returns is one the board accepts.
         pub fn to_bytes(&self) -> Result<Vec<u8>, BlobError> {
+            let blocked: Vec<bool> = (0..self.layers.len()).map(|i| self.blocked(i)).collect();
+            let version: u16 = if blocked.contains(&true) { 2 } else { 1 };
             let mut o = Vec::new();
             o.extend_from_slice(&MAGIC);
-            o.extend_from_slice(&VERSION.to_le_bytes());
+            o.extend_from_slice(&version.to_le_bytes());
             o.extend_from_slice(&(HEADER_LEN as u16).to_le_bytes());
             o.extend_from_slice(&[0; 8]); // total_len, crc32: filled below
             o.extend_from_slice(&self.face_h.to_le_bytes());
@@ -821,7 +885,7 @@ mod writer {
             o.extend_from_slice(&0u32.to_le_bytes());
             debug_assert_eq!(o.len(), HEADER_LEN);
 
-            for l in &self.layers {
+            for (l, &blocked) in self.layers.iter().zip(&blocked) {
                 o.push(match l.kind {
                     LayerKind::Dense => 0,
                     LayerKind::ConvTranspose2d => 1,
@@ -838,7 +902,7 @@ mod writer {
                     Weights::I8(_) => 1,
                     Weights::I16(_) => 2,
                 });
-                o.push(0);
+                o.push(blocked as u8);
                 for v in [l.input.c, l.input.h, l.input.w, l.output.c, l.output.h, l.output.w] {
                     o.extend_from_slice(&v.to_le_bytes());
                 }
@@ -850,10 +914,17 @@ mod writer {
                     Weights::I8(v) => v.iter().map(|&x| x as u8).collect(),
                     Weights::I16(v) => v.iter().flat_map(|x| x.to_le_bytes()).collect(),
                 };
+                let w = if blocked { block(l, &w) } else { w };
                 o.extend_from_slice(&(w.len() as u32).to_le_bytes());
                 o.extend_from_slice(&w);
                 pad(&mut o);
-                for b in &l.bias {
+                let bias: Vec<i32> = if blocked {
+                    let (c_n, hw) = (l.output.c as usize, l.output.h as usize * l.output.w as usize);
+                    (0..l.bias.len()).map(|j| l.bias[(j % c_n) * hw + j / c_n]).collect()
+                } else {
+                    l.bias.clone()
+                };
+                for b in &bias {
                     o.extend_from_slice(&b.to_le_bytes());
                 }
             }
@@ -879,6 +950,37 @@ mod writer {
             Model::parse(&o)?;
             Ok(o)
         }
+    }
+
+    impl ModelSpec {
+        /// Whether layer `i` is written in the blocked order: an i16 Dense of 4 output channels
+        /// feeding a ConvTranspose2d, inputs a multiple of [`BLOCK`] (the board's fused kernel).
+        pub fn blocked(&self, i: usize) -> bool {
+            let (l, next) = (&self.layers[i], self.layers.get(i + 1));
+            l.kind == LayerKind::Dense
+                && matches!(l.weights, Weights::I16(_))
+                && l.output.c == 4
+                && l.input.len().is_multiple_of(BLOCK)
+                && next.is_some_and(|n| n.kind == LayerKind::ConvTranspose2d)
+        }
+    }
+
+    /// The weight bytes of `l` (PyTorch order) in the blocked order.
+    fn block(l: &LayerSpec, w: &[u8]) -> Vec<u8> {
+        let size = match l.weights {
+            Weights::I8(_) => 1,
+            Weights::I16(_) => 2,
+        };
+        let n_in = l.input.len();
+        let (c_n, hw) = (l.output.c as usize, l.output.h as usize * l.output.w as usize);
+        let mut out = vec![0u8; w.len()];
+        for (i, v) in w.chunks_exact(size).enumerate() {
+            let (o, j) = (i / n_in, i % n_in);
+            let (c, px) = (o / hw, o % hw);
+            let at = ((px * (n_in / BLOCK) + j / BLOCK) * c_n + c) * BLOCK + j % BLOCK;
+            out[at * size..(at + 1) * size].copy_from_slice(v);
+        }
+        out
     }
 
     impl Reach {

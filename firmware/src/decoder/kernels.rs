@@ -5,7 +5,7 @@
 //! this one give the same bits.
 
 use super::Requant;
-use msr_shared::blob::{Layer, LayerKind};
+use msr_shared::blob::{Layer, LayerKind, BLOCK};
 
 pub(crate) trait Table {
     fn len(&self) -> usize;
@@ -148,6 +148,39 @@ pub(crate) fn dense<W: Table, B: Table>(rq: Requant, w: &W, b: &B, x: &[i16], y:
         }
         *out = rq.apply(acc);
     }
+}
+
+/// A Dense in the blob's blocked order (`w` and `b` as stored: weights `[y][x][g][c][BLOCK]`,
+/// biases `[y][x][c]`), written in the usual CHW order.
+pub(crate) fn dense_blocked<W: Table, B: Table>(
+    l: &Layer,
+    rq: Requant,
+    w: &W,
+    b: &B,
+    x: &[i16],
+    y: &mut [i16],
+) -> Result<(), ()> {
+    let (n_in, c_n) = (x.len(), l.output.c as usize);
+    let hw = l.output.h as usize * l.output.w as usize;
+    if !n_in.is_multiple_of(BLOCK)
+        || y.len() != c_n * hw
+        || w.len() != n_in * y.len()
+        || b.len() != y.len()
+    {
+        return Err(());
+    }
+    for (o, out) in y.iter_mut().enumerate() {
+        let (c, px) = (o / hw, o % hw);
+        let mut acc = b.at(px * c_n + c);
+        for (g, xb) in x.chunks_exact(BLOCK).enumerate() {
+            let at = (px * n_in + g * BLOCK) * c_n + c * BLOCK;
+            for (r, &xi) in xb.iter().enumerate() {
+                acc = acc.wrapping_add(w.at(at + r) * xi as i32);
+            }
+        }
+        *out = rq.apply(acc);
+    }
+    Ok(())
 }
 
 /// Valid (kernel tap, input index) pairs of one output coordinate, at most `MAX_K` of them.

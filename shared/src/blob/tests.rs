@@ -219,7 +219,10 @@ fn header_checks() {
         Model::parse(&b).map(|_| ())
     };
     assert_eq!(edit(0, b"MSRX"), Err(BlobError::BadMagic));
-    assert_eq!(edit(4, &[2, 0]), Err(BlobError::UnsupportedVersion(2)));
+    assert_eq!(edit(4, &[0, 0]), Err(BlobError::UnsupportedVersion(0)));
+    assert_eq!(edit(4, &[3, 0]), Err(BlobError::UnsupportedVersion(3)));
+    // Version 2 reads version 1's layout too.
+    assert!(edit(4, &[2, 0]).is_ok());
     assert_eq!(edit(6, &[41, 0]), Err(BlobError::BadHeader));
     assert_eq!(edit(16, &[0, 0]), Err(BlobError::FaceSize));
     assert_eq!(edit(16, &[65, 0]), Err(BlobError::FaceSize));
@@ -402,4 +405,78 @@ proptest! {
         let m = Model::parse(&b).unwrap();
         prop_assert_eq!(m.novelty, s.novelty);
     }
+}
+
+/// 2 -> 8 -> 4x2x3 (i16, blocked) -> convT k4 s2 p1 -> 1x4x6.
+fn blocked_spec() -> ModelSpec {
+    let mut s = mlp_spec();
+    s.template = None;
+    s.face_h = 4;
+    s.face_w = 6;
+    s.mu = vec![0; 24];
+    s.sigma = vec![256; 24];
+    let mut convt = dense(sh(4, 2, 3), sh(1, 4, 6), Activation::Sigmoid, true);
+    convt.kind = LayerKind::ConvTranspose2d;
+    convt.kernel = 4;
+    convt.stride = 2;
+    convt.padding = 1;
+    convt.weights = Weights::I16((0..4 * 16).map(|i| i as i16 - 30).collect());
+    convt.bias = vec![3];
+    s.layers = vec![
+        dense(sh(2, 1, 1), sh(8, 1, 1), Activation::Tanh, true),
+        dense(sh(8, 1, 1), sh(4, 2, 3), Activation::Tanh, true),
+        convt,
+    ];
+    s
+}
+
+#[test]
+fn blocked_order_round_trip() {
+    let spec = blocked_spec();
+    assert_eq!((0..3).map(|i| spec.blocked(i)).collect::<Vec<_>>(), [false, true, false]);
+    let bytes = spec.to_bytes().unwrap();
+    assert_eq!(&bytes[4..6], &[2, 0], "a blocked layer makes a version 2 blob");
+    let m = Model::parse(&bytes).unwrap();
+    let l = &m.layers[1];
+    assert_eq!(l.order, WeightOrder::Blocked);
+    assert!(!l.torch_order() && m.layers[0].torch_order());
+    let Weights::I16(w) = &spec.layers[1].weights else { unreachable!() };
+    for (i, &v) in w.iter().enumerate() {
+        assert_eq!(l.weight(i), v as i32, "weight {i}");
+    }
+    for (i, &b) in spec.layers[1].bias.iter().enumerate() {
+        assert_eq!(l.bias(i), b, "bias {i}");
+    }
+    // Stored per pixel: bias of (c 1, pixel 2) at 2 * 4 + 1.
+    assert_eq!(l.bias[36..40], spec.layers[1].bias[8].to_le_bytes());
+    // Output (c 1, y 0, x 2) = row 8, input 5: pixel 2, block 0, channel 1 -> (2*1*4 + 1)*8 + 5.
+    assert_eq!(l.stored_index(8 * 8 + 5), 77);
+    // Every stored place is used once.
+    let mut seen = vec![false; w.len()];
+    (0..w.len()).for_each(|i| seen[l.stored_index(i)] = true);
+    assert!(seen.iter().all(|&s| s));
+    // i8 weights, or no convolution after it, stay in PyTorch order (version 1).
+    let mut s8 = spec.clone();
+    s8.layers[1] = dense(sh(8, 1, 1), sh(4, 2, 3), Activation::Tanh, false);
+    assert!(!s8.blocked(1));
+    assert_eq!(&s8.to_bytes().unwrap()[4..6], &[1, 0]);
+}
+
+#[test]
+fn blocked_order_checks() {
+    let good = blocked_spec().to_bytes().unwrap();
+    // Descriptor byte 3 of layer 1 (after layer 0: 32 + 16 weights*2 + 8 biases*4).
+    let at = HEADER_LEN + LAYER_DESC_LEN + 32 + 32 + 3;
+    assert_eq!(good[at], 1);
+    let edit = |at: usize, v: &[u8]| {
+        let mut b = good.clone();
+        b[at..at + v.len()].copy_from_slice(v);
+        recrc(&mut b);
+        Model::parse(&b).map(|_| ())
+    };
+    assert_eq!(edit(at, &[0]), Ok(()), "PyTorch order is still a valid layout");
+    assert_eq!(edit(at, &[2]), Err(BlobError::BadLayer(1)));
+    assert_eq!(edit(4, &[1, 0]), Err(BlobError::BadLayer(1)), "version 1 has no order byte");
+    // Blocked is for Dense layers only, and the first layer's 2 inputs are not a block.
+    assert_eq!(edit(HEADER_LEN + 3, &[1]), Err(BlobError::BadLayer(0)));
 }

@@ -1,0 +1,696 @@
+//! A tanh Dense feeding the last ConvTranspose2d (k4 s2, 4 input channels, sigmoid to grey),
+//! run as one step on the Cortex-M4 (the conv decoder's two big layers).
+//!
+//! - The Dense writes a zero-bordered, channel-interleaved image (`mid`): one pixel is the four
+//!   channels' i16 = two words, rows [`STRIDE`] pixels apart (a constant, so that the convolution
+//!   reaches the next row by an immediate offset). With weights in the blob's blocked order
+//!   (i16), `msr_dense_px4` computes the four channels of one pixel per pass: the weights stream
+//!   in one `LDM` after the other, the four results are stored as two packed words (tanh step
+//!   rounded by `SHADD16` when `out_shift` is 14). i8 weights (PyTorch order) take the 2-row
+//!   kernel of `arm` writing every fourth halfword.
+//! - The convolution computes four adjacent outputs of a row per pass (`msr_convt4_grey`): both
+//!   column phases, each output 16 MACs (2 x 2 taps x 4 channels) as 8 `SMLAD` on channel pairs;
+//!   the pass reads 4 pixels of 2 input rows. The grey step is `y - (y >> 8)` then `+32640` on
+//!   both packed halves. The window (the crop after the convolution) is computed in groups of
+//!   four from an output whose column phase suits the kernel; a first output of the other phase
+//!   is computed alone, and the last group may compute up to 3 outputs past the row end: they
+//!   land on the next row's first outputs before those are computed (rows run top down), or, in
+//!   the last row, in the buffer's slack.
+//!
+//! Elsewhere (the host's tests) the two routines are Rust, step for step, so that what surrounds
+//! them (padding, packing, phases, crop) is tested against the layer-by-layer path.
+
+use super::arm::{dense2_i8_x4, pair_i8, I8_BLOCK, I8_MAX_IN};
+use super::fast::smlad;
+use super::kernels::{AnyWeights, Table};
+use super::{AsmAct, Requant};
+use msr_shared::blob::{Layer, LayerKind, WeightOrder, WeightType, BLOCK, MAX_ACTIVATION_LEN};
+
+/// Pixels per row of `mid` (row bytes = STRIDE * 8, an `LDRD` offset).
+pub(crate) const STRIDE: usize = 52;
+/// Channels of `mid`.
+const C: usize = 4;
+/// Most input blocks (of 8) of the px4 Dense (its unrolled block).
+const PX4_MAX_GROUPS: usize = 16;
+
+/// What `msr_dense_px4` reads, in its frame's order.
+#[repr(C)]
+struct Px4Job {
+    y: *mut i16,
+    bias: *const i32,
+    table: *const i16,
+    sh: u32,
+    /// `(1 << k) >> 1`, or `0x0001_0001` when `k1` (the `SHADD16` operand).
+    rnd: u32,
+    k: u32,
+    y_end: *mut i16,
+    x: *const u32,
+    groups: u32,
+    w: *const u32,
+    k1: u32,
+}
+
+/// What `msr_convt4_grey` reads.
+#[repr(C)]
+struct Conv4Job {
+    x: *const u32,
+    w: *const u32,
+    y: *mut i16,
+    groups: u32,
+    table: *const i16,
+    sh: u32,
+    bias: i32,
+}
+
+// One pass: 4 biases (stored per pixel), then per block of 8 inputs one LDM of x and one LDM
+// of each channel's weights (blocked order: the next 4 words), 16 SMLAD; then the tanh step of
+// the four, packed, one STRD. r0-r3 acc, r4-r7 x, r8-r11 w, r12 x, lr w.
+// Frame: y, bias, table, sh, rnd, k, y_end, x (LDM'd as r4-r10, r12), entry, act.
+#[cfg(target_arch = "arm")]
+core::arch::global_asm!(
+    ".section .text.msr_dense_px4,\"ax\",%progbits",
+    ".global msr_dense_px4",
+    ".type msr_dense_px4,%function",
+    ".p2align 2",
+    ".thumb_func",
+    "msr_dense_px4:",
+    "push {{r4-r11, lr}}",
+    "sub sp, sp, #40",
+    // r1 y, r2 bias, r3 table, r4 sh, r5 rnd, r6 k, r7 y_end, r8 x, r9 groups, r10 w, r11 k1.
+    "ldm r0, {{r1-r11}}",
+    "stm sp, {{r1-r8}}",
+    // Entry into the unrolled block: 4f - groups * 84.
+    "movs r0, #84",
+    "mul r9, r9, r0",
+    "adr.w r0, 4f",
+    "subs r0, r0, r9",
+    "orr r0, r0, #1",
+    "str r0, [sp, #32]",
+    // The act step: 8f (SHADD16) when k1, else 9f.
+    "cmp r11, #0",
+    "bne 6f",
+    "adr.w r0, 9f",
+    "b 7f",
+    "6:",
+    "adr.w r0, 8f",
+    "7:",
+    "orr r0, r0, #1",
+    "str r0, [sp, #36]",
+    "mov r12, r8",
+    "mov lr, r10",
+    "mov r5, r2",
+    "ldm r5!, {{r0-r3}}",
+    "str r5, [sp, #4]",
+    "ldr pc, [sp, #32]",
+    ".p2align 2",
+    "3:",
+    ".rept 16",
+    "ldm.w r12!, {{r4-r7}}",
+    "ldm.w lr!, {{r8-r11}}",
+    "smlad r0, r4, r8, r0",
+    "smlad r0, r5, r9, r0",
+    "smlad r0, r6, r10, r0",
+    "smlad r0, r7, r11, r0",
+    "ldm.w lr!, {{r8-r11}}",
+    "smlad r1, r4, r8, r1",
+    "smlad r1, r5, r9, r1",
+    "smlad r1, r6, r10, r1",
+    "smlad r1, r7, r11, r1",
+    "ldm.w lr!, {{r8-r11}}",
+    "smlad r2, r4, r8, r2",
+    "smlad r2, r5, r9, r2",
+    "smlad r2, r6, r10, r2",
+    "smlad r2, r7, r11, r2",
+    "ldm.w lr!, {{r8-r11}}",
+    "smlad r3, r4, r8, r3",
+    "smlad r3, r5, r9, r3",
+    "smlad r3, r6, r10, r3",
+    "smlad r3, r7, r11, r3",
+    ".endr",
+    "4:",
+    // r4 y, r5 bias, r6 table, r7 sh, r8 rnd, r9 k, r10 y_end, r12 x (reset).
+    "ldm sp, {{r4-r10, r12}}",
+    "ldr pc, [sp, #36]",
+    // out_shift 14: (y + 1) >> 1 on both halves by SHADD16 (r8 = 0x00010001).
+    "8:",
+    "asr r0, r0, r7",
+    "ssat r0, #13, r0",
+    "ldrsh.w r0, [r6, r0, lsl #1]",
+    "asr r1, r1, r7",
+    "ssat r1, #13, r1",
+    "ldrsh.w r1, [r6, r1, lsl #1]",
+    "asr r2, r2, r7",
+    "ssat r2, #13, r2",
+    "ldrsh.w r2, [r6, r2, lsl #1]",
+    "asr r3, r3, r7",
+    "ssat r3, #13, r3",
+    "ldrsh.w r3, [r6, r3, lsl #1]",
+    "pkhbt r0, r0, r1, lsl #16",
+    "pkhbt r2, r2, r3, lsl #16",
+    "shadd16 r0, r0, r8",
+    "shadd16 r2, r2, r8",
+    "strd r0, r2, [r4], #8",
+    "cmp r4, r10",
+    "beq 5f",
+    "ldm r5!, {{r0-r3}}",
+    "stm sp, {{r4, r5}}",
+    "ldr pc, [sp, #32]",
+    // Any out_shift: (y + rnd) >> k each.
+    "9:",
+    "asr r0, r0, r7",
+    "ssat r0, #13, r0",
+    "ldrsh.w r0, [r6, r0, lsl #1]",
+    "add r0, r0, r8",
+    "asr r0, r0, r9",
+    "asr r1, r1, r7",
+    "ssat r1, #13, r1",
+    "ldrsh.w r1, [r6, r1, lsl #1]",
+    "add r1, r1, r8",
+    "asr r1, r1, r9",
+    "asr r2, r2, r7",
+    "ssat r2, #13, r2",
+    "ldrsh.w r2, [r6, r2, lsl #1]",
+    "add r2, r2, r8",
+    "asr r2, r2, r9",
+    "asr r3, r3, r7",
+    "ssat r3, #13, r3",
+    "ldrsh.w r3, [r6, r3, lsl #1]",
+    "add r3, r3, r8",
+    "asr r3, r3, r9",
+    "pkhbt r0, r0, r1, lsl #16",
+    "pkhbt r2, r2, r3, lsl #16",
+    "strd r0, r2, [r4], #8",
+    "cmp r4, r10",
+    "beq 5f",
+    "ldm r5!, {{r0-r3}}",
+    "stm sp, {{r4, r5}}",
+    "ldr pc, [sp, #32]",
+    "5:",
+    "add sp, sp, #40",
+    "pop {{r4-r11, pc}}",
+    ".size msr_dense_px4, . - msr_dense_px4",
+);
+
+// Four adjacent outputs per pass. Slots 0 and 2 take weights W0, slots 1 and 3 W1; slot j reads
+// pixels (P_d, P_d+1), d = 0, 1, 1, 2, of row A (at r12) and row B (STRIDE * 8 bytes on).
+// Weights: W0A, W1A, W0B, W1B (4 words each: column A c01, c23, column B c01, c23).
+// r0-r3 acc, r4-r7 x, r8-r11 w, r12 x, lr w. Frame: y, table, sh, 32640 x 2, y_end, bias x 4.
+#[cfg(target_arch = "arm")]
+core::arch::global_asm!(
+    ".section .text.msr_convt4_grey,\"ax\",%progbits",
+    ".global msr_convt4_grey",
+    ".type msr_convt4_grey,%function",
+    ".p2align 2",
+    ".thumb_func",
+    "msr_convt4_grey:",
+    "push {{r4-r11, lr}}",
+    "sub sp, sp, #40",
+    // r1 x, r2 w, r3 y, r4 groups, r5 table, r6 sh, r7 bias.
+    "ldm r0, {{r1-r7}}",
+    "movw r8, #32640",
+    "movt r8, #32640",
+    "add r9, r3, r4, lsl #3",
+    "stm sp, {{r3, r5, r6, r8, r9}}",
+    "str r7, [sp, #20]",
+    "str r7, [sp, #24]",
+    "str r7, [sp, #28]",
+    "str r7, [sp, #32]",
+    "mov r12, r1",
+    "mov lr, r2",
+    "1:",
+    "ldrd r0, r1, [sp, #20]",
+    "ldrd r2, r3, [sp, #28]",
+    // Row A.
+    "ldm r12!, {{r4-r7}}",
+    "ldm lr!, {{r8-r11}}",
+    "smlad r0, r4, r8, r0",
+    "smlad r0, r5, r9, r0",
+    "smlad r0, r6, r10, r0",
+    "smlad r0, r7, r11, r0",
+    "ldrd r4, r5, [r12]",
+    "smlad r2, r6, r8, r2",
+    "smlad r2, r7, r9, r2",
+    "smlad r2, r4, r10, r2",
+    "smlad r2, r5, r11, r2",
+    "ldm lr!, {{r8-r11}}",
+    "smlad r1, r6, r8, r1",
+    "smlad r1, r7, r9, r1",
+    "smlad r1, r4, r10, r1",
+    "smlad r1, r5, r11, r1",
+    "ldrd r6, r7, [r12, #8]",
+    "smlad r3, r4, r8, r3",
+    "smlad r3, r5, r9, r3",
+    "smlad r3, r6, r10, r3",
+    "smlad r3, r7, r11, r3",
+    // Row B (r12 has moved on 16 bytes).
+    "ldrd r4, r5, [r12, #400]",
+    "ldrd r6, r7, [r12, #408]",
+    "ldm lr!, {{r8-r11}}",
+    "smlad r0, r4, r8, r0",
+    "smlad r0, r5, r9, r0",
+    "smlad r0, r6, r10, r0",
+    "smlad r0, r7, r11, r0",
+    "ldrd r4, r5, [r12, #416]",
+    "smlad r2, r6, r8, r2",
+    "smlad r2, r7, r9, r2",
+    "smlad r2, r4, r10, r2",
+    "smlad r2, r5, r11, r2",
+    "ldm lr!, {{r8-r11}}",
+    "smlad r1, r6, r8, r1",
+    "smlad r1, r7, r9, r1",
+    "smlad r1, r4, r10, r1",
+    "smlad r1, r5, r11, r1",
+    "ldrd r6, r7, [r12, #424]",
+    "smlad r3, r4, r8, r3",
+    "smlad r3, r5, r9, r3",
+    "smlad r3, r6, r10, r3",
+    "smlad r3, r7, r11, r3",
+    "sub lr, lr, #64",
+    // r4 y, r5 table, r6 sh, r7 32640 x 2, r8 y_end.
+    "ldm sp, {{r4-r8}}",
+    "asr r0, r0, r6",
+    "ssat r0, #13, r0",
+    "ldrsh.w r0, [r5, r0, lsl #1]",
+    "sub r0, r0, r0, asr #8",
+    "asr r1, r1, r6",
+    "ssat r1, #13, r1",
+    "ldrsh.w r1, [r5, r1, lsl #1]",
+    "sub r1, r1, r1, asr #8",
+    "asr r2, r2, r6",
+    "ssat r2, #13, r2",
+    "ldrsh.w r2, [r5, r2, lsl #1]",
+    "sub r2, r2, r2, asr #8",
+    "asr r3, r3, r6",
+    "ssat r3, #13, r3",
+    "ldrsh.w r3, [r5, r3, lsl #1]",
+    "sub r3, r3, r3, asr #8",
+    "pkhbt r0, r0, r1, lsl #16",
+    "pkhbt r2, r2, r3, lsl #16",
+    "sadd16 r0, r0, r7",
+    "sadd16 r2, r2, r7",
+    "str r0, [r4], #4",
+    "str r2, [r4], #4",
+    "str r4, [sp]",
+    "cmp r4, r8",
+    "bne 1b",
+    "add sp, sp, #40",
+    "pop {{r4-r11, pc}}",
+    ".size msr_convt4_grey, . - msr_convt4_grey",
+);
+
+// The row offsets above are STRIDE * 8 - 16, - 8, + 0, + 8.
+const _: () = assert!(STRIDE * 8 == 416);
+
+#[cfg(target_arch = "arm")]
+extern "C" {
+    fn msr_dense_px4(job: *const Px4Job);
+    fn msr_convt4_grey(job: *const Conv4Job);
+}
+
+#[cfg(not(target_arch = "arm"))]
+use portable::*;
+
+#[cfg(not(target_arch = "arm"))]
+mod portable {
+    use super::{Conv4Job, Px4Job, BLOCK, C, STRIDE};
+    use crate::decoder::fast::smlad;
+
+    /// The tanh step as the assembly does it (`SHADD16` when k1).
+    unsafe fn tanh(job: &Px4Job, acc: i32) -> i16 {
+        let i = (acc >> job.sh).clamp(-4096, 4095);
+        // SAFETY: the table's centre, i within its half-length.
+        let y = unsafe { *job.table.offset(i as isize) } as i32;
+        let r = if job.k1 != 0 {
+            (y + 1) >> 1
+        } else {
+            (y + job.rnd as i32) >> job.k
+        };
+        r as i16
+    }
+
+    pub(super) unsafe fn msr_dense_px4(job: *const Px4Job) {
+        let j = unsafe { &*job };
+        let (mut y, mut b, mut w) = (j.y, j.bias, j.w);
+        while y != j.y_end {
+            let mut acc = [0i32; C];
+            for (c, a) in acc.iter_mut().enumerate() {
+                *a = unsafe { *b.add(c) };
+            }
+            for g in 0..j.groups as usize {
+                for a in acc.iter_mut() {
+                    for t in 0..BLOCK / 2 {
+                        let (wv, xv) = unsafe { (*w.add(t), *j.x.add(g * BLOCK / 2 + t)) };
+                        *a = smlad(wv, xv, *a);
+                    }
+                    w = unsafe { w.add(BLOCK / 2) };
+                }
+            }
+            for (c, &a) in acc.iter().enumerate() {
+                unsafe { *y.add(c) = tanh(j, a) };
+            }
+            unsafe {
+                y = y.add(C);
+                b = b.add(C);
+            }
+        }
+    }
+
+    pub(super) unsafe fn msr_convt4_grey(job: *const Conv4Job) {
+        let j = unsafe { &*job };
+        let (mut x, mut y) = (j.x, j.y);
+        let w = unsafe { core::slice::from_raw_parts(j.w, 16) };
+        for _ in 0..j.groups {
+            let mut acc = [j.bias; 4];
+            for row in 0..2 {
+                let xr = unsafe { x.add(row * STRIDE * 2) };
+                for (s, a) in acc.iter_mut().enumerate() {
+                    let (d, ws) = ([0, 1, 1, 2][s], &w[row * 8 + (s % 2) * 4..][..4]);
+                    for t in 0..4 {
+                        *a = smlad(unsafe { *xr.add(2 * d + t) }, ws[t], *a);
+                    }
+                }
+            }
+            for a in acc {
+                let i = (a >> j.sh).clamp(-4096, 4095);
+                // SAFETY: the table's centre, i within its half-length.
+                let t = unsafe { *j.table.offset(i as isize) } as i32;
+                unsafe {
+                    *y = (32640 + t - (t >> 8)) as u16 as i16;
+                    y = y.add(1);
+                }
+            }
+            x = unsafe { x.add(4) };
+        }
+    }
+}
+
+/// How the Dense half runs.
+#[derive(Clone, Copy)]
+enum DenseKind {
+    /// i16, blocked order: `msr_dense_px4`.
+    Px4,
+    /// i8, PyTorch order: the 2-row i8 kernel, every fourth halfword.
+    I8Rows,
+}
+
+/// The fused pair, checked: every read of the convolution stays inside `mid`, every write
+/// inside the output buffer (with the slack that [`Fused::run`] checks).
+pub(crate) struct Fused<'l, 'a> {
+    dense: &'l Layer<'a>,
+    kind: DenseKind,
+    dact: AsmAct,
+    conv: &'l Layer<'a>,
+    cact: AsmAct,
+    /// The exact crop that follows, written directly: (top, left, height, width).
+    crop: Option<(usize, usize, usize, usize)>,
+}
+
+/// The first output column of a group of four: this phase (`ox mod 2`) makes the slots read
+/// pixels 0, 1, 1, 2 (padding odd: even columns; even: odd ones).
+fn group_phase(p: usize) -> usize {
+    1 - p % 2
+}
+
+impl<'l, 'a> Fused<'l, 'a> {
+    pub(crate) fn of(
+        dense: &'l Layer<'a>,
+        drq: Requant,
+        conv: &'l Layer<'a>,
+        crq: Requant,
+    ) -> Option<Self> {
+        let dact = drq.tanh_act()?.asm_act()?;
+        let cact = crq.grey_act()?.asm_act()?;
+        let n_in = dense.input.len();
+        let kind = match (dense.weight_type, dense.order) {
+            (WeightType::I16, WeightOrder::Blocked)
+                if n_in.is_multiple_of(BLOCK) && n_in / BLOCK <= PX4_MAX_GROUPS =>
+            {
+                DenseKind::Px4
+            }
+            (WeightType::I8, WeightOrder::Torch)
+                if n_in.is_multiple_of(I8_BLOCK) && n_in <= I8_MAX_IN =>
+            {
+                DenseKind::I8Rows
+            }
+            _ => return None,
+        };
+        let (h, w) = (conv.input.h as usize, conv.input.w as usize);
+        let ok = dense.kind == LayerKind::Dense
+            && conv.kind == LayerKind::ConvTranspose2d
+            && conv.kernel == 4
+            && conv.stride == 2
+            && conv.padding <= 3
+            && conv.input.c as usize == C
+            && dense.output.len() == conv.input.len()
+            && (matches!(kind, DenseKind::Px4) || w.is_multiple_of(2))
+            && w + 2 <= STRIDE
+            && (h + 2) * STRIDE * C <= MAX_ACTIVATION_LEN
+            && AnyWeights::of(dense).is_some()
+            && dense.bias_i32().is_some()
+            && AnyWeights::of(conv).is_some()
+            && conv.bias_i32().is_some();
+        let f = Fused {
+            dense,
+            kind,
+            dact,
+            conv,
+            cact,
+            crop: None,
+        };
+        (ok && f.reads_inside()).then_some(f)
+    }
+
+    /// Also takes the crop `l` that follows (an exact copy of a window), so that the
+    /// convolution computes and writes only the window.
+    pub(crate) fn with_crop(mut self, l: &Layer) -> Option<Self> {
+        let (top, left) = (l.crop_top as usize, l.crop_left as usize);
+        let (fh, fw) = (l.output.h as usize, l.output.w as usize);
+        let c = self.conv;
+        let ok = l.kind == LayerKind::Crop
+            && l.in_shift == l.out_shift
+            && l.input == c.output
+            && l.output.c == c.output.c
+            && top + fh <= c.output.h as usize
+            && left + fw <= c.output.w as usize;
+        self.crop = Some((top, left, fh, fw));
+        (ok && self.reads_inside()).then_some(self)
+    }
+
+    /// The window: all of the output, or the crop's.
+    fn window(&self) -> (usize, usize, usize, usize) {
+        let c = self.conv;
+        self.crop
+            .unwrap_or((0, 0, c.output.h as usize, c.output.w as usize))
+    }
+
+    /// Columns of the window's groups: the first output computed alone (if its phase does not
+    /// suit), the first group's column and the number of groups.
+    fn columns(&self) -> (bool, usize, usize) {
+        let (_, left, _, fw) = self.window();
+        let q = group_phase(self.conv.padding as usize);
+        let single = left % 2 != q && fw > 0;
+        let g0 = left + single as usize;
+        (single, g0, (left + fw).saturating_sub(g0).div_ceil(4))
+    }
+
+    /// Rows (padded) and columns (in `mid`, up to STRIDE) that the convolution reads.
+    fn reads_inside(&self) -> bool {
+        let c = self.conv;
+        let p = c.padding as usize;
+        let h = c.input.h as usize;
+        let (top, left, fh, _) = self.window();
+        if fh == 0 {
+            return true;
+        }
+        // Output row 2n + py reads padded rows n + r0 and n + r0 + 1, r0 = (py + p) / 2: the
+        // last row reads the furthest.
+        let last = top + fh - 1;
+        let rows_ok = last / 2 + (last % 2 + p) / 2 + 1 <= h + 1;
+        // The single output reads 2 pixels from column m + c0; group g reads 4 from its base.
+        let (single, g0, groups) = self.columns();
+        let q = group_phase(p);
+        let single_ok = !single || left / 2 + (left % 2 + p) / 2 + 2 <= STRIDE;
+        let last_base = (g0 + 4 * groups.saturating_sub(1) - q) / 2 + (q + p) / 2;
+        rows_ok && single_ok && (groups == 0 || last_base + 4 <= STRIDE)
+    }
+
+    /// The Dense from `buf` into `mid`, then the convolution into `buf`.
+    pub(crate) fn run(&self, buf: &mut [i16], mid: &mut [i16]) -> Result<(), ()> {
+        let (d, c) = (self.dense, self.conv);
+        let (h, w) = (c.input.h as usize, c.input.w as usize);
+        let n_in = d.input.len();
+        let (Some(dw), Some(db), Some(cw), Some(cb)) = (
+            AnyWeights::of(d),
+            d.bias_i32(),
+            AnyWeights::of(c),
+            c.bias_i32(),
+        ) else {
+            return Err(());
+        };
+        let (top, left, fh, fw) = self.window();
+        let oc_n = c.output.c as usize;
+        // Up to 3 outputs past the window (see the module notes).
+        if mid.len() < (h + 2) * STRIDE * C || buf.len() < oc_n * fh * fw + 3 || cb.len() < oc_n {
+            return Err(());
+        }
+        // The input, copied out (`buf` takes the output): words of i16 pairs for i16 weights,
+        // re-paired for i8 ones.
+        let x = buf.get(..n_in).ok_or(())?;
+        let xw = match self.kind {
+            DenseKind::Px4 => {
+                let mut xw = [0u32; PX4_MAX_GROUPS * BLOCK / 2];
+                let xin: &[u32] = bytemuck::try_cast_slice(x).map_err(|_| ())?;
+                xw.get_mut(..n_in / 2).ok_or(())?.copy_from_slice(xin);
+                xw
+            }
+            DenseKind::I8Rows => {
+                let mut xw = [0u32; PX4_MAX_GROUPS * BLOCK / 2];
+                xw[..I8_MAX_IN / 2].copy_from_slice(&pair_i8(x));
+                xw
+            }
+        };
+        self.borders(mid, h, w);
+        let row = STRIDE * C;
+        match (self.kind, dw) {
+            (DenseKind::Px4, AnyWeights::I16(dw)) => {
+                let AsmAct::Tanh { table, sh, rnd, k } = self.dact else {
+                    return Err(());
+                };
+                let dw: &[u32] = bytemuck::try_cast_slice(dw).map_err(|_| ())?;
+                let (wpx, bpx) = (n_in / 2 * C, C);
+                if dw.len() != h * w * wpx || db.len() != h * w * bpx {
+                    return Err(());
+                }
+                for iy in 0..h {
+                    let out = &mut mid[(iy + 1) * row + C..(iy + 1) * row + C + w * C];
+                    let job = Px4Job {
+                        y: out.as_mut_ptr(),
+                        bias: db[iy * w * bpx..].as_ptr(),
+                        table,
+                        sh,
+                        rnd: if k == 1 { 0x0001_0001 } else { rnd as u32 },
+                        k,
+                        y_end: out.as_mut_ptr_range().end,
+                        x: xw.as_ptr(),
+                        groups: (n_in / BLOCK) as u32,
+                        w: dw[iy * w * wpx..].as_ptr(),
+                        k1: (k == 1) as u32,
+                    };
+                    // SAFETY: the job's w pixels of 4 outputs: weights and biases inside the
+                    // layer's tables (lengths checked), outputs inside `out`, x inside `xw`.
+                    unsafe { msr_dense_px4(&job) };
+                }
+            }
+            (DenseKind::I8Rows, AnyWeights::I8(dw)) => {
+                for ch in 0..C {
+                    for iy in 0..h {
+                        let r = (ch * h + iy) * w;
+                        let at = (iy + 1) * row + C + ch;
+                        let out = &mut mid[at..at + C * (w - 1) + 1];
+                        let (wr, br) = (dw.get(r * n_in..(r + w) * n_in), db.get(r..r + w));
+                        let (Some(wr), Some(br)) = (wr, br) else {
+                            return Err(());
+                        };
+                        if !dense2_i8_x4(self.dact, wr, br, &xw, n_in, out) {
+                            return Err(());
+                        }
+                    }
+                }
+            }
+            _ => return Err(()),
+        }
+        let AsmAct::Grey { table, sh } = self.cact else {
+            return Err(());
+        };
+        let p = c.padding as usize;
+        let q = group_phase(p);
+        let (single, g0, groups) = self.columns();
+        let wt = |ic: usize, oc: usize, ky: usize, kx: usize| -> u32 {
+            cw.at(((ic * oc_n + oc) * 4 + ky) * 4 + kx) as u16 as u32
+        };
+        let y = buf;
+        for oc in 0..oc_n {
+            // Per row phase py: W0A, W1A, W0B, W1B; W0 is column phase q, W1 the other; row A
+            // is tap ky0 + 2, B ky0; in each, column A (kx0 + 2) then B (kx0), channel pairs.
+            let mut packs = [[0u32; 16]; 2];
+            for (py, pack) in packs.iter_mut().enumerate() {
+                let ky0 = (py + p) % 2;
+                for (rw, ky) in [ky0 + 2, ky0].into_iter().enumerate() {
+                    for slot in 0..2 {
+                        let kx0 = ((q + slot) % 2 + p) % 2;
+                        for (cl, kx) in [kx0 + 2, kx0].into_iter().enumerate() {
+                            for cp in 0..2 {
+                                pack[rw * 8 + slot * 4 + cl * 2 + cp] =
+                                    wt(2 * cp, oc, ky, kx) | (wt(2 * cp + 1, oc, ky, kx) << 16);
+                            }
+                        }
+                    }
+                }
+            }
+            let bias = *cb.get(oc).ok_or(())?;
+            for oy in top..top + fh {
+                let (py, n) = (oy % 2, oy / 2);
+                let ra = (n + (py + p) / 2) * row;
+                let yo = (oc * fh + oy - top) * fw;
+                if single {
+                    // Output `left` alone: phase 1 - q, slot 1's weights.
+                    let m = left / 2;
+                    let xa = ra + (m + (left % 2 + p) / 2) * C;
+                    let (wa, wb) = (&packs[py][4..8], &packs[py][12..16]);
+                    let mut acc = bias;
+                    for (r, ws) in [(0, wa), (row, wb)] {
+                        let xs: &[u32] = bytemuck::try_cast_slice(&mid[xa + r..xa + r + 2 * C])
+                            .map_err(|_| ())?;
+                        for (&xv, &wv) in xs.iter().zip(ws) {
+                            acc = smlad(xv, wv, acc);
+                        }
+                    }
+                    y[yo] = super::GreyAct { sh }.act(acc);
+                }
+                if groups == 0 {
+                    continue;
+                }
+                let base = (g0 - q) / 2 + (q + p) / 2;
+                let job = Conv4Job {
+                    x: mid[ra + base * C..].as_ptr() as *const u32,
+                    w: packs[py].as_ptr(),
+                    y: y[yo + g0 - left..].as_mut_ptr(),
+                    groups: groups as u32,
+                    table,
+                    sh,
+                    bias,
+                };
+                // SAFETY: `reads_inside` checked every read (rows A and B, 4 pixels per group,
+                // inside the STRIDE-wide rows of `mid`, whose size is checked above); the writes
+                // are 4 * groups halfwords from the window's output g0, at most 3 past the
+                // window's row, inside `y` (checked above).
+                unsafe { msr_convt4_grey(&job) };
+            }
+        }
+        Ok(())
+    }
+
+    /// Zeros what the convolution reads around the image: rows 0 and h + 1, column 0 and the
+    /// columns from w + 1 that it reaches.
+    fn borders(&self, mid: &mut [i16], h: usize, w: usize) {
+        let row = STRIDE * C;
+        let (_, g0, groups) = self.columns();
+        let q = group_phase(self.conv.padding as usize);
+        let p = self.conv.padding as usize;
+        let reach = if groups == 0 {
+            w + 2
+        } else {
+            ((g0 + 4 * (groups - 1) - q) / 2 + (q + p) / 2 + 4).max(w + 2)
+        }
+        .min(STRIDE);
+        mid[..row].fill(0);
+        mid[(h + 1) * row..(h + 2) * row].fill(0);
+        for iy in 1..=h {
+            let r = iy * row;
+            mid[r..r + C].fill(0);
+            mid[r + (w + 1) * C..r + reach * C].fill(0);
+        }
+    }
+}
+
+use super::Activate;
