@@ -163,7 +163,9 @@ unsafe fn rd(p: *const i16) -> u32 {
 }
 
 /// ConvTranspose2d by output phase with paired taps. Returns false (nothing written) when the
-/// layer does not suit it, and the caller takes the generic path.
+/// layer does not suit it, and the caller takes the generic path. Not inlined: its 2.5 KB of
+/// tables would add to the caller's frame (stack peak).
+#[inline(never)]
 pub(crate) fn conv_transpose<W: Table, B: Table, A: Activate>(
     l: &Layer,
     rq: A,

@@ -514,7 +514,9 @@ impl<'l, 'a> Fused<'l, 'a> {
         rows_ok && single_ok && (groups == 0 || last_base + 4 <= STRIDE)
     }
 
-    /// The Dense from `buf` into `mid`, then the convolution into `buf`.
+    /// The Dense from `buf` into `mid`, then the convolution into `buf`. Not inlined: its
+    /// frame stays off the other layers' paths (stack peak).
+    #[inline(never)]
     pub(crate) fn run(&self, buf: &mut [i16], mid: &mut [i16]) -> Result<(), ()> {
         let (d, c) = (self.dense, self.conv);
         let (h, w) = (c.input.h as usize, c.input.w as usize);
