@@ -22,6 +22,7 @@
 //! The predicted face is kept, in Q8.8 grey levels, until the quantised head pose or the model
 //! changes ([`Decoder::predict`]); [`Decoder::predict_uncached`] always runs it.
 
+use kernels::{Biases, Weights};
 use msr_shared::blob::{Activation, Layer, LayerKind, Model, WeightType, MAX_ACTIVATION_LEN};
 
 // The M4 kernels; elsewhere compiled with Rust stand-ins for the tests only.
@@ -542,8 +543,8 @@ pub(crate) fn run_layer_as(l: &Layer, rq: Requant, src: &[i16], dst: &mut [i16])
     // accessors when the tables are not aligned.
     if !l.torch_order() {
         return match (kernels::AnyWeights::of(l), l.bias_i32()) {
-            (Some(w), Some(b)) => kernels::dense_blocked(l, rq, &w, &b, x, y),
-            _ => kernels::layer(l, rq, &kernels::Raw(l), &kernels::RawBias(l), x, y),
+            (Some(w), Some(b)) => kernels::dense_blocked(l, rq, &Weights::Slice(w), &Biases::Slice(b), x, y),
+            _ => kernels::layer(l, rq, &Weights::Raw(l), &Biases::Raw(l), x, y),
         };
     }
     // Dense rows in pairs for i16 weights.
@@ -569,27 +570,25 @@ pub(crate) fn run_layer_as(l: &Layer, rq: Requant, src: &[i16], dst: &mut [i16])
             }
         }
     }
-    // Aligned tables are read as slices; anything else through the byte accessors.
-    match (l.weight_type, l.weights_i16(), l.bias_i32()) {
-        (WeightType::I16, Some(w), Some(b)) => kernels::layer(l, rq, &w, &b, x, y),
-        (WeightType::I8, _, Some(b)) => match l.weights_i8() {
-            Some(w) => {
-                // On the M4, Dense rows in pairs in assembly; the rest (an odd last row) here.
-                #[cfg(target_arch = "arm")]
-                if l.kind == LayerKind::Dense && w.len() == n_in * n_out && b.len() == n_out {
-                    let done = arm::dense2_i8(rq, w, b, x, y);
-                    if done > 0 {
-                        let (w, b) = (&w[done * n_in..], &b[done..]);
-                        kernels::dense(rq, &w, &b, x, &mut y[done..]);
-                        return Ok(());
-                    }
-                }
-                kernels::layer(l, rq, &w, &b, x, y)
+    // Aligned tables are read as slices; anything else through the byte accessors. One type
+    // for all (one instantiation of each loop: code size).
+    let (w, b) = match (kernels::AnyWeights::of(l), l.bias_i32()) {
+        (Some(w), Some(b)) => (Weights::Slice(w), Biases::Slice(b)),
+        _ => (Weights::Raw(l), Biases::Raw(l)),
+    };
+    // On the M4, i8 Dense rows in pairs in assembly; the rest (an odd last row) here.
+    #[cfg(target_arch = "arm")]
+    if let (Some(wi8), Some(bs)) = (l.weights_i8(), l.bias_i32()) {
+        if l.kind == LayerKind::Dense && wi8.len() == n_in * n_out && bs.len() == n_out {
+            let done = arm::dense2_i8(rq, wi8, bs, x, y);
+            if done > 0 {
+                let w = Weights::Slice(kernels::AnyWeights::I8(&wi8[done * n_in..]));
+                kernels::dense(rq, &w, &Biases::Slice(&bs[done..]), x, &mut y[done..]);
+                return Ok(());
             }
-            None => Err(()),
-        },
-        _ => kernels::layer(l, rq, &kernels::Raw(l), &kernels::RawBias(l), x, y),
+        }
     }
+    kernels::layer(l, rq, &w, &b, x, y)
 }
 
 fn crop(l: &Layer, rq: Requant, x: &[i16], y: &mut [i16]) -> Result<(), ()> {

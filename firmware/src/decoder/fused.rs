@@ -48,6 +48,9 @@ struct Px4Job {
     groups: u32,
     w: *const u32,
     k1: u32,
+    /// Image rows, and the bytes from one row's end to the next row's first pixel.
+    rows: u32,
+    skip: u32,
 }
 
 /// What `msr_convt4_grey` reads.
@@ -60,6 +63,14 @@ struct Conv4Job {
     table: *const i16,
     sh: u32,
     bias: i32,
+    rows: u32,
+    /// Output bytes from one row's start to the next.
+    y_step: u32,
+    /// The other row phase's weights (they alternate row by row).
+    w_other: *const u32,
+    /// Bytes from one row's row A to the next's: after an even then an odd output row (they
+    /// alternate).
+    x_steps: [u32; 2],
 }
 
 // One pass: 4 biases (stored per pixel), then per block of 8 inputs one LDM of x and one LDM
@@ -75,7 +86,10 @@ core::arch::global_asm!(
     ".thumb_func",
     "msr_dense_px4:",
     "push {{r4-r11, lr}}",
-    "sub sp, sp, #40",
+    "sub sp, sp, #48",
+    // Rows and skip at sp + 40.
+    "ldrd r1, r2, [r0, #44]",
+    "strd r1, r2, [sp, #40]",
     // r1 y, r2 bias, r3 table, r4 sh, r5 rnd, r6 k, r7 y_end, r8 x, r9 groups, r10 w, r11 k1.
     "ldm r0, {{r1-r11}}",
     "stm sp, {{r1-r8}}",
@@ -185,8 +199,20 @@ core::arch::global_asm!(
     "ldm r5!, {{r0-r3}}",
     "stm sp, {{r4, r5}}",
     "ldr pc, [sp, #32]",
+    // End of an image row: the next starts `skip` bytes on, its end a row (416 bytes) on.
     "5:",
-    "add sp, sp, #40",
+    "ldrd r0, r1, [sp, #40]",
+    "subs r0, r0, #1",
+    "beq 10f",
+    "str r0, [sp, #40]",
+    "add r4, r4, r1",
+    "add r10, r10, #416",
+    "str r10, [sp, #24]",
+    "ldm r5!, {{r0-r3}}",
+    "stm sp, {{r4, r5}}",
+    "ldr pc, [sp, #32]",
+    "10:",
+    "add sp, sp, #48",
     "pop {{r4-r11, pc}}",
     ".size msr_dense_px4, . - msr_dense_px4",
 );
@@ -204,12 +230,23 @@ core::arch::global_asm!(
     ".thumb_func",
     "msr_convt4_grey:",
     "push {{r4-r11, lr}}",
-    "sub sp, sp, #40",
+    "sub sp, sp, #72",
+    // Rows at sp + 36, then the row's output start, y_step, w_other, the row's x, x_steps, and
+    // at sp + 64 the bytes of one row's groups.
+    "add r8, r0, #28",
+    "ldm r8, {{r4-r8}}",
+    "str r4, [sp, #36]",
+    "strd r5, r6, [sp, #44]",
+    "strd r7, r8, [sp, #56]",
     // r1 x, r2 w, r3 y, r4 groups, r5 table, r6 sh, r7 bias.
     "ldm r0, {{r1-r7}}",
+    "str r3, [sp, #40]",
+    "str r1, [sp, #52]",
+    "lsls r4, r4, #3",
+    "str r4, [sp, #64]",
     "movw r8, #32640",
     "movt r8, #32640",
-    "add r9, r3, r4, lsl #3",
+    "add r9, r3, r4",
     "stm sp, {{r3, r5, r6, r8, r9}}",
     "str r7, [sp, #20]",
     "str r7, [sp, #24]",
@@ -293,7 +330,26 @@ core::arch::global_asm!(
     "str r4, [sp]",
     "cmp r4, r8",
     "bne 1b",
-    "add sp, sp, #40",
+    // Next row: its output start, row A (the steps alternate), the other weights.
+    "add r12, sp, #36",
+    "ldm r12, {{r0-r6}}",
+    "subs r0, r0, #1",
+    "beq 9f",
+    "add r1, r1, r2",
+    "add r4, r4, r5",
+    "stm r12, {{r0, r1}}",
+    "str lr, [sp, #48]",
+    "mov lr, r3",
+    "str r4, [sp, #52]",
+    "strd r6, r5, [sp, #56]",
+    "ldr r7, [sp, #64]",
+    "add r7, r1, r7",
+    "str r1, [sp, #0]",
+    "str r7, [sp, #16]",
+    "mov r12, r4",
+    "b 1b",
+    "9:",
+    "add sp, sp, #72",
     "pop {{r4-r11, pc}}",
     ".size msr_convt4_grey, . - msr_convt4_grey",
 );
@@ -331,7 +387,28 @@ mod portable {
     pub(super) unsafe fn msr_dense_px4(job: *const Px4Job) {
         let j = unsafe { &*job };
         let (mut y, mut b, mut w) = (j.y, j.bias, j.w);
-        while y != j.y_end {
+        let mut y_end = j.y_end;
+        for row in 0..j.rows {
+            if row > 0 {
+                unsafe {
+                    y = (y as *mut u8).add(j.skip as usize) as *mut i16;
+                    y_end = y_end.add(STRIDE * C);
+                }
+            }
+            unsafe { px4_row(j, &mut y, y_end, &mut b, &mut w) };
+        }
+    }
+
+    /// One image row of `msr_dense_px4`.
+    unsafe fn px4_row(
+        j: &Px4Job,
+        yp: &mut *mut i16,
+        y_end: *mut i16,
+        bp: &mut *const i32,
+        wp: &mut *const u32,
+    ) {
+        let (mut y, mut b, mut w) = (*yp, *bp, *wp);
+        while y != y_end {
             let mut acc = [0i32; C];
             for (c, a) in acc.iter_mut().enumerate() {
                 *a = unsafe { *b.add(c) };
@@ -353,12 +430,31 @@ mod portable {
                 b = b.add(C);
             }
         }
+        (*yp, *bp, *wp) = (y, b, w);
     }
 
     pub(super) unsafe fn msr_convt4_grey(job: *const Conv4Job) {
         let j = unsafe { &*job };
-        let (mut x, mut y) = (j.x, j.y);
-        let w = unsafe { core::slice::from_raw_parts(j.w, 16) };
+        let (mut x_row, mut y_row) = (j.x, j.y);
+        let (mut w, mut w_other) = (j.w, j.w_other);
+        let mut steps = j.x_steps;
+        for row in 0..j.rows {
+            if row > 0 {
+                unsafe {
+                    x_row = (x_row as *const u8).add(steps[0] as usize) as *const u32;
+                    y_row = (y_row as *mut u8).add(j.y_step as usize) as *mut i16;
+                }
+                (w, w_other) = (w_other, w);
+                steps = [steps[1], steps[0]];
+            }
+            let w = unsafe { core::slice::from_raw_parts(w, 16) };
+            unsafe { conv4_row(j, x_row, y_row, w) };
+        }
+    }
+
+    /// One output row of `msr_convt4_grey`.
+    unsafe fn conv4_row(j: &Conv4Job, x: *const u32, y: *mut i16, w: &[u32]) {
+        let (mut x, mut y) = (x, y);
         for _ in 0..j.groups {
             let mut acc = [j.bias; 4];
             for row in 0..2 {
@@ -535,9 +631,71 @@ impl<'l, 'a> Fused<'l, 'a> {
         if mid.len() < (h + 2) * STRIDE * C || buf.len() < oc_n * fh * fw + 3 || cb.len() < oc_n {
             return Err(());
         }
+        self.borders(mid, h, w);
+        self.dense(buf.get(..n_in).ok_or(())?, dw, db, mid)?;
+        let AsmAct::Grey { table, sh } = self.cact else {
+            return Err(());
+        };
+        let p = c.padding as usize;
+        let q = group_phase(p);
+        let (single, g0, groups) = self.columns();
+        let y = buf;
+        let row = STRIDE * C;
+        for oc in 0..oc_n {
+            let packs = self.packs(cw, oc);
+            let bias = *cb.get(oc).ok_or(())?;
+            // Row A of output row oy: padded row oy / 2 + (oy % 2 + p) / 2.
+            let ra = |oy: usize| (oy / 2 + (oy % 2 + p) / 2) * row;
+            let yo = |oy: usize| (oc * fh + oy - top) * fw;
+            if groups > 0 && fh > 0 {
+                let base = ((g0 - q) / 2 + (q + p) / 2) * C;
+                let step = |oy: usize| ((ra(oy + 1) - ra(oy)) * 2) as u32;
+                let job = Conv4Job {
+                    x: mid[ra(top) + base..].as_ptr() as *const u32,
+                    w: packs[top % 2].as_ptr(),
+                    y: y[yo(top) + g0 - left..].as_mut_ptr(),
+                    groups: groups as u32,
+                    table,
+                    sh,
+                    bias,
+                    rows: fh as u32,
+                    y_step: (fw * 2) as u32,
+                    w_other: packs[1 - top % 2].as_ptr(),
+                    x_steps: [step(top), step(top + 1)],
+                };
+                // SAFETY: `reads_inside` checked every read (rows A and B, 4 pixels per group,
+                // inside the STRIDE-wide rows of `mid`, whose size is checked above); the writes
+                // are 4 * groups halfwords per row from the window's output g0, at most 3 past
+                // the window's row, inside `y` (checked above).
+                unsafe { msr_convt4_grey(&job) };
+            }
+            // Output `left` alone (after the groups: the row above may spill onto it): phase
+            // 1 - q, slot 1's weights.
+            for oy in (top..top + fh).filter(|_| single) {
+                let py = oy % 2;
+                let xa = ra(oy) + (left / 2 + (left % 2 + p) / 2) * C;
+                let (wa, wb) = (&packs[py][4..8], &packs[py][12..16]);
+                let mut acc = bias;
+                for (r, ws) in [(0, wa), (row, wb)] {
+                    let xs: &[u32] =
+                        bytemuck::try_cast_slice(&mid[xa + r..xa + r + 2 * C]).map_err(|_| ())?;
+                    for (&xv, &wv) in xs.iter().zip(ws) {
+                        acc = smlad(xv, wv, acc);
+                    }
+                }
+                y[yo(oy)] = super::GreyAct { sh }.act(acc);
+            }
+        }
+        Ok(())
+    }
+
+    /// The Dense: `x` into the image rows of `mid` (borders not touched).
+    #[inline(never)]
+    fn dense(&self, x: &[i16], dw: AnyWeights, db: &[i32], mid: &mut [i16]) -> Result<(), ()> {
+        let c = self.conv;
+        let (h, w, n_in) = (c.input.h as usize, c.input.w as usize, x.len());
         // The input, copied out (`buf` takes the output): words of i16 pairs for i16 weights,
         // re-paired for i8 ones.
-        let x = buf.get(..n_in).ok_or(())?;
         let xw = match self.kind {
             DenseKind::Px4 => {
                 let mut xw = [0u32; PX4_MAX_GROUPS * BLOCK / 2];
@@ -551,7 +709,6 @@ impl<'l, 'a> Fused<'l, 'a> {
                 xw
             }
         };
-        self.borders(mid, h, w);
         let row = STRIDE * C;
         match (self.kind, dw) {
             (DenseKind::Px4, AnyWeights::I16(dw)) => {
@@ -563,28 +720,31 @@ impl<'l, 'a> Fused<'l, 'a> {
                 if dw.len() != h * w * wpx || db.len() != h * w * bpx {
                     return Err(());
                 }
-                for iy in 0..h {
-                    let out = &mut mid[(iy + 1) * row + C..(iy + 1) * row + C + w * C];
-                    let job = Px4Job {
-                        y: out.as_mut_ptr(),
-                        bias: db[iy * w * bpx..].as_ptr(),
-                        table,
-                        sh,
-                        rnd: if k == 1 { 0x0001_0001 } else { rnd as u32 },
-                        k,
-                        y_end: out.as_mut_ptr_range().end,
-                        x: xw.as_ptr(),
-                        groups: (n_in / BLOCK) as u32,
-                        w: dw[iy * w * wpx..].as_ptr(),
-                        k1: (k == 1) as u32,
-                    };
-                    // SAFETY: the job's w pixels of 4 outputs: weights and biases inside the
-                    // layer's tables (lengths checked), outputs inside `out`, x inside `xw`.
-                    unsafe { msr_dense_px4(&job) };
-                }
+                // Pixels (iy + 1, 1..=w) of `mid`, row by row.
+                let first = row + C;
+                let out = mid.get_mut(first..first + (h - 1) * row + w * C).ok_or(())?;
+                let job = Px4Job {
+                    y: out.as_mut_ptr(),
+                    bias: db.as_ptr(),
+                    table,
+                    sh,
+                    rnd: if k == 1 { 0x0001_0001 } else { rnd as u32 },
+                    k,
+                    y_end: out[w * C..].as_mut_ptr(),
+                    x: xw.as_ptr(),
+                    groups: (n_in / BLOCK) as u32,
+                    w: dw.as_ptr(),
+                    k1: (k == 1) as u32,
+                    rows: h as u32,
+                    skip: ((STRIDE - w) * C * 2) as u32,
+                };
+                // SAFETY: h rows of w pixels of 4 outputs: weights and biases are the layer's
+                // tables (lengths checked), the outputs inside `out`, x inside `xw`.
+                unsafe { msr_dense_px4(&job) };
             }
             (DenseKind::I8Rows, AnyWeights::I8(dw)) => {
-                for ch in 0..C {
+                // Channel by channel (c.input.c == C, a run-time bound: not unrolled).
+                for ch in 0..c.input.c as usize {
                     for iy in 0..h {
                         let r = (ch * h + iy) * w;
                         let at = (iy + 1) * row + C + ch;
@@ -601,75 +761,29 @@ impl<'l, 'a> Fused<'l, 'a> {
             }
             _ => return Err(()),
         }
-        let AsmAct::Grey { table, sh } = self.cact else {
-            return Err(());
-        };
-        let p = c.padding as usize;
-        let q = group_phase(p);
-        let (single, g0, groups) = self.columns();
-        let wt = |ic: usize, oc: usize, ky: usize, kx: usize| -> u32 {
+        Ok(())
+    }
+
+    /// The convolution's weight words for output channel `oc`, per row phase py: W0A, W1A,
+    /// W0B, W1B; W0 is column phase q, W1 the other; row A is tap ky0 + 2, B ky0; in each,
+    /// column A (kx0 + 2) then B (kx0), channel pairs (0, 1) and (2, 3).
+    #[inline(never)]
+    fn packs(&self, cw: AnyWeights, oc: usize) -> [[u32; 16]; 2] {
+        let p = self.conv.padding as usize;
+        let (q, oc_n) = (group_phase(p), self.conv.output.c as usize);
+        let wt = |ic: usize, ky: usize, kx: usize| -> u32 {
             cw.at(((ic * oc_n + oc) * 4 + ky) * 4 + kx) as u16 as u32
         };
-        let y = buf;
-        for oc in 0..oc_n {
-            // Per row phase py: W0A, W1A, W0B, W1B; W0 is column phase q, W1 the other; row A
-            // is tap ky0 + 2, B ky0; in each, column A (kx0 + 2) then B (kx0), channel pairs.
-            let mut packs = [[0u32; 16]; 2];
-            for (py, pack) in packs.iter_mut().enumerate() {
-                let ky0 = (py + p) % 2;
-                for (rw, ky) in [ky0 + 2, ky0].into_iter().enumerate() {
-                    for slot in 0..2 {
-                        let kx0 = ((q + slot) % 2 + p) % 2;
-                        for (cl, kx) in [kx0 + 2, kx0].into_iter().enumerate() {
-                            for cp in 0..2 {
-                                pack[rw * 8 + slot * 4 + cl * 2 + cp] =
-                                    wt(2 * cp, oc, ky, kx) | (wt(2 * cp + 1, oc, ky, kx) << 16);
-                            }
-                        }
-                    }
-                }
-            }
-            let bias = *cb.get(oc).ok_or(())?;
-            for oy in top..top + fh {
-                let (py, n) = (oy % 2, oy / 2);
-                let ra = (n + (py + p) / 2) * row;
-                let yo = (oc * fh + oy - top) * fw;
-                if single {
-                    // Output `left` alone: phase 1 - q, slot 1's weights.
-                    let m = left / 2;
-                    let xa = ra + (m + (left % 2 + p) / 2) * C;
-                    let (wa, wb) = (&packs[py][4..8], &packs[py][12..16]);
-                    let mut acc = bias;
-                    for (r, ws) in [(0, wa), (row, wb)] {
-                        let xs: &[u32] = bytemuck::try_cast_slice(&mid[xa + r..xa + r + 2 * C])
-                            .map_err(|_| ())?;
-                        for (&xv, &wv) in xs.iter().zip(ws) {
-                            acc = smlad(xv, wv, acc);
-                        }
-                    }
-                    y[yo] = super::GreyAct { sh }.act(acc);
-                }
-                if groups == 0 {
-                    continue;
-                }
-                let base = (g0 - q) / 2 + (q + p) / 2;
-                let job = Conv4Job {
-                    x: mid[ra + base * C..].as_ptr() as *const u32,
-                    w: packs[py].as_ptr(),
-                    y: y[yo + g0 - left..].as_mut_ptr(),
-                    groups: groups as u32,
-                    table,
-                    sh,
-                    bias,
-                };
-                // SAFETY: `reads_inside` checked every read (rows A and B, 4 pixels per group,
-                // inside the STRIDE-wide rows of `mid`, whose size is checked above); the writes
-                // are 4 * groups halfwords from the window's output g0, at most 3 past the
-                // window's row, inside `y` (checked above).
-                unsafe { msr_convt4_grey(&job) };
+        let mut packs = [[0u32; 16]; 2];
+        for (py, pack) in packs.iter_mut().enumerate() {
+            for (i, v) in pack.iter_mut().enumerate() {
+                let (rw, slot, cl, cp) = (i / 8, i / 4 % 2, i / 2 % 2, i % 2);
+                let ky = (py + p) % 2 + 2 * (1 - rw);
+                let kx = ((q + slot) % 2 + p) % 2 + 2 * (1 - cl);
+                *v = wt(2 * cp, ky, kx) | (wt(2 * cp + 1, ky, kx) << 16);
             }
         }
-        Ok(())
+        packs
     }
 
     /// Zeros what the convolution reads around the image: rows 0 and h + 1, column 0 and the

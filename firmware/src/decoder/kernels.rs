@@ -64,6 +64,7 @@ impl<'a> AnyWeights<'a> {
 }
 
 impl Table for AnyWeights<'_> {
+    #[inline]
     fn len(&self) -> usize {
         match self {
             AnyWeights::I8(w) => w.len(),
@@ -78,27 +79,50 @@ impl Table for AnyWeights<'_> {
     }
 }
 
-/// Weights or biases read through the blob's byte accessors (unaligned blobs).
-pub(crate) struct Raw<'l, 'a>(pub &'l Layer<'a>);
+/// Any layer's weights: aligned slices or the byte accessors. The decoder calls the generic
+/// loops with this type only (one instantiation each: code size).
+#[derive(Clone, Copy)]
+pub(crate) enum Weights<'l, 'a> {
+    Slice(AnyWeights<'a>),
+    Raw(&'l Layer<'a>),
+}
 
-impl Table for Raw<'_, '_> {
+impl Table for Weights<'_, '_> {
     fn len(&self) -> usize {
-        self.0.weight_count()
+        match self {
+            Weights::Slice(w) => w.len(),
+            Weights::Raw(l) => l.weight_count(),
+        }
     }
+    #[inline]
     fn at(&self, i: usize) -> i32 {
-        self.0.weight(i)
+        match self {
+            Weights::Slice(w) => w.at(i),
+            Weights::Raw(l) => l.weight(i),
+        }
     }
 }
 
-/// Biases through the byte accessor.
-pub(crate) struct RawBias<'l, 'a>(pub &'l Layer<'a>);
+/// Any layer's biases, as [`Weights`].
+#[derive(Clone, Copy)]
+pub(crate) enum Biases<'l, 'a> {
+    Slice(&'a [i32]),
+    Raw(&'l Layer<'a>),
+}
 
-impl Table for RawBias<'_, '_> {
+impl Table for Biases<'_, '_> {
     fn len(&self) -> usize {
-        self.0.bias_count()
+        match self {
+            Biases::Slice(b) => b.len(),
+            Biases::Raw(l) => l.bias_count(),
+        }
     }
+    #[inline]
     fn at(&self, i: usize) -> i32 {
-        self.0.bias(i)
+        match self {
+            Biases::Slice(b) => b[i],
+            Biases::Raw(l) => l.bias(i),
+        }
     }
 }
 

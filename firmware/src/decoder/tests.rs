@@ -462,7 +462,7 @@ fn fused_dense_conv_transpose_equals_the_layers() {
             .collect();
         // The layers one by one, weights by PyTorch index; the decoder's own Dense path too.
         let mut mid = vec![0i16; d.output.len()];
-        kernels::layer(d, drq, &kernels::Raw(d), &kernels::RawBias(d), &x, &mut mid).unwrap();
+        kernels::layer(d, drq, &Weights::Raw(d), &Biases::Raw(d), &x, &mut mid).unwrap();
         let mut mid2 = vec![0i16; d.output.len()];
         run_layer_as(d, drq, &x, &mut mid2).unwrap();
         assert_eq!(mid, mid2, "seed {seed}: the decoder's Dense path");
