@@ -543,7 +543,9 @@ pub(crate) fn run_layer_as(l: &Layer, rq: Requant, src: &[i16], dst: &mut [i16])
     // accessors when the tables are not aligned.
     if !l.torch_order() {
         return match (kernels::AnyWeights::of(l), l.bias_i32()) {
-            (Some(w), Some(b)) => kernels::dense_blocked(l, rq, &Weights::Slice(w), &Biases::Slice(b), x, y),
+            (Some(w), Some(b)) => {
+                kernels::dense_blocked(l, rq, &Weights::Slice(w), &Biases::Slice(b), x, y)
+            }
             _ => kernels::layer(l, rq, &Weights::Raw(l), &Biases::Raw(l), x, y),
         };
     }
@@ -576,16 +578,14 @@ pub(crate) fn run_layer_as(l: &Layer, rq: Requant, src: &[i16], dst: &mut [i16])
         (Some(w), Some(b)) => (Weights::Slice(w), Biases::Slice(b)),
         _ => (Weights::Raw(l), Biases::Raw(l)),
     };
-    // On the M4, i8 Dense rows in pairs in assembly; the rest (an odd last row) here.
+    // On the M4, i8 Dense rows in pairs in assembly; the rest (an odd last row, or rows the
+    // assembly does not take) in a loop over the i8 slice (the Dense layers of the i8 MLP).
     #[cfg(target_arch = "arm")]
     if let (Some(wi8), Some(bs)) = (l.weights_i8(), l.bias_i32()) {
         if l.kind == LayerKind::Dense && wi8.len() == n_in * n_out && bs.len() == n_out {
             let done = arm::dense2_i8(rq, wi8, bs, x, y);
-            if done > 0 {
-                let w = Weights::Slice(kernels::AnyWeights::I8(&wi8[done * n_in..]));
-                kernels::dense(rq, &w, &Biases::Slice(&bs[done..]), x, &mut y[done..]);
-                return Ok(());
-            }
+            kernels::dense(rq, &&wi8[done * n_in..], &&bs[done..], x, &mut y[done..]);
+            return Ok(());
         }
     }
     kernels::layer(l, rq, &w, &b, x, y)

@@ -429,7 +429,6 @@ mod portable {
     pub(super) unsafe fn msr_dense2_i8_grey(job: *const Job) {
         unsafe { dense2(job, true, true, 1) }
     }
-
 }
 
 /// Dense rows in pairs with a table activation. Returns how many outputs it wrote (an even

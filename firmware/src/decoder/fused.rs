@@ -32,6 +32,7 @@ pub(crate) const STRIDE: usize = 52;
 const C: usize = 4;
 /// Most input blocks (of 8) of the px4 Dense (its unrolled block).
 const PX4_MAX_GROUPS: usize = 16;
+const _: () = assert!(PX4_MAX_GROUPS * BLOCK / 2 == I8_MAX_IN / 2);
 
 /// What `msr_dense_px4` reads, in its frame's order.
 #[repr(C)]
@@ -601,7 +602,7 @@ impl<'l, 'a> Fused<'l, 'a> {
         // Output row 2n + py reads padded rows n + r0 and n + r0 + 1, r0 = (py + p) / 2: the
         // last row reads the furthest.
         let last = top + fh - 1;
-        let rows_ok = last / 2 + (last % 2 + p) / 2 + 1 <= h + 1;
+        let rows_ok = last / 2 + (last % 2 + p) / 2 < h + 1;
         // The single output reads 2 pixels from column m + c0; group g reads 4 from its base.
         let (single, g0, groups) = self.columns();
         let q = group_phase(p);
@@ -696,19 +697,15 @@ impl<'l, 'a> Fused<'l, 'a> {
         let (h, w, n_in) = (c.input.h as usize, c.input.w as usize, x.len());
         // The input, copied out (`buf` takes the output): words of i16 pairs for i16 weights,
         // re-paired for i8 ones.
-        let xw = match self.kind {
+        // One array for both (stack): the words of i16 pairs, or re-paired for i8 weights.
+        let mut xw = [0u32; I8_MAX_IN / 2];
+        match self.kind {
             DenseKind::Px4 => {
-                let mut xw = [0u32; PX4_MAX_GROUPS * BLOCK / 2];
                 let xin: &[u32] = bytemuck::try_cast_slice(x).map_err(|_| ())?;
                 xw.get_mut(..n_in / 2).ok_or(())?.copy_from_slice(xin);
-                xw
             }
-            DenseKind::I8Rows => {
-                let mut xw = [0u32; PX4_MAX_GROUPS * BLOCK / 2];
-                xw[..I8_MAX_IN / 2].copy_from_slice(&pair_i8(x));
-                xw
-            }
-        };
+            DenseKind::I8Rows => xw = pair_i8(x),
+        }
         let row = STRIDE * C;
         match (self.kind, dw) {
             (DenseKind::Px4, AnyWeights::I16(dw)) => {
@@ -722,7 +719,9 @@ impl<'l, 'a> Fused<'l, 'a> {
                 }
                 // Pixels (iy + 1, 1..=w) of `mid`, row by row.
                 let first = row + C;
-                let out = mid.get_mut(first..first + (h - 1) * row + w * C).ok_or(())?;
+                let out = mid
+                    .get_mut(first..first + (h - 1) * row + w * C)
+                    .ok_or(())?;
                 let job = Px4Job {
                     y: out.as_mut_ptr(),
                     bias: db.as_ptr(),

@@ -381,13 +381,27 @@ fn fused_dense_conv_transpose_equals_the_layers() {
         let p = (seed / 4 % 4) as u8;
         // At least p input rows and columns (an output of at least 2).
         let h = (1 + (seed * 7 % 5) as u16).max(p as u16);
-        let w = if i8w { 2 + 2 * (seed % 4) as u16 } else { 1 + (seed * 5 % 9) as u16 };
+        let w = if i8w {
+            2 + 2 * (seed % 4) as u16
+        } else {
+            1 + (seed * 5 % 9) as u16
+        };
         let w = w.max(p as u16 + (i8w && p % 2 == 1) as u16);
-        let (oh, ow) = ((h - 1) * 2 + 4 - 2 * p as u16, (w - 1) * 2 + 4 - 2 * p as u16);
+        let (oh, ow) = (
+            (h - 1) * 2 + 4 - 2 * p as u16,
+            (w - 1) * 2 + 4 - 2 * p as u16,
+        );
         let crop = seed % 4 != 0;
-        let (top, left) = if crop { (seed as u16 % 3 % oh, (seed / 5) as u16 % 3 % ow) } else { (0, 0) };
+        let (top, left) = if crop {
+            (seed as u16 % 3 % oh, (seed / 5) as u16 % 3 % ow)
+        } else {
+            (0, 0)
+        };
         let (fh, fw) = if crop {
-            (1 + (seed as u16 * 3) % (oh - top), 1 + (seed as u16 * 11) % (ow - left))
+            (
+                1 + (seed as u16 * 3) % (oh - top),
+                1 + (seed as u16 * 11) % (ow - left),
+            )
         } else {
             (oh, ow)
         };
@@ -455,7 +469,11 @@ fn fused_dense_conv_transpose_equals_the_layers() {
         let m = Model::parse(&bytes).unwrap();
         assert_eq!(grey_layer(&m), Some(2));
         let (d, c) = (&m.layers[1], &m.layers[2]);
-        assert_eq!(d.order == WeightOrder::Blocked, !i8w, "the writer blocks i16 only");
+        assert_eq!(
+            d.order == WeightOrder::Blocked,
+            !i8w,
+            "the writer blocks i16 only"
+        );
         let (drq, crq) = (Requant::of(d), Requant::of(c).last());
         let x: Vec<i16> = (0..n_in)
             .map(|_| (r.unit() * 0.9 * 16384.0) as i16)
@@ -474,7 +492,8 @@ fn fused_dense_conv_transpose_equals_the_layers() {
             run_layer_as(l, Requant::of(l), &want, &mut cropped).unwrap();
             want = cropped;
         }
-        let what = format!("seed {seed}: p {p} {h}x{w} in {n_in} i8 {i8w} window {top},{left} {fh}x{fw}");
+        let what =
+            format!("seed {seed}: p {p} {h}x{w} in {n_in} i8 {i8w} window {top},{left} {fh}x{fw}");
         // Fused, in word-aligned buffers as the decoder's.
         let Some(f) = fused::Fused::of(d, drq, c, crq) else {
             // Only the i8 kernel's odd widths are refused.
@@ -482,7 +501,8 @@ fn fused_dense_conv_transpose_equals_the_layers() {
             continue;
         };
         let f = if crop {
-            f.with_crop(&m.layers[3]).unwrap_or_else(|| panic!("{what}: crop not fused"))
+            f.with_crop(&m.layers[3])
+                .unwrap_or_else(|| panic!("{what}: crop not fused"))
         } else {
             f
         };
