@@ -40,7 +40,7 @@
 //! `BLOCK * g + r`, and the biases `[y][x][c]`: per output pixel, in blocks of 8 inputs, the C
 //! channels' rows in turn, the order in which the board's kernel reads them (all channels of a
 //! pixel per pass, one load after the other). [`Layer::weight`] and [`Layer::bias`] take PyTorch
-//! indices whatever the order. The writer uses it for an i16 Dense of 4 channels feeding a
+//! indices whatever the order. The writer uses it for a Dense of 4 channels feeding a
 //! ConvTranspose2d (the conv decoder's big layer) and writes version 1, which older readers
 //! take, when no layer uses it.
 //!
@@ -953,12 +953,11 @@ mod writer {
     }
 
     impl ModelSpec {
-        /// Whether layer `i` is written in the blocked order: an i16 Dense of 4 output channels
+        /// Whether layer `i` is written in the blocked order: a Dense of 4 output channels
         /// feeding a ConvTranspose2d, inputs a multiple of [`BLOCK`] (the board's fused kernel).
         pub fn blocked(&self, i: usize) -> bool {
             let (l, next) = (&self.layers[i], self.layers.get(i + 1));
             l.kind == LayerKind::Dense
-                && matches!(l.weights, Weights::I16(_))
                 && l.output.c == 4
                 && l.input.len().is_multiple_of(BLOCK)
                 && next.is_some_and(|n| n.kind == LayerKind::ConvTranspose2d)

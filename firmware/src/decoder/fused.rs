@@ -3,11 +3,13 @@
 //!
 //! - The Dense writes a zero-bordered, channel-interleaved image (`mid`): one pixel is the four
 //!   channels' i16 = two words, rows [`STRIDE`] pixels apart (a constant, so that the convolution
-//!   reaches the next row by an immediate offset). With weights in the blob's blocked order
-//!   (i16), `msr_dense_px4` computes the four channels of one pixel per pass: the weights stream
-//!   in one `LDM` after the other, the four results are stored as two packed words (tanh step
-//!   rounded by `SHADD16` when `out_shift` is 14). i8 weights (PyTorch order) take the 2-row
-//!   kernel of `arm` writing every fourth halfword.
+//!   reaches the next row by an immediate offset). With weights in the blob's blocked order,
+//!   `msr_dense_px4` computes the four channels of one pixel per pass: the weights stream in
+//!   one load after the other (i16: `LDM` of 4 words per channel and block, 16 `SMLAD`; i8:
+//!   `LDRD` of 8 weights split by `SXTB16` against the input re-paired), the four results are
+//!   stored as two packed words (tanh step rounded by `SHADD16` when `out_shift` is 14). i8
+//!   weights in PyTorch order (blobs written before the blocked order) take the 2-row kernel
+//!   of `arm` writing every fourth halfword.
 //! - The convolution computes four adjacent outputs of a row per pass (`msr_convt4_grey`): both
 //!   column phases, each output 16 MACs (2 x 2 taps x 4 channels) as 8 `SMLAD` on channel pairs;
 //!   the pass reads 4 pixels of 2 input rows. The grey step is `y - (y >> 8)` then `+32640` on
@@ -52,6 +54,8 @@ struct Px4Job {
     /// Image rows, and the bytes from one row's end to the next row's first pixel.
     rows: u32,
     skip: u32,
+    /// i8 weights (x re-paired as `pair_i8` does), else i16.
+    i8w: u32,
 }
 
 /// What `msr_convt4_grey` reads.
@@ -91,14 +95,22 @@ core::arch::global_asm!(
     // Rows and skip at sp + 40.
     "ldrd r1, r2, [r0, #44]",
     "strd r1, r2, [sp, #40]",
+    "ldr r12, [r0, #52]",
     // r1 y, r2 bias, r3 table, r4 sh, r5 rnd, r6 k, r7 y_end, r8 x, r9 groups, r10 w, r11 k1.
     "ldm r0, {{r1-r11}}",
     "stm sp, {{r1-r8}}",
-    // Entry into the unrolled block: 4f - groups * 84.
+    // Entry into the unrolled block: 4f - groups * 84 (i16), 12f - groups * 148 (i8).
+    "cmp r12, #0",
+    "bne 13f",
     "movs r0, #84",
+    "adr.w r12, 4f",
+    "b 14f",
+    "13:",
+    "movs r0, #148",
+    "adr.w r12, 12f",
+    "14:",
     "mul r9, r9, r0",
-    "adr.w r0, 4f",
-    "subs r0, r0, r9",
+    "subs r0, r12, r9",
     "orr r0, r0, #1",
     "str r0, [sp, #32]",
     // The act step: 8f (SHADD16) when k1, else 9f.
@@ -117,6 +129,52 @@ core::arch::global_asm!(
     "ldm r5!, {{r0-r3}}",
     "str r5, [sp, #4]",
     "ldr pc, [sp, #32]",
+    // i8: per block of 8 inputs, x re-paired (x0, x2), (x1, x3), (x4, x6), (x5, x7) and each
+    // channel's 8 weights by LDRD, split into pairs by SXTB16. 37 instructions of 4 bytes.
+    ".p2align 2",
+    ".rept 16",
+    "ldm.w r12!, {{r4-r7}}",
+    "ldrd r8, r9, [lr], #8",
+    "sxtb16 r10, r8",
+    "smlad r0, r10, r4, r0",
+    "sxtb16 r10, r8, ror #8",
+    "smlad r0, r10, r5, r0",
+    "sxtb16 r10, r9",
+    "smlad r0, r10, r6, r0",
+    "sxtb16 r10, r9, ror #8",
+    "smlad r0, r10, r7, r0",
+    "ldrd r8, r9, [lr], #8",
+    "sxtb16 r10, r8",
+    "smlad r1, r10, r4, r1",
+    "sxtb16 r10, r8, ror #8",
+    "smlad r1, r10, r5, r1",
+    "sxtb16 r10, r9",
+    "smlad r1, r10, r6, r1",
+    "sxtb16 r10, r9, ror #8",
+    "smlad r1, r10, r7, r1",
+    "ldrd r8, r9, [lr], #8",
+    "sxtb16 r10, r8",
+    "smlad r2, r10, r4, r2",
+    "sxtb16 r10, r8, ror #8",
+    "smlad r2, r10, r5, r2",
+    "sxtb16 r10, r9",
+    "smlad r2, r10, r6, r2",
+    "sxtb16 r10, r9, ror #8",
+    "smlad r2, r10, r7, r2",
+    "ldrd r8, r9, [lr], #8",
+    "sxtb16 r10, r8",
+    "smlad r3, r10, r4, r3",
+    "sxtb16 r10, r8, ror #8",
+    "smlad r3, r10, r5, r3",
+    "sxtb16 r10, r9",
+    "smlad r3, r10, r6, r3",
+    "sxtb16 r10, r9, ror #8",
+    "smlad r3, r10, r7, r3",
+    ".endr",
+    "12:",
+    "ldm sp, {{r4-r10, r12}}",
+    "ldr pc, [sp, #36]",
+    // i16: per block one LDM of x and of each channel's 4 weight words, 16 SMLAD.
     ".p2align 2",
     "3:",
     ".rept 16",
@@ -372,6 +430,12 @@ mod portable {
     use super::{Conv4Job, Px4Job, BLOCK, C, STRIDE};
     use crate::decoder::fast::smlad;
 
+    /// SXTB16 of `w` rotated right by `rot` bits.
+    fn sxtb16(w: u32, rot: u32) -> u32 {
+        let v = w.rotate_right(rot);
+        (v as u8 as i8 as i16 as u16 as u32) | ((((v >> 16) as u8 as i8 as i16) as u16 as u32) << 16)
+    }
+
     /// The tanh step as the assembly does it (`SHADD16` when k1).
     unsafe fn tanh(job: &Px4Job, acc: i32) -> i16 {
         let i = (acc >> job.sh).clamp(-4096, 4095);
@@ -415,12 +479,22 @@ mod portable {
                 *a = unsafe { *b.add(c) };
             }
             for g in 0..j.groups as usize {
+                let x = unsafe { core::slice::from_raw_parts(j.x.add(g * BLOCK / 2), 4) };
                 for a in acc.iter_mut() {
-                    for t in 0..BLOCK / 2 {
-                        let (wv, xv) = unsafe { (*w.add(t), *j.x.add(g * BLOCK / 2 + t)) };
-                        *a = smlad(wv, xv, *a);
+                    if j.i8w != 0 {
+                        // Two words of four i8 against (x0, x2), (x1, x3), (x4, x6), (x5, x7).
+                        for t in 0..2 {
+                            let wv = unsafe { *w.add(t) };
+                            *a = smlad(sxtb16(wv, 0), x[2 * t], *a);
+                            *a = smlad(sxtb16(wv, 8), x[2 * t + 1], *a);
+                        }
+                        w = unsafe { w.add(2) };
+                    } else {
+                        for (t, &xv) in x.iter().enumerate() {
+                            *a = smlad(unsafe { *w.add(t) }, xv, *a);
+                        }
+                        w = unsafe { w.add(BLOCK / 2) };
                     }
-                    w = unsafe { w.add(BLOCK / 2) };
                 }
             }
             for (c, &a) in acc.iter().enumerate() {
@@ -484,7 +558,7 @@ mod portable {
 /// How the Dense half runs.
 #[derive(Clone, Copy)]
 enum DenseKind {
-    /// i16, blocked order: `msr_dense_px4`.
+    /// Blocked order, i16 or i8: `msr_dense_px4`.
     Px4,
     /// i8, PyTorch order: the 2-row i8 kernel, every fourth halfword.
     I8Rows,
@@ -519,8 +593,10 @@ impl<'l, 'a> Fused<'l, 'a> {
         let cact = crq.grey_act()?.asm_act()?;
         let n_in = dense.input.len();
         let kind = match (dense.weight_type, dense.order) {
-            (WeightType::I16, WeightOrder::Blocked)
-                if n_in.is_multiple_of(BLOCK) && n_in / BLOCK <= PX4_MAX_GROUPS =>
+            (_, WeightOrder::Blocked)
+                if n_in.is_multiple_of(BLOCK)
+                    && n_in / BLOCK <= PX4_MAX_GROUPS
+                    && (dense.weights.as_ptr() as usize).is_multiple_of(4) =>
             {
                 DenseKind::Px4
             }
@@ -695,25 +771,29 @@ impl<'l, 'a> Fused<'l, 'a> {
     fn dense(&self, x: &[i16], dw: AnyWeights, db: &[i32], mid: &mut [i16]) -> Result<(), ()> {
         let c = self.conv;
         let (h, w, n_in) = (c.input.h as usize, c.input.w as usize, x.len());
-        // The input, copied out (`buf` takes the output): words of i16 pairs for i16 weights,
-        // re-paired for i8 ones.
-        // One array for both (stack): the words of i16 pairs, or re-paired for i8 weights.
+        let d_i16 = matches!(dw, AnyWeights::I16(_));
+        // The input, copied out (`buf` takes the output) into one array (stack): words of i16
+        // pairs for i16 weights, re-paired for i8 ones.
         let mut xw = [0u32; I8_MAX_IN / 2];
         match self.kind {
-            DenseKind::Px4 => {
+            DenseKind::Px4 if d_i16 => {
                 let xin: &[u32] = bytemuck::try_cast_slice(x).map_err(|_| ())?;
                 xw.get_mut(..n_in / 2).ok_or(())?.copy_from_slice(xin);
             }
-            DenseKind::I8Rows => xw = pair_i8(x),
+            _ => xw = pair_i8(x),
         }
         let row = STRIDE * C;
         match (self.kind, dw) {
-            (DenseKind::Px4, AnyWeights::I16(dw)) => {
+            (DenseKind::Px4, _) => {
                 let AsmAct::Tanh { table, sh, rnd, k } = self.dact else {
                     return Err(());
                 };
-                let dw: &[u32] = bytemuck::try_cast_slice(dw).map_err(|_| ())?;
-                let (wpx, bpx) = (n_in / 2 * C, C);
+                // Words per pixel: 4 channels of n_in i16 or i8.
+                let (dw, wpx): (&[u32], usize) = match dw {
+                    AnyWeights::I16(v) => (bytemuck::try_cast_slice(v).map_err(|_| ())?, n_in * 2),
+                    AnyWeights::I8(v) => (bytemuck::try_cast_slice(v).map_err(|_| ())?, n_in),
+                };
+                let bpx = C;
                 if dw.len() != h * w * wpx || db.len() != h * w * bpx {
                     return Err(());
                 }
@@ -736,6 +816,7 @@ impl<'l, 'a> Fused<'l, 'a> {
                     k1: (k == 1) as u32,
                     rows: h as u32,
                     skip: ((STRIDE - w) * C * 2) as u32,
+                    i8w: !d_i16 as u32,
                 };
                 // SAFETY: h rows of w pixels of 4 outputs: weights and biases are the layer's
                 // tables (lengths checked), the outputs inside `out`, x inside `xw`.

@@ -455,11 +455,19 @@ fn blocked_order_round_trip() {
     let mut seen = vec![false; w.len()];
     (0..w.len()).for_each(|i| seen[l.stored_index(i)] = true);
     assert!(seen.iter().all(|&s| s));
-    // i8 weights, or no convolution after it, stay in PyTorch order (version 1).
+    // i8 weights too; without a convolution after it, PyTorch order (version 1).
     let mut s8 = spec.clone();
     s8.layers[1] = dense(sh(8, 1, 1), sh(4, 2, 3), Activation::Tanh, false);
-    assert!(!s8.blocked(1));
-    assert_eq!(&s8.to_bytes().unwrap()[4..6], &[1, 0]);
+    assert!(s8.blocked(1));
+    let m8 = s8.to_bytes().unwrap();
+    let l8 = &Model::parse(&m8).unwrap().layers[1];
+    let Weights::I8(w8) = &s8.layers[1].weights else { unreachable!() };
+    assert!(w8.iter().enumerate().all(|(i, &v)| l8.weight(i) == v as i32));
+    let mut flat = s8.clone();
+    flat.layers.truncate(2);
+    flat.layers[1].output = sh(1, 4, 6);
+    assert!(!flat.blocked(1));
+    assert_eq!(&flat.to_bytes().unwrap()[4..6], &[1, 0]);
 }
 
 #[test]
