@@ -58,7 +58,7 @@
 //! (checked on synthetic default-conv and published-MLP blobs at 58 x 75). Per frame, in
 //! emulated instructions, i16 weights: default conv decoder (211 648 MACs) about 207 k (0.98
 //! per MAC, target 1.0; 0.85 with 64 hidden units), published MLP (565 784 MACs) about 0.44 M
-//! (0.78 per MAC); i8 weights (SXTB16 on top of SMLAD): 1.50 and 1.35 per MAC. SMLAD alone is
+//! (0.78 per MAC); i8 weights (SXTB16 on top of SMLAD): 1.32 and 1.33 per MAC. SMLAD alone is
 //! 0.5 per MAC; the rest is mostly the per-output table step (3 instructions plus packing) and
 //! loads. After the decoder: saliency about 102 k, blobs about 26 k, reach about 1.6 k: about
 //! 29.9 per pixel.
