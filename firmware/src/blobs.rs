@@ -49,7 +49,8 @@ impl Blob {
         ]
     }
 
-    fn merge(&mut self, o: &Blob) {
+    /// Joins `o` into `self` (statistics of the union of two disjoint pixel sets).
+    pub fn merge(&mut self, o: &Blob) {
         self.area += o.area;
         self.x0 = self.x0.min(o.x0);
         self.y0 = self.y0.min(o.y0);
@@ -367,6 +368,8 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
         }
     }
 }
+
+pub mod merge;
 
 #[cfg(test)]
 mod tests;

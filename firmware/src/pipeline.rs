@@ -4,11 +4,11 @@
 //! in the decoder's spare buffer). It has no heap and a `const` constructor, so a binary can put
 //! it in a `static`. [`detect`] is the pure per-frame function the host tools and the board share.
 
+use crate::blobs::merge;
 use crate::blobs::{Blob, FaceLabeller, Summary};
 use crate::decoder::{DecodeError, Decoder};
 use crate::reach;
 use crate::saliency::{self, Settings, Thresholds};
-use crate::winner::Winner;
 use msr_shared::blob::{Model, REACH_OUT};
 
 /// Why a frame was not processed.
@@ -125,19 +125,19 @@ impl Workspace {
         &m[..n]
     }
 
-    /// Stage 3 and 4: components of the mask, and the winner among them.
+    /// Stage 3 and 4: components of the mask, and the winner among them (among the merged
+    /// fragments when the model merges them: [`merge`](crate::blobs::merge)).
     pub fn blobs(&mut self, model: &Model, min_area: u16) -> (Option<Blob>, Summary) {
         let (w, h) = (model.face_w as usize, model.face_h as usize);
-        let mut winner = Winner::new(min_area);
         let mask = self.decoder.scratch();
-        let summary = self
-            .labeller
-            .label(mask, w, h, |b| winner.offer(b))
-            .unwrap_or(Summary {
-                overflow: true,
-                ..Summary::default()
-            });
-        (winner.best, summary)
+        merge::pick(
+            &mut self.labeller,
+            mask,
+            w,
+            h,
+            min_area,
+            model.novelty.merge,
+        )
     }
 }
 

@@ -109,6 +109,7 @@ fn spec(face_h: u16, face_w: u16, layers: Vec<LayerSpec>, rng: &mut Lcg) -> Mode
             sided: Sided::Two,
             min_area: 6,
             sigma_floor: 0.5,
+            merge: msr_shared::blob::Merge::OFF,
         },
         layers,
         mu: (0..n)

@@ -245,6 +245,7 @@ pub fn synthetic_with(kind: ArchKind, i8w: bool) -> Result<BenchModel> {
             sided: Sided::Two,
             min_area: 30,
             sigma_floor: 1.0,
+            merge: msr_shared::blob::Merge::OFF,
         },
         layers,
         mu,

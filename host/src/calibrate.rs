@@ -12,7 +12,9 @@
 //!   code), with `n = s` (standard deviation, the published code) or `n = s^2` (variance, the
 //!   paper's text);
 //! - detection: pixels with saliency `> threshold`, 8-connected components, those of at least
-//!   `min_area` pixels; the largest wins (first in raster order on ties).
+//!   `min_area` pixels; the largest wins (first in raster order on ties). With a fragment merge
+//!   (`NoveltyParams::merge`, off by default: the paper's stage) nearby components are joined
+//!   before the area test, as the firmware does (`crate::pipeline::pick`).
 //!
 //! Threshold policy: the default is the paper's 4.59. With `--threshold-percentile P`, the
 //! threshold is the P-th percentile (linear interpolation, as numpy's default) of the *detection
@@ -23,7 +25,7 @@
 use anyhow::{bail, ensure, Context, Result};
 use image::{GrayImage, Luma};
 use imageproc::region_labelling::{connected_components, Connectivity};
-use msr_shared::blob::{Normalisation, Sided};
+use msr_shared::blob::{Merge, Normalisation, Sided};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -110,6 +112,9 @@ pub struct NoveltyParams {
     pub threshold: f64,
     pub sigma_floor: f64,
     pub min_area: u16,
+    /// Fragment merge before the area test; off (the paper) by default and in older files.
+    #[serde(default)]
+    pub merge: Merge,
 }
 
 impl Default for NoveltyParams {
@@ -120,6 +125,7 @@ impl Default for NoveltyParams {
             threshold: DEFAULT_THRESHOLD,
             sigma_floor: DEFAULT_SIGMA_FLOOR,
             min_area: DEFAULT_MIN_AREA,
+            merge: Merge::OFF,
         }
     }
 }
@@ -129,6 +135,12 @@ impl NoveltyParams {
         ensure!(self.threshold.is_finite() && self.threshold > 0.0, "threshold must be positive, got {}", self.threshold);
         ensure!(self.sigma_floor.is_finite() && self.sigma_floor >= 0.0, "sigma floor must be >= 0, got {}", self.sigma_floor);
         ensure!(self.min_area >= 1, "minimum blob area must be at least 1");
+        ensure!(
+            self.merge.is_valid(self.min_area),
+            "merge {:?}: the margin must be 0 (off, fragment 0) or 1..={}, with a fragment size of 1..=min_area",
+            self.merge,
+            msr_shared::blob::MAX_MERGE_MARGIN
+        );
         Ok(())
     }
 }
@@ -195,15 +207,16 @@ pub fn blobs(mask: &[bool], h: usize, w: usize, min_area: u32) -> Vec<Blob> {
         .collect()
 }
 
-/// The float detection: saliency above the threshold, the largest blob of at least `min_area`.
+/// The float detection: saliency above the threshold, then (with `p.merge`) the merge of
+/// nearby fragments, the largest blob of at least `min_area` (first in raster order on ties).
 pub fn detect(sal: &[f64], h: usize, w: usize, p: &NoveltyParams) -> Option<Blob> {
     let mask: Vec<bool> = sal.iter().map(|&s| s > p.threshold).collect();
-    blobs(&mask, h, w, p.min_area as u32)
+    let all: Vec<crate::pipeline::Blob> = blobs(&mask, h, w, 1)
         .into_iter()
-        .fold(None, |best: Option<Blob>, b| match best {
-            Some(x) if x.area >= b.area => Some(x),
-            _ => Some(b),
-        })
+        .map(|b| crate::pipeline::Blob { area: b.area, box_xyxy: b.box_xyxy, centroid: b.centroid })
+        .collect();
+    crate::pipeline::pick(&all, p.min_area as u32, p.merge)
+        .map(|b| Blob { area: b.area, box_xyxy: b.box_xyxy, centroid: b.centroid })
 }
 
 /// The largest threshold at which the frame still yields a blob of `min_area` pixels (8-connected):

@@ -135,6 +135,7 @@ pub fn float_engine_of(model: &Model) -> FloatEngine {
             normalisation: model.novelty.normalisation,
             sided: model.novelty.sided,
             min_area: model.novelty.min_area,
+            merge: model.novelty.merge,
         },
         reach: Some(model.reach),
         face_w: model.face_w as usize,

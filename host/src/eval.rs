@@ -413,6 +413,7 @@ fn trained_model(
             normalisation: info.novelty.normalisation,
             sided: info.novelty.sided,
             min_area: info.novelty.min_area,
+            merge: info.novelty.merge,
         },
         source: format!(
             "{} (trained, float)",
@@ -435,6 +436,7 @@ fn published_float_decoder(manifest: &Path) -> Result<FloatModel> {
             normalisation: msr_shared::blob::Normalisation::StdDev,
             sided: p.sided,
             min_area: p.min_area,
+            merge: msr_shared::blob::Merge::OFF,
         },
         source: format!("{} (published float decoder)", manifest.display()),
         predictor: Box::new(p.decoder),

@@ -399,6 +399,7 @@ impl Published {
                 sided: self.sided,
                 min_area: self.min_area,
                 sigma_floor: SIGMA_FLOOR,
+                merge: msr_shared::blob::Merge::OFF,
             },
             layers: quantize_dense_stack(&self.decoder.layers, HEAD_IN_SHIFT, (h, w))?,
             mu: self.mu.iter().map(|&v| q8_8(v)).collect(),

@@ -2,7 +2,7 @@
 //! winner -> reach. The float engine lives here; the fixed engine is the firmware's code
 //! (`crate::fixed`). Both give a [`Detection`] so that `detect` and `eval` treat them alike.
 use crate::crop::CropBox;
-use msr_shared::blob::{Normalisation, Reach, Sided, REACH_HIDDEN, REACH_OUT};
+use msr_shared::blob::{Merge, Normalisation, Reach, Sided, REACH_HIDDEN, REACH_OUT};
 use serde::Serialize;
 
 /// A connected component of salient pixels. Coordinates are in whatever frame it was found in
@@ -37,6 +37,66 @@ pub fn winner(blobs: &[Blob], min_area: u32) -> Option<Blob> {
     best
 }
 
+/// The winner of `blobs` (in raster order of their first pixels, as [`label_blobs`] gives
+/// them): with `merge` on, fragments of at least `merge.fragment` pixels whose boxes come within
+/// `merge.margin` are merged first (the firmware's `blobs::merge`, in float); a frame with more
+/// than `MAX_FRAGMENTS` fragments is not merged. Largest area wins, the earlier first pixel on
+/// ties.
+pub fn pick(blobs: &[Blob], min_area: u32, merge: Merge) -> Option<Blob> {
+    use msr_firmware::blobs::merge::MAX_FRAGMENTS;
+    if !merge.is_on() {
+        return winner(blobs, min_area);
+    }
+    // (area, box, sum x, sum y, rank of the first pixel)
+    let mut g: Vec<(u32, [u32; 4], f64, f64, usize)> = blobs
+        .iter()
+        .enumerate()
+        .filter(|(_, b)| b.area >= merge.fragment as u32)
+        .map(|(i, b)| {
+            let n = b.area as f64;
+            (b.area, b.box_xyxy, (b.centroid[0] * n).round(), (b.centroid[1] * n).round(), i)
+        })
+        .collect();
+    if g.len() > MAX_FRAGMENTS {
+        return winner(blobs, min_area);
+    }
+    let m = merge.margin as u32;
+    let near = |a: &[u32; 4], b: &[u32; 4]| {
+        a[0] <= b[2] + m && b[0] <= a[2] + m && a[1] <= b[3] + m && b[1] <= a[3] + m
+    };
+    let mut changed = true;
+    while changed {
+        changed = false;
+        let mut i = 0;
+        while i < g.len() {
+            let mut j = i + 1;
+            while j < g.len() {
+                if near(&g[i].1, &g[j].1) {
+                    let b = g.swap_remove(j);
+                    let a = &mut g[i];
+                    a.0 += b.0;
+                    a.1 = [a.1[0].min(b.1[0]), a.1[1].min(b.1[1]), a.1[2].max(b.1[2]), a.1[3].max(b.1[3])];
+                    a.2 += b.2;
+                    a.3 += b.3;
+                    a.4 = a.4.min(b.4);
+                    changed = true;
+                } else {
+                    j += 1;
+                }
+            }
+            i += 1;
+        }
+    }
+    g.into_iter()
+        .filter(|b| b.0 >= min_area)
+        .min_by_key(|b| (std::cmp::Reverse(b.0), b.4))
+        .map(|(area, box_xyxy, sx, sy, _)| Blob {
+            area,
+            box_xyxy,
+            centroid: [sx / area as f64, sy / area as f64],
+        })
+}
+
 /// Novelty settings of one evaluation row or one detection.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Settings {
@@ -44,6 +104,7 @@ pub struct Settings {
     pub normalisation: Normalisation,
     pub sided: Sided,
     pub min_area: u16,
+    pub merge: Merge,
 }
 
 /// Per-pixel saliency in threshold units: `(e - mu) / n` (one-sided) or `|e - mu| / n`, with
@@ -187,7 +248,7 @@ impl FloatEngine {
         let mask: Vec<bool> = saliency.iter().map(|&v| v > s.threshold).collect();
         let h = mask.len() / self.face_w.max(1);
         let blobs = label_blobs(&mask, self.face_w, h);
-        let blob = winner(&blobs, s.min_area as u32).map(|b| b.offset(crop.x, crop.y));
+        let blob = pick(&blobs, s.min_area as u32, s.merge).map(|b| b.offset(crop.x, crop.y));
         let joints = match (&self.reach, blob) {
             (Some(r), Some(b)) => Some(reach_float(r, b.centroid[0] as f32, b.centroid[1] as f32)),
             _ => None,
@@ -200,5 +261,84 @@ impl FloatEngine {
             blob,
             joints,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use msr_firmware::blobs::{merge, FaceLabeller};
+
+    fn xorshift_mask(w: usize, h: usize, density: u64, seed: u64) -> Vec<bool> {
+        let mut s = seed | 1;
+        (0..w * h)
+            .map(|_| {
+                s ^= s << 13;
+                s ^= s >> 7;
+                s ^= s << 17;
+                s % 100 < density
+            })
+            .collect()
+    }
+
+    /// The float blob stage (imageproc labels, `pick`) and the firmware's (its labeller,
+    /// `blobs::merge::pick`) give the same winner, merged or not, to the last bit.
+    #[test]
+    fn float_and_firmware_winners_agree_with_and_without_merge() {
+        let mut lab = Box::new(FaceLabeller::new());
+        let merges = [
+            Merge::OFF,
+            Merge { margin: 1, fragment: 1 },
+            Merge { margin: 3, fragment: 3 },
+            Merge { margin: 5, fragment: 3 },
+            Merge { margin: 8, fragment: 10 },
+        ];
+        let mut merged_differs = 0;
+        for seed in 0..300u64 {
+            let (w, h) = (75, 58);
+            let density = [2, 5, 10, 20, 40][seed as usize % 5];
+            let mask = xorshift_mask(w, h, density, seed);
+            let bytes: Vec<u8> = mask.iter().map(|&m| m as u8).collect();
+            let blobs = label_blobs(&mask, w, h);
+            for (k, &m) in merges.iter().enumerate() {
+                let min_area = [30u16, 12, 8][(seed as usize + k) % 3].max(m.fragment);
+                let host = pick(&blobs, min_area as u32, m);
+                let (fw, _) = merge::pick(&mut lab, &bytes, w, h, min_area, m);
+                let fw = fw.map(|b| {
+                    let a = b.area as f64;
+                    Blob {
+                        area: b.area,
+                        box_xyxy: [b.x0 as u32, b.y0 as u32, b.x1 as u32, b.y1 as u32],
+                        centroid: [b.sum_x as f64 / a, b.sum_y as f64 / a],
+                    }
+                });
+                assert_eq!(host, fw, "seed {seed}, {m:?}, min area {min_area}");
+                if m.is_on() && host != pick(&blobs, min_area as u32, Merge::OFF) {
+                    merged_differs += 1;
+                }
+            }
+        }
+        // The masks exercise the merge, not only the plain winner.
+        assert!(merged_differs > 100, "{merged_differs}");
+    }
+
+    #[test]
+    fn merge_joins_a_broken_mark_that_the_papers_stage_misses() {
+        // A 12 x 12 mark seen only over a 4 px grid of 2 x 2 spots (36 px), as on the taxel cover.
+        let (w, h) = (30, 20);
+        let mut mask = vec![false; w * h];
+        for y in (4..16).step_by(4) {
+            for x in (6..18).step_by(4) {
+                for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                    mask[(y + dy) * w + x + dx] = true;
+                }
+            }
+        }
+        let blobs = label_blobs(&mask, w, h);
+        assert_eq!(pick(&blobs, 30, Merge::OFF), None);
+        assert_eq!(pick(&blobs, 30, Merge { margin: 2, fragment: 3 }), None, "gaps of 2 need margin 3");
+        let b = pick(&blobs, 30, Merge { margin: 3, fragment: 3 }).unwrap();
+        assert_eq!((b.area, b.box_xyxy), (36, [6, 4, 15, 13]));
+        assert_eq!(b.centroid, [10.5, 8.5]);
     }
 }

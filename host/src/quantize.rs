@@ -290,6 +290,7 @@ pub fn blob_of(layers: Vec<LayerSpec>, x: &Extras) -> Result<Vec<u8>> {
             sided: p.sided,
             min_area: p.min_area,
             sigma_floor: p.sigma_floor as f32,
+            merge: p.merge,
         },
         layers,
         mu: x.stats.mu.iter().map(|&v| grey_q88(v)).collect(),

@@ -223,6 +223,7 @@ pub fn run(args: Args) -> Result<()> {
         threshold: args.threshold,
         sigma_floor: args.sigma_floor,
         min_area: args.min_area,
+        merge: msr_shared::blob::Merge::OFF,
     };
     novelty.check()?;
     let hp = HyperParams {

@@ -8,7 +8,7 @@
 //!   8  total_len u32         12  crc32 u32 (CRC-32/ISO-HDLC of bytes 16..total_len)
 //!  16  face_h u16            18  face_w u16        20  n_layers u16    22  flags u16 (bit 0: template)
 //!  24  threshold f32         28  normalisation u8  29  sided u8        30  min_area u16
-//!  32  sigma_floor f32       36  reserved u32 (0)
+//!  32  sigma_floor f32       36  merge_margin u8      37  reserved u8 (0) 38  merge_fragment u16
 //! n_layers x layer:
 //!   descriptor (LAYER_DESC_LEN = 32 bytes)
 //!     0 kind u8  1 activation u8  2 weight dtype u8  3 weight order u8 (0 PyTorch, 1 blocked)
@@ -44,6 +44,12 @@
 //! ConvTranspose2d (the conv decoder's big layer) and writes version 1, which older readers
 //! take, when no layer uses it.
 //!
+//! Fragment merge (version 3; bytes 36..40 are zero before): `merge_margin` 0 is the paper's
+//! blob stage. Otherwise 8-connected components of at least `merge_fragment` pixels whose
+//! boxes, one grown by `merge_margin` pixels on every side, overlap are merged (repeatedly, as
+//! OpenMV's `find_blobs(merge=True, margin=N)`) before the `min_area` test; see [`Merge`]. The
+//! writer uses version 3 only for a blob that merges.
+//!
 //! [`Model::parse`] checks all of it (magic, version, lengths, CRC, every shape and the chaining of
 //! layers) and borrows the tables from the input bytes, so a blob in flash costs no RAM.
 
@@ -51,8 +57,11 @@ use core::fmt;
 use serde::{Deserialize, Serialize};
 
 pub const MAGIC: [u8; 4] = *b"MSRM";
-/// The newest version this build reads and writes (version 1 has no weight order byte).
-pub const VERSION: u16 = 2;
+/// The newest version this build reads and writes (version 1 has no weight order byte,
+/// versions 1 and 2 no fragment merge).
+pub const VERSION: u16 = 3;
+/// Largest [`Merge::margin`].
+pub const MAX_MERGE_MARGIN: u8 = 16;
 /// Inputs per block of the blocked weight order.
 pub const BLOCK: usize = 8;
 pub const HEADER_LEN: usize = 40;
@@ -255,6 +264,36 @@ pub struct Novelty {
     pub min_area: u16,
     /// The floor applied to sigma when the statistics were made (grey levels), for reference.
     pub sigma_floor: f32,
+    pub merge: Merge,
+}
+
+/// Merging of nearby components before the minimum-area test (a deviation from the paper, for
+/// marks that the saliency breaks up, e.g. along a textured cover). `margin` 0: off.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Merge {
+    /// Two boxes merge when one, grown by this many pixels on every side, overlaps the other
+    /// (so at most `margin - 1` empty rows or columns lie between them).
+    pub margin: u8,
+    /// Smallest component (pixels) that takes part; smaller ones are dropped as noise.
+    pub fragment: u16,
+}
+
+impl Merge {
+    /// The paper's blob stage: no merge.
+    pub const OFF: Merge = Merge { margin: 0, fragment: 0 };
+
+    pub fn is_on(&self) -> bool {
+        self.margin > 0
+    }
+
+    /// Off, or a margin up to [`MAX_MERGE_MARGIN`] with `1 <= fragment <= min_area`.
+    pub fn is_valid(&self, min_area: u16) -> bool {
+        if self.margin == 0 {
+            self.fragment == 0
+        } else {
+            self.margin <= MAX_MERGE_MARGIN && self.fragment >= 1 && self.fragment <= min_area
+        }
+    }
 }
 
 /// One decoder layer, its tables borrowed from the blob.
@@ -596,8 +635,14 @@ impl<'a> Model<'a> {
         {
             return Err(BlobError::Novelty);
         }
-        if r.u32()? != 0 {
+        let merge_margin = r.u8()?;
+        let reserved = r.u8()?;
+        let merge = Merge { margin: merge_margin, fragment: r.u16()? };
+        if reserved != 0 || (version < 3 && merge != Merge::OFF) {
             return Err(BlobError::BadHeader);
+        }
+        if !merge.is_valid(min_area) {
+            return Err(BlobError::Novelty);
         }
 
         let mut layers = heapless::Vec::new();
@@ -658,7 +703,7 @@ impl<'a> Model<'a> {
         Ok(Model {
             face_h,
             face_w,
-            novelty: Novelty { threshold, normalisation, sided, min_area, sigma_floor },
+            novelty: Novelty { threshold, normalisation, sided, min_area, sigma_floor, merge },
             layers,
             mu,
             sigma,
@@ -859,7 +904,13 @@ mod writer {
         /// returns is one the board accepts.
         pub fn to_bytes(&self) -> Result<Vec<u8>, BlobError> {
             let blocked: Vec<bool> = (0..self.layers.len()).map(|i| self.blocked(i)).collect();
-            let version: u16 = if blocked.contains(&true) { 2 } else { 1 };
+            let version: u16 = if self.novelty.merge.is_on() {
+                3
+            } else if blocked.contains(&true) {
+                2
+            } else {
+                1
+            };
             let mut o = Vec::new();
             o.extend_from_slice(&MAGIC);
             o.extend_from_slice(&version.to_le_bytes());
@@ -882,7 +933,9 @@ mod writer {
             });
             o.extend_from_slice(&n.min_area.to_le_bytes());
             o.extend_from_slice(&n.sigma_floor.to_le_bytes());
-            o.extend_from_slice(&0u32.to_le_bytes());
+            o.push(n.merge.margin);
+            o.push(0);
+            o.extend_from_slice(&n.merge.fragment.to_le_bytes());
             debug_assert_eq!(o.len(), HEADER_LEN);
 
             for (l, &blocked) in self.layers.iter().zip(&blocked) {

@@ -191,3 +191,153 @@ proptest! {
         }
     }
 }
+
+mod merging {
+    use super::super::merge::{pick, MAX_FRAGMENTS};
+    use super::*;
+    use msr_shared::blob::Merge;
+
+    /// Independent reference: flood-fill components, fragments of at least `fragment` pixels,
+    /// groups joined by union until no two groups' boxes are within the margin, then the
+    /// largest group (earliest first pixel on ties) of at least `min_area`.
+    fn reference_pick(mask: &[u8], w: usize, h: usize, min_area: u16, merge: Merge) -> Option<Blob> {
+        let comps = reference(mask, w, h);
+        let best = |v: &[Blob]| {
+            v.iter()
+                .filter(|b| b.area >= min_area as u32)
+                .min_by_key(|b| (core::cmp::Reverse(b.area), b.first))
+                .copied()
+        };
+        if !merge.is_on() {
+            return best(&comps);
+        }
+        let frags: Vec<Blob> = comps.iter().filter(|b| b.area >= merge.fragment as u32).copied().collect();
+        if frags.len() > MAX_FRAGMENTS {
+            return best(&comps);
+        }
+        let mut group: Vec<usize> = (0..frags.len()).collect();
+        let m = merge.margin as i64;
+        loop {
+            let mut boxes: Vec<Option<Blob>> = vec![None; frags.len()];
+            for (i, f) in frags.iter().enumerate() {
+                let g = &mut boxes[group[i]];
+                match g {
+                    None => *g = Some(*f),
+                    Some(b) => b.merge(f),
+                }
+            }
+            let mut joined = false;
+            'pairs: for a in 0..frags.len() {
+                for b in 0..frags.len() {
+                    if let (Some(x), Some(y)) = (boxes[a], boxes[b]) {
+                        let near = (x.x0 as i64) <= y.x1 as i64 + m
+                            && (y.x0 as i64) <= x.x1 as i64 + m
+                            && (x.y0 as i64) <= y.y1 as i64 + m
+                            && (y.y0 as i64) <= x.y1 as i64 + m;
+                        if a != b && near {
+                            for g in group.iter_mut() {
+                                if *g == b {
+                                    *g = a;
+                                }
+                            }
+                            joined = true;
+                            break 'pairs;
+                        }
+                    }
+                }
+            }
+            if !joined {
+                let groups: Vec<Blob> = boxes.into_iter().flatten().collect();
+                return best(&groups);
+            }
+        }
+    }
+
+    fn run(mask: &[u8], w: usize, h: usize, min_area: u16, merge: Merge) -> Option<Blob> {
+        pick(&mut Box::new(FaceLabeller::new()), mask, w, h, min_area, merge).0
+    }
+
+    #[test]
+    fn pieces_join_within_the_margin_only() {
+        // Three 2 x 2 pieces with two empty columns between them, and a lone pixel.
+        let (m, w, h) = parse(&["##..##..##..#", "##..##..##..."]);
+        let off = run(&m, w, h, 12, Merge::OFF);
+        assert_eq!(off, None, "no piece reaches 12 px");
+        assert_eq!(run(&m, w, h, 12, Merge { margin: 2, fragment: 3 }), None);
+        let b = run(&m, w, h, 12, Merge { margin: 3, fragment: 3 }).unwrap();
+        // The lone pixel is below the fragment size: not counted, not in the box.
+        assert_eq!((b.area, b.x0, b.y0, b.x1, b.y1, b.first), (12, 0, 0, 9, 1, 0));
+        assert_eq!(b.centroid(), [4.5, 0.5]);
+        // Fragment size 1 takes the lone pixel in too.
+        let b = run(&m, w, h, 12, Merge { margin: 3, fragment: 1 }).unwrap();
+        assert_eq!((b.area, b.x1), (13, 12));
+    }
+
+    #[test]
+    fn a_grown_box_reaches_further() {
+        // A (rows 2-3) and B (rows 5-6) are near; C (top right) is near neither (too far
+        // right of A, too far above B) but near their union's box.
+        let (m, w, h) = parse(&[
+            "......##", //
+            "......##", //
+            "##......", //
+            "##......", //
+            "........", //
+            "...##...", //
+            "...##...",
+        ]);
+        let merge = Merge { margin: 2, fragment: 4 };
+        let b = run(&m, w, h, 12, merge).unwrap();
+        assert_eq!((b.area, b.x0, b.y0, b.x1, b.y1, b.first), (12, 0, 0, 7, 6, 6));
+        // Without C the union is only A and B.
+        let mut no_c = m.clone();
+        no_c[6] = 0;
+        no_c[7] = 0;
+        no_c[w + 6] = 0;
+        no_c[w + 7] = 0;
+        assert_eq!(run(&no_c, w, h, 8, merge).map(|b| b.area), Some(8));
+        assert_eq!(Some(b), reference_pick(&m, w, h, 12, merge));
+    }
+
+    #[test]
+    fn too_many_fragments_fall_back_to_the_papers_winner() {
+        // 40 lone 2 x 2 squares and one 3 x 3: more fragments than kept, so no merge.
+        let w = 90;
+        let h = 9;
+        let mut m = vec![0u8; w * h];
+        for k in 0..40 {
+            let (x, y) = ((k % 20) * 4, (k / 20) * 4);
+            for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                m[(y + dy) * w + x + dx] = 1;
+            }
+        }
+        for dy in 0..3 {
+            for dx in 0..3 {
+                m[(6 + dy) * w + 84 + dx] = 1;
+            }
+        }
+        let merge = Merge { margin: 3, fragment: 4 };
+        let b = run(&m, w, h, 9, merge).unwrap();
+        assert_eq!((b.area, b.x0), (9, 84));
+        assert_eq!(Some(b), run(&m, w, h, 9, Merge::OFF));
+        assert_eq!(Some(b), reference_pick(&m, w, h, 9, merge));
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig { cases: 300, ..ProptestConfig::default() })]
+
+        #[test]
+        fn agrees_with_the_reference(
+            w in 1usize..=96, h in 1usize..=64, density in 0u32..25, seed: u64,
+            margin in 0u8..=6, fragment in 1u16..=6, min_area in 1u16..=40,
+        ) {
+            let mut s = seed | 1;
+            let m: Vec<u8> = (0..w * h).map(|_| {
+                s ^= s << 13; s ^= s >> 7; s ^= s << 17;
+                ((s % 100) < density as u64) as u8
+            }).collect();
+            let merge = if margin == 0 { Merge::OFF } else { Merge { margin, fragment: fragment.min(min_area) } };
+            prop_assert_eq!(run(&m, w, h, min_area, merge), reference_pick(&m, w, h, min_area, merge));
+        }
+    }
+}

@@ -58,6 +58,7 @@ fn mlp_spec() -> ModelSpec {
             sided: Sided::One,
             min_area: 30,
             sigma_floor: 1.0,
+            merge: Merge::OFF,
         },
         layers: vec![
             dense(sh(2, 1, 1), sh(5, 1, 1), Activation::Tanh, false),
@@ -220,9 +221,10 @@ fn header_checks() {
     };
     assert_eq!(edit(0, b"MSRX"), Err(BlobError::BadMagic));
     assert_eq!(edit(4, &[0, 0]), Err(BlobError::UnsupportedVersion(0)));
-    assert_eq!(edit(4, &[3, 0]), Err(BlobError::UnsupportedVersion(3)));
-    // Version 2 reads version 1's layout too.
+    assert_eq!(edit(4, &[4, 0]), Err(BlobError::UnsupportedVersion(4)));
+    // Versions 2 and 3 read version 1's layout too.
     assert!(edit(4, &[2, 0]).is_ok());
+    assert!(edit(4, &[3, 0]).is_ok());
     assert_eq!(edit(6, &[41, 0]), Err(BlobError::BadHeader));
     assert_eq!(edit(16, &[0, 0]), Err(BlobError::FaceSize));
     assert_eq!(edit(16, &[65, 0]), Err(BlobError::FaceSize));
@@ -487,4 +489,37 @@ fn blocked_order_checks() {
     assert_eq!(edit(4, &[1, 0]), Err(BlobError::BadLayer(1)), "version 1 has no order byte");
     // Blocked is for Dense layers only, and the first layer's 2 inputs are not a block.
     assert_eq!(edit(HEADER_LEN + 3, &[1]), Err(BlobError::BadLayer(0)));
+}
+
+#[test]
+fn merge_fields_need_version_3_and_valid_values() {
+    let mut spec = mlp_spec();
+    let plain = spec.to_bytes().unwrap();
+    assert_eq!(&plain[4..6], &[1, 0], "no merge: version 1");
+    assert_eq!(&plain[36..40], &[0; 4]);
+    spec.novelty.merge = Merge { margin: 4, fragment: 3 };
+    let bytes = spec.to_bytes().unwrap();
+    assert_eq!(&bytes[4..6], &[3, 0], "a merging blob is version 3");
+    assert_eq!(&bytes[36..40], &[4, 0, 3, 0]);
+    assert_eq!(Model::parse(&bytes).unwrap().novelty.merge, Merge { margin: 4, fragment: 3 });
+    let edit = |at: usize, v: &[u8]| {
+        let mut b = bytes.clone();
+        b[at..at + v.len()].copy_from_slice(v);
+        recrc(&mut b);
+        Model::parse(&b).map(|m| m.novelty.merge)
+    };
+    // Older versions have no merge fields: their bytes must stay zero.
+    assert_eq!(edit(4, &[2, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(37, &[1]), Err(BlobError::BadHeader));
+    // Margin without fragment size, fragment without margin, fragment above min_area (30),
+    // margin above the limit.
+    assert_eq!(edit(38, &[0, 0]), Err(BlobError::Novelty));
+    assert_eq!(edit(36, &[0]), Err(BlobError::Novelty));
+    assert_eq!(edit(38, &[31, 0]), Err(BlobError::Novelty));
+    assert_eq!(edit(36, &[MAX_MERGE_MARGIN + 1]), Err(BlobError::Novelty));
+    assert_eq!(edit(38, &[30, 0]), Ok(Merge { margin: 4, fragment: 30 }));
+    assert_eq!(edit(36, &[0, 0, 0, 0]), Ok(Merge::OFF), "version 3 may also not merge");
+    // The writer refuses what the parser refuses.
+    spec.novelty.merge = Merge { margin: 2, fragment: 0 };
+    assert_eq!(spec.to_bytes(), Err(BlobError::Novelty));
 }

@@ -1,0 +1,144 @@
+//! Optional fragment merge (a deviation from the paper, off unless the model enables it): a mark
+//! whose grey is close to a textured cover differs mostly over the texture's dark spots, so its
+//! salient pixels break up into pieces that no single 8-connected component of `min_area` holds.
+//!
+//! As OpenMV's `find_blobs(merge=True, margin=N)`: components of at least `fragment` pixels are
+//! kept; two whose boxes come within the margin (one box grown by `margin` pixels on every side
+//! overlaps the other) are merged (area and coordinate sums added, boxes joined, the earlier
+//! first pixel kept), again and again until no two are that close. Merging only grows boxes, so
+//! the groups do not depend on the order the components arrive in. The winner is then the
+//! largest group of at least `min_area` pixels (ties: first pixel first in raster order).
+//!
+//! At most [`MAX_FRAGMENTS`] fragments are kept; a frame with more (a face that is salient all
+//! over) is not merged at all: the caller uses the paper's winner for it.
+
+use super::{Blob, Labeller, Summary};
+use msr_shared::blob::Merge;
+
+/// Fragments kept per frame.
+pub const MAX_FRAGMENTS: usize = 32;
+
+/// Whether box `a` grown by `m` pixels overlaps box `b`.
+#[inline]
+pub fn near(a: &Blob, b: &Blob, m: u16) -> bool {
+    let m = m as u32;
+    a.x0 as u32 <= b.x1 as u32 + m
+        && b.x0 as u32 <= a.x1 as u32 + m
+        && a.y0 as u32 <= b.y1 as u32 + m
+        && b.y0 as u32 <= a.y1 as u32 + m
+}
+
+/// The fragments of one frame.
+pub struct Fragments {
+    items: [Blob; MAX_FRAGMENTS],
+    n: usize,
+    fragment: u32,
+    /// More fragments than fit: the frame is not merged.
+    pub overflow: bool,
+}
+
+const EMPTY: Blob = Blob {
+    area: 0,
+    x0: 0,
+    y0: 0,
+    x1: 0,
+    y1: 0,
+    sum_x: 0,
+    sum_y: 0,
+    first: 0,
+};
+
+impl Fragments {
+    pub const fn new(fragment: u16) -> Self {
+        Fragments {
+            items: [EMPTY; MAX_FRAGMENTS],
+            n: 0,
+            fragment: fragment as u32,
+            overflow: false,
+        }
+    }
+
+    /// Keeps `b` when it is large enough to be a fragment.
+    pub fn offer(&mut self, b: &Blob) {
+        if b.area < self.fragment {
+            return;
+        }
+        if self.n == MAX_FRAGMENTS {
+            self.overflow = true;
+            return;
+        }
+        self.items[self.n] = *b;
+        self.n += 1;
+    }
+
+    /// Merges until no two fragments are within `margin`; returns the groups (None after an
+    /// overflow).
+    pub fn merge(&mut self, margin: u8) -> Option<&[Blob]> {
+        if self.overflow {
+            return None;
+        }
+        let m = margin as u16;
+        let mut changed = true;
+        while changed {
+            changed = false;
+            let mut i = 0;
+            while i < self.n {
+                let mut j = i + 1;
+                while j < self.n {
+                    if near(&self.items[i], &self.items[j], m) {
+                        let b = self.items[j];
+                        self.items[i].merge(&b);
+                        self.n -= 1;
+                        self.items[j] = self.items[self.n];
+                        changed = true;
+                    } else {
+                        j += 1;
+                    }
+                }
+                i += 1;
+            }
+        }
+        Some(&self.items[..self.n])
+    }
+}
+
+/// Stages 3 and 4 on a mask: the components, and the winner among them, or among the merged
+/// fragments when `merge` is on (the paper's winner for a frame that overflows the fragments).
+pub fn pick<const L: usize, const R: usize>(
+    labeller: &mut Labeller<L, R>,
+    mask: &[u8],
+    w: usize,
+    h: usize,
+    min_area: u16,
+    merge: Merge,
+) -> (Option<Blob>, Summary) {
+    let mut plain = crate::winner::Winner::new(min_area);
+    let mut frags = Fragments::new(merge.fragment);
+    let summary = labeller
+        .label(mask, w, h, |b| {
+            plain.offer(b);
+            if merge.is_on() {
+                frags.offer(b);
+            }
+        })
+        .unwrap_or(Summary {
+            overflow: true,
+            ..Summary::default()
+        });
+    let best = winner(&mut frags, merge, min_area).unwrap_or(plain.best);
+    (best, summary)
+}
+
+/// The merged groups' winner when `merge` is on and the frame did not overflow; `None` means
+/// "use the paper's winner".
+pub fn winner(frags: &mut Fragments, merge: Merge, min_area: u16) -> Option<Option<Blob>> {
+    if !merge.is_on() {
+        return None;
+    }
+    let groups = frags.merge(merge.margin)?;
+    let mut w = crate::winner::Winner::new(min_area);
+    for g in groups {
+        w.offer(g);
+    }
+    Some(w.best)
+}
