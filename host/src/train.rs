@@ -11,7 +11,9 @@
 //!
 //! Frames: the training split's unmarked frames train the model and make the statistics; the test
 //! split gives the per-epoch test loss (mark pixels excluded) and, for `--threshold-percentile`,
-//! its unmarked frames are the normal held-out frames (see `crate::calibrate`).
+//! its unmarked frames are the normal held-out frames (see `crate::calibrate`). `msr demo` then
+//! applies the calibrated novelty policy (`policy`), which may lower the threshold and turn on the
+//! fragment merge, and rewrites `{name}.json`.
 use crate::calibrate::{self, ErrorStats, NoveltyParams};
 use crate::data::{Dataset, Sample};
 use crate::models::{ArchKind, Autoencoder, Decoder, DecoderSpec, FloatLayer};
@@ -26,6 +28,7 @@ use std::path::{Path, PathBuf};
 
 pub mod fit;
 pub mod plot;
+pub mod policy;
 #[cfg(test)]
 pub(crate) mod synthetic;
 
@@ -119,7 +122,7 @@ pub struct Args {
 /// How the threshold was chosen.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ThresholdPolicy {
-    /// "fixed" or "percentile".
+    /// "fixed", "percentile", or "calibrated" (`policy::apply`, which `msr demo` runs).
     pub kind: String,
     pub percentile: Option<f64>,
     /// The frames whose detection scores were used (percentile only).
@@ -149,6 +152,9 @@ pub struct ModelInfo {
     pub training_seconds: f64,
     pub novelty: NoveltyParams,
     pub threshold_policy: ThresholdPolicy,
+    /// The calibrated novelty policy's choice (`policy::apply`), when it was applied.
+    #[serde(default)]
+    pub novelty_policy: Option<policy::Choice>,
     /// Frames the error statistics were made from.
     pub stats_frames: usize,
     pub files: Files,
@@ -345,6 +351,7 @@ pub fn run(args: Args) -> Result<()> {
         training_seconds: hist.seconds,
         novelty,
         threshold_policy: policy,
+        novelty_policy: None,
         stats_frames: stats.frames,
         files,
     };
