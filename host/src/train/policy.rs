@@ -35,13 +35,15 @@ use serde::{Deserialize, Serialize};
 
 /// Thresholds tried, largest (the paper's) first.
 pub const THRESHOLDS: [f64; 7] = [calibrate::DEFAULT_THRESHOLD, 4.0, 3.5, 3.0, 2.5, 2.25, 2.0];
-/// Merges tried, no merge (the paper's) first.
-pub const MERGES: [Merge; 5] = [
+/// Merges tried, no merge (the paper's) first, then by how far they reach.
+pub const MERGES: [Merge; 7] = [
     Merge::OFF,
     Merge { margin: 2, fragment: 3 },
     Merge { margin: 3, fragment: 3 },
     Merge { margin: 4, fragment: 3 },
     Merge { margin: 5, fragment: 3 },
+    Merge { margin: 4, fragment: 2 },
+    Merge { margin: 5, fragment: 2 },
 ];
 /// Normal frames must stay undetected at the threshold divided by this.
 pub const SAFETY: f64 = 1.25;
