@@ -68,8 +68,8 @@ pub struct Args {
     /// Host backend: repetitions per stage and frame.
     #[arg(long, default_value_t = 50)]
     pub reps: usize,
-    /// Weight type of the synthetic blobs (`msr quantize --weights auto` takes i8 when the
-    /// PSNR allows; the board runs both, i16 faster).
+    /// Weight type of the synthetic blobs (`msr quantize --weights auto` takes i16 when the
+    /// blob fits a board upload slot; the board runs both, i16 faster).
     #[arg(long, value_enum, default_value = "i16")]
     pub weights: SynthWeights,
 }

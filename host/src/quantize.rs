@@ -16,8 +16,10 @@
 //!   activation's resolution against the next layer's weight bits: starting from 15 everywhere,
 //!   one pass tries 10..=15 per hidden layer and keeps the shift with the best PSNR, measured by
 //!   running the firmware's own decoder on the calibration head poses;
-//! - `--weights auto` (default) takes i8 weights when they keep the PSNR at or above
-//!   [`PSNR_TARGET_DB`], else i16;
+//! - `--weights auto` (default) takes i16 weights when the i16 blob fits [`AUTO_I16_MAX_BYTES`]
+//!   (the board's upload slot): on the Cortex-M4 they are the fast ones (SMLAD takes i16 pairs
+//!   directly; i8 needs SXTB16 first, about a third more instructions per MAC). A bigger model
+//!   takes i8 when that keeps the PSNR at or above [`PSNR_TARGET_DB`], else i16;
 //! - mu and sigma go to Q8.8 grey levels, sigma floored at the training floor (and one Q8.8 step).
 //!
 //! The report compares float against fixed point, the fixed side always being the firmware's code
@@ -43,13 +45,17 @@ use std::path::{Path, PathBuf};
 pub const HEAD_IN_SHIFT: i8 = 13;
 /// What the fixed-point faces must keep against float.
 pub const PSNR_TARGET_DB: f64 = 40.0;
+/// Largest blob `--weights auto` writes with i16 weights: one NUCLEO-F429ZI upload slot
+/// (`firmware/nucleo/src/store.rs`), about 6 s over the 921,600-baud host link.
+pub const AUTO_I16_MAX_BYTES: usize = 512 * 1024;
 /// Accumulator limit with headroom.
 const ACC_LIMIT: f64 = 2147483648.0 - 1024.0;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum WeightArg {
-    /// i8 if it keeps the PSNR target, else i16
+    /// i16 if the blob fits a board upload slot (faster on the M4), else i8 if it keeps the
+    /// PSNR target, else i16
     Auto,
     I8,
     I16,
@@ -313,6 +319,11 @@ pub struct Chosen {
 
 /// Searches output shifts (and weight type) as described in the module doc.
 pub fn choose(layers: &[FloatLayer], x: &Extras, heads: &[[f32; 2]], weights: WeightArg) -> Result<Chosen> {
+    choose_within(layers, x, heads, weights, AUTO_I16_MAX_BYTES)
+}
+
+/// [`choose`] with the size up to which `Auto` takes i16 weights.
+fn choose_within(layers: &[FloatLayer], x: &Extras, heads: &[[f32; 2]], weights: WeightArg, i16_max_bytes: usize) -> Result<Chosen> {
     ensure!(!heads.is_empty(), "no head poses to calibrate on");
     let float = float_faces(layers, heads);
     let search = |i8w: bool| -> Result<(Vec<u8>, Vec<i8>, f64)> {
@@ -339,6 +350,14 @@ pub fn choose(layers: &[FloatLayer], x: &Extras, heads: &[[f32; 2]], weights: We
         }
         Ok((best_blob, shifts, best))
     };
+    let mut i16r = None;
+    if weights == WeightArg::Auto {
+        let (blob, shifts, p) = search(false)?;
+        if blob.len() <= i16_max_bytes {
+            return Ok(Chosen { blob, out_shifts: shifts, i8_weights: false, psnr_db: p, psnr_i8_db: None });
+        }
+        i16r = Some((blob, shifts, p));
+    }
     let try_i8 = weights != WeightArg::I16;
     let i8r = if try_i8 { Some(search(true)) } else { None };
     if let Some(Ok((blob, shifts, p))) = &i8r {
@@ -349,7 +368,10 @@ pub fn choose(layers: &[FloatLayer], x: &Extras, heads: &[[f32; 2]], weights: We
     if weights == WeightArg::I8 {
         bail!("i8 weights: {}", i8r.map(|r| r.err().map(|e| format!("{e:#}")).unwrap_or_default()).unwrap_or_default());
     }
-    let (blob, shifts, p) = search(false)?;
+    let (blob, shifts, p) = match i16r {
+        Some(r) => r,
+        None => search(false)?,
+    };
     let psnr_i8_db = i8r.and_then(|r| r.ok()).map(|r| r.2);
     Ok(Chosen { blob, out_shifts: shifts, i8_weights: false, psnr_db: p, psnr_i8_db })
 }
@@ -515,12 +537,27 @@ mod tests {
     }
 
     #[test]
-    fn auto_takes_i8_only_when_it_keeps_the_psnr() {
+    fn auto_takes_i16_when_the_blob_fits_a_slot() {
         let dev = Device::flex();
         let layers = Decoder::new(&DecoderSpec::conv(20, 27), 5, &dev).unwrap().float_layers().unwrap();
         let c = choose(&layers, &extras(20, 27), &heads(), WeightArg::Auto).unwrap();
+        assert!(!c.i8_weights);
+        assert!(c.blob.len() <= AUTO_I16_MAX_BYTES);
+        let i16 = choose(&layers, &extras(20, 27), &heads(), WeightArg::I16).unwrap();
+        assert_eq!(c.blob, i16.blob);
+    }
+
+    #[test]
+    fn auto_takes_i8_for_a_big_blob_only_when_it_keeps_the_psnr() {
+        let dev = Device::flex();
+        let layers = Decoder::new(&DecoderSpec::conv(20, 27), 5, &dev).unwrap().float_layers().unwrap();
+        // A slot smaller than the i16 blob: the old rule decides.
+        let c = choose_within(&layers, &extras(20, 27), &heads(), WeightArg::Auto, 1000).unwrap();
         let p8 = c.psnr_i8_db.unwrap();
         assert_eq!(c.i8_weights, p8 >= PSNR_TARGET_DB, "i8 at {p8:.1} dB");
+        if c.i8_weights {
+            assert_eq!(c.blob, choose(&layers, &extras(20, 27), &heads(), WeightArg::I8).unwrap().blob);
+        }
     }
 
     #[test]
