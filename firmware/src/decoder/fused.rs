@@ -7,9 +7,9 @@
 //!   `msr_dense_px4` computes the four channels of one pixel per pass: the weights stream in
 //!   one load after the other (i16: `LDM` of 4 words per channel and block, 16 `SMLAD`; i8:
 //!   `LDRD` of 8 weights split by `SXTB16` against the input re-paired), the four results are
-//!   stored as two packed words (tanh step rounded by `SHADD16` when `out_shift` is 14). i8
-//!   weights in PyTorch order (blobs written before the blocked order) take the 2-row kernel
-//!   of `arm` writing every fourth halfword.
+//!   stored as two packed words (tanh step rounded by `SHADD16` when `out_shift` is 14, not
+//!   rounded at all when it is 15). i8 weights in PyTorch order (blobs written before the
+//!   blocked order) take the 2-row kernel of `arm` writing every fourth halfword.
 //! - The convolution computes four adjacent outputs of a row per pass (`msr_convt4_grey`): both
 //!   column phases, each output 16 MACs (2 x 2 taps x 4 channels) as 8 `SMLAD` on channel pairs;
 //!   the pass reads 4 pixels of 2 input rows. The grey step is `y - (y >> 8)` then `+32640` on
@@ -113,9 +113,15 @@ core::arch::global_asm!(
     "subs r0, r12, r9",
     "orr r0, r0, #1",
     "str r0, [sp, #32]",
-    // The act step: 8f (SHADD16) when k1, else 9f.
+    // The act step: 8f (SHADD16) when k1, 15f when k is 0 (out_shift 15, as the quantizer
+    // often picks: nothing to round), else 9f.
     "cmp r11, #0",
     "bne 6f",
+    "cmp r6, #0",
+    "bne 16f",
+    "adr.w r0, 15f",
+    "b 7f",
+    "16:",
     "adr.w r0, 9f",
     "b 7f",
     "6:",
@@ -222,6 +228,28 @@ core::arch::global_asm!(
     "pkhbt r2, r2, r3, lsl #16",
     "shadd16 r0, r0, r8",
     "shadd16 r2, r2, r8",
+    "strd r0, r2, [r4], #8",
+    "cmp r4, r10",
+    "beq 5f",
+    "ldm r5!, {{r0-r3}}",
+    "stm sp, {{r4, r5}}",
+    "ldr pc, [sp, #32]",
+    // out_shift 15: the table's Q15 value as it is.
+    "15:",
+    "asr r0, r0, r7",
+    "ssat r0, #13, r0",
+    "ldrsh.w r0, [r6, r0, lsl #1]",
+    "asr r1, r1, r7",
+    "ssat r1, #13, r1",
+    "ldrsh.w r1, [r6, r1, lsl #1]",
+    "asr r2, r2, r7",
+    "ssat r2, #13, r2",
+    "ldrsh.w r2, [r6, r2, lsl #1]",
+    "asr r3, r3, r7",
+    "ssat r3, #13, r3",
+    "ldrsh.w r3, [r6, r3, lsl #1]",
+    "pkhbt r0, r0, r1, lsl #16",
+    "pkhbt r2, r2, r3, lsl #16",
     "strd r0, r2, [r4], #8",
     "cmp r4, r10",
     "beq 5f",
