@@ -37,21 +37,10 @@ pub struct Fragments {
     pub overflow: bool,
 }
 
-const EMPTY: Blob = Blob {
-    area: 0,
-    x0: 0,
-    y0: 0,
-    x1: 0,
-    y1: 0,
-    sum_x: 0,
-    sum_y: 0,
-    first: 0,
-};
-
 impl Fragments {
     pub const fn new(fragment: u16) -> Self {
         Fragments {
-            items: [EMPTY; MAX_FRAGMENTS],
+            items: [super::EMPTY_BLOB; MAX_FRAGMENTS],
             n: 0,
             fragment: fragment as u32,
             overflow: false,
