@@ -1,7 +1,7 @@
 //! Test fixtures: small model blobs built with `ModelSpec`, and float references.
 
 use msr_shared::blob::{
-    Activation, LayerKind, LayerSpec, ModelSpec, Normalisation, Novelty, Reach, Shape, Sided,
+    Activation, CropMode, LayerKind, LayerSpec, ModelSpec, Normalisation, Novelty, Reach, Shape, Sided,
     Weights,
 };
 
@@ -120,6 +120,7 @@ fn spec(face_h: u16, face_w: u16, layers: Vec<LayerSpec>, rng: &mut Lcg) -> Mode
             .collect(),
         reach: reach_net(rng),
         template: None,
+        crop: CropMode::Pixel,
     }
 }
 

@@ -34,7 +34,7 @@ use msr_firmware::pipeline::Workspace;
 use msr_firmware::reach;
 use msr_firmware::saliency::Settings;
 use msr_shared::blob::{
-    LayerKind, LayerSpec, Model, ModelSpec, Normalisation, Novelty, Reach, Sided, Weights,
+    CropMode, LayerKind, LayerSpec, Model, ModelSpec, Normalisation, Novelty, Reach, Sided, Weights,
 };
 use msr_shared::joints::{REACH_JOINTS, HOME_POSTURE};
 use rand::{Rng, SeedableRng};
@@ -252,6 +252,7 @@ pub fn synthetic_with(kind: ArchKind, i8w: bool) -> Result<BenchModel> {
         sigma,
         reach,
         template: None,
+        crop: CropMode::Pixel,
     };
     let blob = spec.to_bytes().map_err(|e| anyhow::anyhow!("synthetic {kind:?} blob: {e}"))?;
     let name = match kind {

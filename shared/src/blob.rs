@@ -6,7 +6,7 @@
 //! header (HEADER_LEN = 40 bytes)
 //!   0  magic b"MSRM"          4  version u16        6  header_len u16
 //!   8  total_len u32         12  crc32 u32 (CRC-32/ISO-HDLC of bytes 16..total_len)
-//!  16  face_h u16            18  face_w u16        20  n_layers u16    22  flags u16 (bit 0: template)
+//!  16  face_h u16            18  face_w u16        20  n_layers u16    22  flags u16 (see below)
 //!  24  threshold f32         28  normalisation u8  29  sided u8        30  min_area u16
 //!  32  sigma_floor f32       36  merge_margin u8      37  reserved u8 (0) 38  merge_fragment u16
 //! n_layers x layer:
@@ -44,6 +44,11 @@
 //! ConvTranspose2d (the conv decoder's big layer) and writes version 1, which older readers
 //! take, when no layer uses it.
 //!
+//! Flags: bit 0, the blob carries the face template; bit 1 (version 4, only with bit 0), the
+//! host crops this model's faces at sub-pixel precision ([`CropMode::Subpixel`]). The board
+//! never crops: the template and the crop mode tell the host how to make the crops it sends.
+//! The writer uses version 4 only for a sub-pixel blob.
+//!
 //! Fragment merge (version 3; bytes 36..40 are zero before): `merge_margin` 0 is the paper's
 //! blob stage. Otherwise 8-connected components of at least `merge_fragment` pixels whose
 //! boxes, one grown by `merge_margin` pixels on every side, overlap are merged (repeatedly, as
@@ -58,8 +63,8 @@ use serde::{Deserialize, Serialize};
 
 pub const MAGIC: [u8; 4] = *b"MSRM";
 /// The newest version this build reads and writes (version 1 has no weight order byte,
-/// versions 1 and 2 no fragment merge).
-pub const VERSION: u16 = 3;
+/// versions 1 and 2 no fragment merge, versions 1 to 3 no sub-pixel crop flag).
+pub const VERSION: u16 = 4;
 /// Largest [`Merge::margin`].
 pub const MAX_MERGE_MARGIN: u8 = 16;
 /// Inputs per block of the blocked weight order.
@@ -84,6 +89,7 @@ pub const REACH_FLOATS: usize = REACH_HIDDEN * REACH_IN
     + 2 * REACH_IN
     + 2 * REACH_OUT;
 const FLAG_TEMPLATE: u16 = 1;
+const FLAG_SUBPIXEL: u16 = 2;
 
 /// CRC of the blob body: CRC-32/ISO-HDLC (the zlib one).
 pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
@@ -95,6 +101,44 @@ pub enum Normalisation {
     StdDev,
     /// `(e - mu) / sigma^2`, as the paper's text.
     Variance,
+}
+
+/// How the host cuts the face out of a camera frame with the model's template.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum CropMode {
+    /// The published code: the best `TM_CCOEFF` window, in whole pixels.
+    #[default]
+    Pixel,
+    /// The best window refined to a fraction of a pixel and resampled, so that the face does
+    /// not jump by a whole pixel between neighbouring head poses.
+    Subpixel,
+}
+
+impl CropMode {
+    pub fn name(self) -> &'static str {
+        match self {
+            CropMode::Pixel => "pixel",
+            CropMode::Subpixel => "subpixel",
+        }
+    }
+}
+
+impl fmt::Display for CropMode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl core::str::FromStr for CropMode {
+    type Err = &'static str;
+    fn from_str(s: &str) -> Result<CropMode, &'static str> {
+        match s {
+            "pixel" => Ok(CropMode::Pixel),
+            "subpixel" => Ok(CropMode::Subpixel),
+            _ => Err("expected pixel or subpixel"),
+        }
+    }
 }
 
 /// Whether only errors above the mean count, or both directions.
@@ -501,6 +545,8 @@ pub struct Template<'a> {
     pub h: u16,
     pub w: u16,
     pub pixels: &'a [u8],
+    /// How the host crops with it (flag bit 1).
+    pub crop: CropMode,
 }
 
 /// A validated model blob.
@@ -613,7 +659,9 @@ impl<'a> Model<'a> {
             return Err(BlobError::TooManyLayers);
         }
         let flags = r.u16()?;
-        if flags & !FLAG_TEMPLATE != 0 {
+        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL) != 0
+            || (flags & FLAG_SUBPIXEL != 0 && (version < 4 || flags & FLAG_TEMPLATE == 0))
+        {
             return Err(BlobError::BadHeader);
         }
         let threshold = r.f32()?;
@@ -693,7 +741,12 @@ impl<'a> Model<'a> {
             if h == 0 || w == 0 || n > MAX_TEMPLATE_PIXELS {
                 return Err(BlobError::Template);
             }
-            Some(Template { h, w, pixels: r.take_padded(n)? })
+            let crop = if flags & FLAG_SUBPIXEL != 0 {
+                CropMode::Subpixel
+            } else {
+                CropMode::Pixel
+            };
+            Some(Template { h, w, pixels: r.take_padded(n)?, crop })
         } else {
             None
         };
@@ -891,6 +944,8 @@ mod writer {
         pub reach: Reach,
         /// (h, w, grey pixels).
         pub template: Option<(u16, u16, Vec<u8>)>,
+        /// How the host crops with the template; [`CropMode::Subpixel`] needs one.
+        pub crop: CropMode,
     }
 
     fn pad(out: &mut Vec<u8>) {
@@ -904,7 +959,13 @@ mod writer {
         /// returns is one the board accepts.
         pub fn to_bytes(&self) -> Result<Vec<u8>, BlobError> {
             let blocked: Vec<bool> = (0..self.layers.len()).map(|i| self.blocked(i)).collect();
-            let version: u16 = if self.novelty.merge.is_on() {
+            let subpixel = self.crop == CropMode::Subpixel;
+            if subpixel && self.template.is_none() {
+                return Err(BlobError::Template);
+            }
+            let version: u16 = if subpixel {
+                4
+            } else if self.novelty.merge.is_on() {
                 3
             } else if blocked.contains(&true) {
                 2
@@ -919,7 +980,10 @@ mod writer {
             o.extend_from_slice(&self.face_h.to_le_bytes());
             o.extend_from_slice(&self.face_w.to_le_bytes());
             o.extend_from_slice(&(self.layers.len() as u16).to_le_bytes());
-            let flags = if self.template.is_some() { FLAG_TEMPLATE } else { 0 };
+            let mut flags = if self.template.is_some() { FLAG_TEMPLATE } else { 0 };
+            if subpixel {
+                flags |= FLAG_SUBPIXEL;
+            }
             o.extend_from_slice(&flags.to_le_bytes());
             let n = &self.novelty;
             o.extend_from_slice(&n.threshold.to_le_bytes());

@@ -20,7 +20,9 @@ pub const MAX_BUS_JOINTS: usize = 14;
 pub struct FrameHeader {
     /// Frame number chosen by the host; chunks name it.
     pub frame: u16,
-    /// Where the face crop sits in the full camera frame (pixels), for full-frame reports.
+    /// Where the face crop sits in the full camera frame (pixels), for full-frame reports and
+    /// the reach network's input; the nearest whole pixel when the host cropped at sub-pixel
+    /// precision (`blob::CropMode::Subpixel`), so within half a pixel.
     pub crop_x: u16,
     pub crop_y: u16,
     /// Crop size; must equal the model's face size.

@@ -68,6 +68,7 @@ fn mlp_spec() -> ModelSpec {
         sigma: (0..12).map(|i| 256 + i).collect(),
         reach: reach(),
         template: Some((2, 3, vec![1, 2, 3, 4, 5, 6])),
+        crop: CropMode::Pixel,
     }
 }
 
@@ -221,10 +222,11 @@ fn header_checks() {
     };
     assert_eq!(edit(0, b"MSRX"), Err(BlobError::BadMagic));
     assert_eq!(edit(4, &[0, 0]), Err(BlobError::UnsupportedVersion(0)));
-    assert_eq!(edit(4, &[4, 0]), Err(BlobError::UnsupportedVersion(4)));
-    // Versions 2 and 3 read version 1's layout too.
+    assert_eq!(edit(4, &[5, 0]), Err(BlobError::UnsupportedVersion(5)));
+    // Versions 2 to 4 read version 1's layout too.
     assert!(edit(4, &[2, 0]).is_ok());
     assert!(edit(4, &[3, 0]).is_ok());
+    assert!(edit(4, &[4, 0]).is_ok());
     assert_eq!(edit(6, &[41, 0]), Err(BlobError::BadHeader));
     assert_eq!(edit(16, &[0, 0]), Err(BlobError::FaceSize));
     assert_eq!(edit(16, &[65, 0]), Err(BlobError::FaceSize));
@@ -522,4 +524,40 @@ fn merge_fields_need_version_3_and_valid_values() {
     // The writer refuses what the parser refuses.
     spec.novelty.merge = Merge { margin: 2, fragment: 0 };
     assert_eq!(spec.to_bytes(), Err(BlobError::Novelty));
+}
+
+#[test]
+fn subpixel_crop_flag_needs_version_4_and_a_template() {
+    let mut spec = mlp_spec();
+    let plain = spec.to_bytes().unwrap();
+    assert_eq!(Model::parse(&plain).unwrap().template.map(|t| t.crop), Some(CropMode::Pixel));
+    spec.crop = CropMode::Subpixel;
+    let bytes = spec.to_bytes().unwrap();
+    assert_eq!(&bytes[4..6], &[4, 0], "a sub-pixel blob is version 4");
+    assert_eq!(&bytes[22..24], &[3, 0], "template and sub-pixel flags");
+    let t = Model::parse(&bytes).unwrap().template.unwrap();
+    assert_eq!((t.h, t.w, t.pixels, t.crop), (2, 3, &[1u8, 2, 3, 4, 5, 6][..], CropMode::Subpixel));
+    let edit = |at: usize, v: &[u8]| {
+        let mut b = bytes.clone();
+        b[at..at + v.len()].copy_from_slice(v);
+        recrc(&mut b);
+        Model::parse(&b).map(|m| m.template.map(|t| t.crop))
+    };
+    // Version 3 has no sub-pixel flag; the flag needs the template; unknown flags are refused.
+    assert_eq!(edit(4, &[3, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(22, &[2, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(22, &[7, 0]), Err(BlobError::BadHeader));
+    // Version 4 may also crop whole pixels.
+    assert_eq!(edit(22, &[1, 0]), Ok(Some(CropMode::Pixel)));
+    // The writer refuses a sub-pixel crop without a template to crop with.
+    spec.template = None;
+    assert_eq!(spec.to_bytes(), Err(BlobError::Template));
+}
+
+#[test]
+fn crop_mode_names_round_trip() {
+    for m in [CropMode::Pixel, CropMode::Subpixel] {
+        assert_eq!(m.name().parse::<CropMode>(), Ok(m));
+    }
+    assert!("bilinear".parse::<CropMode>().is_err());
 }
