@@ -7,8 +7,9 @@
 //!   every frame is a test frame, marks are given by their box (the published marks are pasted
 //!   rectangles, so the box is the mask).
 //!
-//! Frames are cropped as they load (template matching on 2 threads) and only the crops are kept.
-use crate::crop::{crop_face, load_grey, CropBox, Face};
+//! Frames are cropped as they load (template matching on 2 threads, in the [`CropMode`] asked for)
+//! and only the crops are kept.
+use crate::crop::{crop_face_with, load_grey, CropBox, CropMode, Face};
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use image::GrayImage;
 use msr_sim::layout::{DatasetIndex, Split, INDEX_FILE};
@@ -85,6 +86,8 @@ pub struct Dataset {
     pub robot: String,
     /// The grey face template the crops were made with.
     pub template: GrayImage,
+    /// How the crops were made.
+    pub crop: CropMode,
     pub frame_size: (u32, u32),
     pub samples: Vec<Sample>,
 }
@@ -92,12 +95,12 @@ pub struct Dataset {
 impl Dataset {
     /// Loads every frame of the dataset at `path` (a folder holding `dataset.json` or
     /// `manifest.json`, or one of those files).
-    pub fn load(path: &Path) -> Result<Dataset> {
-        Self::load_split(path, None)
+    pub fn load(path: &Path, crop: CropMode) -> Result<Dataset> {
+        Self::load_split(path, None, crop)
     }
 
     /// Loads only the frames of one split (`None`: all).
-    pub fn load_split(path: &Path, only: Option<Split>) -> Result<Dataset> {
+    pub fn load_split(path: &Path, only: Option<Split>, crop: CropMode) -> Result<Dataset> {
         let (root, index) = locate(path)?;
         let (layout, pending, robot, template_file, size) = match index {
             Index::Sim(ix) => {
@@ -119,12 +122,13 @@ impl Dataset {
         };
         let template = load_grey(&root.join(&template_file))
             .with_context(|| format!("dataset {}: face template", root.display()))?;
-        let samples = parallel_map(&pending, |p| p.load(&template, size))?;
+        let samples = parallel_map(&pending, |p| p.load(&template, crop, size))?;
         Ok(Dataset {
             root,
             layout,
             robot,
             template,
+            crop,
             frame_size: size,
             samples,
         })
@@ -286,7 +290,7 @@ fn published_frames(root: &Path, m: Manifest, only: Option<Split>) -> Result<Vec
 }
 
 impl Pending {
-    fn load(&self, template: &GrayImage, (fw, fh): (u32, u32)) -> Result<Sample> {
+    fn load(&self, template: &GrayImage, crop: CropMode, (fw, fh): (u32, u32)) -> Result<Sample> {
         let name = self.file.display();
         ensure!(
             self.head.iter().all(|a| a.is_finite()),
@@ -300,7 +304,7 @@ impl Pending {
             frame.width(),
             frame.height()
         );
-        let face = crop_face(&frame, template).with_context(|| format!("frame {name}"))?;
+        let face = crop_face_with(&frame, template, crop).with_context(|| format!("frame {name}"))?;
         let mark = match &self.mark {
             None => None,
             Some(m) => Some(

@@ -20,6 +20,9 @@ pub struct Args {
     pub out: PathBuf,
     #[arg(long, default_value = "red")]
     pub robot: Robot,
+    /// Face crop of the trained models: subpixel, or pixel (the published code)
+    #[arg(long, default_value_t = crate::crop::CropMode::Subpixel)]
+    pub crop: crate::crop::CropMode,
     /// Frames rendered (the paper's 1300)
     #[arg(long, default_value_t = 1300)]
     pub frames: usize,
@@ -69,6 +72,7 @@ fn train_args(data: &Path, out: &Path, model: ModelKind, a: &Args) -> train::Arg
         data: data.to_path_buf(),
         model,
         arch: ArchKind::Conv,
+        crop: a.crop,
         out: out.to_path_buf(),
         epochs: a.epochs,
         batch: 128,
@@ -122,6 +126,14 @@ pub fn run(a: Args) -> Result<()> {
 
     // 2. Decoder and autoencoder, calibrated.
     let models = out.join("models");
+    if a.crop == crate::crop::CropMode::Subpixel {
+        notes.push(
+            "Face crops at sub-pixel precision (`crop::CropMode::Subpixel`), not the published whole-pixel crop: the \
+             template match's peak is refined by a parabola and the face resampled bilinearly, so that it does not \
+             jump by a pixel between neighbouring head poses. `--crop pixel` gives the published crop."
+                .into(),
+        );
+    }
     p.start(&format!("2/8 training the decoder ({} epochs, Adam lr 0.005 halved every 10, batch 128) and calibrating", a.epochs));
     train::run(train_args(&data, &models, ModelKind::Decoder, &a))?;
     let choice = train::policy::apply(&models, "decoder", a.robot, a.seed)?;
@@ -324,7 +336,7 @@ fn qemu_episodes(
 ) -> Result<(episode::Summary, usize, String)> {
     let t0 = Instant::now();
     let model = msr_shared::blob::Model::parse(blob).map_err(|e| anyhow::anyhow!("model blob: {e}"))?;
-    let template = crate::detect::template_of(&model)?;
+    let cropper = crate::detect::cropper_of(&model)?;
     let renderer = msr_sim::render::Renderer::new(cfg.robot);
     let mut board = crate::episode_qemu::QemuBoard::start(blob)?;
     let upload_s = board.upload_s;
@@ -333,7 +345,7 @@ fn qemu_episodes(
         if t0.elapsed() > QEMU_BUDGET {
             break;
         }
-        let camera = episode::Camera { renderer: &renderer, template: &template };
+        let camera = episode::Camera { renderer: &renderer, cropper: &cropper };
         done.push(board.trial(camera, cfg, i, episode::trial_seed(seed, i))?);
     }
     board.finish()?;
@@ -366,7 +378,7 @@ pub fn real_check(real_dir: &Path, out: &Path) -> Result<Value> {
     std::fs::write(out.join("published.msrm"), &bytes)?;
     let model = msr_shared::blob::Model::parse(&bytes)
         .map_err(|e| anyhow::anyhow!("published blob: {e}"))?;
-    let ds = crate::data::Dataset::load(real_dir)?;
+    let ds = crate::data::Dataset::load(real_dir, crate::detect::crop_mode_of(&model))?;
     let (mut marked, mut hits, mut unmarked, mut false_alarms) = (0, 0, 0, 0);
     for s in &ds.samples {
         let d = crate::fixed::detect(&model, &s.face, s.head)?;

@@ -1,6 +1,6 @@
 //! `msr detect`: find a mark in one camera frame with a model blob: template crop on the host,
 //! then the pipeline on the crop (the firmware's fixed-point code by default).
-use crate::crop::{crop_face, load_grey, CropBox, Face};
+use crate::crop::{load_grey, CropBox, CropMode, Cropper, Face};
 use crate::import::{Dense, DenseDecoder};
 use crate::pipeline::{Detection, FloatEngine, Settings, JOINTS};
 use crate::predictor::FacePredictor;
@@ -52,15 +52,15 @@ pub fn run(args: Args) -> Result<()> {
     let bytes = read_blob(&args.model)?;
     let model = parse_blob(&bytes, &args.model)?;
     let frame = load_grey(&args.image)?;
-    let det = detect_frame(&model, &frame, head, args.engine)?;
+    let face = cropper_of(&model)?.crop(&frame)?;
+    let det = detect_face(&model, &face, head, args.engine)?;
     if args.json {
         println!("{}", to_json(&det));
     } else {
         println!("{}", readable(&det));
     }
     if let Some(p) = &args.png {
-        let face = crate::crop::cut(&frame, det.crop);
-        picture(&frame, &face, &det, model.novelty.threshold)
+        picture(&frame, &face.grey, &det, model.novelty.threshold)
             .save(p)
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
@@ -84,16 +84,14 @@ pub fn template_of(model: &Model) -> Result<GrayImage> {
         .context("face template is malformed")
 }
 
-/// Crop, then the chosen engine on the crop.
-pub fn detect_frame(
-    model: &Model,
-    frame: &GrayImage,
-    head: [f32; 2],
-    engine: EngineArg,
-) -> Result<Detection> {
-    let tpl = template_of(model)?;
-    let face = crop_face(frame, &tpl)?;
-    detect_face(model, &face, head, engine)
+/// How the host crops faces for this model (whole pixels for a blob without a template).
+pub fn crop_mode_of(model: &Model) -> CropMode {
+    model.template.map_or(CropMode::Pixel, |t| t.crop)
+}
+
+/// The blob's template and crop mode: how to cut this model's faces from camera frames.
+pub fn cropper_of(model: &Model) -> Result<Cropper> {
+    Ok(Cropper::new(template_of(model)?, crop_mode_of(model)))
 }
 
 pub fn detect_face(

@@ -399,7 +399,8 @@ impl HostPort {
 /// Renders and crops camera frames of one robot.
 pub struct Camera<'a> {
     pub renderer: &'a Renderer,
-    pub template: &'a GrayImage,
+    /// The model's template and crop mode.
+    pub cropper: &'a crop::Cropper,
 }
 
 impl Camera<'_> {
@@ -413,7 +414,7 @@ impl Camera<'_> {
         let var = Variation::random(rng);
         let r = self.renderer.render(pose, mark, &var);
         let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb));
-        let face = crop::crop_face(&grey, self.template)?;
+        let face = self.cropper.crop(&grey)?;
         Ok((grey, face))
     }
 }
@@ -723,7 +724,7 @@ pub fn run_inproc(
     progress: &(dyn Fn(&Trial) + Sync),
 ) -> Result<Vec<Trial>> {
     let model = Model::parse(blob).map_err(|e| anyhow!("model blob: {e}"))?;
-    let template = crate::detect::template_of(&model)?;
+    let cropper = crate::detect::cropper_of(&model)?;
     let renderer = Renderer::new(cfg.robot);
     let next = std::sync::atomic::AtomicUsize::new(0);
     let results = std::sync::Mutex::new(Vec::with_capacity(n));
@@ -737,7 +738,7 @@ pub fn run_inproc(
                 }
                 let camera = Camera {
                     renderer: &renderer,
-                    template: &template,
+                    cropper: &cropper,
                 };
                 match run_trial_inproc(blob, camera, cfg, i, trial_seed(seed, i)) {
                     Ok(t) => {

@@ -173,7 +173,7 @@ impl QemuBoard {
 /// Runs `n` trials with the board image in QEMU, one at a time, on one QEMU.
 pub fn run_qemu(blob: &[u8], cfg: &EpisodeConfig, n: usize, seed: u64, progress: &(dyn Fn(&Trial) + Sync)) -> Result<Vec<Trial>> {
     let model = msr_shared::blob::Model::parse(blob).map_err(|e| anyhow!("model blob: {e}"))?;
-    let template = crate::detect::template_of(&model)?;
+    let cropper = crate::detect::cropper_of(&model)?;
     let renderer = Renderer::new(cfg.robot);
     let mut board = QemuBoard::start(blob)?;
     if debug() {
@@ -181,7 +181,7 @@ pub fn run_qemu(blob: &[u8], cfg: &EpisodeConfig, n: usize, seed: u64, progress:
     }
     let mut out = Vec::with_capacity(n);
     for i in 0..n {
-        let camera = Camera { renderer: &renderer, template: &template };
+        let camera = Camera { renderer: &renderer, cropper: &cropper };
         let t = board.trial(camera, cfg, i, episode::trial_seed(seed, i))?;
         progress(&t);
         out.push(t);

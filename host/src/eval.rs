@@ -112,7 +112,9 @@ pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> 
     let mut published = published;
     let bytes = read_blob(blob_path)?;
     let model = parse_blob(&bytes, blob_path)?;
-    let ds = Dataset::load_split(data, Some(Split::Test))
+    // Crop as the host would for this model.
+    let crop = crate::detect::crop_mode_of(&model);
+    let ds = Dataset::load_split(data, Some(Split::Test), crop)
         .with_context(|| format!("cannot load dataset {}", data.display()))?;
     let test: Vec<&Sample> = ds.split(Split::Test).collect();
     ensure!(
@@ -147,7 +149,7 @@ pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> 
         };
         let found = match from_manifest {
             Some(f) => Ok(Some(f)),
-            None => trained_model(dir, name, ds.face_size()),
+            None => trained_model(dir, name, ds.face_size(), crop),
         };
         let float = match found {
             Ok(Some(f)) => Ok(f),
@@ -390,6 +392,7 @@ fn trained_model(
     dir: &Path,
     name: &str,
     face: (usize, usize),
+    crop: crate::crop::CropMode,
 ) -> Result<Option<FloatModel>, String> {
     if !dir.join(format!("{name}.json")).is_file() {
         return Ok(None);
@@ -401,6 +404,12 @@ fn trained_model(
         return Err(format!(
             "trained {name} takes {}x{} faces, the dataset's are {}x{}",
             info.face_w, info.face_h, face.1, face.0
+        ));
+    }
+    if info.crop != crop {
+        return Err(format!(
+            "trained {name} was trained on {} crops, the blob's faces are cropped {}",
+            info.crop, crop
         ));
     }
     let floor = info.novelty.sigma_floor.max(1e-5);

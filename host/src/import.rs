@@ -9,7 +9,7 @@ use crate::predictor::FacePredictor;
 use anyhow::{bail, ensure, Context, Result};
 use image::GrayImage;
 use msr_shared::blob::{
-    Activation, LayerKind, LayerSpec, ModelSpec, Normalisation, Novelty, Reach, Shape, Sided,
+    Activation, CropMode, LayerKind, LayerSpec, ModelSpec, Normalisation, Novelty, Reach, Shape, Sided,
     Weights, REACH_HIDDEN, REACH_IN, REACH_OUT,
 };
 use serde::Deserialize;
@@ -407,6 +407,8 @@ impl Published {
             sigma: self.sigma.iter().map(|&v| q8_8(v + 1e-5).max(1)).collect(),
             reach: self.reach,
             template: Some((h as u16, w as u16, self.template.as_raw().clone())),
+            // The published statistics were measured on whole-pixel crops.
+            crop: CropMode::Pixel,
         })
     }
 }

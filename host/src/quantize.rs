@@ -34,7 +34,7 @@ use crate::predictor::FacePredictor;
 use crate::{train, train_reach};
 use anyhow::{bail, ensure, Context, Result};
 use msr_shared::blob::{
-    Activation, LayerKind, LayerSpec, Model, ModelSpec, Novelty, Reach, Weights,
+    Activation, CropMode, LayerKind, LayerSpec, Model, ModelSpec, Novelty, Reach, Weights,
 };
 use msr_sim::layout::Split;
 use serde::Serialize;
@@ -262,6 +262,8 @@ pub struct Extras {
     pub stats: ErrorStats,
     pub reach: Reach,
     pub template: Option<(u16, u16, Vec<u8>)>,
+    /// How the host crops with the template.
+    pub crop: CropMode,
 }
 
 /// What goes into a blob beside the decoder, from a training folder: its statistics, novelty
@@ -276,6 +278,7 @@ pub fn extras_of(dir: &Path, info: &train::ModelInfo, reach: Reach) -> Result<Ex
         stats,
         reach,
         template: Some((tpl.height() as u16, tpl.width() as u16, tpl.into_raw())),
+        crop: info.crop,
     })
 }
 
@@ -303,6 +306,7 @@ pub fn blob_of(layers: Vec<LayerSpec>, x: &Extras) -> Result<Vec<u8>> {
         sigma: x.stats.sigma.iter().map(|&v| grey_q88(v.max(p.sigma_floor)).max(1)).collect(),
         reach: x.reach,
         template: x.template.clone(),
+        crop: x.crop,
     };
     spec.to_bytes().map_err(|e| anyhow::anyhow!("the quantized model does not make a valid blob: {e}"))
 }
@@ -411,7 +415,7 @@ pub fn run(args: Args) -> Result<()> {
     let layers = model.decoder_layers()?;
 
     let data_path = args.data.clone().unwrap_or_else(|| PathBuf::from(&info.data));
-    let ds = Dataset::load_split(&data_path, Some(Split::Test))
+    let ds = Dataset::load_split(&data_path, Some(Split::Test), info.crop)
         .with_context(|| format!("loading the test split of {} for the report", data_path.display()))?;
     ensure!(ds.face_size() == (h, w), "dataset faces are {:?}, the model's are {h}x{w}", ds.face_size());
     ensure!(!ds.samples.is_empty(), "dataset {} has no test frames", data_path.display());
@@ -511,6 +515,7 @@ mod tests {
             stats: ErrorStats { h, w, mu: vec![3.0; h * w], sigma: vec![2.0; h * w], frames: 10 },
             reach,
             template: None,
+            crop: CropMode::Pixel,
         }
     }
 

@@ -54,8 +54,7 @@ fn frame_pictures(
     let rgb_frame = image::open(data.join(&f.file))
         .with_context(|| format!("frame {}", f.file))?
         .to_rgb8();
-    let tpl = crate::detect::template_of(model)?;
-    let face = crop::crop_face(&frame, &tpl)?;
+    let face = crate::detect::cropper_of(model)?.crop(&frame)?;
     let head = [f.head_yaw as f32, f.head_pitch as f32];
     let d = crate::fixed::detect(model, &face, head)?;
     let (w, h) = (face.crop.width, face.crop.height);

@@ -296,7 +296,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let blob = crate::episode::read_model(&a.model)?;
     let model = msr_shared::blob::Model::parse(&blob).map_err(|e| anyhow!("model: {e}"))?;
-    let template = crate::detect::template_of(&model)?;
+    let cropper = crate::detect::cropper_of(&model)?;
     let frames = match (&a.frames, a.sim) {
         (Some(dir), _) => folder_frames(dir)?,
         (None, Some(robot)) => sim_frames(robot, a.count, a.seed),
@@ -313,7 +313,7 @@ pub fn run(a: Args) -> Result<()> {
     let period = Duration::from_secs_f64(1.0 / a.fps);
     for (name, frame) in &frames {
         let t0 = Instant::now();
-        let face = crop::crop_face(frame, &template).with_context(|| format!("frame {name}"))?;
+        let face = cropper.crop(frame).with_context(|| format!("frame {name}"))?;
         let msgs = s.send_face(&face, period.min(timeout))?;
         if !a.json {
             println!("{name}: face at ({}, {})", face.crop.x, face.crop.y);

@@ -21,7 +21,7 @@ use crate::predictor::FacePredictor;
 use anyhow::{bail, ensure, Context, Result};
 use burn::prelude::*;
 use fit::{HyperParams, Samples};
-use msr_shared::blob::{Normalisation, Sided};
+use msr_shared::blob::{CropMode, Normalisation, Sided};
 use msr_sim::layout::Split;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -78,6 +78,9 @@ pub struct Args {
     pub model: ModelKind,
     #[arg(long, value_enum, default_value_t = ArchKind::Conv)]
     pub arch: ArchKind,
+    /// Face crop: subpixel (refined and resampled; see `crop`) or pixel (the published code)
+    #[arg(long, default_value_t = CropMode::Subpixel)]
+    pub crop: CropMode,
     /// Output folder
     #[arg(long)]
     pub out: PathBuf,
@@ -137,6 +140,10 @@ pub struct ModelInfo {
     pub arch: ArchKind,
     pub face_h: usize,
     pub face_w: usize,
+    /// How the training faces were cropped (and so how the host must crop for this model);
+    /// files from before the sub-pixel crop cropped whole pixels.
+    #[serde(default)]
+    pub crop: CropMode,
     pub spec: DecoderSpec,
     /// Multiply-accumulates of one decoder inference.
     pub decoder_macs: u64,
@@ -244,7 +251,7 @@ pub fn run(args: Args) -> Result<()> {
     hp.check()?;
     let dev = device(args.device)?;
 
-    let ds = Dataset::load(&args.data).with_context(|| format!("loading dataset {}", args.data.display()))?;
+    let ds = Dataset::load(&args.data, args.crop).with_context(|| format!("loading dataset {}", args.data.display()))?;
     let (h, w) = ds.face_size();
     let train = samples(ds.split(Split::Train), false);
     let test = samples(ds.split(Split::Test), true);
@@ -337,6 +344,7 @@ pub fn run(args: Args) -> Result<()> {
         arch: args.arch,
         face_h: h,
         face_w: w,
+        crop: args.crop,
         decoder_macs: spec.macs()?,
         spec,
         hyper: hp,

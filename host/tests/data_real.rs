@@ -1,4 +1,5 @@
 //! Loading the published real frames: crops, head angles, marks.
+use msr_host::crop::CropMode;
 use msr_host::data::{Dataset, Layout};
 use msr_sim::layout::Split;
 use std::path::PathBuf;
@@ -17,7 +18,7 @@ fn real_dir() -> Option<PathBuf> {
 fn loads_the_published_frames() {
     let Some(dir) = real_dir() else { return };
     let t = std::time::Instant::now();
-    let ds = Dataset::load(&dir).unwrap();
+    let ds = Dataset::load(&dir, CropMode::Pixel).unwrap();
     eprintln!("loaded {} frames in {:?}", ds.samples.len(), t.elapsed());
     assert_eq!(ds.layout, Layout::Published);
     assert_eq!(ds.samples.len(), 15);
@@ -75,6 +76,6 @@ fn loads_the_published_frames() {
             base
         );
     }
-    let train = Dataset::load_split(&dir, Some(Split::Train)).unwrap();
+    let train = Dataset::load_split(&dir, Some(Split::Train), CropMode::Pixel).unwrap();
     assert!(train.samples.is_empty());
 }

@@ -1,4 +1,5 @@
 //! Loading a sim dataset (written by `msr dataset`), and clear errors for broken ones.
+use msr_host::crop::CropMode;
 use msr_host::data::{Dataset, Layout};
 use msr_sim::layout::Split;
 use std::process::Command;
@@ -27,8 +28,9 @@ fn make(dir: &std::path::Path, count: u32) {
 fn loads_a_sim_dataset_with_exact_masks() {
     let tmp = tempfile::tempdir().unwrap();
     make(tmp.path(), 30);
-    let ds = Dataset::load(tmp.path()).unwrap();
+    let ds = Dataset::load(tmp.path(), CropMode::Subpixel).unwrap();
     assert_eq!(ds.layout, Layout::Sim);
+    assert_eq!(ds.crop, CropMode::Subpixel);
     assert_eq!(ds.samples.len(), 30);
     let (h, w) = ds.face_size();
     let test: Vec<_> = ds.split(Split::Test).collect();
@@ -56,8 +58,16 @@ fn loads_a_sim_dataset_with_exact_masks() {
     assert!(faces
         .iter()
         .all(|f| f.len() == h * w && f.iter().all(|v| (0.0..=1.0).contains(v))));
-    let only_test = Dataset::load_split(tmp.path(), Some(Split::Test)).unwrap();
+    let only_test = Dataset::load_split(tmp.path(), Some(Split::Test), CropMode::Pixel).unwrap();
     assert_eq!(only_test.samples.len(), test.len());
+    // Whole-pixel crops: the same windows, no shift, the frame's own pixels.
+    for (p, s) in only_test.samples.iter().zip(test) {
+        assert_eq!((p.file.as_path(), p.face.crop), (s.file.as_path(), s.face.crop));
+        assert_eq!(p.face.shift, [0.0, 0.0]);
+    }
+    // Sub-pixel crops move by less than half a pixel, and do move: head angles are continuous.
+    assert!(ds.samples.iter().all(|s| s.face.shift.iter().all(|d| d.abs() <= 0.5)));
+    assert!(ds.samples.iter().filter(|s| s.face.shift != [0.0, 0.0]).count() * 2 > ds.samples.len());
 }
 
 #[test]
@@ -70,7 +80,7 @@ fn broken_datasets_say_what_is_wrong() {
         .unwrap()
         .to_string();
     std::fs::write(tmp.path().join(&first), b"corrupt").unwrap();
-    let e = format!("{:#}", Dataset::load(tmp.path()).unwrap_err());
+    let e = format!("{:#}", Dataset::load(tmp.path(), CropMode::Pixel).unwrap_err());
     assert!(e.contains("cannot read image") && e.contains(&first), "{e}");
     make(tmp.path(), 10);
     std::fs::write(
@@ -78,14 +88,14 @@ fn broken_datasets_say_what_is_wrong() {
         index.replacen("\"head_yaw\":", "\"head_yaw\":\"x\",\"y\":", 1),
     )
     .unwrap();
-    let e = format!("{:#}", Dataset::load(tmp.path()).unwrap_err());
+    let e = format!("{:#}", Dataset::load(tmp.path(), CropMode::Pixel).unwrap_err());
     assert!(e.contains("not a valid dataset.json"), "{e}");
     let e = format!(
         "{:#}",
-        Dataset::load(&tmp.path().join("nowhere")).unwrap_err()
+        Dataset::load(&tmp.path().join("nowhere"), CropMode::Pixel).unwrap_err()
     );
     assert!(e.contains("does not exist"), "{e}");
     let empty = tempfile::tempdir().unwrap();
-    let e = format!("{:#}", Dataset::load(empty.path()).unwrap_err());
+    let e = format!("{:#}", Dataset::load(empty.path(), CropMode::Pixel).unwrap_err());
     assert!(e.contains("neither dataset.json nor manifest.json"), "{e}");
 }

@@ -71,7 +71,10 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     // The loaded weights are the trained ones: the saved statistics come back from them.
     let info_t = m.info().unwrap().clone();
     let stats = msr_host::train::load_stats(&out, &info_t).unwrap();
-    let ds = msr_host::data::Dataset::load(&data).unwrap();
+    // Trained on sub-pixel crops (the default); the statistics hold for crops made that way.
+    assert_eq!(info["crop"], "subpixel");
+    assert_eq!(info_t.crop, msr_host::crop::CropMode::Subpixel);
+    let ds = msr_host::data::Dataset::load(&data, info_t.crop).unwrap();
     let (heads, faces): (Vec<[f32; 2]>, Vec<Vec<f32>>) = ds
         .split(msr_sim::layout::Split::Train)
         .filter(|s| s.mark.is_none())

@@ -14,6 +14,7 @@ fn demo_writes_model_report_and_page() {
     demo::run(demo::Args {
         out: out.clone(),
         robot: msr_sim::Robot::Red,
+        crop: msr_host::crop::CropMode::Subpixel,
         frames: 200,
         epochs: 4,
         trials: 3,

@@ -15,13 +15,13 @@ fn frames_from_the_sim_over_a_pty_come_back_as_detections_and_a_reach() {
     let blob = common::trained_model(Robot::Red);
     let board = SimBoard::start(Some(blob.clone())).unwrap();
     let model = msr_shared::blob::Model::parse(&blob).unwrap();
-    let template = msr_host::detect::template_of(&model).unwrap();
+    let cropper = msr_host::detect::cropper_of(&model).unwrap();
     let mut s = Session::open(board.path(), 921_600).unwrap();
     // Three frames without a mark, then five with one.
     let frames = run_board::sim_frames(Robot::Red, 8, 4);
     let mut dets = Vec::new();
     for (name, frame) in &frames {
-        let face = msr_host::crop::crop_face(frame, &template).unwrap();
+        let face = cropper.crop(frame).unwrap();
         let msgs = s.send_face(&face, Duration::from_millis(150)).unwrap();
         let d = msgs.iter().find_map(|m| {
             if let BoardToHost::Detection(d) = m {

@@ -26,7 +26,7 @@ fn conv_model(robot: Robot) -> Vec<u8> {
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../target"))
         .join("msr-tests");
-    let key = format!("{}-conv-f400-e20-v1", robot.name());
+    let key = format!("{}-conv-f400-e20-subpixel-v2", robot.name());
     let path = dir.join(format!("{key}.msrm"));
     if let Ok(b) = std::fs::read(&path) {
         if msr_shared::blob::Model::parse(&b).is_ok() {
@@ -44,6 +44,7 @@ fn conv_model(robot: Robot) -> Vec<u8> {
         data,
         model: ModelKind::Decoder,
         arch: msr_host::models::ArchKind::Conv,
+        crop: msr_host::crop::CropMode::Subpixel,
         out: models.clone(),
         epochs: 20,
         batch: 128,
@@ -98,7 +99,7 @@ fn qemu_episodes_touch_marks_and_match_in_process() {
     let robot = Robot::Red;
     let blob = conv_model(robot);
     let model = msr_shared::blob::Model::parse(&blob).unwrap();
-    let template = msr_host::detect::template_of(&model).unwrap();
+    let cropper = msr_host::detect::cropper_of(&model).unwrap();
     let renderer = Renderer::new(robot);
     let mut marked = EpisodeConfig::new(robot);
     marked.no_mark_share = 0.0;
@@ -115,7 +116,7 @@ fn qemu_episodes_touch_marks_and_match_in_process() {
     eprintln!("model upload ({} bytes): {:.1} s", blob.len(), board.upload_s);
     let mut qemu_trials = Vec::new();
     for (cfg, i) in plan {
-        let camera = Camera { renderer: &renderer, template: &template };
+        let camera = Camera { renderer: &renderer, cropper: &cropper };
         let t = board.trial(camera, cfg, i, episode::trial_seed(7, i)).unwrap();
         eprintln!("qemu:    {}", msr_host::mirror_test::describe(&t));
         qemu_trials.push(t);
@@ -124,7 +125,7 @@ fn qemu_episodes_touch_marks_and_match_in_process() {
     eprintln!("{output}");
 
     for ((cfg, i), q) in plan.iter().zip(&qemu_trials) {
-        let camera = Camera { renderer: &renderer, template: &template };
+        let camera = Camera { renderer: &renderer, cropper: &cropper };
         let t = episode::run_trial_inproc(&blob, camera, cfg, *i, episode::trial_seed(7, *i)).unwrap();
         eprintln!("inproc:  {}", msr_host::mirror_test::describe(&t));
         // Same firmware (bit-exact builds), same world, one clock: the same trial, to the bit.

@@ -144,10 +144,10 @@ pub const OBSERVE_MARKED_FRAMES: usize = 160;
 /// Frames at the observe posture (head (0, 0), arms at home), where the robot looks for marks:
 /// `normal` without a mark and `marked` with a random mark each (drawn as the datasets and the
 /// mirror-test episodes draw them), with the camera's usual variation (exposure, eye LEDs,
-/// noise), cropped with `template`. Deterministic for `seed`.
+/// noise), cropped by `cropper` (the model's template and crop mode). Deterministic for `seed`.
 pub fn observe_frames(
     robot: Robot,
-    template: &image::GrayImage,
+    cropper: &crate::crop::Cropper,
     model: &dyn FacePredictor,
     stats: &ErrorStats,
     p: &NoveltyParams,
@@ -162,7 +162,7 @@ pub fn observe_frames(
         let mark = (i >= normal).then(|| msr_sim::dataset::render_marked(&renderer, &pose, &Variation::CLEAN, &mut rng).0);
         let r = renderer.render(&pose, mark.as_ref(), &Variation::random(&mut rng));
         let grey = crate::crop::to_grey(&image::DynamicImage::ImageRgb8(r.rgb));
-        let face = crate::crop::crop_face(&grey, template)?;
+        let face = cropper.crop(&grey)?;
         let mark_box = r.mark.filter(|m| m.pixels > 0).map(|m| {
             let [x0, y0, x1, y1] = m.box_xyxy.map(|v| v as f64);
             let (cx, cy) = (face.crop.x as f64, face.crop.y as f64);
@@ -194,9 +194,10 @@ pub fn apply(dir: &Path, name: &str, robot: Robot, seed: u64) -> Result<Option<C
     let template = image::open(&tpl_path)
         .with_context(|| format!("reading {}", tpl_path.display()))?
         .to_luma8();
+    let cropper = crate::crop::Cropper::new(template, info.crop);
     let frames = observe_frames(
         robot,
-        &template,
+        &cropper,
         &model,
         &stats,
         &info.novelty,

@@ -28,7 +28,7 @@ static LOCK: Mutex<()> = Mutex::new(());
 /// The blob of a small model trained on sim frames of `robot`.
 pub fn trained_model(robot: Robot) -> Vec<u8> {
     let _g = LOCK.lock().unwrap_or_else(|e| e.into_inner());
-    let key = format!("{}-f{TRAIN_FRAMES}-e{TRAIN_EPOCHS}-v1", robot.name());
+    let key = format!("{}-f{TRAIN_FRAMES}-e{TRAIN_EPOCHS}-subpixel-v2", robot.name());
     let dir = cache_dir();
     let path = dir.join(format!("{key}.msrm"));
     if let Ok(b) = std::fs::read(&path) {
@@ -47,6 +47,7 @@ pub fn trained_model(robot: Robot) -> Vec<u8> {
         data: data.clone(),
         model: ModelKind::Decoder,
         arch: msr_host::models::ArchKind::Mlp,
+        crop: msr_host::crop::CropMode::Subpixel,
         out: models.clone(),
         epochs: TRAIN_EPOCHS,
         batch: 128,
@@ -131,13 +132,13 @@ pub fn scripted(
         .map(|b| b.to_vec())
         .unwrap_or_else(|| trained_model(robot));
     let model = msr_shared::blob::Model::parse(&tpl_blob).unwrap();
-    let template = msr_host::detect::template_of(&model).unwrap();
+    let cropper = msr_host::detect::cropper_of(&model).unwrap();
     let renderer = msr_sim::render::Renderer::new(robot);
     let mut pc = Pc {
         port: HostPort::default(),
         camera: Camera {
             renderer: &renderer,
-            template: &template,
+            cropper: &cropper,
         },
         rng: rand_chacha::ChaCha8Rng::seed_from_u64(1),
     };
