@@ -5,7 +5,10 @@
 //! from a seed of their own).
 //!
 //! 1. A candidate `(t, merge)` is admissible when no normal frame gives a detection at
-//!    `t / SAFETY`: a margin of [`SAFETY`] over the worst normal frame.
+//!    `t / SAFETY` (a margin of [`SAFETY`] over the worst normal frame), nor at `t` itself:
+//!    with a merge, detection is not monotone in the threshold (a frame with more fragments
+//!    than the board's merge table holds is not merged), so quiet at `t / SAFETY` alone does
+//!    not promise quiet at `t`.
 //! 2. Of the admissible candidates, the one that finds most marked test frames (winner centroid
 //!    inside the mark's box) wins; ties go to the larger threshold, then to the earlier merge in
 //!    [`MERGES`] (no merge first), i.e. to the setting closest to the paper's.
@@ -55,7 +58,7 @@ pub struct Scored {
     pub merge: Merge,
     /// Marked frames found (centroid inside the mark's box).
     pub hits: usize,
-    /// Normal frames detected at `threshold / SAFETY`.
+    /// Normal frames detected at `threshold / SAFETY` or at `threshold`.
     pub normal_detections: usize,
 }
 
@@ -104,7 +107,10 @@ pub fn choose(frames: &[Frame], h: usize, w: usize, base: &NoveltyParams) -> Res
         for &t in &THRESHOLDS {
             let normal_detections = frames
                 .iter()
-                .filter(|f| f.mark_box.is_none() && detect(f, t / SAFETY, merge).is_some())
+                .filter(|f| {
+                    f.mark_box.is_none()
+                        && (detect(f, t / SAFETY, merge).is_some() || detect(f, t, merge).is_some())
+                })
                 .count();
             let hits = frames
                 .iter()
@@ -279,6 +285,45 @@ mod tests {
             Frame { saliency: normal, mark_box: None },
         ];
         (f, h, w)
+    }
+
+    /// A normal frame that merges into a detection at 3.0 but not at 3.0 / SAFETY = 2.4, where
+    /// 33 more pieces overflow the merge table (the frame is then not merged) must still count.
+    #[test]
+    fn a_normal_frame_that_fires_only_at_the_threshold_itself_counts() {
+        let (h, w) = (30, 60);
+        let mut normal = vec![0.0; h * w];
+        let mut piece = |x0: usize, y0: usize, v: f64| {
+            for (dy, dx) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+                normal[(y0 + dy) * w + x0 + dx] = v;
+            }
+        };
+        for x0 in [4, 8, 12] {
+            piece(x0, 2, 3.2);
+        }
+        for k in 0..33 {
+            piece(22 + (k % 11) * 3, 12 + (k / 11) * 4, 2.5);
+        }
+        let (marked, _, _) = frames();
+        let mut mark = vec![0.0; h * w];
+        for (i, v) in marked[0].saliency.iter().enumerate() {
+            mark[(i / 20) * w + i % 20] = *v;
+        }
+        let f = vec![
+            Frame { saliency: mark, mark_box: Some([4.0, 5.0, 13.0, 6.0]) },
+            Frame { saliency: normal, mark_box: None },
+        ];
+        let base = NoveltyParams { min_area: 12, ..Default::default() };
+        let p = NoveltyParams { threshold: 2.4, merge: MERGES[2], ..base };
+        assert!(calibrate::detect(&f[1].saliency, h, w, &p).is_none(), "overflow: not merged at 2.4");
+        let p = NoveltyParams { threshold: 3.0, ..p };
+        assert!(calibrate::detect(&f[1].saliency, h, w, &p).is_some(), "merged at 3.0");
+        let (chosen, c) = choose(&f, h, w, &base).unwrap();
+        let c = c.unwrap();
+        let at = |t: f64, m: Merge| c.candidates.iter().find(|s| s.threshold == t && s.merge == m).unwrap().clone();
+        assert_eq!(at(3.0, MERGES[2]).normal_detections, 1);
+        assert_eq!(at(3.0, MERGES[2]).hits, 1);
+        assert_ne!((chosen.threshold, chosen.merge), (3.0, MERGES[2]));
     }
 
     fn choice_hits(c: &Choice, t: f64, m: Merge) -> usize {
