@@ -13,7 +13,7 @@ use crate::motion::{Motion, Phase, PERIOD_US};
 use crate::pipeline::{self, Workspace};
 use crate::saliency::Settings;
 use embedded_io::{Read, ReadReady, Write};
-use msr_shared::blob::Model;
+use msr_shared::blob::{Merge, Model};
 use msr_shared::joints::REACH_JOINTS;
 use msr_shared::msg::{
     BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameHeader, HostToBoard,
@@ -352,6 +352,8 @@ impl<S: ModelStore> Core<S> {
             normalisation: c.normalisation,
             sided: c.sided,
             min_area: c.min_area,
+            // The merge is the model's: the host link does not carry one.
+            merge: self.settings.map_or(Merge::OFF, |s| s.merge),
         };
         let Some(confirm) = Confirm::new(c.confirm_k, c.confirm_n) else {
             return false;

@@ -126,24 +126,18 @@ impl Workspace {
     }
 
     /// Stage 3 and 4: components of the mask, and the winner among them (among the merged
-    /// fragments when the model merges them: [`merge`](crate::blobs::merge)).
-    pub fn blobs(&mut self, model: &Model, min_area: u16) -> (Option<Blob>, Summary) {
+    /// fragments when `s` merges them: [`merge`](crate::blobs::merge)).
+    pub fn blobs(&mut self, model: &Model, s: &Settings) -> (Option<Blob>, Summary) {
         let (w, h) = (model.face_w as usize, model.face_h as usize);
         let mask = self.decoder.scratch();
-        merge::pick(
-            &mut self.labeller,
-            mask,
-            w,
-            h,
-            min_area,
-            model.novelty.merge,
-        )
+        merge::pick(&mut self.labeller, mask, w, h, s.min_area, s.merge)
     }
 }
 
 /// The whole per-frame pipeline on one face crop (`face_h x face_w` grey bytes, row-major) at
 /// `offset = [x, y]` in the camera frame, seen with the head at `head = [HeadYaw, HeadPitch]`
-/// (radians, as the servos report them).
+/// (radians, as the servos report them). `settings` are those in force; near the model's pose
+/// region the region's apply ([`Settings::at`]).'
 pub fn detect(
     ws: &mut Workspace,
     model: &Model,
@@ -155,9 +149,10 @@ pub fn detect(
     if crop.len() != model.face_pixels() {
         return Err(DetectError::CropSize);
     }
+    let settings = settings.at(model, head);
     ws.decode(model, head)?;
-    let salient_pixels = ws.saliency(model, settings, crop)?;
-    let (blob, blobs) = ws.blobs(model, settings.min_area);
+    let salient_pixels = ws.saliency(model, &settings, crop)?;
+    let (blob, blobs) = ws.blobs(model, &settings);
     let centroid = blob.map(|b| {
         let c = b.centroid();
         [c[0] + offset[0] as f32, c[1] + offset[1] as f32]

@@ -9,7 +9,7 @@
 //! integers. `tn = round(t * n * 256)` saturates at 65535, which no error reaches.
 //! `n = 0` gives `tn = 0`: any error different from mu is salient, as a division by 0 would say.
 
-use msr_shared::blob::{Model, Normalisation, Sided, U16Table, MAX_FACE_PIXELS};
+use msr_shared::blob::{Merge, Model, Normalisation, Sided, U16Table, MAX_FACE_PIXELS};
 
 /// Novelty settings in force: the model's defaults, or what the host configured.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -18,6 +18,8 @@ pub struct Settings {
     pub normalisation: Normalisation,
     pub sided: Sided,
     pub min_area: u16,
+    /// Fragment merge before the area test (the model's; the host cannot change it).
+    pub merge: Merge,
 }
 
 impl Settings {
@@ -28,12 +30,31 @@ impl Settings {
             normalisation: model.novelty.normalisation,
             sided: model.novelty.sided,
             min_area: model.novelty.min_area,
+            merge: model.novelty.merge,
         }
     }
 
-    /// Finite positive threshold, min area at least 1.
+    /// The settings for a frame seen with the head at `head`: inside the model's pose region
+    /// (`blob::PoseRegion`), the region's threshold and merge; elsewhere these. A threshold the
+    /// host configured scales the region's by the same factor (region threshold x configured /
+    /// model threshold), so one knob moves both.
+    pub fn at(&self, model: &Model, head: [f32; 2]) -> Settings {
+        match model.region {
+            Some(g) if g.contains(head) => Settings {
+                threshold: g.threshold * (self.threshold / model.novelty.threshold),
+                merge: g.merge,
+                ..*self
+            },
+            _ => *self,
+        }
+    }
+
+    /// Finite positive threshold, min area at least 1, a merge valid for it.
     pub fn is_valid(&self) -> bool {
-        self.threshold.is_finite() && self.threshold > 0.0 && self.min_area >= 1
+        self.threshold.is_finite()
+            && self.threshold > 0.0
+            && self.min_area >= 1
+            && self.merge.is_valid(self.min_area)
     }
 }
 

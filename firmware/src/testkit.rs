@@ -119,6 +119,7 @@ fn spec(face_h: u16, face_w: u16, layers: Vec<LayerSpec>, rng: &mut Lcg) -> Mode
             .map(|_| ((1.0 + rng.unit().abs()) * 256.0) as u16)
             .collect(),
         reach: reach_net(rng),
+        region: None,
         template: None,
         crop: CropMode::Pixel,
     }

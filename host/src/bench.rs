@@ -251,6 +251,7 @@ pub fn synthetic_with(kind: ArchKind, i8w: bool) -> Result<BenchModel> {
         mu,
         sigma,
         reach,
+        region: None,
         template: None,
         crop: CropMode::Pixel,
     };
@@ -312,7 +313,7 @@ pub fn bench_host(m: &BenchModel, reps: usize) -> Result<Value> {
             let t1 = Instant::now();
             ws.saliency(&model, &settings, frame).map_err(|e| anyhow::anyhow!("saliency: {e}"))?;
             let t2 = Instant::now();
-            let (blob, _) = ws.blobs(&model, settings.min_area);
+            let (blob, _) = ws.blobs(&model, &settings);
             let t3 = Instant::now();
             let c = blob.map_or([model.face_w as f32 / 2.0, model.face_h as f32 / 2.0], |b| b.centroid());
             std::hint::black_box(reach::targets(&model.reach, c));

@@ -25,7 +25,7 @@
 use anyhow::{bail, ensure, Context, Result};
 use image::{GrayImage, Luma};
 use imageproc::region_labelling::{connected_components, Connectivity};
-use msr_shared::blob::{Merge, Normalisation, Sided};
+use msr_shared::blob::{Merge, Normalisation, PoseRegion, Sided};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -115,6 +115,10 @@ pub struct NoveltyParams {
     /// Fragment merge before the area test; off (the paper) by default and in older files.
     #[serde(default)]
     pub merge: Merge,
+    /// A threshold and merge of their own near one head pose (the observe posture), as the
+    /// calibrated policy sets them; none by default and in older files.
+    #[serde(default)]
+    pub region: Option<PoseRegion>,
 }
 
 impl Default for NoveltyParams {
@@ -126,6 +130,7 @@ impl Default for NoveltyParams {
             sigma_floor: DEFAULT_SIGMA_FLOOR,
             min_area: DEFAULT_MIN_AREA,
             merge: Merge::OFF,
+            region: None,
         }
     }
 }
@@ -141,7 +146,23 @@ impl NoveltyParams {
             self.merge,
             msr_shared::blob::MAX_MERGE_MARGIN
         );
+        if let Some(g) = &self.region {
+            ensure!(
+                g.is_valid(self.min_area),
+                "pose region {g:?}: needs a finite centre, a radius in (0, {}] rad, a positive threshold and a valid merge",
+                msr_shared::blob::MAX_REGION_RADIUS
+            );
+        }
         Ok(())
+    }
+
+    /// The settings for a frame seen with the head at `head`: the region's threshold and merge
+    /// inside the pose region, these elsewhere (as the firmware's `Settings::at`).
+    pub fn at(&self, head: [f32; 2]) -> NoveltyParams {
+        match self.region {
+            Some(g) if g.contains(head) => NoveltyParams { threshold: g.threshold as f64, merge: g.merge, ..*self },
+            _ => *self,
+        }
     }
 }
 

@@ -136,7 +136,8 @@ pub fn run(a: Args) -> Result<()> {
     }
     p.start(&format!("2/8 training the decoder ({} epochs, Adam lr 0.005 halved every 10, batch 128) and calibrating", a.epochs));
     train::run(train_args(&data, &models, ModelKind::Decoder, &a))?;
-    let choice = train::policy::apply(&models, "decoder", a.robot, a.seed)?;
+    let max_head = dcfg.max_head_angle as f32;
+    let choice = train::policy::apply(&models, "decoder", a.robot, max_head, a.seed)?;
     notes.push(novelty_note(&choice));
     let dec_info = train::load(&models, "decoder")?.info()?.clone();
     p.done(
@@ -149,7 +150,7 @@ pub fn run(a: Args) -> Result<()> {
     );
     p.start("   training the autoencoder (2-d code, same decoder)");
     train::run(train_args(&data, &models, ModelKind::Autoencoder, &a))?;
-    train::policy::apply(&models, "autoencoder", a.robot, a.seed)?;
+    train::policy::apply(&models, "autoencoder", a.robot, max_head, a.seed)?;
     let ae_info = train::load(&models, "autoencoder")?.info()?.clone();
     p.done(
         "train_autoencoder_s",
@@ -297,27 +298,41 @@ pub fn run(a: Args) -> Result<()> {
 
 /// The chosen novelty settings in a few words.
 fn novelty_line(n: &crate::calibrate::NoveltyParams) -> String {
-    let merge = if n.merge.is_on() {
-        format!("merge fragments of >= {} px within {} px", n.merge.fragment, n.merge.margin)
-    } else {
-        "no merge".into()
+    let merge = |m: msr_shared::blob::Merge| {
+        if m.is_on() {
+            format!("merge fragments of >= {} px within {} px", m.fragment, m.margin)
+        } else {
+            "no merge".into()
+        }
     };
-    format!("threshold {:.2}, {merge}", n.threshold)
+    let own = format!("threshold {:.2}, {}", n.threshold, merge(n.merge));
+    match n.region {
+        Some(g) => format!(
+            "within {:.2} deg of the observe posture threshold {:.2}, {}; at other poses {own}",
+            g.radius.to_degrees(),
+            g.threshold,
+            merge(g.merge)
+        ),
+        None => own,
+    }
 }
 
-fn novelty_note(c: &Option<train::policy::Choice>) -> String {
-    match c {
+fn novelty_note(a: &train::policy::Applied) -> String {
+    let said = |c: &Option<train::policy::Choice>| match c {
         Some(c) => format!(
-            "Novelty settings by the calibrated policy (`train::policy`), not the paper's fixed 4.59 and plain blobs: \
-             threshold {:.2}, merge {:?}: of the candidates under which none of {} unmarked frames at the observe \
-             posture fires at threshold / {}, the one finding most of {} marked ones. At other head poses a lowered \
-             threshold may fire on unmarked frames (the evaluation table's false alarms).",
-            c.threshold, c.merge, c.normal_frames, c.safety, c.marked_frames
+            "threshold {:.2}, merge {:?} ({}: of the candidates under which none of {} unmarked frames fires at the \
+             threshold or at threshold / {}, the one finding most of {} marked ones)",
+            c.threshold, c.merge, c.poses, c.normal_frames, c.safety, c.marked_frames
         ),
-        None => "Novelty settings: the paper's (no candidate of the calibrated policy kept the unmarked frames at the \
-                 observe posture quiet)."
-            .into(),
-    }
+        None => "the paper's (no candidate kept the unmarked frames quiet)".into(),
+    };
+    format!(
+        "Novelty settings by the calibrated policy (`train::policy`), not the paper's fixed 4.59 and plain blobs: at any \
+         head pose {}; near the observe posture, where the robot looks for marks, {}{}.",
+        said(&a.general),
+        said(&a.observe),
+        if a.novelty.region.is_none() { " (the same: no pose region)" } else { "" }
+    )
 }
 
 /// Wall time the QEMU episodes may take: the emulated UART moves 20 to 40 KB/s, so a trial takes

@@ -117,7 +117,7 @@ pub fn detect_face(
         EngineArg::Float => {
             let dec = dequantized_decoder(model)?;
             let eng = float_engine_of(model);
-            Ok(eng.detect(face.crop, &face.grey, dec.predict(head, &[])))
+            Ok(eng.detect(face.crop, &face.grey, dec.predict(head, &[]), head))
         }
     }
 }
@@ -135,6 +135,7 @@ pub fn float_engine_of(model: &Model) -> FloatEngine {
             min_area: model.novelty.min_area,
             merge: model.novelty.merge,
         },
+        region: model.region,
         reach: Some(model.reach),
         face_w: model.face_w as usize,
     }

@@ -81,6 +81,8 @@ pub struct Report {
     pub marked: usize,
     pub unmarked: usize,
     pub threshold: f32,
+    /// The blob's own settings near one head pose, when it has them.
+    pub region: Option<msr_shared::blob::PoseRegion>,
     pub min_area: u16,
     pub rows: Vec<Row>,
     pub absent: Vec<Absent>,
@@ -186,10 +188,11 @@ pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> 
                 vec![1.0; float.sigma.len()]
             };
             eng.settings = float.settings;
+            eng.region = float.region;
             let d: Vec<Detection> = test
                 .iter()
                 .zip(&predicted)
-                .map(|(s, p)| eng.detect(s.face.crop, &s.face.grey, p.clone()))
+                .map(|(s, p)| eng.detect(s.face.crop, &s.face.grey, p.clone(), s.head))
                 .collect();
             rows.push(row(
                 name,
@@ -261,6 +264,7 @@ pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> 
         marked,
         unmarked: test.len() - marked,
         threshold: model.novelty.threshold,
+        region: model.region,
         min_area: model.novelty.min_area,
         rows,
         absent,
@@ -383,6 +387,7 @@ struct FloatModel {
     /// Grey levels, floored as the model's calibration says.
     sigma: Vec<f32>,
     settings: Settings,
+    region: Option<msr_shared::blob::PoseRegion>,
     source: String,
 }
 
@@ -424,6 +429,7 @@ fn trained_model(
             min_area: info.novelty.min_area,
             merge: info.novelty.merge,
         },
+        region: info.novelty.region,
         source: format!(
             "{} (trained, float)",
             dir.join(format!("{name}.mpk")).display()
@@ -447,6 +453,7 @@ fn published_float_decoder(manifest: &Path) -> Result<FloatModel> {
             min_area: p.min_area,
             merge: msr_shared::blob::Merge::OFF,
         },
+        region: None,
         source: format!("{} (published float decoder)", manifest.display()),
         predictor: Box::new(p.decoder),
     })
@@ -461,14 +468,26 @@ fn blob_float_decoder(model: &Model) -> Result<FloatModel, String> {
         mu: eng.mu,
         sigma: eng.sigma,
         settings: eng.settings,
+        region: eng.region,
         source: "blob decoder dequantized to float (no trained decoder next to the blob)".into(),
     })
 }
 
 pub fn markdown(r: &Report) -> String {
     let f = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.3}"));
+    let region = r.region.map_or(String::new(), |g| {
+        format!(
+            " (within {:.2} deg of head ({:.2}, {:.2}) deg: threshold {}, merge margin {} fragment {})",
+            g.radius.to_degrees(),
+            g.centre[0].to_degrees(),
+            g.centre[1].to_degrees(),
+            g.threshold,
+            g.merge.margin,
+            g.merge.fragment
+        )
+    });
     let mut s = format!(
-        "Test split of {}: {} frames ({} marked, {} unmarked); threshold {}, min area {}\n\n",
+        "Test split of {}: {} frames ({} marked, {} unmarked); threshold {}{region}, min area {}\n\n",
         r.data, r.test_frames, r.marked, r.unmarked, r.threshold, r.min_area
     );
     s += "| model | weighting | engine | overlap/mark | a_i/(a_i+a_d) | hit rate | false alarms | image AUROC | pixel AUROC |\n";

@@ -406,6 +406,7 @@ impl Published {
             // The published code divides by sigma + 1e-5; the floor keeps it off zero in Q8.8.
             sigma: self.sigma.iter().map(|&v| q8_8(v + 1e-5).max(1)).collect(),
             reach: self.reach,
+            region: None,
             template: Some((h as u16, w as u16, self.template.as_raw().clone())),
             // The published statistics were measured on whole-pixel crops.
             crop: CropMode::Pixel,

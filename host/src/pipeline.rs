@@ -2,7 +2,7 @@
 //! winner -> reach. The float engine lives here; the fixed engine is the firmware's code
 //! (`crate::fixed`). Both give a [`Detection`] so that `detect` and `eval` treat them alike.
 use crate::crop::CropBox;
-use msr_shared::blob::{Merge, Normalisation, Reach, Sided, REACH_HIDDEN, REACH_OUT};
+use msr_shared::blob::{Merge, Normalisation, PoseRegion, Reach, Sided, REACH_HIDDEN, REACH_OUT};
 use serde::Serialize;
 
 /// A connected component of salient pixels. Coordinates are in whatever frame it was found in
@@ -230,13 +230,24 @@ pub struct FloatEngine {
     /// Grey levels, floor applied.
     pub sigma: Vec<f32>,
     pub settings: Settings,
+    /// Settings of their own near one head pose (the blob's `PoseRegion`).
+    pub region: Option<PoseRegion>,
     pub reach: Option<Reach>,
     pub face_w: usize,
 }
 
 impl FloatEngine {
-    pub fn detect(&self, crop: CropBox, face: &[u8], predicted: Vec<f32>) -> Detection {
-        let s = &self.settings;
+    /// The settings for a frame seen with the head at `head` (as the firmware's `Settings::at`).
+    pub fn settings_at(&self, head: [f32; 2]) -> Settings {
+        match self.region {
+            Some(g) if g.contains(head) => Settings { threshold: g.threshold, merge: g.merge, ..self.settings },
+            _ => self.settings,
+        }
+    }
+
+    /// One face seen with the head at `head`, given the model's prediction for it.
+    pub fn detect(&self, crop: CropBox, face: &[u8], predicted: Vec<f32>, head: [f32; 2]) -> Detection {
+        let s = &self.settings_at(head);
         let saliency = saliency(
             face,
             &predicted,
@@ -320,6 +331,26 @@ mod tests {
         }
         // The masks exercise the merge, not only the plain winner.
         assert!(merged_differs > 100, "{merged_differs}");
+    }
+
+    /// The float engine switches to the pose region's settings where the firmware does.
+    #[test]
+    fn float_engine_takes_the_region_settings_near_its_centre() {
+        let (w, h) = (10, 6);
+        let region = PoseRegion { centre: [0.0, 0.0], radius: 0.01, threshold: 1.5, merge: Merge { margin: 2, fragment: 2 } };
+        let own = Settings { threshold: 4.0, normalisation: Normalisation::StdDev, sided: Sided::One, min_area: 4, merge: Merge::OFF };
+        let eng = FloatEngine { mu: vec![0.0; w * h], sigma: vec![1.0; w * h], settings: own, region: Some(region), reach: None, face_w: w };
+        assert_eq!(eng.settings_at([0.005, -0.005]), Settings { threshold: 1.5, merge: region.merge, ..own });
+        assert_eq!(eng.settings_at([0.0, 0.02]), own);
+        // A 2 x 2 patch 3 grey levels off the prediction: salient at 1.5, not at 4.0.
+        let mut face = vec![100u8; w * h];
+        for (y, x) in [(2, 3), (2, 4), (3, 3), (3, 4)] {
+            face[y * w + x] = 103;
+        }
+        let pred = vec![100.0 / 255.0; w * h];
+        let crop = CropBox { x: 0, y: 0, width: w as u32, height: h as u32 };
+        assert_eq!(eng.detect(crop, &face, pred.clone(), [0.0, 0.0]).blob.map(|b| b.area), Some(4));
+        assert_eq!(eng.detect(crop, &face, pred, [0.0, 0.02]).blob, None);
     }
 
     #[test]

@@ -305,6 +305,7 @@ pub fn blob_of(layers: Vec<LayerSpec>, x: &Extras) -> Result<Vec<u8>> {
         mu: x.stats.mu.iter().map(|&v| grey_q88(v)).collect(),
         sigma: x.stats.sigma.iter().map(|&v| grey_q88(v.max(p.sigma_floor)).max(1)).collect(),
         reach: x.reach,
+        region: p.region,
         template: x.template.clone(),
         crop: x.crop,
     };
@@ -434,8 +435,9 @@ pub fn run(args: Args) -> Result<()> {
     let mut ws = Box::new(msr_firmware::Workspace::new());
     let (mut agree, mut nf, mut nq, mut diffs) = (0usize, 0usize, 0usize, Vec::new());
     for ((s, f), p) in ds.samples.iter().zip(&faces).zip(&preds) {
-        let sal = calibrate::saliency(&calibrate::error_map(f, p), &x.stats, &x.novelty);
-        let fl = calibrate::detect(&sal, h, w, &x.novelty);
+        let novelty = x.novelty.at(s.head);
+        let sal = calibrate::saliency(&calibrate::error_map(f, p), &x.stats, &novelty);
+        let fl = calibrate::detect(&sal, h, w, &novelty);
         let fx = crate::fixed::detect_with(&mut ws, &blob_model, &s.face, s.head)?;
         let fx = fx.blob.map(|b| [b.centroid[0] - s.face.crop.x as f64, b.centroid[1] - s.face.crop.y as f64]);
         nf += fl.is_some() as usize;
@@ -505,7 +507,7 @@ mod tests {
     use super::*;
     use crate::models::{Decoder, DecoderSpec};
     use burn::prelude::*;
-    use msr_shared::blob::{Normalisation, Sided};
+    use msr_shared::blob::{Merge, Normalisation, PoseRegion, Sided};
 
     fn extras(h: usize, w: usize) -> Extras {
         let reach = Reach::from_parts(&[0.1; 20], &[0.0; 10], &[0.1; 50], &[0.0; 5], [0.0; 2], [1.0; 2], [0.0; 5], [1.0; 5]).unwrap();
@@ -550,6 +552,24 @@ mod tests {
         assert!(c.blob.len() <= AUTO_I16_MAX_BYTES);
         let i16 = choose(&layers, &extras(20, 27), &heads(), WeightArg::I16).unwrap();
         assert_eq!(c.blob, i16.blob);
+    }
+
+    #[test]
+    fn the_pose_region_and_crop_mode_reach_the_blob() {
+        let dev = Device::flex();
+        let layers = Decoder::new(&DecoderSpec::conv(20, 27), 5, &dev).unwrap().float_layers().unwrap();
+        let mut x = extras(20, 27);
+        let region = PoseRegion { centre: [0.0, 0.0], radius: 0.01, threshold: 2.5, merge: Merge { margin: 4, fragment: 2 } };
+        x.novelty.region = Some(region);
+        x.template = Some((2, 2, vec![9; 4]));
+        x.crop = CropMode::Subpixel;
+        let c = choose(&layers, &x, &heads(), WeightArg::I16).unwrap();
+        let m = Model::parse(&c.blob).unwrap();
+        assert_eq!(m.region, Some(region));
+        assert_eq!(m.template.map(|t| t.crop), Some(CropMode::Subpixel));
+        // A region the blob cannot hold is refused before any blob is written.
+        x.novelty.region = Some(PoseRegion { radius: 0.0, ..region });
+        assert!(choose(&layers, &x, &heads(), WeightArg::I16).is_err());
     }
 
     #[test]

@@ -286,7 +286,14 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
 
     // Tables.
     let ev = &report["eval"];
-    let _ = write!(h, "<h2>Detection on the test split (the paper's table)</h2><p>{} test frames ({} marked, {} unmarked), threshold {}, min area {}. Quantized agreement (float vs fixed decoder, sigma weighting): {}.</p>",
+    let region = match ev["region"].as_object() {
+        Some(g) => format!(
+            " (within {} rad of head angles {} the observe posture's own: threshold {}, merge {})",
+            num(&g["radius"]), esc(&g["centre"].to_string()), num(&g["threshold"]), esc(&g["merge"].to_string())
+        ),
+        None => String::new(),
+    };
+    let _ = write!(h, "<h2>Detection on the test split (the paper's table)</h2><p>{} test frames ({} marked, {} unmarked), threshold {}{region}, min area {}. Quantized agreement (float vs fixed decoder, sigma weighting): {}.</p>",
         num(&ev["test_frames"]), num(&ev["marked"]), num(&ev["unmarked"]), num(&ev["threshold"]), num(&ev["min_area"]), num(&ev["quantized_agreement"]));
     let rows = ev["rows"].as_array().cloned().unwrap_or_default();
     h.push_str(&table(

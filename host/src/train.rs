@@ -159,9 +159,13 @@ pub struct ModelInfo {
     pub training_seconds: f64,
     pub novelty: NoveltyParams,
     pub threshold_policy: ThresholdPolicy,
-    /// The calibrated novelty policy's choice (`policy::apply`), when it was applied.
+    /// The calibrated novelty policy's choice near the observe posture (`policy::apply`), when
+    /// it was applied.
     #[serde(default)]
     pub novelty_policy: Option<policy::Choice>,
+    /// Its choice over the training poses.
+    #[serde(default)]
+    pub general_policy: Option<policy::Choice>,
     /// Frames the error statistics were made from.
     pub stats_frames: usize,
     pub files: Files,
@@ -237,6 +241,7 @@ pub fn run(args: Args) -> Result<()> {
         sigma_floor: args.sigma_floor,
         min_area: args.min_area,
         merge: msr_shared::blob::Merge::OFF,
+        region: None,
     };
     novelty.check()?;
     let hp = HyperParams {
@@ -360,6 +365,7 @@ pub fn run(args: Args) -> Result<()> {
         novelty,
         threshold_policy: policy,
         novelty_policy: None,
+        general_policy: None,
         stats_frames: stats.frames,
         files,
     };

@@ -20,6 +20,8 @@
 //!   weights (weight_bytes, padded to 4), then bias (i32 each, count per kind; none for Crop)
 //! statistics: mu then sigma, face_h*face_w u16 each, Q8.8 grey levels (padded to 4)
 //! reach: 99 f32: w1[10][2] b1[10] w2[5][10] b2[5] in_min[2] in_max[2] out_min[5] out_max[5]
+//! pose region (if flags bit 2): centre_yaw f32, centre_pitch f32, radius f32, threshold f32,
+//!   merge_margin u8, reserved u8 (0), merge_fragment u16
 //! template (if flags bit 0): h u16, w u16, h*w u8 grey (padded to 4)
 //! ```
 //!
@@ -47,7 +49,8 @@
 //! Flags: bit 0, the blob carries the face template; bit 1 (version 4, only with bit 0), the
 //! host crops this model's faces at sub-pixel precision ([`CropMode::Subpixel`]). The board
 //! never crops: the template and the crop mode tell the host how to make the crops it sends.
-//! The writer uses version 4 only for a sub-pixel blob.
+//! Bit 2 (version 4): a [`PoseRegion`], novelty settings of their own for head poses near one
+//! pose (the observe posture). The writer uses version 4 only for a blob with bit 1 or 2.
 //!
 //! Fragment merge (version 3; bytes 36..40 are zero before): `merge_margin` 0 is the paper's
 //! blob stage. Otherwise 8-connected components of at least `merge_fragment` pixels whose
@@ -90,6 +93,9 @@ pub const REACH_FLOATS: usize = REACH_HIDDEN * REACH_IN
     + 2 * REACH_OUT;
 const FLAG_TEMPLATE: u16 = 1;
 const FLAG_SUBPIXEL: u16 = 2;
+const FLAG_REGION: u16 = 4;
+/// Largest [`PoseRegion::radius`], radians.
+pub const MAX_REGION_RADIUS: f32 = 0.5;
 
 /// CRC of the blob body: CRC-32/ISO-HDLC (the zlib one).
 pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
@@ -340,6 +346,39 @@ impl Merge {
     }
 }
 
+/// Novelty settings that replace the model's own for head poses near `centre`: a threshold and
+/// merge calibrated at the pose where the robot looks for marks (its observe posture), while
+/// the model's own settings hold for every other pose. `threshold` is in the model's
+/// normalisation, like [`Novelty::threshold`].
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PoseRegion {
+    /// `[HeadYaw, HeadPitch]`, radians.
+    pub centre: [f32; 2],
+    /// Radians, in the (yaw, pitch) plane.
+    pub radius: f32,
+    pub threshold: f32,
+    pub merge: Merge,
+}
+
+impl PoseRegion {
+    /// Whether `head` lies within `radius` of the centre (not for non-finite angles).
+    pub fn contains(&self, head: [f32; 2]) -> bool {
+        let (dy, dp) = (head[0] - self.centre[0], head[1] - self.centre[1]);
+        dy * dy + dp * dp <= self.radius * self.radius
+    }
+
+    /// Finite centre, `0 < radius <= MAX_REGION_RADIUS`, finite positive threshold, a merge valid
+    /// for `min_area`.
+    pub fn is_valid(&self, min_area: u16) -> bool {
+        self.centre.iter().all(|a| a.is_finite())
+            && self.radius > 0.0
+            && self.radius <= MAX_REGION_RADIUS
+            && self.threshold.is_finite()
+            && self.threshold > 0.0
+            && self.merge.is_valid(min_area)
+    }
+}
+
 /// One decoder layer, its tables borrowed from the blob.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Layer<'a> {
@@ -561,6 +600,8 @@ pub struct Model<'a> {
     /// Its standard deviation per pixel, Q8.8 grey levels, row-major.
     pub sigma: U16Table<'a>,
     pub reach: Reach,
+    /// Settings of their own near one head pose (flag bit 2).
+    pub region: Option<PoseRegion>,
     pub template: Option<Template<'a>>,
     /// The CRC-32 from the header: the model's identity.
     pub crc32: u32,
@@ -659,8 +700,9 @@ impl<'a> Model<'a> {
             return Err(BlobError::TooManyLayers);
         }
         let flags = r.u16()?;
-        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL) != 0
+        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION) != 0
             || (flags & FLAG_SUBPIXEL != 0 && (version < 4 || flags & FLAG_TEMPLATE == 0))
+            || (flags & FLAG_REGION != 0 && version < 4)
         {
             return Err(BlobError::BadHeader);
         }
@@ -733,6 +775,22 @@ impl<'a> Model<'a> {
         if !reach.is_valid() {
             return Err(BlobError::Reach);
         }
+        let region = if flags & FLAG_REGION != 0 {
+            let centre = [r.f32()?, r.f32()?];
+            let (radius, threshold) = (r.f32()?, r.f32()?);
+            let margin = r.u8()?;
+            if r.u8()? != 0 {
+                return Err(BlobError::BadHeader);
+            }
+            let merge = Merge { margin, fragment: r.u16()? };
+            let region = PoseRegion { centre, radius, threshold, merge };
+            if !region.is_valid(min_area) {
+                return Err(BlobError::Novelty);
+            }
+            Some(region)
+        } else {
+            None
+        };
 
         let template = if flags & FLAG_TEMPLATE != 0 {
             let h = r.u16()?;
@@ -761,6 +819,7 @@ impl<'a> Model<'a> {
             mu,
             sigma,
             reach,
+            region,
             template,
             crc32: crc,
         })
@@ -942,6 +1001,8 @@ mod writer {
         pub mu: Vec<u16>,
         pub sigma: Vec<u16>,
         pub reach: Reach,
+        /// Novelty settings of their own near one head pose.
+        pub region: Option<PoseRegion>,
         /// (h, w, grey pixels).
         pub template: Option<(u16, u16, Vec<u8>)>,
         /// How the host crops with the template; [`CropMode::Subpixel`] needs one.
@@ -963,7 +1024,7 @@ mod writer {
             if subpixel && self.template.is_none() {
                 return Err(BlobError::Template);
             }
-            let version: u16 = if subpixel {
+            let version: u16 = if subpixel || self.region.is_some() {
                 4
             } else if self.novelty.merge.is_on() {
                 3
@@ -983,6 +1044,9 @@ mod writer {
             let mut flags = if self.template.is_some() { FLAG_TEMPLATE } else { 0 };
             if subpixel {
                 flags |= FLAG_SUBPIXEL;
+            }
+            if self.region.is_some() {
+                flags |= FLAG_REGION;
             }
             o.extend_from_slice(&flags.to_le_bytes());
             let n = &self.novelty;
@@ -1053,6 +1117,13 @@ mod writer {
             }
             for f in self.reach.to_floats() {
                 o.extend_from_slice(&f.to_le_bytes());
+            }
+            if let Some(g) = &self.region {
+                for f in [g.centre[0], g.centre[1], g.radius, g.threshold] {
+                    o.extend_from_slice(&f.to_le_bytes());
+                }
+                o.extend_from_slice(&[g.merge.margin, 0]);
+                o.extend_from_slice(&g.merge.fragment.to_le_bytes());
             }
             if let Some((h, w, px)) = &self.template {
                 o.extend_from_slice(&h.to_le_bytes());

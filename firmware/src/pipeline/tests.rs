@@ -1,6 +1,6 @@
 use super::*;
 use crate::testkit::{conv_spec, mlp_spec, reach_net, Lcg};
-use msr_shared::blob::{Model, Normalisation, Sided};
+use msr_shared::blob::{Merge, Model, Normalisation, PoseRegion, Sided};
 
 #[test]
 fn saliency_matches_the_float_definition() {
@@ -17,6 +17,7 @@ fn saliency_matches_the_float_definition() {
                     normalisation: norm,
                     sided,
                     min_area: 1,
+                    merge: Merge::OFF,
                 };
                 let pred = ws.decode(&m, [0.02, -0.01]).unwrap().to_vec();
                 let crop: Vec<u8> = pred
@@ -119,12 +120,7 @@ fn a_mark_is_found_where_it_is_and_nothing_without() {
     let d = detect(&mut ws, &m, &s, &clean, [150, 90], head).unwrap();
     assert_eq!((d.blob, d.reach, d.salient_pixels), (None, None, 0));
 
-    let mut marked = clean.clone();
-    for y in 5..9 {
-        for x in 10..14 {
-            marked[y * 24 + x] = if clean[y * 24 + x] > 128 { 10 } else { 245 };
-        }
-    }
+    let marked = with_mark(&clean);
     let d = detect(&mut ws, &m, &s, &marked, [150, 90], head).unwrap();
     let b = d.blob.expect("the mark");
     assert_eq!((b.area, b.x0, b.y0, b.x1, b.y1), (16, 10, 5, 13, 8));
@@ -155,6 +151,57 @@ fn a_mark_is_found_where_it_is_and_nothing_without() {
         Err(DetectError::Settings)
     );
     assert!(detect(&mut ws, &m, &s, &marked, [0, 0], [f32::NAN, 0.0]).is_err());
+}
+
+/// `face` with a 4 x 4 mark at (10..14, 5..9), dark on light and light on dark.
+fn with_mark(face: &[u8]) -> Vec<u8> {
+    let mut marked = face.to_vec();
+    for y in 5..9 {
+        for x in 10..14 {
+            marked[y * 24 + x] = if face[y * 24 + x] > 128 { 10 } else { 245 };
+        }
+    }
+    marked
+}
+
+#[test]
+fn the_pose_region_settings_hold_near_its_centre_only() {
+    let mut spec = mlp_spec(3, 20, 24);
+    let inside = [0.03, 0.01];
+    let region = PoseRegion {
+        centre: inside,
+        radius: 0.01,
+        threshold: 5000.0,
+        merge: Merge { margin: 3, fragment: 2 },
+    };
+    spec.region = Some(region);
+    let bytes = spec.to_bytes().unwrap();
+    let m = Model::parse(&bytes).unwrap();
+    let s = Settings::of(&m);
+    assert_eq!(s.at(&m, inside), Settings { threshold: 5000.0, merge: region.merge, ..s });
+    assert_eq!(s.at(&m, [0.037, 0.017]), Settings { threshold: 5000.0, merge: region.merge, ..s });
+    let outside = [0.045, 0.01];
+    assert_eq!(s.at(&m, outside), s);
+    assert_eq!(s.at(&m, [f32::NAN, 0.01]), s);
+    // A configured threshold scales the region's too.
+    let twice = Settings { threshold: 2.0 * s.threshold, ..s };
+    assert_eq!(twice.at(&m, inside).threshold, 10000.0);
+
+    // The mark the model's own threshold finds is below the region's.
+    let mut ws = Box::new(Workspace::new());
+    let marked = with_mark(&face_of(&mut ws, &m, inside));
+    let d = detect(&mut ws, &m, &s, &marked, [150, 90], inside).unwrap();
+    assert_eq!(d.blob, None, "inside the region its threshold holds");
+    let marked = with_mark(&face_of(&mut ws, &m, outside));
+    let d = detect(&mut ws, &m, &s, &marked, [150, 90], outside).unwrap();
+    assert_eq!(d.blob.map(|b| b.area), Some(16), "outside, the model's own");
+    // Back inside: the threshold table follows the pose.
+    let marked = with_mark(&face_of(&mut ws, &m, inside));
+    assert_eq!(detect(&mut ws, &m, &s, &marked, [150, 90], inside).unwrap().blob, None);
+    let plain_bytes = mlp_spec(3, 20, 24).to_bytes().unwrap();
+    let plain = Model::parse(&plain_bytes).unwrap();
+    let d = detect(&mut ws, &plain, &Settings::of(&plain), &marked, [150, 90], inside).unwrap();
+    assert_eq!(d.blob.map(|b| b.area), Some(16), "the same frame without a region");
 }
 
 #[test]

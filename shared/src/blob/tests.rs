@@ -67,6 +67,7 @@ fn mlp_spec() -> ModelSpec {
         mu: (0..12).map(|i| i * 300).collect(),
         sigma: (0..12).map(|i| 256 + i).collect(),
         reach: reach(),
+        region: None,
         template: Some((2, 3, vec![1, 2, 3, 4, 5, 6])),
         crop: CropMode::Pixel,
     }
@@ -546,7 +547,7 @@ fn subpixel_crop_flag_needs_version_4_and_a_template() {
     // Version 3 has no sub-pixel flag; the flag needs the template; unknown flags are refused.
     assert_eq!(edit(4, &[3, 0]), Err(BlobError::BadHeader));
     assert_eq!(edit(22, &[2, 0]), Err(BlobError::BadHeader));
-    assert_eq!(edit(22, &[7, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(22, &[11, 0]), Err(BlobError::BadHeader));
     // Version 4 may also crop whole pixels.
     assert_eq!(edit(22, &[1, 0]), Ok(Some(CropMode::Pixel)));
     // The writer refuses a sub-pixel crop without a template to crop with.
@@ -560,4 +561,64 @@ fn crop_mode_names_round_trip() {
         assert_eq!(m.name().parse::<CropMode>(), Ok(m));
     }
     assert!("bilinear".parse::<CropMode>().is_err());
+}
+
+fn region() -> PoseRegion {
+    PoseRegion { centre: [0.0, -0.01], radius: 0.01, threshold: 2.5, merge: Merge { margin: 4, fragment: 2 } }
+}
+
+#[test]
+fn pose_region_round_trips_and_needs_version_4() {
+    let mut spec = mlp_spec();
+    spec.region = Some(region());
+    let bytes = spec.to_bytes().unwrap();
+    assert_eq!(&bytes[4..6], &[4, 0], "a blob with a region is version 4");
+    assert_eq!(&bytes[22..24], &[5, 0], "template and region flags");
+    let m = Model::parse(&bytes).unwrap();
+    assert_eq!(m.region, Some(region()));
+    assert_eq!(m.template.map(|t| t.crop), Some(CropMode::Pixel));
+    // Without a template it still carries the region.
+    spec.template = None;
+    assert_eq!(Model::parse(&spec.to_bytes().unwrap()).unwrap().region, Some(region()));
+    // The region's 20 bytes sit right after the reach floats, before the template.
+    let tail = 2 * 12 + 2 * 12 + 4 * REACH_FLOATS;
+    let at = bytes.len() - 12 - 20;
+    assert!(at > tail);
+    let edit = |at_: usize, v: &[u8]| {
+        let mut b = bytes.clone();
+        b[at_..at_ + v.len()].copy_from_slice(v);
+        recrc(&mut b);
+        Model::parse(&b).map(|m| m.region)
+    };
+    assert_eq!(edit(at, &0.0f32.to_le_bytes()), Ok(Some(PoseRegion { centre: [0.0, -0.01], ..region() })));
+    assert_eq!(edit(at + 8, &0.5f32.to_le_bytes()), Ok(Some(PoseRegion { radius: 0.5, ..region() })));
+    // Version 3 has no region; bad values are refused.
+    assert_eq!(edit(4, &[3, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(at, &f32::NAN.to_le_bytes()), Err(BlobError::Novelty));
+    assert_eq!(edit(at + 8, &0.0f32.to_le_bytes()), Err(BlobError::Novelty));
+    assert_eq!(edit(at + 8, &0.51f32.to_le_bytes()), Err(BlobError::Novelty));
+    assert_eq!(edit(at + 12, &(-1.0f32).to_le_bytes()), Err(BlobError::Novelty));
+    assert_eq!(edit(at + 12, &f32::INFINITY.to_le_bytes()), Err(BlobError::Novelty));
+    assert_eq!(edit(at + 16, &[4, 1]), Err(BlobError::BadHeader));
+    assert_eq!(edit(at + 18, &[31, 0]), Err(BlobError::Novelty), "fragment above min_area 30");
+    assert_eq!(edit(at + 16, &[0, 0, 0, 0]), Ok(Some(PoseRegion { merge: Merge::OFF, ..region() })));
+    // Cut short inside the region.
+    let mut short = bytes[..at + 10].to_vec();
+    let n = short.len() as u32;
+    short[8..12].copy_from_slice(&n.to_le_bytes());
+    recrc(&mut short);
+    assert_eq!(Model::parse(&short), Err(BlobError::Truncated));
+    // The writer refuses what the parser refuses.
+    spec.region = Some(PoseRegion { radius: -1.0, ..region() });
+    assert_eq!(spec.to_bytes(), Err(BlobError::Novelty));
+}
+
+#[test]
+fn pose_region_contains_the_disc_around_its_centre() {
+    let g = region();
+    assert!(g.contains([0.0, -0.01]));
+    assert!(g.contains([0.006, -0.017]), "distance 0.0092");
+    assert!(!g.contains([0.0075, -0.0175]));
+    assert!(!g.contains([0.0, 0.001]));
+    assert!(!g.contains([f32::NAN, -0.01]));
 }

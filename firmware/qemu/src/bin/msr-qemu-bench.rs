@@ -138,7 +138,7 @@ fn main() -> ! {
         let t1 = clock.instructions();
         let salient = ws.saliency(&model, &settings, frame);
         let t2 = clock.instructions();
-        let (blob, summary) = ws.blobs(&model, settings.min_area);
+        let (blob, summary) = ws.blobs(&model, &settings);
         let t3 = clock.instructions();
         // Reach runs for the winner; without one, for the crop centre, so it is always timed.
         let c = blob.map_or([w as f32 / 2.0, h as f32 / 2.0], |b| b.centroid());
