@@ -288,7 +288,7 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
     let ev = &report["eval"];
     let region = match ev["region"].as_object() {
         Some(g) => format!(
-            " (within {} rad of head angles {} the observe posture's own: threshold {}, merge {})",
+            "; near the observe posture (head angles within {} rad of {}) threshold {}, merge {}",
             num(&g["radius"]), esc(&g["centre"].to_string()), num(&g["threshold"]), esc(&g["merge"].to_string())
         ),
         None => String::new(),
