@@ -137,7 +137,7 @@ impl Workspace {
 /// The whole per-frame pipeline on one face crop (`face_h x face_w` grey bytes, row-major) at
 /// `offset = [x, y]` in the camera frame, seen with the head at `head = [HeadYaw, HeadPitch]`
 /// (radians, as the servos report them). `settings` are those in force; near the model's pose
-/// region the region's apply ([`Settings::at`]).'
+/// region the region's apply ([`Settings::at`]).
 pub fn detect(
     ws: &mut Workspace,
     model: &Model,

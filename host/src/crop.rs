@@ -169,6 +169,13 @@ impl Scores {
         self.s[(y * self.ow + x) as usize]
     }
 
+    /// The best window of `tpl` ([`Scores::best`]) as a crop box, and its `TM_CCOEFF` score.
+    fn window(&self, tpl: &GrayImage) -> Result<(CropBox, f64)> {
+        let (x, y) = self.best()?;
+        let crop = CropBox { x, y, width: tpl.width(), height: tpl.height() };
+        Ok((crop, self.at(x, y) as f64 / (tpl.width() * tpl.height()) as f64))
+    }
+
     /// The best window, first in row-major order on ties (OpenCV's `minMaxLoc`).
     fn best(&self) -> Result<(u32, u32)> {
         let mut best: Option<(i64, usize)> = None;
@@ -211,11 +218,7 @@ impl Scores {
 /// The best `TM_CCOEFF` window of `tpl` in `frame` and its score. Errors when the frame is smaller
 /// than the template or either is empty.
 pub fn match_face(frame: &GrayImage, tpl: &GrayImage) -> Result<(CropBox, f64)> {
-    let scores = Scores::of(frame, tpl)?;
-    let (x, y) = scores.best()?;
-    let n = (tpl.width() * tpl.height()) as f64;
-    let crop = CropBox { x, y, width: tpl.width(), height: tpl.height() };
-    Ok((crop, scores.at(x, y) as f64 / n))
+    Scores::of(frame, tpl)?.window(tpl)
 }
 
 /// Crops the face out of a grey frame, as the published code does (whole pixels).
@@ -226,13 +229,11 @@ pub fn crop_face(frame: &GrayImage, tpl: &GrayImage) -> Result<Face> {
 /// Crops the face out of a grey frame in the given mode (see the module notes).
 pub fn crop_face_with(frame: &GrayImage, tpl: &GrayImage, mode: CropMode) -> Result<Face> {
     let scores = Scores::of(frame, tpl)?;
-    let (x, y) = scores.best()?;
-    let crop = CropBox { x, y, width: tpl.width(), height: tpl.height() };
-    let score = scores.at(x, y) as f64 / (tpl.width() * tpl.height()) as f64;
+    let (crop, score) = scores.window(tpl)?;
     let (grey, shift) = match mode {
         CropMode::Pixel => (cut(frame, crop), [0.0; 2]),
         CropMode::Subpixel => {
-            let shift = scores.refine(x, y);
+            let shift = scores.refine(crop.x, crop.y);
             (cut_shifted(frame, crop, shift), shift)
         }
     };

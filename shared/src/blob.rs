@@ -66,7 +66,7 @@ use serde::{Deserialize, Serialize};
 
 pub const MAGIC: [u8; 4] = *b"MSRM";
 /// The newest version this build reads and writes (version 1 has no weight order byte,
-/// versions 1 and 2 no fragment merge, versions 1 to 3 no sub-pixel crop flag).
+/// versions 1 and 2 no fragment merge, versions 1 to 3 no sub-pixel crop flag or pose region).
 pub const VERSION: u16 = 4;
 /// Largest [`Merge::margin`].
 pub const MAX_MERGE_MARGIN: u8 = 16;
