@@ -9,7 +9,7 @@
 //! integers. `tn = round(t * n * 256)` saturates at 65535, which no error reaches.
 //! `n = 0` gives `tn = 0`: any error different from mu is salient, as a division by 0 would say.
 
-use msr_shared::blob::{Merge, Model, Normalisation, Sided, U16Table, MAX_FACE_PIXELS};
+use msr_shared::blob::{Merge, Model, Normalisation, Novelty, PoseRegion, Sided, U16Table, MAX_FACE_PIXELS};
 
 /// Novelty settings in force: the model's defaults, or what the host configured.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -25,13 +25,7 @@ pub struct Settings {
 impl Settings {
     /// The settings stored in the model blob.
     pub fn of(model: &Model) -> Settings {
-        Settings {
-            threshold: model.novelty.threshold,
-            normalisation: model.novelty.normalisation,
-            sided: model.novelty.sided,
-            min_area: model.novelty.min_area,
-            merge: model.novelty.merge,
-        }
+        Settings::of_novelty(&model.novelty)
     }
 
     /// The settings for a frame seen with the head at `head`: inside the model's pose region
@@ -39,13 +33,32 @@ impl Settings {
     /// host configured scales the region's by the same factor (region threshold x configured /
     /// model threshold), so one knob moves both.
     pub fn at(&self, model: &Model, head: [f32; 2]) -> Settings {
-        match model.region {
+        self.in_region(model.region, self.threshold / model.novelty.threshold, head)
+    }
+
+    /// The one rule behind [`Settings::at`], for callers that hold a region without a blob (the
+    /// host's float engine and calibration): inside `region`, its threshold times `scale` (the
+    /// configured threshold over the model's; 1 for the model's own settings) and its merge;
+    /// elsewhere (or without a region, or at a non-finite head pose) these.
+    pub fn in_region(&self, region: Option<PoseRegion>, scale: f32, head: [f32; 2]) -> Settings {
+        match region {
             Some(g) if g.contains(head) => Settings {
-                threshold: g.threshold * (self.threshold / model.novelty.threshold),
+                threshold: g.threshold * scale,
                 merge: g.merge,
                 ..*self
             },
             _ => *self,
+        }
+    }
+
+    /// The settings a model's novelty block stores.
+    pub fn of_novelty(n: &Novelty) -> Settings {
+        Settings {
+            threshold: n.threshold,
+            normalisation: n.normalisation,
+            sided: n.sided,
+            min_area: n.min_area,
+            merge: n.merge,
         }
     }
 

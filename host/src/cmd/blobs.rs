@@ -58,7 +58,7 @@ pub fn find(mask: &[bool], w: usize, h: usize, min_area: u32) -> Result<(Vec<Blo
         "mask has {} pixels, not {w}x{h}",
         mask.len()
     );
-    let (all, overflow) = crate::detect::fixed::blobs(mask, w, h)?;
+    let (all, overflow) = crate::detect::blobs::label(mask, w, h)?;
     Ok((
         all.into_iter().filter(|b| b.area >= min_area).collect(),
         overflow,

@@ -10,6 +10,7 @@
 //! Frames are cropped as they load (template matching on 2 threads, in the [`CropMode`] asked for)
 //! and only the crops are kept.
 pub mod crop;
+pub mod npy;
 use crate::data::crop::{crop_face_with, load_grey, CropBox, CropMode, Face};
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use image::GrayImage;

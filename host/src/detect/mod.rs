@@ -2,6 +2,7 @@
 //! then the pipeline on the crop (the firmware's fixed-point code by default).
 pub mod pipeline;
 pub mod fixed;
+pub mod blobs;
 use crate::data::crop::{load_grey, CropBox, CropMode, Cropper, Face};
 use crate::quant::import::{Dense, DenseDecoder};
 use crate::detect::pipeline::{Detection, FloatEngine, Settings, JOINTS};
@@ -130,13 +131,7 @@ pub fn float_engine_of(model: &Model) -> FloatEngine {
     FloatEngine {
         mu: model.mu.iter().map(q).collect(),
         sigma: model.sigma.iter().map(q).collect(),
-        settings: Settings {
-            threshold: model.novelty.threshold,
-            normalisation: model.novelty.normalisation,
-            sided: model.novelty.sided,
-            min_area: model.novelty.min_area,
-            merge: model.novelty.merge,
-        },
+        settings: Settings::of(model),
         region: model.region,
         reach: Some(model.reach),
         face_w: model.face_w as usize,

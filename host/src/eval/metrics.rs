@@ -29,16 +29,21 @@ pub fn auroc(scores: &[f32], labels: &[bool]) -> Option<f64> {
     Some((rank_sum - p * (p + 1.0) / 2.0) / (p * n))
 }
 
-/// The largest threshold at which a frame still yields a detection: the highest `t` such that
-/// some 8-connected component of `{saliency >= t}` has at least `min_area` pixels. Pixels are
-/// added from the most salient down, merging components (union-find); `-inf` if no component
-/// ever reaches `min_area` (a face smaller than it).
-pub fn detection_score(saliency: &[f32], w: usize, min_area: u32) -> f32 {
+/// A frame's detection score, the one definition (calibration's threshold policy and the
+/// evaluation's image AUROC both use it): the largest threshold `t` at which the frame still
+/// yields a detection, i.e. some 8-connected component of `{saliency > t}` has at least
+/// `min_area` pixels; so a frame is detected exactly for thresholds below its score. Pixels are
+/// added from the most salient down, all pixels of one value together (a strict `>` keeps or
+/// drops them together), into a union-find; `-inf` if no component ever reaches `min_area` (a
+/// face smaller than it). Row-major, `w` pixels a row.
+pub fn detection_score(saliency: &[f64], w: usize, min_area: u16) -> f64 {
     let n = saliency.len();
+    let w = w.max(1);
+    let h = n / w;
     let mut order: Vec<usize> = (0..n).collect();
     order.sort_by(|&a, &b| saliency[b].total_cmp(&saliency[a]));
     let mut parent: Vec<usize> = (0..n).collect();
-    let mut size = vec![0u32; n];
+    let mut size = vec![0usize; n];
     fn root(p: &mut [usize], mut i: usize) -> usize {
         while p[i] != i {
             p[i] = p[p[i]];
@@ -46,35 +51,41 @@ pub fn detection_score(saliency: &[f32], w: usize, min_area: u32) -> f32 {
         }
         i
     }
-    let h = n / w.max(1);
-    for &i in &order {
-        size[i] = 1;
-        let (x, y) = ((i % w) as isize, (i / w) as isize);
-        let mut r = i;
-        for dy in -1..=1 {
-            for dx in -1..=1 {
-                let (nx, ny) = (x + dx, y + dy);
-                if (dx, dy) == (0, 0) || nx < 0 || ny < 0 || nx >= w as isize || ny >= h as isize {
-                    continue;
-                }
-                let j = ny as usize * w + nx as usize;
-                if size[j] == 0 && j != i {
-                    continue; // not added yet
-                }
-                let (a, b) = (root(&mut parent, r), root(&mut parent, j));
-                if a != b {
-                    parent[b] = a;
-                    size[a] += size[b];
-                    r = a;
+    let mut biggest = 0;
+    let mut i = 0;
+    while i < n {
+        let v = saliency[order[i]];
+        // total_cmp, not ==: a NaN group ends too.
+        while i < n && saliency[order[i]].total_cmp(&v).is_eq() {
+            let px = order[i];
+            size[px] = 1;
+            let (x, y) = ((px % w) as isize, (px / w) as isize);
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let (nx, ny) = (x + dx, y + dy);
+                    if (dx, dy) == (0, 0) || nx < 0 || ny < 0 || nx >= w as isize || ny >= h as isize {
+                        continue;
+                    }
+                    let q = ny as usize * w + nx as usize;
+                    if size[q] == 0 {
+                        continue; // not added yet
+                    }
+                    let (a, b) = (root(&mut parent, px), root(&mut parent, q));
+                    if a != b {
+                        parent[b] = a;
+                        size[a] += size[b];
+                    }
                 }
             }
+            let r = root(&mut parent, px);
+            biggest = biggest.max(size[r]);
+            i += 1;
         }
-        let r = root(&mut parent, i);
-        if size[r] >= min_area {
-            return saliency[i];
+        if biggest >= min_area as usize {
+            return v;
         }
     }
-    f32::NEG_INFINITY
+    f64::NEG_INFINITY
 }
 
 #[cfg(test)]
@@ -111,6 +122,9 @@ mod tests {
         assert_eq!(detection_score(&s, 5, 1), 10.0);
         assert_eq!(detection_score(&s, 5, 2), 9.0);
         assert_eq!(detection_score(&s, 5, 3), 0.0);
-        assert_eq!(detection_score(&s, 5, 16), f32::NEG_INFINITY);
+        assert_eq!(detection_score(&s, 5, 16), f64::NEG_INFINITY);
+        // Ties: two 3s side by side make an area-2 blob at 3, whichever of them sorts first.
+        let t = [3.0, 3.0, 0.0, 1.0];
+        assert_eq!(detection_score(&t, 4, 2), 3.0);
     }
 }

@@ -297,13 +297,14 @@ fn row(
     min_area: u16,
 ) -> Row {
     let w = test.first().map_or(1, |s| s.face.crop.width as usize);
-    let min_area = min_area as u32;
     let (mut overlap, mut precision, mut hits, mut marked) = (0f64, 0f64, 0usize, 0usize);
     let (mut alarms, mut unmarked) = (0usize, 0usize);
     let (mut img_scores, mut img_labels) = (Vec::new(), Vec::new());
     let (mut px_scores, mut px_labels) = (Vec::new(), Vec::new());
     for (s, d) in test.iter().zip(dets) {
-        img_scores.push(detection_score(&d.saliency, w, min_area));
+        // The score is one of the f32 saliencies (or -inf), so the round trip is exact.
+        let sal: Vec<f64> = d.saliency.iter().map(|&v| v as f64).collect();
+        img_scores.push(detection_score(&sal, w, min_area) as f32);
         img_labels.push(s.mark.is_some());
         px_scores.extend_from_slice(&d.saliency);
         match &s.mark {
@@ -423,13 +424,7 @@ fn trained_model(
         predictor: Box::new(m),
         mu: stats.mu.iter().map(|&v| v as f32).collect(),
         sigma: stats.sigma.iter().map(|&v| v.max(floor) as f32).collect(),
-        settings: Settings {
-            threshold: info.novelty.threshold as f32,
-            normalisation: info.novelty.normalisation,
-            sided: info.novelty.sided,
-            min_area: info.novelty.min_area,
-            merge: info.novelty.merge,
-        },
+        settings: info.novelty.settings(),
         region: info.novelty.region,
         source: format!(
             "{} (trained, float)",

@@ -14,7 +14,7 @@
 //! - detection: pixels with saliency `> threshold`, 8-connected components, those of at least
 //!   `min_area` pixels; the largest wins (first in raster order on ties). With a fragment merge
 //!   (`NoveltyParams::merge`, off by default: the paper's stage) nearby components are joined
-//!   before the area test, as the firmware does (`crate::detect::pipeline::pick`).
+//!   before the area test, as the firmware does (`crate::detect::blobs::pick`).
 //!
 //! Threshold policy: the default is the paper's 4.59. With `--threshold-percentile P`, the
 //! threshold is the P-th percentile (linear interpolation, as numpy's default) of the *detection
@@ -22,12 +22,12 @@
 //! score ([`detection_score`]) is the largest threshold at which it would still yield a detection,
 //! so at threshold `t` exactly the normal frames scoring above `t` are false alarms: P = 99 allows
 //! about 1 % of them, P = 100 none (in float).
-use anyhow::{bail, ensure, Context, Result};
-use image::{GrayImage, Luma};
-use imageproc::region_labelling::{connected_components, Connectivity};
+use crate::detect::blobs::{self, Blob};
+use crate::detect::pipeline::{self, Settings};
+use crate::eval::metrics;
+use anyhow::{bail, ensure, Result};
 use msr_shared::blob::{Merge, Normalisation, PoseRegion, Sided};
 use serde::{Deserialize, Serialize};
-use std::path::Path;
 
 /// The paper's threshold (1.8 % of 255).
 pub const DEFAULT_THRESHOLD: f64 = 0.018 * 255.0;
@@ -159,139 +159,45 @@ impl NoveltyParams {
     /// The settings for a frame seen with the head at `head`: the region's threshold and merge
     /// inside the pose region, these elsewhere (as the firmware's `Settings::at`).
     pub fn at(&self, head: [f32; 2]) -> NoveltyParams {
-        match self.region {
-            Some(g) if g.contains(head) => NoveltyParams { threshold: g.threshold as f64, merge: g.merge, ..*self },
-            _ => *self,
+        if !self.region.is_some_and(|g| g.contains(head)) {
+            // Outside the region: the f64 threshold as it is.
+            return *self;
+        }
+        let s = self.settings().in_region(self.region, 1.0, head);
+        NoveltyParams { threshold: s.threshold as f64, merge: s.merge, ..*self }
+    }
+
+    /// These settings as the board holds them (f32 threshold).
+    pub fn settings(&self) -> Settings {
+        Settings {
+            threshold: self.threshold as f32,
+            normalisation: self.normalisation,
+            sided: self.sided,
+            min_area: self.min_area,
+            merge: self.merge,
         }
     }
 }
 
-/// The normaliser per pixel: floored sigma, or its square.
-pub fn normaliser(sigma: &[f64], p: &NoveltyParams) -> Vec<f64> {
-    sigma
-        .iter()
-        .map(|&s| {
-            // A floor of 0 would divide by zero; keep the published code's 1e-5 as a last resort.
-            let s = s.max(p.sigma_floor).max(1e-5);
-            match p.normalisation {
-                Normalisation::StdDev => s,
-                Normalisation::Variance => s * s,
-            }
-        })
-        .collect()
-}
-
-/// Saliency per pixel from an error map.
+/// Saliency per pixel from an error map: the one float saliency
+/// ([`crate::detect::pipeline::saliency`]) with this model's floor.
 pub fn saliency(e: &[f64], stats: &ErrorStats, p: &NoveltyParams) -> Vec<f64> {
-    let n = normaliser(&stats.sigma, p);
-    e.iter()
-        .zip(&stats.mu)
-        .zip(&n)
-        .map(|((&e, &mu), &n)| match p.sided {
-            Sided::One => (e - mu) / n,
-            Sided::Two => (e - mu).abs() / n,
-        })
-        .collect()
+    pipeline::saliency(e.iter().copied(), &stats.mu, &stats.sigma, p.sigma_floor, p.normalisation, p.sided)
 }
 
-/// A detected blob in face-crop pixels; the box is inclusive, the centroid is the pixel mean.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Blob {
-    pub area: u32,
-    pub box_xyxy: [u32; 4],
-    pub centroid: [f64; 2],
-}
-
-/// All 8-connected components of `mask` (row-major, `h x w`) with at least `min_area` pixels, in
-/// raster order of their first pixel.
-pub fn blobs(mask: &[bool], h: usize, w: usize, min_area: u32) -> Vec<Blob> {
-    let img = GrayImage::from_fn(w as u32, h as u32, |x, y| Luma([mask[y as usize * w + x as usize] as u8]));
-    let labels = connected_components(&img, Connectivity::Eight, Luma([0u8]));
-    let mut acc: Vec<(u32, [u32; 4], f64, f64)> = Vec::new();
-    for (x, y, l) in labels.enumerate_pixels() {
-        let l = l[0] as usize;
-        if l == 0 {
-            continue;
-        }
-        if acc.len() < l {
-            acc.resize(l, (0, [u32::MAX, u32::MAX, 0, 0], 0.0, 0.0));
-        }
-        let a = &mut acc[l - 1];
-        a.0 += 1;
-        a.1 = [a.1[0].min(x), a.1[1].min(y), a.1[2].max(x), a.1[3].max(y)];
-        a.2 += x as f64;
-        a.3 += y as f64;
-    }
-    acc.into_iter()
-        .filter(|a| a.0 >= min_area)
-        .map(|(n, b, sx, sy)| Blob { area: n, box_xyxy: b, centroid: [sx / n as f64, sy / n as f64] })
-        .collect()
-}
-
-/// The float detection: saliency above the threshold, then (with `p.merge`) the merge of
-/// nearby fragments, the largest blob of at least `min_area` (first in raster order on ties).
+/// The float detection: saliency above the threshold, then the board's blob stage
+/// ([`crate::detect::blobs::pick`]: with `p.merge` the merge of nearby fragments, the largest
+/// blob of at least `min_area`, first in raster order on ties). Blob coordinates are face-crop
+/// pixels.
 pub fn detect(sal: &[f64], h: usize, w: usize, p: &NoveltyParams) -> Option<Blob> {
     let mask: Vec<bool> = sal.iter().map(|&s| s > p.threshold).collect();
-    let all: Vec<crate::detect::pipeline::Blob> = blobs(&mask, h, w, 1)
-        .into_iter()
-        .map(|b| crate::detect::pipeline::Blob { area: b.area, box_xyxy: b.box_xyxy, centroid: b.centroid })
-        .collect();
-    crate::detect::pipeline::pick(&all, p.min_area as u32, p.merge)
-        .map(|b| Blob { area: b.area, box_xyxy: b.box_xyxy, centroid: b.centroid })
+    blobs::pick(&mask, w, h, p.min_area, p.merge).ok().flatten()
 }
 
-/// The largest threshold at which the frame still yields a blob of `min_area` pixels (8-connected):
-/// a detection happens exactly for thresholds below this score. `-inf` if the face has fewer than
-/// `min_area` pixels. Pixels are added in decreasing saliency into a union-find.
+/// A frame's detection score: the one definition ([`crate::eval::metrics::detection_score`]).
 pub fn detection_score(sal: &[f64], h: usize, w: usize, min_area: u16) -> f64 {
-    let n = h * w;
-    let mut order: Vec<usize> = (0..n).collect();
-    order.sort_by(|&a, &b| sal[b].total_cmp(&sal[a]));
-    let mut parent: Vec<usize> = (0..n).collect();
-    let mut size = vec![0usize; n];
-    let mut on = vec![false; n];
-    fn find(p: &mut [usize], mut i: usize) -> usize {
-        while p[i] != i {
-            p[i] = p[p[i]];
-            i = p[i];
-        }
-        i
-    }
-    let mut biggest = 0;
-    let mut i = 0;
-    while i < n {
-        // Add every pixel of this saliency value before testing: `s > t` keeps or drops them together.
-        let v = sal[order[i]];
-        while i < n && sal[order[i]] == v {
-            let px = order[i];
-            on[px] = true;
-            size[px] = 1;
-            let (r, c) = ((px / w) as isize, (px % w) as isize);
-            for dr in -1..=1 {
-                for dc in -1..=1 {
-                    let (rr, cc) = (r + dr, c + dc);
-                    if (dr, dc) == (0, 0) || rr < 0 || cc < 0 || rr >= h as isize || cc >= w as isize {
-                        continue;
-                    }
-                    let q = rr as usize * w + cc as usize;
-                    if on[q] {
-                        let (a, b) = (find(&mut parent, px), find(&mut parent, q));
-                        if a != b {
-                            parent[b] = a;
-                            size[a] += size[b];
-                        }
-                    }
-                }
-            }
-            let root = find(&mut parent, px);
-            biggest = biggest.max(size[root]);
-            i += 1;
-        }
-        if biggest >= min_area as usize {
-            return v;
-        }
-    }
-    f64::NEG_INFINITY
+    debug_assert_eq!(sal.len(), h * w);
+    metrics::detection_score(sal, w, min_area)
 }
 
 /// The `p`-th percentile (0..=100) with linear interpolation between order statistics (numpy's
@@ -319,46 +225,12 @@ pub fn threshold_from_normal(scores: &[f64], p: f64) -> Result<f64> {
     Ok(t)
 }
 
-/// Writes an `h x w` float64 array (like the published statistics).
-pub fn write_npy(path: &Path, h: usize, w: usize, data: &[f64]) -> Result<()> {
-    use npyz::WriterBuilder;
-    ensure!(data.len() == h * w, "npy data has {} values for {h}x{w}", data.len());
-    let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    let mut wr = npyz::WriteOptions::new()
-        .default_dtype()
-        .shape(&[h as u64, w as u64])
-        .writer(std::io::BufWriter::new(f))
-        .begin_nd()
-        .with_context(|| format!("writing {}", path.display()))?;
-    wr.extend(data.iter().copied()).with_context(|| format!("writing {}", path.display()))?;
-    wr.finish().with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
-}
-
-/// Reads a 2-d float array (float64 or float32) as `(h, w, values)`.
-pub fn read_npy(path: &Path) -> Result<(usize, usize, Vec<f64>)> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let npy = npyz::NpyFile::new(&bytes[..]).with_context(|| format!("{} is not a .npy file", path.display()))?;
-    let shape = npy.shape().to_vec();
-    ensure!(npy.order() == npyz::Order::C, "{}: Fortran-order arrays are not supported", path.display());
-    let [h, w] = shape[..] else { bail!("{}: expected a 2-d array, got shape {shape:?}", path.display()) };
-    let values: Vec<f64> = match npy.dtype() {
-        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 => {
-            npy.into_vec::<f64>()?
-        }
-        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 => {
-            npy.into_vec::<f32>()?.into_iter().map(f64::from).collect()
-        }
-        d => bail!("{}: expected float64 or float32, got {d:?}", path.display()),
-    };
-    ensure!(values.len() == (h * w) as usize, "{}: data shorter than its shape", path.display());
-    ensure!(values.iter().all(|v| v.is_finite()), "{}: non-finite values", path.display());
-    Ok((h as usize, w as usize, values))
-}
+pub use crate::data::npy::{read as read_npy, write as write_npy};
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::path::Path;
 
     fn approx(a: f64, b: f64) -> bool {
         (a - b).abs() < 1e-9
@@ -391,22 +263,6 @@ mod tests {
         p.normalisation = Normalisation::Variance;
         let s = saliency(&e, &stats, &p);
         assert!(approx(s[0], 1.5) && approx(s[1], 1.2) && approx(s[2], 0.5), "{s:?}");
-    }
-
-    #[test]
-    fn blobs_are_8_connected_and_filtered_by_area() {
-        // Two diagonal pixels are one 8-connected blob; the lone pixel is its own.
-        #[rustfmt::skip]
-        let m = [
-            1, 0, 0, 0,
-            0, 1, 0, 1,
-            0, 0, 0, 0,
-        ].map(|v| v == 1);
-        let b = blobs(&m, 3, 4, 1);
-        assert_eq!(b.len(), 2);
-        assert_eq!(b[0], Blob { area: 2, box_xyxy: [0, 0, 1, 1], centroid: [0.5, 0.5] });
-        assert_eq!(b[1].box_xyxy, [3, 1, 3, 1]);
-        assert_eq!(blobs(&m, 3, 4, 2).len(), 1);
     }
 
     #[test]
@@ -457,17 +313,6 @@ mod tests {
         assert!(percentile(&[1.0, f64::NAN], 50.0).is_err());
         assert!(threshold_from_normal(&[-3.0, -1.0], 50.0).is_err());
         assert_eq!(threshold_from_normal(&[f64::NEG_INFINITY, 2.0, 4.0], 100.0).unwrap(), 4.0);
-    }
-
-    #[test]
-    fn npy_round_trip() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = dir.path().join("mu.npy");
-        let data: Vec<f64> = (0..6).map(|i| i as f64 * 0.25).collect();
-        write_npy(&p, 2, 3, &data).unwrap();
-        assert_eq!(read_npy(&p).unwrap(), (2, 3, data));
-        std::fs::write(&p, b"not npy").unwrap();
-        assert!(read_npy(&p).is_err());
     }
 
     #[test]
