@@ -444,12 +444,14 @@ impl FloatLayer {
     }
 }
 
-pub fn activate(a: Activation, v: f64) -> f64 {
+/// A layer's activation in float, the one definition: f64 for the quantizer's reference, f32
+/// for the imported published decoder.
+pub fn activate<T: num_traits::Float>(a: Activation, v: T) -> T {
     match a {
         Activation::Identity => v,
         Activation::Tanh => v.tanh(),
-        Activation::Sigmoid => 1.0 / (1.0 + (-v).exp()),
-        Activation::Relu => v.max(0.0),
+        Activation::Sigmoid => T::one() / (T::one() + (-v).exp()),
+        Activation::Relu => v.max(T::zero()),
     }
 }
 

@@ -5,12 +5,15 @@
 //! assumed beyond it. Weights are PyTorch `Linear` (`W` is `[out, in]`), which is the blob's Dense
 //! layout, so they go in without transposing.
 use crate::data::crop::load_grey;
+use crate::data::npy;
 use crate::models::predictor::FacePredictor;
+use crate::models::FloatLayer;
+use crate::quant::quantize::{out_shift_for, q8_8, quantize_stack, ShiftPolicy};
 use anyhow::{bail, ensure, Context, Result};
 use image::GrayImage;
 use msr_shared::blob::{
     Activation, CropMode, LayerKind, LayerSpec, ModelSpec, Normalisation, Novelty, Reach, Shape, Sided,
-    Weights, REACH_HIDDEN, REACH_IN, REACH_OUT,
+    REACH_HIDDEN, REACH_IN, REACH_OUT,
 };
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
@@ -224,25 +227,34 @@ pub struct Dense {
 }
 
 impl Dense {
+    /// The layer in the quantizer's form, writing `output` (a vector, or the face for the
+    /// last layer).
+    pub fn to_float_layer(&self, output: Shape) -> FloatLayer {
+        FloatLayer {
+            kind: LayerKind::Dense,
+            activation: self.act,
+            input: Shape { c: self.n_in as u16, h: 1, w: 1 },
+            output,
+            kernel: 0,
+            stride: 0,
+            padding: 0,
+            crop: [0, 0],
+            weights: self.w.clone(),
+            bias: self.b.clone(),
+        }
+    }
+
     pub fn forward(&self, x: &[f32]) -> Vec<f32> {
         (0..self.n_out)
             .map(|o| {
                 let row = &self.w[o * self.n_in..(o + 1) * self.n_in];
                 let z = self.b[o] + row.iter().zip(x).map(|(w, x)| w * x).sum::<f32>();
-                activate(self.act, z)
+                crate::models::activate(self.act, z)
             })
             .collect()
     }
 }
 
-pub fn activate(a: Activation, z: f32) -> f32 {
-    match a {
-        Activation::Identity => z,
-        Activation::Tanh => z.tanh(),
-        Activation::Sigmoid => 1.0 / (1.0 + (-z).exp()),
-        Activation::Relu => z.max(0.0),
-    }
-}
 
 /// A fully connected decoder from [HeadYaw, HeadPitch] to a face (the published 2-12-64-128-4350).
 #[derive(Clone, Debug, PartialEq)]
@@ -327,8 +339,8 @@ impl Published {
             face_w: w,
         };
 
-        let mu = read_npy(&dir.join(&m.error_statistics.mu), (h, w))?;
-        let sigma = read_npy(&dir.join(&m.error_statistics.sigma), (h, w))?;
+        let mu = npy::read_shaped(&dir.join(&m.error_statistics.mu), (h, w))?;
+        let sigma = npy::read_shaped(&dir.join(&m.error_statistics.sigma), (h, w))?;
         ensure!(
             mu.iter().chain(&sigma).all(|v| v.is_finite() && *v >= 0.0),
             "error statistics hold negative or non-finite values"
@@ -401,7 +413,7 @@ impl Published {
                 sigma_floor: SIGMA_FLOOR,
                 merge: msr_shared::blob::Merge::OFF,
             },
-            layers: quantize_dense_stack(&self.decoder.layers, HEAD_IN_SHIFT, (h, w))?,
+            layers: quantize_dense_stack(&self.decoder.layers, (h, w))?,
             mu: self.mu.iter().map(|&v| q8_8(v)).collect(),
             // The published code divides by sigma + 1e-5; the floor keeps it off zero in Q8.8.
             sigma: self.sigma.iter().map(|&v| q8_8(v + 1e-5).max(1)).collect(),
@@ -416,14 +428,6 @@ impl Published {
 
 /// One Q8.8 step: the smallest sigma the blob can hold.
 pub const SIGMA_FLOOR: f32 = 1.0 / 256.0;
-
-/// Head angles go in with 13 fraction bits: +-4 rad covers every Nao head joint limit.
-pub const HEAD_IN_SHIFT: i8 = 13;
-
-/// Grey levels to Q8.8, rounded and saturated.
-pub fn q8_8(v: f64) -> u16 {
-    (v * 256.0).round().clamp(0.0, u16::MAX as f64) as u16
-}
 
 /// The safetensors file of one network.
 struct Tensors {
@@ -525,155 +529,40 @@ fn dense_stack(t: &Tensors, layers: &[ManifestLayer]) -> Result<Vec<Dense>> {
     Ok(out)
 }
 
-/// A 2-d float64 (or float32) .npy array of the given shape, row-major.
-pub fn read_npy(path: &Path, (h, w): (usize, usize)) -> Result<Vec<f64>> {
-    let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
-    let npy = npyz::NpyFile::new(&bytes[..])
-        .with_context(|| format!("{} is not a valid .npy file", path.display()))?;
-    let shape: Vec<u64> = npy.shape().to_vec();
-    ensure!(
-        shape == [h as u64, w as u64],
-        "{} has shape {shape:?}, expected [{h}, {w}]",
-        path.display()
-    );
-    let fortran = npy.order() == npyz::Order::Fortran;
-    let v: Vec<f64> = match npy.dtype() {
-        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 => {
-            npy.into_vec::<f64>()?
-        }
-        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 => {
-            npy.into_vec::<f32>()?.into_iter().map(f64::from).collect()
-        }
-        d => bail!(
-            "{}: dtype {} is not float64 or float32",
-            path.display(),
-            d.descr()
-        ),
-    };
-    ensure!(
-        v.len() == h * w,
-        "{} holds {} values, expected {}",
-        path.display(),
-        v.len(),
-        h * w
-    );
-    if fortran {
-        // Column-major on disk: transpose to row-major.
-        return Ok((0..h * w).map(|i| v[(i % w) * h + i / w]).collect());
-    }
-    Ok(v)
-}
-
 // ---------------------------------------------------------------------------------------------
 // Fixed point for a stack of dense layers.
 
-/// Largest magnitude an i16 activation can have.
-const I16_MAX_MAG: f64 = 32768.0;
-/// Accumulator budget: the firmware accumulates in i32; keep headroom for rounding.
-const ACC_LIMIT: f64 = (1u64 << 31) as f64 - 1024.0;
-
-/// Output fraction bits for an activation: tanh and sigmoid live in (-1, 1), so 15 bits (the value
-/// 1.0 itself saturates to 32767/32768); unbounded activations get 8.
-fn out_shift_for(a: Activation) -> i8 {
-    match a {
-        Activation::Tanh | Activation::Sigmoid => 15,
-        Activation::Identity | Activation::Relu => 8,
-    }
-}
-
-/// Quantizes dense layers to i16 weights with per-layer shifts. Each layer's weight shift is the
-/// largest for which (a) every weight fits i16 and (b) no accumulator can leave i32 for ANY i16
-/// input: `2^w (sum_i |W_oi| 2^15 + |b_o| 2^in) < 2^31`. The first layer takes the head angles
-/// with `in_shift` fraction bits; the last must produce `face` (h, w).
-pub fn quantize_dense_stack(
-    layers: &[Dense],
-    in_shift: i8,
-    face: (usize, usize),
-) -> Result<Vec<LayerSpec>> {
-    let mut specs = Vec::with_capacity(layers.len());
-    let mut shift_in = in_shift;
-    for (i, l) in layers.iter().enumerate() {
-        let w_shift = weight_shift(l, shift_in)
-            .with_context(|| format!("layer {i}: weights too large for fixed point"))?;
-        let out_shift = out_shift_for(l.act);
-        let scale_w = 2f64.powi(w_shift as i32);
-        let scale_b = 2f64.powi(w_shift as i32 + shift_in as i32);
-        let last = i + 1 == layers.len();
-        let output = if last {
-            ensure!(
-                l.n_out == face.0 * face.1,
-                "last layer gives {} values, the face has {}",
-                l.n_out,
-                face.0 * face.1
-            );
-            Shape {
-                c: 1,
-                h: face.0 as u16,
-                w: face.1 as u16,
-            }
-        } else {
-            Shape {
-                c: l.n_out as u16,
-                h: 1,
-                w: 1,
-            }
-        };
-        specs.push(LayerSpec {
-            kind: LayerKind::Dense,
-            activation: l.act,
-            input: Shape {
-                c: l.n_in as u16,
-                h: 1,
-                w: 1,
-            },
-            output,
-            kernel: 0,
-            stride: 0,
-            padding: 0,
-            crop_top: 0,
-            crop_left: 0,
-            w_shift,
-            in_shift: shift_in,
-            out_shift,
-            weights: Weights::I16(
-                l.w.iter()
-                    .map(|&v| (v as f64 * scale_w).round() as i16)
-                    .collect(),
-            ),
-            bias: l
-                .b
-                .iter()
-                .map(|&v| (v as f64 * scale_b).round() as i32)
-                .collect(),
-        });
-        shift_in = out_shift;
-    }
-    Ok(specs)
-}
-
-fn weight_shift(l: &Dense, in_shift: i8) -> Result<i8> {
-    let max_w = l.w.iter().fold(0f64, |m, &v| m.max((v as f64).abs()));
-    let worst_row = (0..l.n_out)
-        .map(|o| {
-            let row: f64 = l.w[o * l.n_in..(o + 1) * l.n_in]
-                .iter()
-                .map(|&v| (v as f64).abs())
-                .sum();
-            row * I16_MAX_MAG + (l.b[o] as f64).abs() * 2f64.powi(in_shift as i32)
+/// The published dense stack in fixed point: the one quantizer with
+/// [`ShiftPolicy::Published`], i16 weights, each layer's output shift by its activation; the
+/// last layer must produce `face` (h, w).
+pub fn quantize_dense_stack(layers: &[Dense], face: (usize, usize)) -> Result<Vec<LayerSpec>> {
+    let last = layers.last().context("no layers to quantize")?;
+    ensure!(
+        last.n_out == face.0 * face.1,
+        "last layer gives {} values, the face has {}",
+        last.n_out,
+        face.0 * face.1
+    );
+    let float: Vec<FloatLayer> = layers
+        .iter()
+        .enumerate()
+        .map(|(i, l)| {
+            let out = if i + 1 == layers.len() {
+                Shape { c: 1, h: face.0 as u16, w: face.1 as u16 }
+            } else {
+                Shape { c: l.n_out as u16, h: 1, w: 1 }
+            };
+            l.to_float_layer(out)
         })
-        .fold(0f64, f64::max);
-    (0..=15i8)
-        .rev()
-        .find(|&s| {
-            let k = 2f64.powi(s as i32);
-            max_w * k <= i16::MAX as f64 && worst_row * k + 0.5 * l.n_in as f64 <= ACC_LIMIT
-        })
-        .context("no shift keeps the accumulator within i32")
+        .collect();
+    let shifts: Vec<i8> = layers.iter().map(|l| out_shift_for(l.act)).collect();
+    quantize_stack(&float, &shifts, false, ShiftPolicy::Published)
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use msr_shared::blob::Weights;
     use rand::{Rng, SeedableRng};
 
     fn random_stack(rng: &mut impl Rng, sizes: &[usize], scale: f32) -> Vec<Dense> {
@@ -701,7 +590,7 @@ mod tests {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
         for scale in [0.05f32, 0.5, 3.0, 20.0] {
             let layers = random_stack(&mut rng, &[2, 12, 64, 128, 6 * 8], scale);
-            let specs = quantize_dense_stack(&layers, HEAD_IN_SHIFT, (6, 8)).unwrap();
+            let specs = quantize_dense_stack(&layers, (6, 8)).unwrap();
             for (i, (l, q)) in layers.iter().zip(&specs).enumerate() {
                 let Weights::I16(wq) = &q.weights else {
                     panic!("i16 expected")
@@ -735,7 +624,7 @@ mod tests {
     fn wrong_face_size_is_an_error() {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(1);
         let layers = random_stack(&mut rng, &[2, 4, 10], 0.5);
-        assert!(quantize_dense_stack(&layers, HEAD_IN_SHIFT, (3, 4)).is_err());
+        assert!(quantize_dense_stack(&layers, (3, 4)).is_err());
     }
 
     #[test]

@@ -40,16 +40,34 @@ use msr_sim::layout::Split;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 
-/// Head angles go in with 13 fraction bits: +-4 rad covers every Nao head joint limit (the same
-/// as `msr import`).
+/// Head angles go in with 13 fraction bits: +-4 rad covers every Nao head joint limit (every
+/// blob, trained or imported).
 pub const HEAD_IN_SHIFT: i8 = 13;
 /// What the fixed-point faces must keep against float.
 pub const PSNR_TARGET_DB: f64 = 40.0;
 /// Largest blob `--weights auto` writes with i16 weights: one NUCLEO-F429ZI upload slot
 /// (`firmware/nucleo/src/store.rs`), about 6 s over the 921,600-baud host link.
 pub const AUTO_I16_MAX_BYTES: usize = 512 * 1024;
-/// Accumulator limit with headroom.
+/// Accumulator budget: the firmware accumulates in i32; keep headroom for rounding.
 const ACC_LIMIT: f64 = 2147483648.0 - 1024.0;
+/// Largest magnitude an i16 activation can have.
+const I16_MAX_MAG: f64 = 32768.0;
+
+/// How a layer's weight shift is chosen: the two policies the blobs are made with, side by side.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ShiftPolicy {
+    /// `msr import` (the published dense decoder), dense layers only: any i16 value may come
+    /// in, whatever the previous activation; per output `2^w (sum_i |W_oi| 2^15 + |b_o| 2^in) +
+    /// n_in / 2 < ACC_LIMIT`; shifts 0..=15. Conservative, and what the published blob has
+    /// always been made with.
+    Published,
+    /// `msr quantize` (models trained here, any layer kind): the input is bounded by the
+    /// previous layer's activation (tanh/sigmoid within +-1), the sum runs over the weights that
+    /// can meet in one output (for a transposed convolution one stride phase), `2^(w+in) (sum
+    /// |W| X + max |b|) + slack < ACC_LIMIT`; shifts up to `min(31 - in, 24)`. More weight bits
+    /// for the same safety.
+    Trained,
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -140,8 +158,37 @@ fn weight_sums(l: &FloatLayer) -> (f64, f64, usize, f64) {
     }
 }
 
-/// The largest weight shift in 0..=max that fits the weights and keeps the accumulator safe.
-fn weight_shift(l: &FloatLayer, in_shift: i8, x_bound: f64, i8w: bool) -> Option<i8> {
+/// The largest weight shift that fits the weights and keeps the accumulator safe under `policy`.
+fn weight_shift(l: &FloatLayer, in_shift: i8, x_bound: f64, i8w: bool, policy: ShiftPolicy) -> Option<i8> {
+    match policy {
+        ShiftPolicy::Published => published_shift(l, in_shift),
+        ShiftPolicy::Trained => trained_shift(l, in_shift, x_bound, i8w),
+    }
+}
+
+/// [`ShiftPolicy::Published`]: i16 weights of a dense layer.
+fn published_shift(l: &FloatLayer, in_shift: i8) -> Option<i8> {
+    if l.kind != LayerKind::Dense {
+        return None;
+    }
+    let n_in = l.input.len();
+    let max_w = l.weights.iter().fold(0f64, |m, &v| m.max((v as f64).abs()));
+    let worst_row = l
+        .weights
+        .chunks(n_in.max(1))
+        .zip(&l.bias)
+        .map(|(row, &b)| {
+            row.iter().map(|&v| (v as f64).abs()).sum::<f64>() * I16_MAX_MAG + (b as f64).abs() * 2f64.powi(in_shift as i32)
+        })
+        .fold(0f64, f64::max);
+    (0..=15i8).rev().find(|&s| {
+        let k = 2f64.powi(s as i32);
+        max_w * k <= i16::MAX as f64 && worst_row * k + 0.5 * n_in as f64 <= ACC_LIMIT
+    })
+}
+
+/// [`ShiftPolicy::Trained`].
+fn trained_shift(l: &FloatLayer, in_shift: i8, x_bound: f64, i8w: bool) -> Option<i8> {
     let (max_w, worst, terms, max_b) = weight_sums(l);
     let w_max = if i8w { 127.0 } else { 32767.0 };
     (0..=(31 - in_shift).min(24)).rev().find(|&s| {
@@ -153,8 +200,8 @@ fn weight_shift(l: &FloatLayer, in_shift: i8, x_bound: f64, i8w: bool) -> Option
     })
 }
 
-/// Quantizes one layer given its input shift, output shift and weight type.
-fn quantize_layer(l: &FloatLayer, in_shift: i8, out_shift: i8, x_bound: f64, i8w: bool) -> Result<LayerSpec> {
+/// Quantizes one layer given its input shift, output shift, weight type and shift policy.
+fn quantize_layer(l: &FloatLayer, in_shift: i8, out_shift: i8, x_bound: f64, i8w: bool, policy: ShiftPolicy) -> Result<LayerSpec> {
     l.check()?;
     let u8_of = |v: usize, what: &str| -> Result<u8> { u8::try_from(v).with_context(|| format!("{what} {v} does not fit the blob")) };
     let u16_of = |v: usize, what: &str| -> Result<u16> { u16::try_from(v).with_context(|| format!("{what} {v} does not fit the blob")) };
@@ -178,7 +225,7 @@ fn quantize_layer(l: &FloatLayer, in_shift: i8, out_shift: i8, x_bound: f64, i8w
         // Identity with the same scale on both sides: an exact copy.
         return Ok(LayerSpec { out_shift: in_shift, ..base });
     }
-    let w_shift = weight_shift(l, in_shift, x_bound, i8w)
+    let w_shift = weight_shift(l, in_shift, x_bound, i8w, policy)
         .with_context(|| format!("{:?} layer {:?} -> {:?}: weights too large for fixed point", l.kind, l.input, l.output))?;
     let kw = 2f64.powi(w_shift as i32);
     let kb = 2f64.powi(w_shift as i32 + in_shift as i32);
@@ -199,16 +246,34 @@ fn quantize_layer(l: &FloatLayer, in_shift: i8, out_shift: i8, x_bound: f64, i8w
     Ok(LayerSpec { w_shift, weights, bias, ..base })
 }
 
-/// Quantizes a layer stack with the given output shift per layer (ignored for the last layer,
-/// which always writes 15 bits: the face in (0, 1)).
+/// Quantizes a trained layer stack ([`ShiftPolicy::Trained`]) with the given output shift per
+/// layer (ignored for the last layer, which always writes 15 bits: the face in (0, 1)).
 pub fn quantize_with(layers: &[FloatLayer], out_shifts: &[i8], i8w: bool) -> Result<Vec<LayerSpec>> {
+    ensure!(!layers.is_empty() && out_shifts.len() == layers.len(), "one output shift per layer");
+    let mut shifts = out_shifts.to_vec();
+    shifts[layers.len() - 1] = 15;
+    quantize_stack(layers, &shifts, i8w, ShiftPolicy::Trained)
+}
+
+/// Output fraction bits for an activation: tanh and sigmoid live in (-1, 1), so 15 bits (the
+/// value 1.0 itself saturates to 32767/32768); unbounded activations get 8.
+pub fn out_shift_for(a: Activation) -> i8 {
+    match a {
+        Activation::Tanh | Activation::Sigmoid => 15,
+        Activation::Identity | Activation::Relu => 8,
+    }
+}
+
+/// The one quantizer: a layer stack, head angles in with [`HEAD_IN_SHIFT`] fraction bits, each
+/// layer with its output shift (`out_shifts`, one per layer), weight type and shift `policy`.
+pub fn quantize_stack(layers: &[FloatLayer], out_shifts: &[i8], i8w: bool, policy: ShiftPolicy) -> Result<Vec<LayerSpec>> {
     ensure!(!layers.is_empty() && out_shifts.len() == layers.len(), "one output shift per layer");
     let mut specs = Vec::with_capacity(layers.len());
     let mut in_shift = HEAD_IN_SHIFT;
     let mut prev_act = None;
     for (i, l) in layers.iter().enumerate() {
-        let out_shift = if i + 1 == layers.len() { 15 } else { out_shifts[i] };
-        let spec = quantize_layer(l, in_shift, out_shift, input_bound(prev_act, in_shift), i8w)
+        let out_shift = out_shifts[i];
+        let spec = quantize_layer(l, in_shift, out_shift, input_bound(prev_act, in_shift), i8w, policy)
             .with_context(|| format!("layer {i}"))?;
         in_shift = spec.out_shift;
         if l.kind != LayerKind::Crop {
@@ -282,7 +347,8 @@ pub fn extras_of(dir: &Path, info: &train::ModelInfo, reach: Reach) -> Result<Ex
     })
 }
 
-pub fn grey_q88(v: f64) -> u16 {
+/// Grey levels to Q8.8, rounded and saturated: how every blob stores mu and sigma.
+pub fn q8_8(v: f64) -> u16 {
     (v * 256.0).round().clamp(0.0, u16::MAX as f64) as u16
 }
 
@@ -302,8 +368,8 @@ pub fn blob_of(layers: Vec<LayerSpec>, x: &Extras) -> Result<Vec<u8>> {
             merge: p.merge,
         },
         layers,
-        mu: x.stats.mu.iter().map(|&v| grey_q88(v)).collect(),
-        sigma: x.stats.sigma.iter().map(|&v| grey_q88(v.max(p.sigma_floor)).max(1)).collect(),
+        mu: x.stats.mu.iter().map(|&v| q8_8(v)).collect(),
+        sigma: x.stats.sigma.iter().map(|&v| q8_8(v.max(p.sigma_floor)).max(1)).collect(),
         reach: x.reach,
         region: p.region,
         template: x.template.clone(),
@@ -600,7 +666,7 @@ mod tests {
             weights: (0..128).map(|i| if i % 2 == 0 { 3.0 } else { -3.0 }).collect(),
             bias: vec![5.0, -5.0],
         };
-        let s = quantize_layer(&l, 15, 15, 1.0, false).unwrap();
+        let s = quantize_layer(&l, 15, 15, 1.0, false, ShiftPolicy::Trained).unwrap();
         let Weights::I16(w) = &s.weights else { panic!() };
         // Worst input: +-32767 matching each weight's sign.
         for o in 0..2 {
@@ -610,7 +676,7 @@ mod tests {
         // Weights beyond i16 even at shift 0 are an error, not a wrap.
         let mut big = l.clone();
         big.weights[0] = 1e6;
-        assert!(quantize_layer(&big, 15, 15, 1.0, false).is_err());
+        assert!(quantize_layer(&big, 15, 15, 1.0, false, ShiftPolicy::Trained).is_err());
     }
 
     #[test]
