@@ -5,6 +5,8 @@
 //!   protocol version and sequence number, a CRC-16, COBS around it, `0x00` between frames.
 //! - [`msg`]: the messages of the host link (host <-> board) and of the servo bus (board <-> servos).
 //! - [`blob`]: the versioned model blob the board runs, with a validating, borrowing parser.
+//! - `host_port` (`std`): the PC's side of the host link, the one encoder of face crops and
+//!   model uploads.
 //!
 //! `no_std` and heap-free; the `std` feature adds the blob writer and `std::error::Error` impls.
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
@@ -14,5 +16,7 @@ pub mod blob;
 pub mod frame;
 pub mod joints;
 pub mod msg;
+#[cfg(feature = "std")]
+pub mod host_port;
 
 pub use joints::{Joint, JointError, JointLimits};

@@ -1,7 +1,8 @@
 //! Speed of the mirror world on one core: rendering, dataset writing, simulated vs wall time.
 //! `cargo run -p msr-sim --example sim_bench [--release] [-- world]` (`world`: only the world run)
 use msr_sim::body::BodyPose;
-use msr_sim::camera::{frame_wire, Camera};
+use msr_sim::camera::Camera;
+use msr_shared::host_port::HostPort;
 use msr_sim::dataset::{write_dataset, DatasetConfig};
 use msr_sim::link::LinkEnd;
 use msr_sim::marks::Mark;
@@ -73,7 +74,7 @@ fn main() -> anyhow::Result<()> {
     for mode in [0, 1, 2] {
     let face_only = mode == 1;
     let mut cam = Camera::new(Robot::Red, 3);
-    let mut seq = Default::default();
+    let mut port = HostPort::default();
     let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| {
         let _ = (h.receive(), s.receive());
         if now.is_multiple_of(10_000) {
@@ -88,7 +89,7 @@ fn main() -> anyhow::Result<()> {
     let (_, rep) = run(&WorldConfig::default(), &mut fw, |w: &mut World| {
         if mode < 2 && w.now_us.is_multiple_of(100_000) {
             let c = if face_only { cam.capture_face(w, None) } else { cam.capture(w, None) };
-            w.host.send(&frame_wire(0, &c.crop, c.crop_origin, &mut seq).expect("a face crop fits"));
+            w.host.send(&c.wire(&mut port).expect("a face crop fits"));
         }
         Flow::Continue
     }, 20_000_000)?;

@@ -7,8 +7,7 @@ use crate::render::{to_grey, Rendered, Renderer, Variation};
 use crate::world::World;
 use crate::Robot;
 use image::GrayImage;
-use msr_shared::frame::{encode_message_vec, Sequencer};
-use msr_shared::msg::{FrameHeader, HostToBoard, CHUNK};
+use msr_shared::host_port::{FaceError, HostPort};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -20,6 +19,14 @@ pub struct Capture {
     pub crop: GrayImage,
     /// The head angles the frame was rendered at (true, not encoder readings).
     pub head: [f64; 2],
+}
+
+impl Capture {
+    /// The face crop's wire bytes on the host link (`FrameStart` and its chunks), as the PC
+    /// sends them: [`HostPort::encode_face`].
+    pub fn wire(&self, port: &mut HostPort) -> Result<Vec<u8>, FaceError> {
+        port.encode_face(self.crop_origin, [self.crop.width(), self.crop.height()], self.crop.as_raw())
+    }
 }
 
 /// A camera with its own seeded nuisance (noise, LEDs, exposure) per frame.
@@ -78,41 +85,18 @@ pub fn face_crop(rgb: &image::RgbImage, origin: [u32; 2]) -> GrayImage {
     to_grey(&sub)
 }
 
-/// Wire bytes of one face crop on the host link: a `FrameStart` and `FrameChunk`s of at most
-/// [`CHUNK`] bytes, each its own frame.
-pub fn frame_wire(frame: u16, crop: &GrayImage, origin: [u32; 2], seq: &mut Sequencer) -> Result<Vec<u8>, String> {
-    let fits = |v: u32| u16::try_from(v).is_ok();
-    if !(fits(origin[0]) && fits(origin[1]) && fits(crop.width()) && fits(crop.height()))
-        || crop.as_raw().len() > u16::MAX as usize + 1
-    {
-        return Err(format!("a {}x{} crop at {origin:?} does not fit the frame messages", crop.width(), crop.height()));
-    }
-    let header = FrameHeader {
-        frame,
-        crop_x: origin[0] as u16,
-        crop_y: origin[1] as u16,
-        width: crop.width() as u16,
-        height: crop.height() as u16,
-    };
-    let mut out = encode_message_vec(seq.next(), &HostToBoard::FrameStart(header)).expect("header fits");
-    for (i, data) in crop.as_raw().chunks(CHUNK).enumerate() {
-        let msg = HostToBoard::FrameChunk { frame, offset: (i * CHUNK) as u16, data };
-        out.extend(encode_message_vec(seq.next(), &msg).expect("a chunk fits a frame"));
-    }
-    Ok(out)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::link::LinkEnd;
     use crate::world::{run, Flow, WorldConfig};
     use msr_shared::frame::{FrameAccumulator, MAX_WIRE_FRAME};
+    use msr_shared::msg::{FrameHeader, HostToBoard};
 
     #[test]
     fn a_board_receives_the_crop_the_camera_took() {
         let mut cam = Camera::new(Robot::Skin, 1);
-        let mut seq = Sequencer::default();
+        let mut port = HostPort::default();
         let mut sent: Vec<GrayImage> = Vec::new();
         let mut acc = FrameAccumulator::<MAX_WIRE_FRAME>::new();
         let mut got: Vec<Vec<u8>> = Vec::new();
@@ -145,7 +129,7 @@ mod tests {
                     let c = cam.capture(w, Some(&mark));
                     assert_eq!(c.crop_origin, body::crop_origin(0.0, 0.0));
                     assert!(c.frame.mark.as_ref().unwrap().pixels > 0);
-                    w.host.send(&frame_wire(sent.len() as u16, &c.crop, c.crop_origin, &mut seq).unwrap());
+                    w.host.send(&c.wire(&mut port).unwrap());
                     sent.push(c.crop);
                 }
                 if w.now_us >= 600_000 { Flow::Stop } else { Flow::Continue }
@@ -186,9 +170,6 @@ mod tests {
         let img = image::RgbImage::new(320, 240);
         let c = face_crop(&img, [300, 230]);
         assert_eq!(c.dimensions(), (75, 58));
-        // A crop too large for the messages is an error, not a wrapped offset.
-        let big = GrayImage::new(300, 300);
-        assert!(frame_wire(0, &big, [0, 0], &mut Sequencer::default()).is_err());
-        assert!(frame_wire(0, &c, [70_000, 0], &mut Sequencer::default()).is_err());
+        // (Crops the frame messages cannot carry: `msr_shared::host_port`'s tests.)
     }
 }

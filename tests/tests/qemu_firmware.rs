@@ -54,9 +54,10 @@ use msr_host::bench::{synthetic, BenchModel};
 use msr_host::models::ArchKind;
 use msr_shared::blob::{Model, CRC32};
 use msr_shared::frame::{encode_message_vec, FrameAccumulator, MAX_WIRE_FRAME};
+use msr_shared::host_port::HostPort;
 use msr_shared::joints::{HOME_POSTURE, REACH_JOINTS};
 use msr_shared::msg::{
-    BoardToHost, BoardToServo, Detection, ErrorCode, FrameHeader, HostToBoard, JointState, ServoToBoard, CHUNK,
+    BoardToHost, BoardToServo, Detection, ErrorCode, HostToBoard, JointState, ServoToBoard, CHUNK,
 };
 use msr_sim::qemu::Lockstep;
 use std::collections::VecDeque;
@@ -140,7 +141,8 @@ struct Rig {
     /// The servos' replies, for the next tick.
     servo_in: Vec<u8>,
     acc: FrameAccumulator<MAX_WIRE_FRAME>,
-    seq: u16,
+    /// The PC's encoder (sequence numbers, frames, uploads).
+    port: HostPort,
     /// Board messages not yet taken.
     inbox: VecDeque<BoardToHost>,
 }
@@ -157,15 +159,15 @@ impl Rig {
             outbox: VecDeque::new(),
             servo_in: Vec::new(),
             acc: FrameAccumulator::new(),
-            seq: 0,
+            port: HostPort::default(),
             inbox: VecDeque::new(),
         };
         (rig, crc)
     }
 
     fn send(&mut self, msg: &HostToBoard) {
-        self.outbox.extend(encode_message_vec(self.seq, msg).unwrap());
-        self.seq = self.seq.wrapping_add(1);
+        let bytes = self.port.encode(msg);
+        self.outbox.extend(bytes);
     }
 
     /// One millisecond of the board's time.
@@ -206,11 +208,8 @@ impl Rig {
     }
 
     fn upload(&mut self, blob: &[u8]) -> u32 {
-        self.send(&HostToBoard::ModelBegin { len: blob.len() as u32, crc32: CRC32.checksum(blob) });
-        for (i, c) in blob.chunks(CHUNK).enumerate() {
-            self.send(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data: c });
-        }
-        self.send(&HostToBoard::ModelCommit);
+        let bytes = self.port.encode_upload(blob);
+        self.outbox.extend(bytes);
         let ms = 1000 + (blob.len() / HOST_BYTES_PER_TICK) as u64;
         self.until(ms, |m| match m {
             BoardToHost::ModelAccepted { crc32 } => Some(*crc32),
@@ -223,16 +222,9 @@ impl Rig {
     }
 
     fn frame(&mut self, id: u16, model: &Model, pixels: &[u8]) {
-        self.send(&HostToBoard::FrameStart(FrameHeader {
-            frame: id,
-            crop_x: CROP[0],
-            crop_y: CROP[1],
-            width: model.face_w,
-            height: model.face_h,
-        }));
-        for (i, c) in pixels.chunks(CHUNK).enumerate() {
-            self.send(&HostToBoard::FrameChunk { frame: id, offset: (i * CHUNK) as u16, data: c });
-        }
+        let origin = CROP.map(u32::from);
+        let bytes = self.port.encode_frame(id, origin, [model.face_w as u32, model.face_h as u32], pixels).unwrap();
+        self.outbox.extend(bytes);
     }
 
     fn status(&mut self) -> msr_shared::msg::Status {

@@ -7,7 +7,7 @@
 //! status). Writes are paced to the line rate: a PTY or a USB bridge without flow control would
 //! otherwise let a large upload overrun the board's receive buffers.
 use crate::data::crop;
-use crate::episode::HostPort;
+use msr_shared::host_port::HostPort;
 use anyhow::{anyhow, bail, Context, Result};
 use image::GrayImage;
 use msr_shared::msg::{BoardToHost, HostToBoard, Status};
@@ -181,7 +181,7 @@ impl Session {
     /// a streaming caller waits about a frame period, not longer: the face watchdog (500 ms)
     /// wants frames to keep coming.
     pub fn send_face(&mut self, face: &crop::Face, timeout: Duration) -> Result<Vec<BoardToHost>> {
-        let bytes = self.host.encode_face(face.crop, &face.grey);
+        let bytes = self.host.encode_face(face.crop.origin(), face.crop.size(), &face.grey)?;
         self.send(&bytes)?;
         let (msgs, _) = self.wait_for(timeout, |m| {
             matches!(m, BoardToHost::Detection(_) | BoardToHost::Error { .. })

@@ -35,6 +35,18 @@ pub struct CropBox {
     pub height: u32,
 }
 
+impl CropBox {
+    /// Top-left `[x, y]` in the frame.
+    pub fn origin(&self) -> [u32; 2] {
+        [self.x, self.y]
+    }
+
+    /// `[width, height]`.
+    pub fn size(&self) -> [u32; 2] {
+        [self.width, self.height]
+    }
+}
+
 /// A grey face crop.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Face {

@@ -28,10 +28,8 @@ use image::{DynamicImage, GrayImage};
 use msr_firmware::model::{ModelStore, UploadError};
 use msr_firmware::Board;
 use msr_shared::blob::Model;
-use msr_shared::frame::{
-    encode_message_vec, FrameAccumulator, LinkCounters, Sequencer, MAX_WIRE_FRAME,
-};
-use msr_shared::msg::{BoardToHost, Config, Detection, FrameHeader, HostToBoard, Status, CHUNK};
+use msr_shared::host_port::HostPort;
+use msr_shared::msg::{BoardToHost, Config, Detection, HostToBoard, Status};
 use msr_sim::body::BodyPose;
 use msr_sim::link::{FaultConfig, LinkEnd};
 use msr_sim::render::{Renderer, Variation};
@@ -316,87 +314,6 @@ pub fn inproc_board(blob: &[u8]) -> Box<InprocBoard> {
     Box::new(Board::new(HeapStore::new(Some(blob), 512 * 1024)))
 }
 
-/// The PC's side of the host link: frames out, reports in.
-pub struct HostPort {
-    seq: Sequencer,
-    rx: Box<FrameAccumulator<MAX_WIRE_FRAME>>,
-    frame_id: u16,
-}
-
-impl Default for HostPort {
-    fn default() -> Self {
-        HostPort {
-            seq: Sequencer::default(),
-            rx: Box::new(FrameAccumulator::new()),
-            frame_id: 0,
-        }
-    }
-}
-
-impl HostPort {
-    /// The wire bytes of one message.
-    pub fn encode(&mut self, msg: &HostToBoard) -> Vec<u8> {
-        encode_message_vec(self.seq.next(), msg).expect("host messages fit a frame")
-    }
-
-    /// The wire bytes of a face crop: `FrameStart` and its chunks.
-    pub fn encode_face(&mut self, crop: crop::CropBox, grey: &[u8]) -> Vec<u8> {
-        self.frame_id = self.frame_id.wrapping_add(1);
-        let id = self.frame_id;
-        let h = FrameHeader {
-            frame: id,
-            crop_x: crop.x as u16,
-            crop_y: crop.y as u16,
-            width: crop.width as u16,
-            height: crop.height as u16,
-        };
-        let mut out = self.encode(&HostToBoard::FrameStart(h));
-        for (i, data) in grey.chunks(CHUNK).enumerate() {
-            let offset = (i * CHUNK) as u16;
-            out.extend(self.encode(&HostToBoard::FrameChunk {
-                frame: id,
-                offset,
-                data,
-            }));
-        }
-        out
-    }
-
-    /// The wire bytes of a model upload: begin, chunks, commit.
-    pub fn encode_upload(&mut self, blob: &[u8]) -> Vec<u8> {
-        let crc32 = msr_shared::blob::CRC32.checksum(blob);
-        let mut out = self.encode(&HostToBoard::ModelBegin {
-            len: blob.len() as u32,
-            crc32,
-        });
-        for (i, data) in blob.chunks(CHUNK).enumerate() {
-            out.extend(self.encode(&HostToBoard::ModelChunk {
-                offset: (i * CHUNK) as u32,
-                data,
-            }));
-        }
-        out.extend(self.encode(&HostToBoard::ModelCommit));
-        out
-    }
-
-    /// Parses what arrived; damaged frames are counted by the accumulator and skipped.
-    pub fn receive(&mut self, bytes: &[u8]) -> Vec<BoardToHost> {
-        let mut out = Vec::new();
-        for &b in bytes {
-            if let Some(Ok(f)) = self.rx.push(b) {
-                match f.message::<BoardToHost>() {
-                    Ok(m) => out.push(m),
-                    Err(_) => self.rx.count_malformed(),
-                }
-            }
-        }
-        out
-    }
-
-    pub fn counters(&self) -> &LinkCounters {
-        self.rx.counters()
-    }
-}
 
 /// Renders and crops camera frames of one robot.
 pub struct Camera<'a> {
@@ -507,7 +424,7 @@ impl Scenario<'_> {
             let (_, face) = self
                 .camera
                 .shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng)?;
-            let bytes = self.port.encode_face(face.crop, &face.grey);
+            let bytes = self.port.encode_face(face.crop.origin(), face.crop.size(), &face.grey)?;
             w.host.send(&bytes);
             self.trial.frames_sent += 1;
             self.next_frame_us = now + period;

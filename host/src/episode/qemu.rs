@@ -14,7 +14,8 @@
 //! Why not real time: the image's own clock under QEMU is virtual time, which runs at no fixed
 //! rate against the host's (a spinning image under `-icount shift=0` saw about 30 ms of it per
 //! real second), and the sim's servos and camera would run on the host's clock.
-use crate::episode::{self, Camera, EpisodeConfig, HostPort, Trial};
+use crate::episode::{self, Camera, EpisodeConfig, Trial};
+use msr_shared::host_port::HostPort;
 use anyhow::{anyhow, bail, Context, Result};
 use msr_shared::msg::{BoardToHost, Status};
 use msr_sim::link::LinkEnd;

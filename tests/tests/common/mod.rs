@@ -76,7 +76,8 @@ pub fn trained_model(robot: Robot) -> Vec<u8> {
     blob
 }
 
-use msr_host::episode::{inproc_board, Camera, HostPort};
+use msr_host::episode::{inproc_board, Camera};
+use msr_shared::host_port::HostPort;
 use msr_shared::msg::{BoardToHost, Status};
 use msr_sim::link::LinkEnd;
 use msr_sim::world::{self, Flow, World, WorldConfig};
@@ -106,7 +107,7 @@ impl Pc<'_> {
             .camera
             .shoot(&w.body_pose(), mark, &mut self.rng)
             .unwrap();
-        let bytes = self.port.encode_face(face.crop, &face.grey);
+        let bytes = self.port.encode_face(face.crop.origin(), face.crop.size(), &face.grey).unwrap();
         w.host.send(&bytes);
     }
 }

@@ -1,0 +1,160 @@
+//! The PC's side of the host link (`std` only): messages out as wire frames, wire bytes in as
+//! board messages. Every host-link talker (the `msr` command, the sim's camera, the tests) uses
+//! this one encoder, so a face crop or a model upload has one wire form.
+//!
+//! ```
+//! use msr_shared::host_port::HostPort;
+//! use msr_shared::msg::HostToBoard;
+//! use msr_shared::frame::{FrameAccumulator, MAX_WIRE_FRAME};
+//!
+//! let mut port = HostPort::default();
+//! let grey = vec![128u8; 75 * 58];
+//! let wire = port.encode_face([120, 80], [75, 58], &grey).unwrap();
+//! // A FrameStart, then chunks of at most CHUNK bytes, each its own frame.
+//! let mut acc = FrameAccumulator::<MAX_WIRE_FRAME>::new();
+//! let mut got = Vec::new();
+//! for b in wire {
+//!     if let Some(Ok(f)) = acc.push(b) {
+//!         match f.message::<HostToBoard>().unwrap() {
+//!             HostToBoard::FrameStart(h) => assert_eq!((h.crop_x, h.width), (120, 75)),
+//!             HostToBoard::FrameChunk { data, .. } => got.extend_from_slice(data),
+//!             m => panic!("{m:?}"),
+//!         }
+//!     }
+//! }
+//! assert_eq!(got, grey);
+//! ```
+use crate::blob::CRC32;
+use crate::frame::{encode_message_vec, FrameAccumulator, LinkCounters, Sequencer, MAX_WIRE_FRAME};
+use crate::msg::{BoardToHost, FrameHeader, HostToBoard, CHUNK};
+
+/// A face crop that the frame messages cannot carry.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum FaceError {
+    /// Origin or size beyond `u16`, or more pixels than a frame's `u16` offsets reach.
+    TooLarge { origin: [u32; 2], size: [u32; 2] },
+    /// `grey` does not hold `width * height` pixels.
+    Length { expected: usize, got: usize },
+}
+
+impl core::fmt::Display for FaceError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            FaceError::TooLarge { origin, size } => {
+                write!(f, "a {}x{} crop at {origin:?} does not fit the frame messages", size[0], size[1])
+            }
+            FaceError::Length { expected, got } => write!(f, "face crop has {got} pixels, expected {expected}"),
+        }
+    }
+}
+
+impl std::error::Error for FaceError {}
+
+/// The PC's side of the host link: frames out, reports in.
+pub struct HostPort {
+    seq: Sequencer,
+    rx: Box<FrameAccumulator<MAX_WIRE_FRAME>>,
+    frame_id: u16,
+}
+
+impl Default for HostPort {
+    fn default() -> Self {
+        HostPort { seq: Sequencer::default(), rx: Box::new(FrameAccumulator::new()), frame_id: 0 }
+    }
+}
+
+impl HostPort {
+    /// The wire bytes of one message.
+    pub fn encode(&mut self, msg: &HostToBoard) -> Vec<u8> {
+        encode_message_vec(self.seq.next(), msg).expect("host messages fit a frame")
+    }
+
+    /// The wire bytes of a face crop under the next frame id: `FrameStart` and its chunks.
+    /// `origin` is the crop's top-left in the camera frame, `size` its width and height.
+    pub fn encode_face(&mut self, origin: [u32; 2], size: [u32; 2], grey: &[u8]) -> Result<Vec<u8>, FaceError> {
+        let id = self.frame_id.wrapping_add(1);
+        let out = self.encode_frame(id, origin, size, grey)?;
+        self.frame_id = id;
+        Ok(out)
+    }
+
+    /// As [`HostPort::encode_face`], under the frame id `frame`.
+    pub fn encode_frame(&mut self, frame: u16, origin: [u32; 2], size: [u32; 2], grey: &[u8]) -> Result<Vec<u8>, FaceError> {
+        let fits = |v: u32| u16::try_from(v).is_ok();
+        let pixels = size[0] as usize * size[1] as usize;
+        if !origin.iter().chain(&size).all(|&v| fits(v)) || pixels > u16::MAX as usize + 1 {
+            return Err(FaceError::TooLarge { origin, size });
+        }
+        if grey.len() != pixels {
+            return Err(FaceError::Length { expected: pixels, got: grey.len() });
+        }
+        let h = FrameHeader {
+            frame,
+            crop_x: origin[0] as u16,
+            crop_y: origin[1] as u16,
+            width: size[0] as u16,
+            height: size[1] as u16,
+        };
+        let mut out = self.encode(&HostToBoard::FrameStart(h));
+        for (i, data) in grey.chunks(CHUNK).enumerate() {
+            out.extend(self.encode(&HostToBoard::FrameChunk { frame, offset: (i * CHUNK) as u16, data }));
+        }
+        Ok(out)
+    }
+
+    /// The wire bytes of a model upload: begin (length and CRC-32), chunks, commit.
+    pub fn encode_upload(&mut self, blob: &[u8]) -> Vec<u8> {
+        let mut out = self.encode(&HostToBoard::ModelBegin { len: blob.len() as u32, crc32: CRC32.checksum(blob) });
+        for (i, data) in blob.chunks(CHUNK).enumerate() {
+            out.extend(self.encode(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data }));
+        }
+        out.extend(self.encode(&HostToBoard::ModelCommit));
+        out
+    }
+
+    /// Parses what arrived; damaged frames are counted by the accumulator and skipped.
+    pub fn receive(&mut self, bytes: &[u8]) -> Vec<BoardToHost> {
+        let mut out = Vec::new();
+        for &b in bytes {
+            if let Some(Ok(f)) = self.rx.push(b) {
+                match f.message::<BoardToHost>() {
+                    Ok(m) => out.push(m),
+                    Err(_) => self.rx.count_malformed(),
+                }
+            }
+        }
+        out
+    }
+
+    /// What the receiving side counted so far.
+    pub fn counters(&self) -> &LinkCounters {
+        self.rx.counters()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn crops_the_messages_cannot_carry_are_errors() {
+        let mut p = HostPort::default();
+        assert!(matches!(p.encode_face([0, 0], [300, 300], &[0; 90_000]), Err(FaceError::TooLarge { .. })));
+        assert!(matches!(p.encode_face([70_000, 0], [75, 58], &[0; 75 * 58]), Err(FaceError::TooLarge { .. })));
+        assert_eq!(p.encode_face([0, 0], [4, 2], &[0; 7]), Err(FaceError::Length { expected: 8, got: 7 }));
+        // A refused crop does not use up a frame id.
+        let wire = p.encode_face([0, 0], [2, 2], &[1, 2, 3, 4]).unwrap();
+        let mut acc = FrameAccumulator::<MAX_WIRE_FRAME>::new();
+        let mut frames = Vec::new();
+        for &b in &wire {
+            if let Some(f) = acc.push(b) {
+                match f.unwrap().message::<HostToBoard>().unwrap() {
+                    HostToBoard::FrameStart(h) => frames.push(h.frame),
+                    HostToBoard::FrameChunk { frame, .. } => frames.push(frame),
+                    m => panic!("{m:?}"),
+                }
+            }
+        }
+        assert_eq!(frames, [1, 1]);
+    }
+}
