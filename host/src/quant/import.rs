@@ -53,8 +53,7 @@ pub fn run(args: Args) -> Result<()> {
     let bytes = spec
         .to_bytes()
         .map_err(|e| anyhow::anyhow!("the blob does not validate: {e}"))?;
-    std::fs::write(&args.out, &bytes)
-        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    crate::fsio::write(&args.out, &bytes)?;
     let shifts: Vec<String> = spec
         .layers
         .iter()
@@ -333,6 +332,18 @@ impl Published {
             mu.iter().chain(&sigma).all(|v| v.is_finite() && *v >= 0.0),
             "error statistics hold negative or non-finite values"
         );
+        // The blob holds sigma in Q8.8: anything under one step would be stored as one step, and a
+        // zero sigma makes every error at that pixel a mark (the published code divides by
+        // sigma + 1e-5). Real statistics sit far above it (the published sigma's least is 0.14).
+        let spath = dir.join(&m.error_statistics.sigma);
+        let tiny = sigma.iter().filter(|&&v| v < SIGMA_FLOOR as f64).count();
+        ensure!(
+            tiny == 0,
+            "sigma {}: {tiny} of {} values are below 1/256 grey level (one Q8.8 step, the \
+             least the blob holds); a zero sigma would mark every pixel with any error",
+            spath.display(),
+            sigma.len()
+        );
 
         let tpath = dir.join(&m.face_crop.template);
         let template = load_grey(&tpath)?;
@@ -525,6 +536,10 @@ fn dense_stack(t: &Tensors, layers: &[ManifestLayer]) -> Result<Vec<Dense>> {
     Ok(out)
 }
 
+fn truncated(path: &Path) -> String {
+    format!("{} is truncated or unreadable (fewer values than its header's shape)", path.display())
+}
+
 /// A 2-d float64 (or float32) .npy array of the given shape, row-major.
 pub fn read_npy(path: &Path, (h, w): (usize, usize)) -> Result<Vec<f64>> {
     let bytes = std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))?;
@@ -539,10 +554,10 @@ pub fn read_npy(path: &Path, (h, w): (usize, usize)) -> Result<Vec<f64>> {
     let fortran = npy.order() == npyz::Order::Fortran;
     let v: Vec<f64> = match npy.dtype() {
         npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 => {
-            npy.into_vec::<f64>()?
+            npy.into_vec::<f64>().with_context(|| truncated(path))?
         }
         npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 => {
-            npy.into_vec::<f32>()?.into_iter().map(f64::from).collect()
+            npy.into_vec::<f32>().with_context(|| truncated(path))?.into_iter().map(f64::from).collect()
         }
         d => bail!(
             "{}: dtype {} is not float64 or float32",

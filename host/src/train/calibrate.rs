@@ -323,16 +323,17 @@ pub fn threshold_from_normal(scores: &[f64], p: f64) -> Result<f64> {
 pub fn write_npy(path: &Path, h: usize, w: usize, data: &[f64]) -> Result<()> {
     use npyz::WriterBuilder;
     ensure!(data.len() == h * w, "npy data has {} values for {h}x{w}", data.len());
-    let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    let mut wr = npyz::WriteOptions::new()
-        .default_dtype()
-        .shape(&[h as u64, w as u64])
-        .writer(std::io::BufWriter::new(f))
-        .begin_nd()
-        .with_context(|| format!("writing {}", path.display()))?;
-    wr.extend(data.iter().copied()).with_context(|| format!("writing {}", path.display()))?;
-    wr.finish().with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+    crate::fsio::write_with(path, |tmp| {
+        let f = std::fs::File::create(tmp)?;
+        let mut wr = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(&[h as u64, w as u64])
+            .writer(std::io::BufWriter::new(f))
+            .begin_nd()?;
+        wr.extend(data.iter().copied())?;
+        wr.finish()?;
+        Ok(())
+    })
 }
 
 /// Reads a 2-d float array (float64 or float32) as `(h, w, values)`.
@@ -342,12 +343,22 @@ pub fn read_npy(path: &Path) -> Result<(usize, usize, Vec<f64>)> {
     let shape = npy.shape().to_vec();
     ensure!(npy.order() == npyz::Order::C, "{}: Fortran-order arrays are not supported", path.display());
     let [h, w] = shape[..] else { bail!("{}: expected a 2-d array, got shape {shape:?}", path.display()) };
+    // The header's shape is bounded by the file before anything is sized by it.
+    ensure!(
+        h.checked_mul(w).is_some_and(|n| n <= bytes.len() as u64),
+        "{}: shape {shape:?} needs more values than the file holds",
+        path.display()
+    );
     let values: Vec<f64> = match npy.dtype() {
         npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 => {
-            npy.into_vec::<f64>()?
+            npy.into_vec::<f64>().with_context(|| format!("{} is truncated or unreadable", path.display()))?
         }
         npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 => {
-            npy.into_vec::<f32>()?.into_iter().map(f64::from).collect()
+            npy.into_vec::<f32>()
+                .with_context(|| format!("{} is truncated or unreadable", path.display()))?
+                .into_iter()
+                .map(f64::from)
+                .collect()
         }
         d => bail!("{}: expected float64 or float32, got {d:?}", path.display()),
     };
