@@ -32,9 +32,11 @@ pub struct Blob {
     pub y0: u16,
     pub x1: u16,
     pub y1: u16,
-    /// Sums of the pixels' column and row indices.
-    pub sum_x: u32,
-    pub sum_y: u32,
+    /// Sums of the pixels' column and row indices. 64 bits: a component of every pixel of the
+    /// widest, tallest mask the labeller takes sums to about 2^40, far past 32 bits (a 4000 x
+    /// 3000 mask already wraps a u32).
+    pub sum_x: u64,
+    pub sum_y: u64,
     /// Raster index (`y * width + x`) of the component's first pixel: the OpenCV label order.
     pub first: u32,
 }
@@ -347,8 +349,8 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
                 y0: y as u16,
                 x1: r.x1,
                 y1: y as u16,
-                sum_x: (r.x0 as u32 + r.x1 as u32) * len / 2,
-                sum_y: y as u32 * len,
+                sum_x: (r.x0 as u64 + r.x1 as u64) * len as u64 / 2,
+                sum_y: y as u64 * len as u64,
                 first: (y * width) as u32 + r.x0 as u32,
             };
             if label == NONE {

@@ -86,14 +86,14 @@ pub fn run(
         if let Some(b) = det.blob {
             detections += 1;
             for v in [
-                b.area,
-                b.x0 as u32,
-                b.y0 as u32,
-                b.x1 as u32,
-                b.y1 as u32,
+                b.area as u64,
+                b.x0 as u64,
+                b.y0 as u64,
+                b.x1 as u64,
+                b.y1 as u64,
                 b.sum_x,
                 b.sum_y,
-                b.first,
+                b.first as u64,
             ] {
                 digest.update(&v.to_le_bytes());
             }

@@ -109,7 +109,9 @@ pub fn run(args: Args) -> Result<()> {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         for m in &models {
             let p = dir.join(format!("{}.msrm", m.name));
-            std::fs::write(&p, &m.blob).with_context(|| format!("writing {}", p.display()))?;
+            let inputs: Vec<(&str, &std::path::Path)> = args.model.iter().map(|m| ("--model", m.as_path())).collect();
+            crate::fsio::check_outputs(&inputs, &[("--save-models", &p)])?;
+            crate::fsio::write(&p, &m.blob)?;
             eprintln!("wrote {} ({} bytes)", p.display(), m.blob.len());
         }
     }

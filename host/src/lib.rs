@@ -3,6 +3,7 @@
 //! `cmd` holds the command shells (arguments, `run`, printing); the other modules are the library
 //! they call, arranged by role.
 pub mod cmd;
+pub mod fsio;
 pub mod data;
 pub mod models;
 pub mod train;

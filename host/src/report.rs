@@ -404,6 +404,6 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
         h.push_str("</ul>");
     }
     h.push_str("</body></html>\n");
-    std::fs::write(out.join("index.html"), h)?;
+    crate::fsio::write(&out.join("index.html"), h)?;
     Ok(())
 }

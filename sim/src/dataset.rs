@@ -84,7 +84,17 @@ struct Plan {
 /// Writes the dataset into `out` (created if missing; existing files of the layout are
 /// overwritten). Returns the index that was written.
 pub fn write_dataset(cfg: &DatasetConfig, out: &Path) -> Result<DatasetIndex> {
+    write_dataset_with(cfg, out, &mut |_, _| {})
+}
+
+/// [`write_dataset`], telling `progress(frames written, bytes written)` after each frame.
+pub fn write_dataset_with(
+    cfg: &DatasetConfig,
+    out: &Path,
+    progress: &mut dyn FnMut(usize, u64),
+) -> Result<DatasetIndex> {
     cfg.check()?;
+    let mut written = 0u64;
     std::fs::create_dir_all(out.join("frames")).with_context(|| format!("creating {}", out.display()))?;
     std::fs::create_dir_all(out.join("masks"))?;
     let renderer = Renderer::new(cfg.robot);
@@ -123,7 +133,7 @@ pub fn write_dataset(cfg: &DatasetConfig, out: &Path) -> Result<DatasetIndex> {
             let (mark, r) = render_marked(&renderer, &pose, &p.var, &mut mrng);
             let px = r.mark.as_ref().expect("a marked render has mark pixels");
             let mask = format!("masks/{i:06}.png");
-            write_png(&out.join(&mask), px.mask.as_raw(), body::WIDTH, body::HEIGHT, image::ExtendedColorType::L8)?;
+            written += write_png(&out.join(&mask), px.mask.as_raw(), body::WIDTH, body::HEIGHT, image::ExtendedColorType::L8)?;
             let ph = mark.point_head();
             let pt = kin::head_to_torso(&ph, p.yaw, p.pitch);
             mark_record = Some(MarkRecord {
@@ -140,9 +150,10 @@ pub fn write_dataset(cfg: &DatasetConfig, out: &Path) -> Result<DatasetIndex> {
         } else {
             renderer.render(&pose, None, &p.var)
         };
-        write_png(&out.join(&file), rendered.rgb.as_raw(), body::WIDTH, body::HEIGHT, image::ExtendedColorType::Rgb8)?;
+        written += write_png(&out.join(&file), rendered.rgb.as_raw(), body::WIDTH, body::HEIGHT, image::ExtendedColorType::Rgb8)?;
         angles.push_str(&format!("{:.10},{:.10}\n", p.yaw, p.pitch));
         frames.push(FrameRecord { file, head_yaw: p.yaw, head_pitch: p.pitch, split: p.split, mark: mark_record });
+        progress(i + 1, written);
     }
     std::fs::write(out.join(layout::ANGLES_FILE), angles)?;
     let t = renderer.template();
@@ -237,14 +248,15 @@ pub fn write_reach_pairs(out: &Path, n: usize, seed: u64) -> Result<usize> {
 }
 
 /// PNG with fast compression: the dataset is large and rewritten often.
-fn write_png(path: &Path, data: &[u8], w: u32, h: u32, ct: image::ExtendedColorType) -> Result<()> {
+/// Writes a PNG; returns its size in bytes.
+fn write_png(path: &Path, data: &[u8], w: u32, h: u32, ct: image::ExtendedColorType) -> Result<u64> {
     let mut buf = Vec::with_capacity(data.len() / 2);
     PngEncoder::new_with_quality(&mut buf, CompressionType::Fast, FilterType::Sub)
         .write_image(data, w, h, ct)
         .with_context(|| format!("encoding {}", path.display()))?;
     let mut f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
     f.write_all(&buf).with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+    Ok(buf.len() as u64)
 }
 
 #[cfg(test)]

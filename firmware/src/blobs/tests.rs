@@ -29,8 +29,8 @@ fn reference(mask: &[u8], w: usize, h: usize) -> Vec<Blob> {
             b.y0 = b.y0.min(y as u16);
             b.x1 = b.x1.max(x as u16);
             b.y1 = b.y1.max(y as u16);
-            b.sum_x += x as u32;
-            b.sum_y += y as u32;
+            b.sum_x += x as u64;
+            b.sum_y += y as u64;
             for dy in -1i32..=1 {
                 for dx in -1i32..=1 {
                     let (nx, ny) = (x as i32 + dx, y as i32 + dy);

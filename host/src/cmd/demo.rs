@@ -174,7 +174,7 @@ pub fn run(a: Args) -> Result<()> {
     p.start("4/8 quantizing to the fixed-point model blob");
     let blob = crate::quant::model_blob::blob_from_training(&models, "decoder", &reach)?;
     let model_path = out.join("model.msrm");
-    std::fs::write(&model_path, &blob)?;
+    crate::fsio::write(&model_path, &blob)?;
     p.done(
         "quantize_s",
         &format!("{} ({} bytes)", model_path.display(), blob.len()),
@@ -184,7 +184,7 @@ pub fn run(a: Args) -> Result<()> {
     p.start("5/8 evaluating on the test split (decoder and autoencoder, sigma and none, float and fixed)");
     // The evaluation finds the trained float models next to the blob it is given.
     let beside = models.join("model.msrm");
-    std::fs::write(&beside, &blob)?;
+    crate::fsio::write(&beside, &blob)?;
     let eval = crate::eval::evaluate(&beside, &data)?;
     p.done(
         "eval_s",
@@ -287,7 +287,7 @@ pub fn run(a: Args) -> Result<()> {
         "reach_fit_rms_rad": rms,
         "notes": notes,
     });
-    std::fs::write(out.join("report.json"), serde_json::to_vec_pretty(&report)?)?;
+    crate::fsio::write(&out.join("report.json"), serde_json::to_vec_pretty(&report)?)?;
     crate::report::write_html(&out, &report, &blob, &data)?;
     eprintln!(
         "[{total:>6.1} s] wrote {0}/model.msrm, {0}/report.json, {0}/index.html",
@@ -390,7 +390,7 @@ pub fn real_check(real_dir: &Path, out: &Path) -> Result<Value> {
         .to_spec()?
         .to_bytes()
         .map_err(|e| anyhow::anyhow!("published blob: {e}"))?;
-    std::fs::write(out.join("published.msrm"), &bytes)?;
+    crate::fsio::write(&out.join("published.msrm"), &bytes)?;
     let model = msr_shared::blob::Model::parse(&bytes)
         .map_err(|e| anyhow::anyhow!("published blob: {e}"))?;
     let ds = crate::data::Dataset::load(real_dir, crate::detect::crop_mode_of(&model))?;

@@ -10,6 +10,7 @@ pub struct Args {
     /// The model blob (.msrm), with its face template and reach network
     #[arg(long)]
     pub model: PathBuf,
+    /// Trials to run (1..=100000)
     #[arg(long, default_value_t = 20)]
     pub trials: usize,
     #[arg(long, default_value_t = 0)]
@@ -67,6 +68,15 @@ pub fn run(a: Args) -> Result<()> {
     let blob = episode::read_model(&a.model)?;
     let cfg = config(&a)?;
     let quiet = a.json;
+    if !quiet {
+        eprintln!(
+            "mirror-test: {} {} trials of robot {} (seed {})",
+            a.trials,
+            a.backend.name(),
+            a.robot,
+            a.seed
+        );
+    }
     let progress = |t: &Trial| {
         if !quiet {
             eprintln!("{}", describe(t));
@@ -76,14 +86,16 @@ pub fn run(a: Args) -> Result<()> {
         Backend::Inproc => episode::run_inproc(&blob, &cfg, a.trials, a.seed, &progress)?,
         Backend::Qemu => crate::episode::qemu::run_qemu(&blob, &cfg, a.trials, a.seed, &progress)?,
     };
-    if let Some(p) = &a.trials_out {
-        std::fs::write(p, serde_json::to_vec_pretty(&trials)?)?;
-    }
     let s = episode::summarise(a.backend, a.robot, &trials);
+    // The summary first: a failing --trials-out write (checked up front, but a disk can fill)
+    // must not lose it.
     if a.json {
         println!("{}", serde_json::to_string(&s)?);
     } else {
         println!("{}", readable(&s));
+    }
+    if let Some(p) = &a.trials_out {
+        crate::fsio::write(p, serde_json::to_vec_pretty(&trials)?)?;
     }
     Ok(())
 }
@@ -92,6 +104,7 @@ pub fn run(a: Args) -> Result<()> {
 pub fn describe(t: &Trial) -> String {
     let what = match (&t.mark, t.false_reach, t.touched) {
         (_, true, _) => "FALSE REACH".to_string(),
+        (None, _, _) if t.ended_before_mark => "ended before the mark appeared".to_string(),
         (None, _, _) => "no mark, no reach".to_string(),
         (Some(m), _, true) => format!(
             "{m}: touched, {:.1} mm, {:.0} ms",
@@ -108,15 +121,21 @@ pub fn describe(t: &Trial) -> String {
 
 pub fn readable(s: &Summary) -> String {
     let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
+    let early = if s.ended_before_mark > 0 {
+        format!(", {} ended before the mark appeared", s.ended_before_mark)
+    } else {
+        String::new()
+    };
     format!(
-        "{} {}: {} trials, touched {}/{} marked ({:.1} %), false reaches {}/{} unmarked, median touch error {} mm, \
-         median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, watchdog trips {}",
+        "{} {}: {} trials, touched {}/{} marked ({} %), false reaches {} ({} trials without a mark{early}), \
+         median touch error {} mm, median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, \
+         watchdog trips {}",
         s.backend,
         s.robot,
         s.trials,
         s.touched,
         s.marked_trials,
-        100.0 * s.touch_rate,
+        f(s.touch_rate.map(|r| 100.0 * r)),
         s.false_reaches,
         s.no_mark_trials,
         f(s.median_touch_error_mm),

@@ -4,13 +4,14 @@ pub mod blobs;
 pub mod mirror_test;
 pub mod demo;
 pub mod run;
+pub mod check;
 
 use crate::{train, detect, eval, bench};
 use crate::train::reach as train_reach;
 use crate::quant::{quantize, import};
 use self::run as run_board;
 use anyhow::Result;
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
 #[derive(Parser, Debug)]
 #[command(
@@ -52,7 +53,69 @@ pub enum Command {
     Demo(demo::Args),
 }
 
+/// `msr`'s argument parser: the derived one, with every flag that takes a value also taking a
+/// negative number (`--ber -0.1` is a value that the range check refuses, not an unknown flag
+/// `-0`).
+pub fn command() -> clap::Command {
+    Cli::command().mut_subcommands(|sc| {
+        sc.mut_args(|a| {
+            if a.get_action().takes_values() {
+                a.allow_negative_numbers(true)
+            } else {
+                a
+            }
+        })
+    })
+}
+
+/// Parses a command line (the first item is the program name).
+pub fn parse_from<I, T>(args: I) -> Result<Cli, clap::Error>
+where
+    I: IntoIterator<Item = T>,
+    T: Into<std::ffi::OsString> + Clone,
+{
+    let mut c = command();
+    let m = c.try_get_matches_from_mut(args)?;
+    Cli::from_arg_matches(&m).map_err(|e| e.format(&mut c))
+}
+
+/// A clap error as one line: its first paragraph (and the list that follows a paragraph ending
+/// in `:`, such as the missing arguments), without the usage and the `error: ` prefix.
+pub fn clap_line(e: &clap::Error) -> String {
+    let text = e.render().to_string();
+    let paras: Vec<&str> = text.split("\n\n").collect();
+    let mut m = paras.first().copied().unwrap_or("bad arguments").trim().to_string();
+    if m.ends_with(':') {
+        if let Some(list) = paras.get(1) {
+            m.push(' ');
+            m.push_str(list);
+        }
+    }
+    let m = m.split_whitespace().collect::<Vec<_>>().join(" ");
+    m.strip_prefix("error: ").map(str::to_string).unwrap_or(m)
+}
+
+/// An error as one line: its causes joined by `: `, a cause that repeats the text before it
+/// left out (image errors carry their own message twice), line breaks folded.
+pub fn one_line(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for c in e.chain() {
+        let m = c.to_string();
+        let m = m.trim();
+        if m.is_empty() || out.ends_with(m) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(m);
+    }
+    out.split_whitespace().collect::<Vec<_>>().join(" ")
+}
+
+/// Runs a parsed command: its arguments and paths are checked first ([`check::check`]).
 pub fn run(cli: Cli) -> Result<()> {
+    check::check(&cli.command)?;
     match cli.command {
         Command::Dataset(a) => dataset::run(a),
         Command::Train(a) => train::run(a),

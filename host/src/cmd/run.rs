@@ -21,6 +21,7 @@ pub struct Args {
     /// Serial port of the board (e.g. /dev/ttyACM0, or a PTY the sim serves)
     #[arg(long)]
     pub port: String,
+    /// Line rate, baud (1200..=20000000); a face crop must cross the line within a frame period
     #[arg(long, default_value_t = 921_600)]
     pub baud: u32,
     /// Model blob (.msrm): its face template crops the frames
@@ -32,15 +33,16 @@ pub struct Args {
     /// Folder of camera frames (PNG, 320x240), streamed in name order
     #[arg(long, conflicts_with = "sim")]
     pub frames: Option<PathBuf>,
-    /// Render frames from the sim instead: robot at home, a random mark from the 4th frame on
-    #[arg(long)]
+    /// Render frames from the sim instead, of this robot (red or skin): at home, a random mark
+    /// from the 4th frame on
+    #[arg(long, value_name = "ROBOT")]
     pub sim: Option<Robot>,
     /// Frames to render with --sim
     #[arg(long, default_value_t = 10)]
     pub count: usize,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Frames per second
+    /// Frames per second (0.1..=1000)
     #[arg(long, default_value_t = 10.0)]
     pub fps: f64,
     /// How long to wait for an upload's or a status request's answer, milliseconds (a frame's
@@ -297,20 +299,47 @@ pub fn run(a: Args) -> Result<()> {
     let blob = crate::episode::read_model(&a.model)?;
     let model = msr_shared::blob::Model::parse(&blob).map_err(|e| anyhow!("model: {e}"))?;
     let cropper = crate::detect::cropper_of(&model)?;
+    let timeout = Duration::from_millis(a.timeout_ms);
+    let period = Duration::from_secs_f64(1.0 / a.fps);
+    // A frame that cannot cross the line within its period would pile up unanswered for ever.
+    let face_wire = HostPort::default()
+        .encode_face(
+            [0, 0],
+            [model.face_w as u32, model.face_h as u32],
+            &vec![0u8; model.face_w as usize * model.face_h as usize],
+        )
+        .map_err(|e| anyhow!("model face size: {e}"))?;
+    let frame_s = face_wire.len() as f64 * 10.0 / a.baud as f64;
+    if frame_s > period.as_secs_f64() {
+        bail!(
+            "at --baud {} a face crop ({} bytes on the wire) takes {frame_s:.2} s, longer than the \
+             frame period {:.2} s of --fps {}: raise --baud or lower --fps",
+            a.baud,
+            face_wire.len(),
+            period.as_secs_f64(),
+            a.fps
+        );
+    }
     let frames = match (&a.frames, a.sim) {
         (Some(dir), _) => folder_frames(dir)?,
         (None, Some(robot)) => sim_frames(robot, a.count, a.seed),
         (None, None) => bail!("give --frames DIR or --sim red|skin"),
     };
-    let timeout = Duration::from_millis(a.timeout_ms);
     let mut s = Session::open(&a.port, a.baud)?;
     if a.upload {
         // An upload takes about 11 bits a byte on the line; allow for it.
         let line = Duration::from_secs_f64(blob.len() as f64 * 11.0 / a.baud as f64);
+        if !a.json {
+            eprintln!(
+                "uploading {} bytes, about {:.1} s at {} baud",
+                blob.len(),
+                line.as_secs_f64(),
+                a.baud
+            );
+        }
         let crc = s.upload(&blob, timeout + line)?;
         print(&BoardToHost::ModelAccepted { crc32: crc }, a.json)?;
     }
-    let period = Duration::from_secs_f64(1.0 / a.fps);
     for (name, frame) in &frames {
         let t0 = Instant::now();
         let face = cropper.crop(frame).with_context(|| format!("frame {name}"))?;

@@ -144,6 +144,12 @@ pub fn cross_correlation(frame: &GrayImage, tpl: &GrayImage) -> Vec<i64> {
     out
 }
 
+/// Widest template whose row sums stay exact in f32 (255 * 255 * 258 < 2^24).
+pub const MAX_TEMPLATE_W: u32 = 258;
+/// Largest frame the face crop takes (1920 x 1080 and then some; the Nao camera gives at most
+/// 1280 x 960): the match holds `pixels x template rows` floats.
+pub const MAX_FRAME_PIXELS: u64 = 2_500_000;
+
 /// `TM_CCOEFF * n` of every window of `tpl` in `frame`, row-major, `(fh-th+1) x (fw-tw+1)`.
 struct Scores {
     s: Vec<i64>,
@@ -159,6 +165,14 @@ impl Scores {
         }
         if fw < tw || fh < th {
             bail!("frame {fw}x{fh} is smaller than the face template {tw}x{th}");
+        }
+        // The match sums a template row in f32: exact while a row's sum stays under 2^24
+        // (tw * 255 * 255), and it holds a float per frame pixel and template row.
+        if tw > MAX_TEMPLATE_W {
+            bail!("face template {tw}x{th} is wider than the {MAX_TEMPLATE_W} px the face crop sums exactly");
+        }
+        if fw as u64 * fh as u64 > MAX_FRAME_PIXELS {
+            bail!("frame {fw}x{fh} has more than the {MAX_FRAME_PIXELS} pixels the face crop takes");
         }
         let n = (tw * th) as i64;
         let t_sum: i64 = tpl.as_raw().iter().map(|&v| v as i64).sum();

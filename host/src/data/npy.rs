@@ -6,16 +6,18 @@ use std::path::Path;
 pub fn write(path: &Path, h: usize, w: usize, data: &[f64]) -> Result<()> {
     use npyz::WriterBuilder;
     ensure!(data.len() == h * w, "npy data has {} values for {h}x{w}", data.len());
-    let f = std::fs::File::create(path).with_context(|| format!("creating {}", path.display()))?;
-    let mut wr = npyz::WriteOptions::new()
-        .default_dtype()
-        .shape(&[h as u64, w as u64])
-        .writer(std::io::BufWriter::new(f))
-        .begin_nd()
-        .with_context(|| format!("writing {}", path.display()))?;
-    wr.extend(data.iter().copied()).with_context(|| format!("writing {}", path.display()))?;
-    wr.finish().with_context(|| format!("writing {}", path.display()))?;
-    Ok(())
+    // Through a temporary file and a rename, so a failed run leaves the old file whole.
+    crate::fsio::write_with(path, |tmp| {
+        let f = std::fs::File::create(tmp)?;
+        let mut wr = npyz::WriteOptions::new()
+            .default_dtype()
+            .shape(&[h as u64, w as u64])
+            .writer(std::io::BufWriter::new(f))
+            .begin_nd()?;
+        wr.extend(data.iter().copied())?;
+        wr.finish()?;
+        Ok(())
+    })
 }
 
 /// Reads a 2-d float64 or float32 array as `(h, w, values)`, row-major (a Fortran-order file is
@@ -25,12 +27,21 @@ pub fn read(path: &Path) -> Result<(usize, usize, Vec<f64>)> {
     let npy = npyz::NpyFile::new(&bytes[..]).with_context(|| format!("{} is not a valid .npy file", path.display()))?;
     let shape = npy.shape().to_vec();
     let [h, w] = shape[..] else { bail!("{}: expected a 2-d array, got shape {shape:?}", path.display()) };
+    // The header's shape is bounded by the file before anything is sized by it.
+    ensure!(
+        h.checked_mul(w).is_some_and(|n| n <= bytes.len() as u64),
+        "{}: shape {shape:?} needs more values than the file holds",
+        path.display()
+    );
     let (h, w) = (h as usize, w as usize);
+    let truncated = || format!("{} is truncated or unreadable (fewer values than its header's shape)", path.display());
     let fortran = npy.order() == npyz::Order::Fortran;
     let v: Vec<f64> = match npy.dtype() {
-        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 => npy.into_vec::<f64>()?,
+        npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 8 => {
+            npy.into_vec::<f64>().with_context(truncated)?
+        }
         npyz::DType::Plain(t) if t.type_char() == npyz::TypeChar::Float && t.size_field() == 4 => {
-            npy.into_vec::<f32>()?.into_iter().map(f64::from).collect()
+            npy.into_vec::<f32>().with_context(truncated)?.into_iter().map(f64::from).collect()
         }
         d => bail!("{}: dtype {} is not float64 or float32", path.display(), d.descr()),
     };

@@ -63,9 +63,8 @@ pub fn run(args: Args) -> Result<()> {
         println!("{}", readable(&det));
     }
     if let Some(p) = &args.png {
-        picture(&frame, &face.grey, &det, model.novelty.threshold)
-            .save(p)
-            .with_context(|| format!("cannot write {}", p.display()))?;
+        let pic = picture(&frame, &face.grey, &det, model.novelty.threshold);
+        crate::fsio::write_with(p, |tmp| Ok(pic.save(tmp)?))?;
     }
     Ok(())
 }

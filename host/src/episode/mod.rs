@@ -147,6 +147,9 @@ pub struct Trial {
     pub index: usize,
     /// The mark (kind, colour) when one was put on the face.
     pub mark: Option<String>,
+    /// The trial was drawn to get a mark but ended (a false reach) before the mark appeared: it
+    /// counts neither as a marked trial nor as one without a mark.
+    pub ended_before_mark: bool,
     /// The mark's centre in the frame at head (0, 0), pixels.
     pub mark_pixel: Option<[f64; 2]>,
     /// A reach started (the board confirmed a detection).
@@ -180,8 +183,11 @@ pub struct Summary {
     pub trials: usize,
     pub marked_trials: usize,
     pub touched: usize,
-    pub touch_rate: f64,
+    /// Touched / marked trials; `null` when no trial had a mark.
+    pub touch_rate: Option<f64>,
     pub no_mark_trials: usize,
+    /// Trials drawn to get a mark that ended (a false reach) before it appeared.
+    pub ended_before_mark: usize,
     pub false_reaches: usize,
     pub median_touch_error_mm: Option<f64>,
     pub latency_ms_median: Option<f64>,
@@ -214,12 +220,12 @@ pub fn summarise(backend: Backend, robot: Robot, trials: &[Trial]) -> Summary {
         trials: trials.len(),
         marked_trials: marked.len(),
         touched,
-        touch_rate: if marked.is_empty() {
-            0.0
-        } else {
-            touched as f64 / marked.len() as f64
-        },
-        no_mark_trials: trials.len() - marked.len(),
+        touch_rate: (!marked.is_empty()).then(|| touched as f64 / marked.len() as f64),
+        no_mark_trials: trials
+            .iter()
+            .filter(|t| t.mark.is_none() && !t.ended_before_mark)
+            .count(),
+        ended_before_mark: trials.iter().filter(|t| t.ended_before_mark).count(),
         false_reaches: trials.iter().filter(|t| t.false_reach).count(),
         median_touch_error_mm: median(marked.iter().filter_map(|t| t.touch_error_mm).collect()),
         latency_ms_median: median(marked.iter().filter_map(|t| t.latency_ms).collect()),
@@ -368,6 +374,8 @@ struct Scenario<'a> {
     error: Option<anyhow::Error>,
     status: Option<Status>,
     detections: Vec<(u64, Detection)>,
+    /// Frames sent while the mark was on the face.
+    frames_with_mark: usize,
 }
 
 impl Scenario<'_> {
@@ -427,6 +435,9 @@ impl Scenario<'_> {
             let bytes = self.port.encode_face(face.crop.origin(), face.crop.size(), &face.grey)?;
             w.host.send(&bytes);
             self.trial.frames_sent += 1;
+            if self.mark.is_some() {
+                self.frames_with_mark += 1;
+            }
             self.next_frame_us = now + period;
         }
         if now >= self.next_sample_us {
@@ -506,6 +517,13 @@ impl Scenario<'_> {
         if !self.marked || self.trial.touched {
             return None;
         }
+        if self.mark.is_none() {
+            return Some(if self.trial.false_reach {
+                "ended before the mark appeared: a false reach".into()
+            } else {
+                "ended before the mark appeared".into()
+            });
+        }
         if let Some(f) = &self.trial.failure {
             return Some(f.clone());
         }
@@ -516,7 +534,18 @@ impl Scenario<'_> {
             .map(|(_, d)| d)
             .collect();
         let seen = after.iter().filter(|d| d.blob.is_some()).count();
+        let sent = self.frames_with_mark;
+        // Frames the board never answered were lost on the link, not missed by detection.
+        let lost = sent.saturating_sub(after.len());
         Some(match (self.stage, seen) {
+            _ if after.is_empty() => {
+                format!("link: no answer from the board to any of the {sent} frames with the mark")
+            }
+            (_, 0) if lost > 0 => format!(
+                "detection: no blob in the {} answered frames with the mark \
+                 (link: {lost} of {sent} got no answer)",
+                after.len()
+            ),
             (_, 0) => format!("detection: no blob in {} frames with the mark", after.len()),
             (Stage::Watching, n) => format!("confirm: blob in only {n} of {} frames", after.len()),
             (Stage::Reaching { .. }, _) => {
@@ -577,6 +606,7 @@ pub fn run_trial_with<F: world::Firmware>(
         trial: Trial {
             index,
             mark: None,
+            ended_before_mark: false,
             mark_pixel: None,
             reached: false,
             false_reach: false,
@@ -597,6 +627,7 @@ pub fn run_trial_with<F: world::Firmware>(
         error: None,
         status: None,
         detections: Vec::new(),
+        frames_with_mark: 0,
     };
     let wcfg = cfg.world(seed);
     let (w, report) = world::run(
@@ -616,6 +647,7 @@ pub fn run_trial_with<F: world::Firmware>(
         return Err(e.context(format!("trial {index}")));
     }
     sc.trial.failure = sc.diagnose();
+    sc.trial.ended_before_mark = sc.marked && sc.mark.is_none();
     let mut t = sc.trial.clone();
     t.limit_violations = w.servos.counters().limit_violations;
     let bus = w.servos.frame_counters();
@@ -646,7 +678,8 @@ pub fn run_inproc(
     let cropper = crate::detect::cropper_of(&model)?;
     let renderer = Renderer::new(cfg.robot);
     let next = std::sync::atomic::AtomicUsize::new(0);
-    let results = std::sync::Mutex::new(Vec::with_capacity(n));
+    // Reserve no more than a small start: `n` comes from the command line.
+    let results = std::sync::Mutex::new(Vec::with_capacity(n.min(1024)));
     let first_error = std::sync::Mutex::new(None);
     std::thread::scope(|s| {
         for _ in 0..cfg.parallel.max(1).min(n.max(1)) {

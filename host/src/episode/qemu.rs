@@ -180,7 +180,7 @@ pub fn run_qemu(blob: &[u8], cfg: &EpisodeConfig, n: usize, seed: u64, progress:
     if debug() {
         eprintln!("model upload: {:.1} s", board.upload_s);
     }
-    let mut out = Vec::with_capacity(n);
+    let mut out = Vec::with_capacity(n.min(1024));
     for i in 0..n {
         let camera = Camera { renderer: &renderer, cropper: &cropper };
         let t = board.trial(camera, cfg, i, episode::trial_seed(seed, i))?;

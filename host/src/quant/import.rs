@@ -56,8 +56,7 @@ pub fn run(args: Args) -> Result<()> {
     let bytes = spec
         .to_bytes()
         .map_err(|e| anyhow::anyhow!("the blob does not validate: {e}"))?;
-    std::fs::write(&args.out, &bytes)
-        .with_context(|| format!("cannot write {}", args.out.display()))?;
+    crate::fsio::write(&args.out, &bytes)?;
     let shifts: Vec<String> = spec
         .layers
         .iter()
@@ -344,6 +343,18 @@ impl Published {
         ensure!(
             mu.iter().chain(&sigma).all(|v| v.is_finite() && *v >= 0.0),
             "error statistics hold negative or non-finite values"
+        );
+        // The blob holds sigma in Q8.8: anything under one step would be stored as one step, and a
+        // zero sigma makes every error at that pixel a mark (the published code divides by
+        // sigma + 1e-5). Real statistics sit far above it (the published sigma's least is 0.14).
+        let spath = dir.join(&m.error_statistics.sigma);
+        let tiny = sigma.iter().filter(|&&v| v < SIGMA_FLOOR as f64).count();
+        ensure!(
+            tiny == 0,
+            "sigma {}: {tiny} of {} values are below 1/256 grey level (one Q8.8 step, the \
+             least the blob holds); a zero sigma would mark every pixel with any error",
+            spath.display(),
+            sigma.len()
         );
 
         let tpath = dir.join(&m.face_crop.template);

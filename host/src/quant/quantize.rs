@@ -492,7 +492,7 @@ pub fn run(args: Args) -> Result<()> {
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
-    std::fs::write(&args.out, &chosen.blob).with_context(|| format!("writing {}", args.out.display()))?;
+    crate::fsio::write(&args.out, &chosen.blob)?;
 
     // Detection, float against the firmware pipeline, on the test frames.
     let blob_model = Model::parse(&chosen.blob).map_err(|e| anyhow::anyhow!("blob refused: {e}"))?;
@@ -539,7 +539,7 @@ pub fn run(args: Args) -> Result<()> {
     };
     let json = serde_json::to_string_pretty(&report)?;
     let report_path = PathBuf::from(format!("{}.json", args.out.display()));
-    std::fs::write(&report_path, &json).with_context(|| format!("writing {}", report_path.display()))?;
+    crate::fsio::write(&report_path, &json)?;
     if args.json {
         println!("{json}");
     } else {

@@ -344,7 +344,7 @@ pub fn run(args: Args) -> Result<()> {
     let files = Files::of(out.name);
     calibrate::write_npy(&args.out.join(&files.mu), h, w, &stats.mu)?;
     calibrate::write_npy(&args.out.join(&files.sigma), h, w, &stats.sigma)?;
-    ds.template.save(args.out.join(&files.template)).with_context(|| "writing template.png")?;
+    crate::fsio::write_with(&args.out.join(&files.template), |tmp| Ok(ds.template.save(tmp)?))?;
     plot::loss_png(&hist, &format!("{} ({:?})", out.name, args.arch), &args.out.join(&files.loss_png))?;
     let info = ModelInfo {
         model: args.model,
@@ -372,7 +372,7 @@ pub fn run(args: Args) -> Result<()> {
         files,
     };
     let json = args.out.join(format!("{}.json", out.name));
-    std::fs::write(&json, serde_json::to_string_pretty(&info)?).with_context(|| format!("writing {}", json.display()))?;
+    crate::fsio::write(&json, serde_json::to_string_pretty(&info)?)?;
     println!(
         "{}: {} epochs in {:.1} s, final train MSE {:.5}, test MSE {:.5}, threshold {:.3}; wrote {}",
         out.name,

@@ -293,8 +293,7 @@ pub fn apply(dir: &Path, name: &str, robot: Robot, max_head: f32, seed: u64) -> 
         info.novelty_policy = observe.clone();
         info.general_policy = general.clone();
         let json = dir.join(format!("{name}.json"));
-        std::fs::write(&json, serde_json::to_string_pretty(&info)?)
-            .with_context(|| format!("writing {}", json.display()))?;
+        crate::fsio::write(&json, serde_json::to_string_pretty(&info)?)?;
     }
     Ok(Applied { general, observe, novelty })
 }

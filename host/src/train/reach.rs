@@ -374,8 +374,8 @@ fn write_safetensors(model: &ReachModel, path: &Path) -> Result<()> {
         .iter()
         .map(|(name, shape, b)| Ok((*name, TensorView::new(Dtype::F32, shape.clone(), b)?)))
         .collect::<Result<_, safetensors::SafeTensorError>>()?;
-    safetensors::serialize_to_file(views, None::<HashMap<String, String>>, path)
-        .with_context(|| format!("writing {}", path.display()))
+    let bytes = safetensors::serialize(views, None::<HashMap<String, String>>)?;
+    crate::fsio::write(path, bytes)
 }
 
 /// Loads a reach network written by `train-reach` (or in the published layout with a sidecar).
@@ -459,8 +459,7 @@ pub fn run(args: Args) -> Result<()> {
         training_seconds: seconds,
     };
     let side_path = sidecar_path(&args.out);
-    std::fs::write(&side_path, serde_json::to_string_pretty(&side)?)
-        .with_context(|| format!("writing {}", side_path.display()))?;
+    crate::fsio::write(&side_path, serde_json::to_string_pretty(&side)?)?;
     println!("wrote {} and {}", args.out.display(), side_path.display());
     Ok(())
 }

@@ -1,0 +1,224 @@
+//! What every command checks before it does any work: each argument's range, in the unit its flag
+//! names, and that no output path names an input or another output (and that each output's
+//! folder can be written). One place, so that every command is held to the same rules.
+use super::Command;
+use crate::fsio;
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+
+/// Most mirror-test trials one run takes (each takes seconds; the results are kept in memory).
+pub const MAX_TRIALS: usize = 100_000;
+/// Most frames `msr dataset` and `msr demo` render (file names have six digits).
+pub const MAX_FRAMES: usize = 1_000_000;
+/// Slowest and fastest frame rate `msr run` streams at, frames per second.
+pub const FPS_RANGE: (f64, f64) = (0.1, 1000.0);
+/// Serial line rates `msr run` accepts, baud.
+pub const BAUD_RANGE: (u32, u32) = (1200, 20_000_000);
+/// Longest wait for a board's answer, milliseconds.
+pub const MAX_TIMEOUT_MS: u64 = 600_000;
+
+fn int<T: PartialOrd + std::fmt::Display + Copy>(flag: &str, v: T, lo: T, hi: T, unit: &str) -> Result<()> {
+    if v < lo || v > hi {
+        bail!("{flag} must be in {lo}..={hi}{unit}, got {v}");
+    }
+    Ok(())
+}
+
+/// A number as a person writes it: plain in the usual range, else with an exponent.
+fn num(v: f64) -> String {
+    if v == 0.0 || (1e-3..1e7).contains(&v.abs()) {
+        let s = format!("{v:.4}");
+        s.trim_end_matches('0').trim_end_matches('.').to_string()
+    } else {
+        format!("{v:e}")
+    }
+}
+
+fn real(flag: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
+    if !(v.is_finite() && v >= lo && v <= hi) {
+        bail!("{flag} must be a number in {}..={}{unit}, got {}", num(lo), num(hi), num(v));
+    }
+    Ok(())
+}
+
+fn positive(flag: &str, v: f64, unit: &str) -> Result<()> {
+    if !(v.is_finite() && v > 0.0) {
+        bail!("{flag} must be a positive number{unit}, got {}", num(v));
+    }
+    Ok(())
+}
+
+/// Every file a JSON file names (relative to its folder): the files of a published manifest, or
+/// of `msr train`'s `decoder.json`.
+fn named_files(json: &Path) -> Vec<PathBuf> {
+    let dir = json.parent().unwrap_or(Path::new("."));
+    let Ok(text) = std::fs::read_to_string(json) else { return Vec::new() };
+    let Ok(v) = serde_json::from_str::<serde_json::Value>(&text) else { return Vec::new() };
+    let mut out = Vec::new();
+    let mut stack = vec![&v];
+    while let Some(v) = stack.pop() {
+        match v {
+            serde_json::Value::String(s) if s.len() < 4096 => {
+                let p = dir.join(s);
+                if p.is_file() {
+                    out.push(p);
+                }
+            }
+            serde_json::Value::Array(a) => stack.extend(a),
+            serde_json::Value::Object(o) => stack.extend(o.values()),
+            _ => {}
+        }
+    }
+    out
+}
+
+/// An output file's folder (or, when the folders are still to be made, the nearest one that
+/// exists) must take a new file.
+fn writable(flag: &str, p: &Path) -> Result<()> {
+    if p.is_dir() {
+        bail!("{flag} {} is a folder, not a file", p.display());
+    }
+    let mut dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    while !dir.exists() {
+        match dir.parent().filter(|d| !d.as_os_str().is_empty()) {
+            Some(up) => dir = up,
+            None => {
+                dir = Path::new(".");
+                break;
+            }
+        }
+    }
+    if !dir.is_dir() {
+        bail!("{flag} {}: {} is not a folder", p.display(), dir.display());
+    }
+    let probe = dir.join(fsio::temp_beside(p).file_name().unwrap_or_default());
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+        .with_context(|| format!("{flag} {}: cannot write in {}", p.display(), dir.display()))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
+/// Output files: writable, not an input, not each other.
+fn outputs(inputs: &[(&str, &Path)], outs: &[(&str, &Path)]) -> Result<()> {
+    fsio::check_outputs(inputs, outs)?;
+    for (f, p) in outs {
+        writable(f, p)?;
+    }
+    Ok(())
+}
+
+/// Checks a parsed command line; `Ok` means the command may start.
+pub fn check(c: &Command) -> Result<()> {
+    match c {
+        Command::Dataset(a) => {
+            int("--count", a.count, 1, MAX_FRAMES, " frames")?;
+            // The sim bounds the range in radians; the flag is in degrees, and so is its bound.
+            let max_deg = (msr_sim::body::MAX_DATASET_HEAD_ANGLE.to_degrees() * 100.0).floor() / 100.0;
+            real("--max-angle-deg", a.max_angle_deg, 0.0, max_deg, " deg")?;
+            real("--test-fraction", a.test_fraction, 0.0, 1.0, "")?;
+            real("--unmarked-test-fraction", a.unmarked_test_fraction, 0.0, 1.0, "")?;
+            int("--reach-pairs", a.reach_pairs, 0, 100_000, " pairs")?;
+        }
+        Command::Train(a) => {
+            int("--epochs", a.epochs, 1, 100_000, "")?;
+            int("--batch", a.batch, 1, 65_536, " frames")?;
+            positive("--lr", a.lr, "")?;
+            int("--lr-step", a.lr_step, 1, usize::MAX, " epochs")?;
+            if !(a.lr_decay > 0.0 && a.lr_decay <= 1.0) {
+                bail!("--lr-decay must be in (0, 1], got {}", num(a.lr_decay));
+            }
+            real("--sigma-floor", a.sigma_floor, 0.0, 255.0, " grey levels")?;
+            positive("--threshold", a.threshold, " (saliency units)")?;
+            if let Some(p) = a.threshold_percentile {
+                real("--threshold-percentile", p, 0.0, 100.0, " %")?;
+            }
+            int("--min-area", a.min_area, 1, u16::MAX, " px")?;
+            fsio::check_out_dir(&[("--data", &a.data)], "--out", &a.out)?;
+        }
+        Command::TrainReach(a) => {
+            int("--iterations", a.iterations, 1, 10_000_000, "")?;
+            positive("--lr", a.lr, "")?;
+            int("--restarts", a.restarts, 1, 1000, "")?;
+            let side = crate::train::reach::sidecar_path(&a.out);
+            outputs(
+                &[("--inputs", &a.inputs), ("--targets", &a.targets)],
+                &[("--out", &a.out), ("--out's .json", &side)],
+            )?;
+        }
+        Command::Quantize(a) => {
+            if let Some(t) = a.threshold {
+                positive("--threshold", t, " (saliency units)")?;
+            }
+            let side = crate::train::reach::sidecar_path(&a.reach);
+            let report = PathBuf::from(format!("{}.json", a.out.display()));
+            let trained: Vec<PathBuf> = ["decoder.json", "autoencoder.json"]
+                .iter()
+                .map(|n| a.train.join(n))
+                .filter(|p| p.is_file())
+                .flat_map(|p| std::iter::once(p.clone()).chain(named_files(&p)))
+                .collect();
+            let mut ins: Vec<(&str, &Path)> = vec![("--reach", &a.reach), ("--reach's .json", &side)];
+            ins.extend(trained.iter().map(|p| ("a file of --train", p.as_path())));
+            if let Some(d) = &a.data {
+                ins.push(("--data", d));
+            }
+            outputs(&ins, &[("--out", &a.out), ("--out's report", &report)])?;
+        }
+        Command::Import(a) => {
+            if let Some(t) = a.threshold {
+                positive("--threshold", t as f64, " (sigma units)")?;
+            }
+            let files = named_files(&a.manifest);
+            let mut ins: Vec<(&str, &Path)> = vec![("the manifest", &a.manifest)];
+            ins.extend(files.iter().map(|p| ("a file of the manifest", p.as_path())));
+            outputs(&ins, &[("--out", &a.out)])?;
+        }
+        Command::Detect(a) => {
+            if let Some(p) = &a.png {
+                outputs(&[("--model", &a.model), ("--image", &a.image)], &[("--png", p)])?;
+            }
+        }
+        Command::Blobs(a) => {
+            int("--min-area", a.min_area, 1, u32::MAX, " px")?;
+        }
+        Command::Eval(_) => {}
+        Command::Bench(a) => {
+            int("--reps", a.reps, 1, 100_000, "")?;
+            // --save-models names its files after the models: checked as they are written.
+        }
+        Command::MirrorTest(a) => {
+            int("--trials", a.trials, 1, MAX_TRIALS, "")?;
+            real("--ber", a.ber, 0.0, 1.0, " (errors per bit)")?;
+            real("--no-mark-share", a.no_mark_share, 0.0, 1.0, "")?;
+            if let Some(ms) = a.disconnect_ms {
+                int("--disconnect-ms", ms, 0, 60_000, " ms")?;
+            }
+            int("--disconnect-at-ms", a.disconnect_at_ms, 0, 60_000, " ms")?;
+            if let Some(p) = a.parallel {
+                int("--parallel", p, 1, 256, " trials")?;
+            }
+            if let Some(p) = &a.trials_out {
+                outputs(&[("--model", &a.model)], &[("--trials-out", p)])?;
+            }
+        }
+        Command::Run(a) => {
+            int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
+            real("--fps", a.fps, FPS_RANGE.0, FPS_RANGE.1, " frames per second")?;
+            int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
+            int("--count", a.count, 1, MAX_FRAMES, " frames")?;
+        }
+        Command::Demo(a) => {
+            int("--frames", a.frames, 10, MAX_FRAMES, " frames")?;
+            int("--epochs", a.epochs, 1, 100_000, "")?;
+            int("--trials", a.trials, 1, MAX_TRIALS, "")?;
+            int("--qemu-trials", a.qemu_trials, 0, a.trials, " (at most --trials)")?;
+            if let Some(r) = &a.real {
+                fsio::check_out_dir(&[("--real", r)], "--out", &a.out)?;
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,154 @@
+//! Files in and out, the way every `msr` command uses them: outputs are written to a temporary
+//! file beside the target and renamed over it (a failed or interrupted run leaves the old file
+//! whole), every error names the path, and output paths are checked against the inputs and each
+//! other before any work starts.
+use anyhow::{bail, Context, Result};
+use std::path::{Path, PathBuf};
+
+/// The temporary name beside `path` that [`write_with`] writes first: hidden, with this
+/// process's id, and the same extension (savers pick the format by it).
+pub fn temp_beside(path: &Path) -> PathBuf {
+    let name = path.file_stem().map_or("out".into(), |s| s.to_string_lossy().into_owned());
+    let ext = path
+        .extension()
+        .map_or(String::new(), |e| format!(".{}", e.to_string_lossy()));
+    path.with_file_name(format!(".{name}.tmp{}{ext}", std::process::id()))
+}
+
+/// Writes `path` through `save(temporary path)` and a rename; on any error the temporary file is
+/// removed and `path` is left as it was.
+pub fn write_with(path: &Path, save: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    if path.is_dir() {
+        bail!("cannot write {}: it is a folder", path.display());
+    }
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir)
+            .with_context(|| format!("cannot write {}: cannot create {}", path.display(), dir.display()))?;
+    }
+    let tmp = temp_beside(path);
+    let done = save(&tmp).and_then(|()| {
+        std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
+    });
+    if done.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    done.with_context(|| format!("cannot write {}", path.display()))
+        .map_err(dedupe)
+}
+
+/// Writes `bytes` to `path` atomically (temporary file + rename).
+pub fn write(path: &Path, bytes: impl AsRef<[u8]>) -> Result<()> {
+    write_with(path, |tmp| {
+        std::fs::write(tmp, bytes.as_ref()).map_err(anyhow::Error::from)
+    })
+}
+
+/// Reads a whole file; the error names it.
+pub fn read(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))
+}
+
+/// `cannot write X: cannot write X: why` -> `cannot write X: why`.
+fn dedupe(e: anyhow::Error) -> anyhow::Error {
+    let msgs: Vec<String> = e.chain().map(|c| c.to_string()).collect();
+    if msgs.len() >= 2 && msgs[0] == msgs[1] {
+        let mut it = msgs.into_iter().skip(1).collect::<Vec<_>>();
+        let last = it.pop().unwrap_or_default();
+        let mut out = anyhow::anyhow!(last);
+        while let Some(m) = it.pop() {
+            out = out.context(m);
+        }
+        return out;
+    }
+    e
+}
+
+/// One path as the file system sees it, for comparing: canonical when it exists, else its
+/// canonical parent joined with the name.
+fn resolved(p: &Path) -> PathBuf {
+    if let Ok(c) = p.canonicalize() {
+        return c;
+    }
+    let parent = p.parent().filter(|q| !q.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    match (parent.canonicalize(), p.file_name()) {
+        (Ok(d), Some(n)) => d.join(n),
+        _ => p.to_path_buf(),
+    }
+}
+
+/// Refuses, before any work, an output that names an input (or lies inside an input folder) or
+/// another output. `inputs` and `outputs` are `(flag, path)`.
+pub fn check_outputs(inputs: &[(&str, &Path)], outputs: &[(&str, &Path)]) -> Result<()> {
+    for (i, (of, o)) in outputs.iter().enumerate() {
+        let ro = resolved(o);
+        for (inf, inp) in inputs {
+            let ri = resolved(inp);
+            if ro == ri {
+                bail!(
+                    "{of} {} is the same file as {inf}: refusing to overwrite an input",
+                    o.display()
+                );
+            }
+        }
+        for (of2, o2) in &outputs[i + 1..] {
+            if resolved(o2) == ro {
+                bail!("{of} and {of2} both name {}", o.display());
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Refuses an output folder that is an input folder.
+pub fn check_out_dir(inputs: &[(&str, &Path)], flag: &str, out: &Path) -> Result<()> {
+    let ro = resolved(out);
+    for (inf, inp) in inputs {
+        let ri = resolved(inp);
+        if ro == ri {
+            bail!(
+                "{flag} {} is {inf} {}: refusing to write over an input",
+                out.display(),
+                inp.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_failed_write_leaves_the_old_file_whole() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("a.json");
+        write(&p, b"old").unwrap();
+        let e = write_with(&p, |tmp| {
+            std::fs::write(tmp, b"half")?;
+            bail!("disk full")
+        })
+        .unwrap_err();
+        assert_eq!(std::fs::read(&p).unwrap(), b"old");
+        assert!(format!("{e:#}").contains(&p.display().to_string()), "{e:#}");
+        assert_eq!(std::fs::read_dir(d.path()).unwrap().count(), 1, "temporary file left");
+        write(&p, b"new").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"new");
+    }
+
+    #[test]
+    fn outputs_may_not_name_inputs_or_each_other() {
+        let d = tempfile::tempdir().unwrap();
+        let a = d.path().join("a.png");
+        std::fs::write(&a, b"x").unwrap();
+        let dotted = d.path().join(".").join("a.png");
+        let e = check_outputs(&[("--image", &a)], &[("--png", &dotted)]).unwrap_err();
+        assert!(e.to_string().contains("same file as --image"), "{e}");
+        let b = d.path().join("b.json");
+        let e = check_outputs(&[], &[("--out", &b), ("--report", &b)]).unwrap_err();
+        assert!(e.to_string().contains("both name"), "{e}");
+        check_outputs(&[("--image", &a)], &[("--png", &b)]).unwrap();
+        let e = check_out_dir(&[("--data", d.path())], "--out", &d.path().join(".")).unwrap_err();
+        assert!(e.to_string().contains("refusing"), "{e}");
+    }
+}
