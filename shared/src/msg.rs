@@ -76,6 +76,48 @@ pub enum HostToBoard<'a> {
     ModelCommit,
     Configure(Config),
     GetStatus,
+    /// Chooses the servo bus protocol; the Dynamixel master starts up anew.
+    UseServoBus(ServoBusKind),
+    /// A new Dynamixel joint map (refused as a whole with [`ErrorCode::BadServoMap`]).
+    SetServoMap([crate::dynamixel::map::JointMapEntry; crate::dynamixel::map::MAP_JOINTS]),
+    /// Asks for [`BoardToHost::ServoBus`].
+    GetServoBus,
+}
+
+/// The servo bus's protocol.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ServoBusKind {
+    /// This project's frames ([`BoardToServo`], [`ServoToBoard`]).
+    Framed,
+    /// Dynamixel Protocol 2.0, the board as bus master.
+    Dynamixel,
+}
+
+/// One Dynamixel servo's fault counters.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ServoIdReport {
+    pub id: u8,
+    pub timeouts: u32,
+    /// Answers from the wrong ID, of the wrong length, or with an impossible position.
+    pub bad_answers: u32,
+    /// Statuses with an error number.
+    pub errors: u32,
+    /// Statuses with the Alert bit.
+    pub alerts: u32,
+    pub hardware_error: u8,
+}
+
+/// The Dynamixel bus as the board sees it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ServoBusReport {
+    pub kind: ServoBusKind,
+    /// Start-up done, streaming.
+    pub running: bool,
+    pub servos: [ServoIdReport; crate::dynamixel::map::MAP_JOINTS],
+    /// Packets that failed their CRC or checks on the board's receiver.
+    pub rx_errors: u32,
+    /// Control periods that found an answer still due.
+    pub busy_periods: u32,
 }
 
 /// What the board is doing.
@@ -150,6 +192,15 @@ pub enum ErrorCode {
     ServoTimeout,
     /// A frame arrived but no model is loaded.
     NoModel,
+    /// Dynamixel start-up: no answer to Ping; `detail` is the ID. Nothing moves.
+    ServoMissing,
+    /// A Dynamixel servo refused a start-up step or raised its Alert: `detail` is the ID, its
+    /// Hardware Error Status << 8 and the status's error byte << 16. Motion stops.
+    ServoFault,
+    /// A Dynamixel servo stopped answering; `detail` is the ID.
+    ServoLost,
+    /// A joint map was refused; `detail` is the index of the joint at fault.
+    BadServoMap,
 }
 
 /// Board to host.
@@ -161,6 +212,7 @@ pub enum BoardToHost {
     /// The uploaded model passed validation and runs now.
     ModelAccepted { crc32: u32 },
     Error { code: ErrorCode, detail: u32 },
+    ServoBus(ServoBusReport),
 }
 
 /// One joint's commanded position.
