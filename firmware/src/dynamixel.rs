@@ -1,8 +1,8 @@
 //! The board as master of a Dynamixel Protocol 2.0 bus (half duplex, one transaction at a time).
 //!
 //! - Start-up, one transaction each: Ping every mapped ID (a missing one is reported and the
-//!   start-up begins again after [`RETRY_US`]; nothing moves meanwhile), then per servo: torque
-//!   off, write Max/Min Position Limit (the map's raw limits: the servo refuses a goal outside
+//!   start-up begins again after [`RETRY_US`]; nothing is written, nothing moves), then per
+//!   servo: torque off, write Max/Min Position Limit (the map's raw limits: the servo refuses a goal outside
 //!   them too), read them back and compare, torque on.
 //! - Then every control period: one Sync Write of Goal Position for the joints with a target,
 //!   and one Sync Read of Present Position for every mapped joint. A status with the Alert bit
@@ -438,10 +438,15 @@ impl Master {
                             });
                         if !ok || err & error::ALERT != 0 {
                             self.fail(now_us, BusEvent::StartFailed { id, error: err });
+                        } else if step == 0 && (index as usize) + 1 < MAP_JOINTS {
+                            self.stage = Stage::Start { index: index + 1, step: 0 };
+                        } else if step == 0 {
+                            // Everyone answered the Ping: now configure them one by one.
+                            self.stage = Stage::Start { index: 0, step: 1 };
                         } else if step < 4 {
                             self.stage = Stage::Start { index, step: step + 1 };
                         } else if (index as usize) + 1 < MAP_JOINTS {
-                            self.stage = Stage::Start { index: index + 1, step: 0 };
+                            self.stage = Stage::Start { index: index + 1, step: 1 };
                         } else {
                             self.stage = Stage::Running;
                             self.push_event(BusEvent::Ready);

@@ -424,3 +424,39 @@ mod tests {
         }
     }
 }
+
+#[cfg(test)]
+mod servo_bus_tests {
+    use super::*;
+    use crate::dynamixel::map::default_map;
+    use crate::frame::MAX_PAYLOAD;
+
+    #[test]
+    fn servo_bus_messages_fit_a_frame_and_round_trip() {
+        let mut buf = [0u8; MAX_PAYLOAD];
+        let mut map = default_map();
+        for e in &mut map {
+            (e.zero, e.raw_min, e.raw_max, e.counts_per_rad) = (i32::MIN, i32::MIN, i32::MAX, f32::MAX);
+        }
+        let msg = HostToBoard::SetServoMap(map);
+        let n = postcard::to_slice(&msg, &mut buf).unwrap().len();
+        assert_eq!(postcard::from_bytes::<HostToBoard>(&buf[..n]).unwrap(), msg);
+        let big = ServoIdReport {
+            id: 0xFC,
+            timeouts: u32::MAX,
+            bad_answers: u32::MAX,
+            errors: u32::MAX,
+            alerts: u32::MAX,
+            hardware_error: 0xFF,
+        };
+        let r = BoardToHost::ServoBus(ServoBusReport {
+            kind: ServoBusKind::Dynamixel,
+            running: true,
+            servos: [big; 5],
+            rx_errors: u32::MAX,
+            busy_periods: u32::MAX,
+        });
+        let n = postcard::to_slice(&r, &mut buf).unwrap().len();
+        assert_eq!(postcard::from_bytes::<BoardToHost>(&buf[..n]).unwrap(), r);
+    }
+}

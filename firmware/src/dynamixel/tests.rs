@@ -185,7 +185,8 @@ fn start_up_pings_first_with_the_manual_bytes_then_sets_limits_and_torque() {
         }
     }
     assert_eq!(kinds.len(), 25);
-    assert_eq!(&kinds[..5], &[inst::PING, inst::WRITE, inst::WRITE, inst::READ, inst::WRITE]);
+    assert_eq!(&kinds[..5], &[inst::PING; 5]);
+    assert_eq!(&kinds[5..9], &[inst::WRITE, inst::WRITE, inst::READ, inst::WRITE]);
 }
 
 use msr_shared::dynamixel::inst;
@@ -199,6 +200,7 @@ fn a_missing_servo_is_reported_by_id_and_nothing_moves() {
     assert_eq!(events.iter().filter(|e| **e == BusEvent::Missing { id: 4 }).count(), 3, "{events:?}");
     assert!(complete.is_empty());
     assert!(bus.servos.iter().all(|s| s.goals.is_empty()));
+    assert!(bus.servos.iter().all(|s| s.limits == (0, 4095)), "nothing was written");
     assert!(matches!(m.stage(), Stage::Failed { .. }));
     assert!(m.stats()[3].timeouts >= 3);
 }
