@@ -245,8 +245,7 @@ impl Master {
             }
             for &b in &buf[..n] {
                 self.rx.push(b);
-                loop {
-                    let Some(p) = self.rx.next() else { break };
+                while let Some(p) = self.rx.next_packet() {
                     // Statuses only: an instruction is our own echo on a half-duplex line.
                     let Some(s) = Status::of(&p) else { continue };
                     let (id, err, len) = (s.id, s.error, s.params.len());
@@ -404,10 +403,8 @@ impl Master {
                     self.push_event(BusEvent::Lost { id });
                 }
                 let mut order = [culprit; MAP_JOINTS];
-                let mut k = 0;
-                for &j in self.order.iter().filter(|&&j| j != culprit) {
+                for (k, &j) in self.order.iter().filter(|&&j| j != culprit).enumerate() {
                     order[k] = j;
-                    k += 1;
                 }
                 self.order = order;
             }

@@ -337,7 +337,7 @@ impl RxCounters {
 }
 
 /// A resynchronising receiver with room for one packet of up to `N` bytes: push bytes, then
-/// take packets with [`Receiver::next`] until it returns `None`.
+/// take packets with [`Receiver::next_packet`] until it returns `None`.
 pub struct Receiver<const N: usize> {
     buf: [u8; N],
     len: usize,
@@ -375,7 +375,7 @@ impl<const N: usize> Receiver<N> {
         self.len - self.consumed
     }
 
-    /// Adds one received byte. Call [`Receiver::next`] until `None` after each push, so that
+    /// Adds one received byte. Call [`Receiver::next_packet`] until `None` after each push, so that
     /// the buffer never holds more than one partial packet.
     pub fn push(&mut self, b: u8) {
         self.drop_consumed();
@@ -396,7 +396,7 @@ impl<const N: usize> Receiver<N> {
     }
 
     /// The next complete packet, or `None` when more bytes are needed.
-    pub fn next(&mut self) -> Option<Packet<'_>> {
+    pub fn next_packet(&mut self) -> Option<Packet<'_>> {
         self.drop_consumed();
         loop {
             // `parse` borrows the buffer mutably; decide with its result's lengths first.
@@ -500,7 +500,7 @@ impl<'a> Instruction<'a> {
                 let len = u16_at(2);
                 let data = &q[4..];
                 let entry = len as usize + 1;
-                if len == 0 || data.is_empty() || data.len() % entry != 0 {
+                if len == 0 || data.is_empty() || !data.len().is_multiple_of(entry) {
                     Instruction::Other(p.instruction)
                 } else {
                     Instruction::SyncWrite { addr: u16_at(0), len, data }

@@ -195,7 +195,7 @@ impl DxlBus {
             self.rx.push(b);
             // Parse into an owned copy so that answering can change the registers.
             while let Some((id, instruction, params)) =
-                self.rx.next().map(|p| (p.id, p.instruction, p.params.to_vec()))
+                self.rx.next_packet().map(|p| (p.id, p.instruction, p.params.to_vec()))
             {
                 let p = dxl::Packet { id, instruction, params: &params };
                 self.on_packet(t, &p, servos);
@@ -475,7 +475,7 @@ pub fn parse_status(bytes: &[u8]) -> Vec<(u8, u8, Vec<u8>)> {
     let mut out = Vec::new();
     for &b in bytes {
         rx.push(b);
-        while let Some(p) = rx.next() {
+        while let Some(p) = rx.next_packet() {
             if let Some(s) = Status::of(&p) {
                 out.push((s.id, s.error, s.params.to_vec()));
             }

@@ -127,7 +127,7 @@ impl Write for Bus {
         self.written.extend_from_slice(buf);
         for &b in buf {
             self.rx.push(b);
-            while let Some((id, ins, params)) = self.rx.next().map(|p| (p.id, p.instruction, p.params.to_vec())) {
+            while let Some((id, ins, params)) = self.rx.next_packet().map(|p| (p.id, p.instruction, p.params.to_vec())) {
                 self.on_packet(Packet { id, instruction: ins, params: &params });
             }
         }
@@ -145,7 +145,7 @@ fn run(m: &mut Master, bus: &mut Bus, from_us: u64, ms: u64, targets: Option<[Op
     let mut complete = vec![];
     for k in 0..ms {
         let now = from_us + k * 1000;
-        if now % 10_000 == 0 {
+        if now.is_multiple_of(10_000) {
             m.period(now, bus, targets);
         }
         let p = m.poll(now, bus);
@@ -178,7 +178,7 @@ fn start_up_pings_first_with_the_manual_bytes_then_sets_limits_and_torque() {
     let mut kinds = vec![];
     for &b in &bus.written {
         rx.push(b);
-        while let Some(p) = rx.next() {
+        while let Some(p) = rx.next_packet() {
             if p.instruction != inst::SYNC_READ && p.instruction != inst::SYNC_WRITE {
                 kinds.push(p.instruction);
             }
@@ -266,7 +266,7 @@ fn a_servo_that_stops_answering_is_reported_and_goes_last() {
     let mut rx = Receiver::<256>::new();
     for &b in &bus.written {
         rx.push(b);
-        while let Some(p) = rx.next() {
+        while let Some(p) = rx.next_packet() {
             if let Instruction::SyncRead { ids, .. } = Instruction::of(&p) {
                 assert_eq!(ids, &[1, 3, 4, 6, 2]);
             }

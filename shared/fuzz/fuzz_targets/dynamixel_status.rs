@@ -9,7 +9,7 @@ fuzz_target!(|data: &[u8]| {
     let mut rx = Receiver::<256>::new();
     for &b in data {
         rx.push(b);
-        while let Some(p) = rx.next() {
+        while let Some(p) = rx.next_packet() {
             let _ = Instruction::of(&p).sync_entries().count();
             if let Some(s) = Status::of(&p) {
                 assert_eq!(s.value(4).is_some(), s.params.len() == 4);
@@ -23,7 +23,7 @@ fuzz_target!(|data: &[u8]| {
             let mut got = None;
             for &b in &wire[..n] {
                 again.push(b);
-                if let Some(q) = again.next() {
+                if let Some(q) = again.next_packet() {
                     got = Some((q.id, q.instruction, q.params.to_vec()));
                 }
             }

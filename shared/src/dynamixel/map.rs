@@ -120,9 +120,8 @@ impl JointMapEntry {
             return Err(MapError::BadId { joint });
         }
         let max_raw = COUNTS_PER_TURN as i32 - 1;
-        if !(self.counts_per_rad.is_finite() && self.counts_per_rad > 0.0)
-            || !(0..=max_raw).contains(&self.zero)
-        {
+        let scale_ok = self.counts_per_rad.is_finite() && self.counts_per_rad > 0.0;
+        if !(scale_ok && (0..=max_raw).contains(&self.zero)) {
             return Err(MapError::BadScale { joint });
         }
         if self.raw_min > self.raw_max || self.raw_min < 0 || self.raw_max > max_raw {

@@ -51,7 +51,7 @@ fn one(bytes: &[u8]) -> (u8, u8, Vec<u8>) {
     let mut got = Vec::new();
     for &b in bytes {
         rx.push(b);
-        while let Some(p) = rx.next() {
+        while let Some(p) = rx.next_packet() {
             got.push((p.id, p.instruction, p.params.to_vec()));
         }
     }
@@ -153,7 +153,7 @@ fn stuffing_both_ways() {
     let mut rx = Receiver::<64>::new();
     for &b in &bad {
         rx.push(b);
-        assert!(rx.next().is_none());
+        assert!(rx.next_packet().is_none());
     }
     assert_eq!(rx.counters().bad_stuffing, 1);
 }
@@ -170,7 +170,7 @@ fn resynchronises_after_noise_and_damage() {
     let mut got = Vec::new();
     for &b in &stream {
         rx.push(b);
-        while let Some(p) = rx.next() {
+        while let Some(p) = rx.next_packet() {
             got.push(Status::of(&p).and_then(|s| s.value(4)));
         }
     }
@@ -189,7 +189,7 @@ fn refuses_bad_ids_lengths_and_oversize() {
     ] {
         for &b in bytes {
             rx.push(b);
-            assert!(rx.next().is_none());
+            assert!(rx.next_packet().is_none());
         }
     }
     let c = rx.counters();
@@ -201,7 +201,7 @@ fn refuses_bad_ids_lengths_and_oversize() {
     let mut rx = Receiver::<16>::new();
     for &b in &p {
         rx.push(b);
-        assert!(rx.next().is_none());
+        assert!(rx.next_packet().is_none());
     }
     assert_eq!(rx.counters().bad_length, 1);
     // Encoding refuses IDs that are not IDs and buffers that are too small.
@@ -216,7 +216,7 @@ fn statuses(bytes: &[u8]) -> Vec<(u8, Option<u32>)> {
     let mut out = Vec::new();
     for &b in bytes {
         rx.push(b);
-        while let Some(p) = rx.next() {
+        while let Some(p) = rx.next_packet() {
             if let Some(s) = Status::of(&p) {
                 out.push((s.id, s.value(4)));
             }

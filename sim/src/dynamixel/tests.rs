@@ -203,7 +203,7 @@ mod with_the_board {
                             }
                         }
                     }
-                    if w.now_us % 10_000 == 0 {
+                    if w.now_us.is_multiple_of(10_000) {
                         goals.push((w.now_us, w.servos.dynamixel().unwrap().counters().goals));
                     }
                     Flow::Continue
