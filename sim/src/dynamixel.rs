@@ -484,5 +484,7 @@ pub fn parse_status(bytes: &[u8]) -> Vec<(u8, u8, Vec<u8>)> {
     out
 }
 
+pub mod serve;
+
 #[cfg(test)]
 mod tests;
