@@ -78,7 +78,8 @@ pub enum HostToBoard<'a> {
     GetStatus,
     /// Chooses the servo bus protocol; the Dynamixel master starts up anew.
     UseServoBus(ServoBusKind),
-    /// A new Dynamixel joint map (refused as a whole with [`ErrorCode::BadServoMap`]).
+    /// A new Dynamixel joint map (refused as a whole with [`ErrorCode::BadServoMap`]); the
+    /// servo bus then speaks Dynamixel, and its start-up runs again.
     SetServoMap([crate::dynamixel::map::JointMapEntry; crate::dynamixel::map::MAP_JOINTS]),
     /// Asks for [`BoardToHost::ServoBus`].
     GetServoBus,
