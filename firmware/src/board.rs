@@ -4,6 +4,7 @@
 //! in-process), QEMU and the real board run the same code.
 
 use crate::confirm::Confirm;
+use crate::dynamixel::{BusEvent, Master, Polled};
 use crate::link::{
     read_ready, Assembly, AssemblyError, Rx, Tx, Watchdog, FACE_TIMEOUT_US, READ_CHUNK,
     SERVO_TIMEOUT_US,
@@ -17,7 +18,7 @@ use msr_shared::blob::{Merge, Model};
 use msr_shared::joints::REACH_JOINTS;
 use msr_shared::msg::{
     BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameHeader, HostToBoard,
-    JointTarget, Mode, ServoToBoard, Status,
+    JointTarget, Mode, ServoBusKind, ServoBusReport, ServoIdReport, ServoToBoard, Status,
 };
 
 /// Most bytes taken from one link per poll, so a flood cannot starve the control loop.
@@ -56,6 +57,9 @@ struct Core<S: ModelStore> {
     detections: u32,
     reaches: u32,
     clamped_targets: u32,
+    /// The servo bus speaks Dynamixel Protocol 2.0 with this master (`None`: framed).
+    dxl: Option<Master>,
+    dxl_stopped: bool,
 }
 
 /// The firmware. `S` holds the model blobs (see [`ModelStore`]).
@@ -96,8 +100,21 @@ impl<S: ModelStore> Board<S> {
                 detections: 0,
                 reaches: 0,
                 clamped_targets: 0,
+                dxl: None,
+                dxl_stopped: false,
             },
         }
+    }
+
+    /// Chooses the servo bus: framed (`None`) or Dynamixel Protocol 2.0 with this master.
+    pub fn set_servo_bus(&mut self, master: Option<Master>) {
+        self.core.dxl = master;
+        self.core.dxl_stopped = false;
+    }
+
+    /// The Dynamixel master, when the servo bus speaks Protocol 2.0.
+    pub fn dynamixel(&self) -> Option<&Master> {
+        self.core.dxl.as_ref()
     }
 
     /// One step: `now_us` is a monotonic clock in microseconds.
@@ -113,6 +130,11 @@ impl<S: ModelStore> Board<S> {
         }
         let mut buf = [0u8; READ_CHUNK];
         let mut taken = 0;
+        if let Some(m) = core.dxl.as_mut() {
+            let polled = m.poll(now_us, servo);
+            core.on_positions(now_us, polled, host);
+            taken = MAX_BYTES_PER_POLL; // The master has read the bus.
+        }
         while taken < MAX_BYTES_PER_POLL {
             let n = read_ready(servo, &mut buf);
             if n == 0 {
@@ -217,7 +239,8 @@ impl<S: ModelStore> Core<S> {
     }
 
     fn mode(&self) -> Mode {
-        if self.face_wd.tripped() || self.servo_wd.tripped() {
+        let faulted = self.dxl.as_ref().is_some_and(|m| m.faulted());
+        if self.face_wd.tripped() || self.servo_wd.tripped() || faulted {
             return Mode::Halted;
         }
         if self.loaded.is_none() {
@@ -242,7 +265,9 @@ impl<S: ModelStore> Core<S> {
             servo_link: *servo_rx.counters(),
             face_watchdog_trips: self.face_wd.trips,
             servo_watchdog_trips: self.servo_wd.trips,
-            clamped_targets: self.clamped_targets,
+            clamped_targets: self
+                .clamped_targets
+                .saturating_add(self.dxl.as_ref().map_or(0, |m| m.refused_targets)),
         }
     }
 
@@ -267,9 +292,13 @@ impl<S: ModelStore> Core<S> {
                 }
             }
         }
-        if !any {
-            return;
+        if any {
+            self.feed_servos(now_us);
         }
+    }
+
+    /// Fresh positions of the servos arrived: the watchdog is fed, streaming (re)starts.
+    fn feed_servos(&mut self, now_us: u64) {
         let recovered = self.servo_wd.feed(now_us);
         if self.motion.commanded().is_none() {
             if let [Some(a), Some(b), Some(c), Some(d), Some(e)] = self.measured {
@@ -342,6 +371,75 @@ impl<S: ModelStore> Core<S> {
                     self.error(host, ErrorCode::BadConfig, 0);
                 }
             }
+            HostToBoard::UseServoBus(kind) => {
+                self.dxl = match kind {
+                    ServoBusKind::Framed => None,
+                    ServoBusKind::Dynamixel => Some(Master::new()),
+                };
+                self.dxl_stopped = false;
+            }
+            HostToBoard::SetServoMap(map) => {
+                let m = self.dxl.get_or_insert_with(Master::new);
+                if let Err(e) = m.set_map(map) {
+                    let at = map.iter().position(|j| Some(j.joint) == map_error_joint(e));
+                    self.error(host, ErrorCode::BadServoMap, at.map_or(u32::MAX, |i| i as u32));
+                }
+            }
+            HostToBoard::GetServoBus => {
+                let r = self.servo_bus_report();
+                self.host_tx.send(host, &BoardToHost::ServoBus(r));
+            }
+        }
+    }
+
+    fn servo_bus_report(&self) -> ServoBusReport {
+        let mut r = ServoBusReport {
+            kind: ServoBusKind::Framed,
+            running: false,
+            servos: Default::default(),
+            rx_errors: 0,
+            busy_periods: 0,
+        };
+        if let Some(m) = &self.dxl {
+            r.kind = ServoBusKind::Dynamixel;
+            r.running = m.stage() == crate::dynamixel::Stage::Running;
+            for (o, s) in r.servos.iter_mut().zip(m.stats()) {
+                *o = ServoIdReport {
+                    id: s.id,
+                    timeouts: s.timeouts,
+                    bad_answers: s.bad_answers,
+                    errors: s.errors,
+                    alerts: s.alerts,
+                    hardware_error: s.hardware_error,
+                };
+            }
+            r.rx_errors = m.rx_counters().errors();
+            r.busy_periods = m.busy_periods;
+        }
+        r
+    }
+
+    /// What a Dynamixel poll brought: positions, and events for the host.
+    fn on_positions<H: Write>(&mut self, now_us: u64, polled: Polled, host: &mut H) {
+        for (m, p) in self.measured.iter_mut().zip(polled.positions) {
+            if let Some(p) = p {
+                *m = Some(p);
+            }
+        }
+        while let Some(e) = self.dxl.as_mut().and_then(|m| m.event()) {
+            let (code, detail) = match e {
+                BusEvent::Ready => continue,
+                BusEvent::Missing { id } => (ErrorCode::ServoMissing, id as u32),
+                BusEvent::StartFailed { id, error } => (ErrorCode::ServoFault, id as u32 | (error as u32) << 16),
+                BusEvent::Alert { id, hardware } => (ErrorCode::ServoFault, id as u32 | (hardware as u32) << 8),
+                BusEvent::Lost { id } => (ErrorCode::ServoLost, id as u32),
+            };
+            self.error(host, code, detail);
+        }
+        // Only a Sync Read with every position feeds the watchdog: one silent servo is enough
+        // to stop the motion once the watchdog's period has passed.
+        if polled.complete {
+            self.feed_servos(now_us);
         }
     }
 
@@ -449,6 +547,9 @@ impl<S: ModelStore> Core<S> {
 
     /// One control period.
     fn tick<V: Write>(&mut self, now_us: u64, servo: &mut V) {
+        if self.dxl.is_some() {
+            return self.tick_dynamixel(now_us, servo);
+        }
         let time_ms = (now_us / 1000) as u32;
         let stale = self
             .servo_wd
@@ -490,6 +591,48 @@ impl<S: ModelStore> Core<S> {
         }
         self.servo_tx
             .send(servo, &BoardToServo::Targets { time_ms, targets });
+    }
+
+    /// One control period on the Dynamixel bus: goals for the posture (none while a watchdog
+    /// holds or a servo reports a hardware error), and the positions read back.
+    fn tick_dynamixel<V: Write>(&mut self, now_us: u64, servo: &mut V) {
+        let faulted = self.dxl.as_ref().is_some_and(|m| m.faulted());
+        if faulted && !self.dxl_stopped {
+            self.dxl_stopped = true;
+            self.motion.stop();
+        }
+        let posture = if self.servo_wd.tripped() || faulted {
+            None
+        } else if self.face_wd.tripped() {
+            self.motion.hold_still()
+        } else {
+            self.motion.tick()
+        };
+        let targets = posture.map(|p| {
+            let mut t = [None; REACH_JOINTS.len()];
+            for ((o, j), a) in t.iter_mut().zip(REACH_JOINTS).zip(p) {
+                // Radians first; the master checks raw counts after conversion.
+                match j.validate(a) {
+                    Ok(a) => *o = Some(a),
+                    Err(_) => self.clamped_targets = self.clamped_targets.saturating_add(1),
+                }
+            }
+            t
+        });
+        if let Some(m) = self.dxl.as_mut() {
+            m.period(now_us, servo, targets);
+        }
+    }
+}
+
+/// The joint a map error names.
+fn map_error_joint(e: msr_shared::dynamixel::map::MapError) -> Option<msr_shared::joints::Joint> {
+    use msr_shared::dynamixel::map::MapError::*;
+    match e {
+        BadId { joint } | BadJoint { joint } | BadScale { joint } | BadRawLimits { joint }
+        | LeavesLimits { joint } | TargetOutOfRange { joint } | RawOutOfRange { joint, .. } => {
+            Some(joint)
+        }
     }
 }
 

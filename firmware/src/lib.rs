@@ -70,6 +70,7 @@ pub mod blobs;
 pub mod board;
 pub mod confirm;
 pub mod decoder;
+pub mod dynamixel;
 pub mod golden;
 pub mod link;
 pub mod model;

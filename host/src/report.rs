@@ -316,6 +316,8 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
 
     let mt = &report["mirror_test"];
     let _ = write!(h, "<h2>Mirror-test episodes</h2><p>Each trial: the robot at home, a mark appears at 0.4 s (none in 20 % of trials), frames stream over the emulated 921600-baud host link, the board detects, confirms (3 of 5 frames) and reaches at speed fraction 0.1; the sim judges by forward kinematics (fingertip within 20 mm of the mark's point over 1 s of the hold).</p>");
+    let bus = mt["inproc"]["servo_bus"].as_str().unwrap_or("framed");
+    let _ = write!(h, "<p>Servo bus: <b>{bus}</b>{}</p>", if bus == "dynamixel" { " (Dynamixel Protocol 2.0 at 1 Mbaud: the board is the bus master of emulated XM430-W350 servos, with one Sync Write of goals and one Sync Read of positions every 10 ms)" } else { " (the project's framed servo messages)" });
     let mut sums = vec![mt["inproc"].clone()];
     if mt["qemu"].is_object() && mt["qemu"].get("error").is_none() {
         sums.push(mt["qemu"].clone());

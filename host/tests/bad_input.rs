@@ -587,16 +587,17 @@ fn trial(index: usize, mark: Option<&str>, ended_before_mark: bool, touched: boo
         watchdog_trips: 0,
         sim_s: 0.0,
         wall_s: 0.0,
+        bus_bytes: Vec::new(),
     }
 }
 
 #[test]
 fn mirror_test_summary_counts_early_ends_apart_and_has_no_rate_without_marks() {
-    use msr_host::episode::{summarise, Backend};
+    use msr_host::episode::{summarise, Backend, ServoBus};
     // Was: a trial that ended before the mark appeared counted as a no-mark trial, and a touch
     // rate of 0.0 for 0 marked trials.
     let t = [trial(0, None, true, false), trial(1, None, false, false)];
-    let s = summarise(Backend::Inproc, msr_sim::Robot::Red, &t);
+    let s = summarise(Backend::Inproc, msr_sim::Robot::Red, ServoBus::Framed, &t);
     assert_eq!((s.marked_trials, s.no_mark_trials, s.ended_before_mark), (0, 1, 1));
     assert_eq!(s.touch_rate, None);
     let json = serde_json::to_value(&s).unwrap();
@@ -604,7 +605,7 @@ fn mirror_test_summary_counts_early_ends_apart_and_has_no_rate_without_marks() {
     let text = msr_host::cmd::mirror_test::readable(&s);
     assert!(text.contains("touched 0/0 marked (- %)") && text.contains("1 ended before the mark appeared"), "{text}");
     let t = [trial(0, Some("red dot"), false, true), trial(1, Some("red dot"), false, false)];
-    assert_eq!(summarise(Backend::Inproc, msr_sim::Robot::Red, &t).touch_rate, Some(0.5));
+    assert_eq!(summarise(Backend::Inproc, msr_sim::Robot::Red, ServoBus::Framed, &t).touch_rate, Some(0.5));
 }
 
 #[test]

@@ -4,6 +4,8 @@
 //! - [`frame`]: how bytes become messages on either serial link: postcard inside, a header with
 //!   protocol version and sequence number, a CRC-16, COBS around it, `0x00` between frames.
 //! - [`msg`]: the messages of the host link (host <-> board) and of the servo bus (board <-> servos).
+//! - [`dynamixel`]: Dynamixel Protocol 2.0 packets (the servo bus of a real robot) and the
+//!   X-series control table.
 //! - [`blob`]: the versioned model blob the board runs, with a validating, borrowing parser.
 //! - `host_port` (`std`): the PC's side of the host link, the one encoder of face crops and
 //!   model uploads.
@@ -13,6 +15,7 @@
 #![forbid(unsafe_code)]
 
 pub mod blob;
+pub mod dynamixel;
 pub mod frame;
 pub mod joints;
 pub mod msg;

@@ -76,6 +76,49 @@ pub enum HostToBoard<'a> {
     ModelCommit,
     Configure(Config),
     GetStatus,
+    /// Chooses the servo bus protocol; the Dynamixel master starts up anew.
+    UseServoBus(ServoBusKind),
+    /// A new Dynamixel joint map (refused as a whole with [`ErrorCode::BadServoMap`]); the
+    /// servo bus then speaks Dynamixel, and its start-up runs again.
+    SetServoMap([crate::dynamixel::map::JointMapEntry; crate::dynamixel::map::MAP_JOINTS]),
+    /// Asks for [`BoardToHost::ServoBus`].
+    GetServoBus,
+}
+
+/// The servo bus's protocol.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ServoBusKind {
+    /// This project's frames ([`BoardToServo`], [`ServoToBoard`]).
+    Framed,
+    /// Dynamixel Protocol 2.0, the board as bus master.
+    Dynamixel,
+}
+
+/// One Dynamixel servo's fault counters.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ServoIdReport {
+    pub id: u8,
+    pub timeouts: u32,
+    /// Answers from the wrong ID, of the wrong length, or with an impossible position.
+    pub bad_answers: u32,
+    /// Statuses with an error number.
+    pub errors: u32,
+    /// Statuses with the Alert bit.
+    pub alerts: u32,
+    pub hardware_error: u8,
+}
+
+/// The Dynamixel bus as the board sees it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct ServoBusReport {
+    pub kind: ServoBusKind,
+    /// Start-up done, streaming.
+    pub running: bool,
+    pub servos: [ServoIdReport; crate::dynamixel::map::MAP_JOINTS],
+    /// Packets that failed their CRC or checks on the board's receiver.
+    pub rx_errors: u32,
+    /// Control periods that found an answer still due.
+    pub busy_periods: u32,
 }
 
 /// What the board is doing.
@@ -150,6 +193,15 @@ pub enum ErrorCode {
     ServoTimeout,
     /// A frame arrived but no model is loaded.
     NoModel,
+    /// Dynamixel start-up: no answer to Ping; `detail` is the ID. Nothing moves.
+    ServoMissing,
+    /// A Dynamixel servo refused a start-up step or raised its Alert: `detail` is the ID, its
+    /// Hardware Error Status << 8 and the status's error byte << 16. Motion stops.
+    ServoFault,
+    /// A Dynamixel servo stopped answering; `detail` is the ID.
+    ServoLost,
+    /// A joint map was refused; `detail` is the index of the joint at fault.
+    BadServoMap,
 }
 
 /// Board to host.
@@ -161,6 +213,7 @@ pub enum BoardToHost {
     /// The uploaded model passed validation and runs now.
     ModelAccepted { crc32: u32 },
     Error { code: ErrorCode, detail: u32 },
+    ServoBus(ServoBusReport),
 }
 
 /// One joint's commanded position.
@@ -370,5 +423,41 @@ mod tests {
             let _ = postcard::from_bytes::<BoardToServo>(&bytes);
             let _ = postcard::from_bytes::<ServoToBoard>(&bytes);
         }
+    }
+}
+
+#[cfg(test)]
+mod servo_bus_tests {
+    use super::*;
+    use crate::dynamixel::map::default_map;
+    use crate::frame::MAX_PAYLOAD;
+
+    #[test]
+    fn servo_bus_messages_fit_a_frame_and_round_trip() {
+        let mut buf = [0u8; MAX_PAYLOAD];
+        let mut map = default_map();
+        for e in &mut map {
+            (e.zero, e.raw_min, e.raw_max, e.counts_per_rad) = (i32::MIN, i32::MIN, i32::MAX, f32::MAX);
+        }
+        let msg = HostToBoard::SetServoMap(map);
+        let n = postcard::to_slice(&msg, &mut buf).unwrap().len();
+        assert_eq!(postcard::from_bytes::<HostToBoard>(&buf[..n]).unwrap(), msg);
+        let big = ServoIdReport {
+            id: 0xFC,
+            timeouts: u32::MAX,
+            bad_answers: u32::MAX,
+            errors: u32::MAX,
+            alerts: u32::MAX,
+            hardware_error: 0xFF,
+        };
+        let r = BoardToHost::ServoBus(ServoBusReport {
+            kind: ServoBusKind::Dynamixel,
+            running: true,
+            servos: [big; 5],
+            rx_errors: u32::MAX,
+            busy_periods: u32::MAX,
+        });
+        let n = postcard::to_slice(&r, &mut buf).unwrap().len();
+        assert_eq!(postcard::from_bytes::<BoardToHost>(&buf[..n]).unwrap(), r);
     }
 }

@@ -5,7 +5,8 @@
 //! - [`kin`]: forward and inverse kinematics, the touch judge.
 //! - [`render`], [`looks`], [`marks`]: mirror-view frames of the `red` and `skin` robots, marks.
 //! - [`dataset`]: datasets in the layout of [`layout`], reach training pairs.
-//! - [`servo`]: emulated servos on the servo bus; [`link`]: baud-paced links and a fault layer;
+//! - [`servo`]: emulated servos on the servo bus, framed or (see [`dynamixel`]) as Dynamixel
+//!   X-series servos on Protocol 2.0; [`link`]: baud-paced links and a fault layer;
 //!   [`pty`]: a pseudo-terminal for `serialport` hosts.
 //! - [`world`]: the world and the firmware on two threads in lock-step simulated time;
 //!   [`camera`]: frames of the running world as host-link messages.
@@ -15,6 +16,7 @@
 pub mod body;
 pub mod camera;
 pub mod dataset;
+pub mod dynamixel;
 pub mod kin;
 pub mod layout;
 pub mod link;

@@ -283,6 +283,24 @@ impl LinkEnd {
         }
     }
 
+    /// Queues bytes to start on the line at `at_us`, or at this end's time if that is later
+    /// (a byte sent at t still arrives strictly after t).
+    pub fn send_at(&mut self, at_us: u64, bytes: &[u8]) {
+        lock(&self.tx).write(at_us.max(self.now_us), bytes);
+    }
+
+    /// Everything that has arrived by this end's time, each byte with its arrival time (us).
+    pub fn receive_timed(&mut self) -> Vec<(u64, u8)> {
+        let mut lane = lock(&self.rx);
+        let mut out = Vec::new();
+        while lane.ready(self.now_us) {
+            let (t_ns, b) = lane.queue.pop_front().expect("ready");
+            out.push((t_ns.div_ceil(1000), b));
+        }
+        lane.delivered += out.len() as u64;
+        out
+    }
+
     /// When the line will have sent everything this end queued (simulated microseconds).
     pub fn tx_idle_at_us(&self) -> u64 {
         (lock(&self.tx).line_free_ns / 1000.0).ceil() as u64

@@ -57,11 +57,13 @@ pub struct Servo {
     pub target: f64,
     pub stiff: bool,
     pub faults: u8,
+    /// Velocity over the last integration step (rad/s).
+    pub velocity: f64,
     last_target_us: Option<u64>,
 }
 
 impl Servo {
-    fn new(joint: Joint, position: f64, cfg: &ServoConfig) -> Option<Servo> {
+    pub(crate) fn new(joint: Joint, position: f64, cfg: &ServoConfig) -> Option<Servo> {
         let l = joint.limits()?;
         let (min, max) = (l.min as f64, l.max as f64);
         // A start angle that is not finite starts at 0 (clamped), never as NaN.
@@ -75,6 +77,7 @@ impl Servo {
             target: position,
             stiff: true,
             faults: 0,
+            velocity: 0.0,
             last_target_us: None,
         })
     }
@@ -84,14 +87,24 @@ impl Servo {
         quantise(self.position)
     }
 
+    /// A new goal, kept inside the joint's limits (the caller has checked it).
+    pub(crate) fn set_target(&mut self, a: f64) {
+        if a.is_finite() {
+            self.target = a.clamp(self.min, self.max);
+        }
+    }
+
     fn step(&mut self, dt: f64, tau: f64) {
         if !self.stiff {
+            self.velocity = 0.0;
             return;
         }
         let v = ((self.target - self.position) / tau).clamp(-self.max_velocity, self.max_velocity);
         let next = self.position + v * dt;
         // First order never overshoots; the clamp keeps a limit-hugging target inside.
-        self.position = next.clamp(self.min, self.max);
+        let next = next.clamp(self.min, self.max);
+        self.velocity = (next - self.position) / dt;
+        self.position = next;
     }
 }
 
@@ -126,6 +139,8 @@ pub struct ServoBus {
     now_us: u64,
     next_report_us: u64,
     report_now: bool,
+    /// Speaking Dynamixel Protocol 2.0 instead of the framed protocol.
+    dxl: Option<crate::dynamixel::DxlBus>,
 }
 
 impl ServoBus {
@@ -148,7 +163,37 @@ impl ServoBus {
             now_us: 0,
             next_report_us: 0,
             report_now: false,
+            dxl: None,
         }
+    }
+
+    /// The same servos as emulated Dynamixel X-series servos on a Protocol 2.0 bus (see
+    /// [`crate::dynamixel`]): only the joints of `cfg.map` are on that bus.
+    pub fn with_dynamixel(mut self, cfg: crate::dynamixel::DxlConfig) -> Result<ServoBus, String> {
+        self.dxl = Some(crate::dynamixel::DxlBus::new(cfg)?);
+        Ok(self)
+    }
+
+    /// The Protocol 2.0 side, when the bus speaks it.
+    pub fn dynamixel(&self) -> Option<&crate::dynamixel::DxlBus> {
+        self.dxl.as_ref()
+    }
+
+    /// Feeds bytes with their arrival times (us) at `now_us`; returns the answers to send, each
+    /// with the time it starts on the line (never before `now_us`: the caller sends it then).
+    pub fn exchange(&mut self, bytes: &[(u64, u8)], now_us: u64) -> Vec<(u64, Vec<u8>)> {
+        let Some(mut d) = self.dxl.take() else {
+            let plain: Vec<u8> = bytes.iter().map(|&(_, b)| b).collect();
+            self.receive(&plain, now_us);
+            return self.step(now_us).map(|r| (now_us, r)).into_iter().collect();
+        };
+        // The dynamics step on the tick, as on the framed bus; a read answers the state now.
+        self.advance(now_us);
+        d.faults_at(now_us, &mut self.servos);
+        d.receive(bytes, &mut self.servos);
+        let answers = d.take_answers();
+        self.dxl = Some(d);
+        answers
     }
 
     /// The published home posture for the reach joints, everything else at 0 (LElbowYaw at the

@@ -32,6 +32,8 @@ pub struct WorldConfig {
     /// Servo bus: end A is the firmware, end B the servos.
     pub servo_link: LinkConfig,
     pub servo: ServoConfig,
+    /// The servos speak Dynamixel Protocol 2.0 (`None`: the framed protocol).
+    pub dynamixel: Option<crate::dynamixel::DxlConfig>,
     /// Simulated seconds per wall-clock second, for talking to real-time peers (a PTY);
     /// `None` runs as fast as it can.
     pub pace: Option<f64>,
@@ -44,6 +46,7 @@ impl Default for WorldConfig {
             host_link: LinkConfig::default(),
             servo_link: LinkConfig { seed: 1, ..LinkConfig::default() },
             servo: ServoConfig::default(),
+            dynamixel: None,
             pace: None,
         }
     }
@@ -72,10 +75,9 @@ impl World {
         let now = self.now_us;
         self.servo_end.set_time(now);
         self.host.set_time(now);
-        let bytes = self.servo_end.receive();
-        self.servos.receive(&bytes, now);
-        if let Some(report) = self.servos.step(now) {
-            self.servo_end.send(&report);
+        let bytes = self.servo_end.receive_timed();
+        for (at, answer) in self.servos.exchange(&bytes, now) {
+            self.servo_end.send_at(at, &answer);
         }
     }
 
@@ -144,9 +146,13 @@ where
     }
     let (host_world, mut host_fw) = link(&cfg.host_link).map_err(RunError::Config)?;
     let (mut servo_fw, servo_world) = link(&cfg.servo_link).map_err(RunError::Config)?;
+    let mut servos = ServoBus::at_home(cfg.servo);
+    if let Some(d) = &cfg.dynamixel {
+        servos = servos.with_dynamixel(d.clone()).map_err(RunError::Config)?;
+    }
     let mut world = World {
         now_us: 0,
-        servos: ServoBus::at_home(cfg.servo),
+        servos,
         host: host_world,
         servo_end: servo_world,
     };

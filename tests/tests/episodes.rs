@@ -12,7 +12,7 @@ fn run(robot: Robot, cfg: &EpisodeConfig, n: usize, seed: u64) -> (Summary, Vec<
         eprintln!("{}", msr_host::cmd::mirror_test::describe(t))
     })
     .unwrap();
-    let s = episode::summarise(Backend::Inproc, robot, &trials);
+    let s = episode::summarise(Backend::Inproc, robot, cfg.servo_bus, &trials);
     eprintln!("{}", msr_host::cmd::mirror_test::readable(&s));
     (s, trials)
 }
@@ -54,6 +54,36 @@ fn skin_robot_touches_its_marks() {
     // The skin robot's taxel grid leaves high error variance all over the face, and the small
     // test model finds its marks far less often (see the notes); the chain must still work.
     check_touches(Robot::Skin, 1);
+}
+
+#[test]
+fn the_dynamixel_bus_touches_as_the_framed_bus_does() {
+    let framed = marked_only(Robot::Red);
+    let mut dxl = framed.clone();
+    dxl.servo_bus = episode::ServoBus::Dynamixel;
+    dxl.log_bus = true;
+    let (a, _) = run(Robot::Red, &framed, 6, 11);
+    let (b, trials) = run(Robot::Red, &dxl, 6, 11);
+    assert_eq!(b.servo_bus, "dynamixel");
+    assert!(b.touched + 1 >= a.touched, "framed {a:?}\ndynamixel {b:?}");
+    assert_eq!((b.limit_violations, b.false_reaches), (0, 0));
+    assert_eq!((b.crc_errors, b.resyncs, b.watchdog_trips), (0, 0, 0), "clean links");
+    // What the board sent is Protocol 2.0: it starts with the e-Manual's Ping of ID 1, and a
+    // Sync Write of goals and a Sync Read of positions follow every period.
+    let log = &trials[0].bus_bytes;
+    let ping = [0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x03, 0x00, 0x01, 0x19, 0x4E];
+    let start = log.windows(ping.len()).position(|w| w == ping).expect("a Ping of ID 1");
+    let mut rx = msr_shared::dynamixel::Receiver::<256>::new();
+    let (mut writes, mut reads) = (0, 0);
+    for &byte in &log[start..] {
+        rx.push(byte);
+        while let Some(p) = rx.next_packet() {
+            writes += (p.instruction == msr_shared::dynamixel::inst::SYNC_WRITE) as u32;
+            reads += (p.instruction == msr_shared::dynamixel::inst::SYNC_READ) as u32;
+        }
+    }
+    let periods = (trials[0].sim_s * 100.0) as u32;
+    assert!(reads + 10 >= periods && writes + 10 >= periods, "{reads} reads, {writes} writes in {periods} periods");
 }
 
 #[test]

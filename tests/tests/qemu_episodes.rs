@@ -108,9 +108,13 @@ fn qemu_episodes_touch_marks_and_match_in_process() {
     unmarked.watch_us = 2_000_000;
     // Both links cut for 200 ms while the robot watches: both watchdogs trip, the board recovers.
     let cut = marked.clone().with_disconnect(300_000, 200_000);
+    // The same board on the Dynamixel bus (the PC switches it over the host link): UART1
+    // carries Protocol 2.0 to the emulated servos.
+    let mut dxl = marked.clone();
+    dxl.servo_bus = episode::ServoBus::Dynamixel;
     // Three clean marked trials, one without a mark and one with the cut, on one QEMU (a reset
     // between trials).
-    let plan = [(&marked, 0usize), (&marked, 1), (&unmarked, 2), (&cut, 3), (&marked, 4)];
+    let plan = [(&marked, 0usize), (&marked, 1), (&unmarked, 2), (&cut, 3), (&marked, 4), (&dxl, 5)];
 
     let mut board = QemuBoard::start(&blob).unwrap();
     eprintln!("model upload ({} bytes): {:.1} s", blob.len(), board.upload_s);

@@ -1,6 +1,10 @@
 //! NUCLEO-F429ZI image: the firmware library's `Board` with the host link on USART3 (ST-LINK VCP,
-//! PD8 TX / PD9 RX), the servo bus on USART2 (PD5 TX / PD6 RX), the DWT cycle counter as its
-//! clock, models in flash (built in, or uploaded into bank 2), logging with defmt over RTT.
+//! PD8 TX / PD9 RX), the servo bus on USART2, the DWT cycle counter as its clock, models in flash
+//! (built in, or uploaded into bank 2), logging with defmt over RTT.
+//!
+//! The servo bus is a Dynamixel Protocol 2.0 chain, the board its master: USART2 in single-wire
+//! half-duplex mode on PD5 (open drain, pull-up), 1 Mbaud. With the `framed-servo-bus` feature it
+//! is the project's framed protocol instead, full duplex on PD5 TX / PD6 RX.
 #![no_std]
 #![no_main]
 
@@ -49,6 +53,11 @@ fn main() -> ! {
         &clocks,
     )
     .expect("servo bus baud rate is reachable");
+    #[cfg(not(feature = "framed-servo-bus"))]
+    {
+        single_wire_half_duplex();
+        board_dynamixel();
+    }
     host.listen(stm32f4xx_hal::serial::Event::RxNotEmpty);
     servo.listen(stm32f4xx_hal::serial::Event::RxNotEmpty);
     // The ports drive the registers from here on; the HAL objects only did the set-up, and
@@ -99,6 +108,34 @@ fn main() -> ! {
             );
         }
     }
+}
+
+/// USART2 as one bidirectional line on PD5: HDSEL set (with the USART off, as RM0090 asks for
+/// mode changes), PD5 open drain with its pull-up, so that the servos can drive the line while
+/// the board listens. The receiver then also hears the board's own bytes; the master skips
+/// them (an instruction packet is never taken for a status).
+#[cfg(not(feature = "framed-servo-bus"))]
+fn single_wire_half_duplex() {
+    // SAFETY: USART2 and GPIOD were configured above and nothing else uses them yet; these
+    // read-modify-writes touch only the bits named.
+    unsafe {
+        let usart = &*pac::USART2::ptr();
+        usart.cr1().modify(|_, w| w.ue().clear_bit());
+        usart.cr2().modify(|_, w| w.linen().clear_bit().clken().clear_bit());
+        usart.cr3().modify(|_, w| w.scen().clear_bit().iren().clear_bit().hdsel().set_bit());
+        usart.cr1().modify(|_, w| w.ue().set_bit());
+        let gpiod = &*pac::GPIOD::ptr();
+        gpiod.otyper().modify(|_, w| w.ot5().set_bit());
+        gpiod.pupdr().modify(|_, w| w.pupdr5().pull_up());
+    }
+}
+
+/// The board as Dynamixel bus master with the default joint map (the host may send another).
+#[cfg(not(feature = "framed-servo-bus"))]
+fn board_dynamixel() {
+    // SAFETY: called once from `main` before the loop takes its reference to BOARD.
+    let board = unsafe { &mut *core::ptr::addr_of_mut!(BOARD) };
+    board.set_servo_bus(Some(msr_firmware::dynamixel::Master::new()));
 }
 
 #[interrupt]

@@ -200,15 +200,26 @@ pub fn check(c: &Command) -> Result<()> {
             if let Some(p) = a.parallel {
                 int("--parallel", p, 1, 256, " trials")?;
             }
-            if let Some(p) = &a.trials_out {
-                outputs(&[("--model", &a.model)], &[("--trials-out", p)])?;
-            }
+            let outs: Vec<(&str, &Path)> = [("--trials-out", &a.trials_out), ("--bus-log", &a.bus_log)]
+                .into_iter()
+                .filter_map(|(f, p)| p.as_deref().map(|p| (f, p)))
+                .collect();
+            outputs(&[("--model", &a.model)], &outs)?;
         }
         Command::Run(a) => {
             int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
             real("--fps", a.fps, FPS_RANGE.0, FPS_RANGE.1, " frames per second")?;
             int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
             int("--count", a.count, 1, MAX_FRAMES, " frames")?;
+        }
+        Command::Servos(a) => {
+            int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
+            if let Some(secs) = a.seconds {
+                real("--seconds", secs, 0.0, 1e6, " s")?;
+            }
+            if let Some(p) = &a.bus_log {
+                outputs(&[], &[("--bus-log", p)])?;
+            }
         }
         Command::Demo(a) => {
             int("--frames", a.frames, 10, MAX_FRAMES, " frames")?;

@@ -40,6 +40,9 @@ pub struct Args {
     pub real: Option<PathBuf>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// The servo bus of the episodes
+    #[arg(long, value_enum, default_value_t = crate::episode::ServoBus::Dynamixel)]
+    pub servo_bus: crate::episode::ServoBus,
     /// Only rewrite index.html from an earlier run's report.json, model.msrm and dataset in --out
     #[arg(long)]
     pub html_only: bool,
@@ -206,10 +209,11 @@ pub fn run(a: Args) -> Result<()> {
         "6/8 mirror-test episodes in-process ({} trials)",
         a.trials
     ));
-    let cfg = EpisodeConfig::new(a.robot);
+    let mut cfg = EpisodeConfig::new(a.robot);
+    cfg.servo_bus = a.servo_bus;
     let quiet = |_: &episode::Trial| {};
     let trials = episode::run_inproc(&blob, &cfg, a.trials, a.seed, &quiet)?;
-    let inproc = episode::summarise(Backend::Inproc, a.robot, &trials);
+    let inproc = episode::summarise(Backend::Inproc, a.robot, a.servo_bus, &trials);
     p.done("episodes_inproc_s", &crate::cmd::mirror_test::readable(&inproc));
     let mut mirror = json!({ "inproc": inproc, "trials": trials });
     if msr_sim::qemu::qemu_available() {
@@ -378,7 +382,7 @@ fn qemu_episodes(
         done.len(),
         t0.elapsed().as_secs_f64()
     );
-    Ok((episode::summarise(Backend::Qemu, cfg.robot, &done), matching, note))
+    Ok((episode::summarise(Backend::Qemu, cfg.robot, cfg.servo_bus, &done), matching, note))
 }
 
 /// The published model on the real frames: marks found with the centroid in the box, and

@@ -1,6 +1,6 @@
 //! `msr mirror-test`: run mirror-test episodes: sim world, emulated links, firmware in-process or
 //! in QEMU. See [`crate::episode`] for what one trial is.
-use crate::episode::{self, Backend, EpisodeConfig, Summary, Trial};
+use crate::episode::{self, Backend, EpisodeConfig, ServoBus, Summary, Trial};
 use anyhow::{bail, Result};
 use msr_sim::Robot;
 use std::path::PathBuf;
@@ -19,6 +19,13 @@ pub struct Args {
     pub backend: Backend,
     #[arg(long, default_value = "red")]
     pub robot: Robot,
+    /// The servo bus's protocol
+    #[arg(long, value_enum, default_value_t = ServoBus::Framed)]
+    pub servo_bus: ServoBus,
+    /// Write the bytes the board sent on the servo bus to this file (in-process; all trials,
+    /// in trial order)
+    #[arg(long)]
+    pub bus_log: Option<PathBuf>,
     /// Bit-error rate on both directions of both links
     #[arg(long, default_value_t = 0.0)]
     pub ber: f64,
@@ -52,6 +59,11 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     }
     let mut c = EpisodeConfig::new(a.robot).with_ber(a.ber);
     c.no_mark_share = a.no_mark_share;
+    c.servo_bus = a.servo_bus;
+    c.log_bus = a.bus_log.is_some();
+    if a.bus_log.is_some() && a.backend != Backend::Inproc {
+        bail!("--bus-log needs --backend inproc");
+    }
     if let Some(ms) = a.disconnect_ms {
         c = c.with_disconnect(a.disconnect_at_ms * 1000, ms * 1000);
     }
@@ -86,13 +98,17 @@ pub fn run(a: Args) -> Result<()> {
         Backend::Inproc => episode::run_inproc(&blob, &cfg, a.trials, a.seed, &progress)?,
         Backend::Qemu => crate::episode::qemu::run_qemu(&blob, &cfg, a.trials, a.seed, &progress)?,
     };
-    let s = episode::summarise(a.backend, a.robot, &trials);
-    // The summary first: a failing --trials-out write (checked up front, but a disk can fill)
-    // must not lose it.
+    let s = episode::summarise(a.backend, a.robot, a.servo_bus, &trials);
+    // The summary first: a failing --trials-out or --bus-log write (checked up front, but a disk
+    // can fill) must not lose it.
     if a.json {
         println!("{}", serde_json::to_string(&s)?);
     } else {
         println!("{}", readable(&s));
+    }
+    if let Some(p) = &a.bus_log {
+        let bytes: Vec<u8> = trials.iter().flat_map(|t| t.bus_bytes.iter().copied()).collect();
+        crate::fsio::write(p, bytes)?;
     }
     if let Some(p) = &a.trials_out {
         crate::fsio::write(p, serde_json::to_vec_pretty(&trials)?)?;
@@ -127,11 +143,12 @@ pub fn readable(s: &Summary) -> String {
         String::new()
     };
     format!(
-        "{} {}: {} trials, touched {}/{} marked ({} %), false reaches {} ({} trials without a mark{early}), \
+        "{} {} ({} servo bus): {} trials, touched {}/{} marked ({} %), false reaches {} ({} trials without a mark{early}), \
          median touch error {} mm, median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, \
          watchdog trips {}",
         s.backend,
         s.robot,
+        s.servo_bus,
         s.trials,
         s.touched,
         s.marked_trials,

@@ -5,6 +5,7 @@ pub mod mirror_test;
 pub mod demo;
 pub mod run;
 pub mod check;
+pub mod servos;
 
 use crate::{train, detect, eval, bench};
 use crate::train::reach as train_reach;
@@ -49,6 +50,8 @@ pub enum Command {
     /// Stream frames to a board over a serial port and print what it reports
     #[command(name = "run")]
     Run(run_board::Args),
+    /// The robot's emulated servos on a serial port or a new PTY (Dynamixel Protocol 2.0)
+    Servos(servos::Args),
     /// From nothing to a report: dataset, training, reach, quantization, evaluation, episodes
     Demo(demo::Args),
 }
@@ -128,6 +131,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Bench(a) => bench::run(a),
         Command::MirrorTest(a) => mirror_test::run(a),
         Command::Run(a) => run_board::run(a),
+        Command::Servos(a) => servos::run(a),
         Command::Demo(a) => demo::run(a),
     }
 }

@@ -280,6 +280,7 @@ pub fn describe(m: &BoardToHost) -> String {
         ),
         BoardToHost::ModelAccepted { crc32 } => format!("model accepted, crc {crc32:08x}"),
         BoardToHost::Pong { nonce } => format!("pong {nonce}"),
+        BoardToHost::ServoBus(r) => format!("servo bus: {r:?}"),
     }
 }
 

@@ -29,7 +29,7 @@ use msr_firmware::model::{ModelStore, UploadError};
 use msr_firmware::Board;
 use msr_shared::blob::Model;
 use msr_shared::host_port::HostPort;
-use msr_shared::msg::{BoardToHost, Config, Detection, HostToBoard, Status};
+use msr_shared::msg::{BoardToHost, Config, Detection, HostToBoard, ServoBusKind, Status};
 use msr_sim::body::BodyPose;
 use msr_sim::link::{FaultConfig, LinkEnd};
 use msr_sim::render::{Renderer, Variation};
@@ -65,10 +65,40 @@ impl Backend {
     }
 }
 
+/// The servo bus's protocol, as the command line names it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ServoBus {
+    /// The project's frames (postcard + COBS), full duplex, 921600 baud.
+    Framed,
+    /// Dynamixel Protocol 2.0 at 1 Mbaud: the board is the master of emulated X-series servos.
+    Dynamixel,
+}
+
+impl ServoBus {
+    pub fn name(self) -> &'static str {
+        match self {
+            ServoBus::Framed => "framed",
+            ServoBus::Dynamixel => "dynamixel",
+        }
+    }
+
+    pub fn kind(self) -> ServoBusKind {
+        match self {
+            ServoBus::Framed => ServoBusKind::Framed,
+            ServoBus::Dynamixel => ServoBusKind::Dynamixel,
+        }
+    }
+}
+
 /// How trials run.
 #[derive(Clone, Debug)]
 pub struct EpisodeConfig {
     pub robot: Robot,
+    /// The servo bus's protocol; the PC tells the board at the start of each trial.
+    pub servo_bus: ServoBus,
+    /// Keep the bytes the board sends on the servo bus (each trial's [`Trial::bus_bytes`]).
+    pub log_bus: bool,
     /// Share of trials with no mark.
     pub no_mark_share: f64,
     pub frame_period_us: u64,
@@ -95,6 +125,8 @@ impl EpisodeConfig {
     pub fn new(robot: Robot) -> EpisodeConfig {
         EpisodeConfig {
             robot,
+            servo_bus: ServoBus::Framed,
+            log_bus: false,
             no_mark_share: 0.2,
             frame_period_us: 100_000,
             mark_at_us: 400_000,
@@ -131,6 +163,10 @@ impl EpisodeConfig {
         w.servo_link.a_to_b = self.servo_faults.clone();
         w.servo_link.b_to_a = self.servo_faults.clone();
         w.pace = self.pace;
+        if self.servo_bus == ServoBus::Dynamixel {
+            w.servo_link.baud = 1_000_000;
+            w.dynamixel = Some(msr_sim::dynamixel::DxlConfig::default());
+        }
         w
     }
 
@@ -173,6 +209,9 @@ pub struct Trial {
     pub watchdog_trips: u32,
     pub sim_s: f64,
     pub wall_s: f64,
+    /// What the board sent on the servo bus, when [`EpisodeConfig::log_bus`].
+    #[serde(skip)]
+    pub bus_bytes: Vec<u8>,
 }
 
 /// The summary `msr mirror-test --json` prints, exactly these keys.
@@ -180,6 +219,7 @@ pub struct Trial {
 pub struct Summary {
     pub backend: String,
     pub robot: String,
+    pub servo_bus: String,
     pub trials: usize,
     pub marked_trials: usize,
     pub touched: usize,
@@ -210,13 +250,14 @@ pub fn median(mut v: Vec<f64>) -> Option<f64> {
     })
 }
 
-pub fn summarise(backend: Backend, robot: Robot, trials: &[Trial]) -> Summary {
+pub fn summarise(backend: Backend, robot: Robot, bus: ServoBus, trials: &[Trial]) -> Summary {
     let marked: Vec<&Trial> = trials.iter().filter(|t| t.mark.is_some()).collect();
     let touched = marked.iter().filter(|t| t.touched).count();
     let sum = |f: fn(&Trial) -> u32| trials.iter().map(|t| f(t) as u64).sum::<u64>();
     Summary {
         backend: backend.name().into(),
         robot: robot.name().into(),
+        servo_bus: bus.name().into(),
         trials: trials.len(),
         marked_trials: marked.len(),
         touched,
@@ -386,6 +427,11 @@ impl Scenario<'_> {
     fn step(&mut self, w: &mut World) -> Result<Flow> {
         let now = w.now_us;
         if now == 0 {
+            // The bus first: a board starts framed (its Dynamixel master then starts up).
+            if self.cfg.servo_bus != ServoBus::Framed {
+                let bytes = self.port.encode(&HostToBoard::UseServoBus(self.cfg.servo_bus.kind()));
+                w.host.send(&bytes);
+            }
             if let Some(c) = self.cfg.board_config {
                 let bytes = self.port.encode(&HostToBoard::Configure(c));
                 w.host.send(&bytes);
@@ -565,12 +611,55 @@ pub fn run_trial_inproc(
     seed: u64,
 ) -> Result<Trial> {
     let mut board = inproc_board(blob);
-    let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| board.poll(now, h, s);
+    let mut log = Vec::new();
+    let log_bus = cfg.log_bus;
+    let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| {
+        if log_bus {
+            board.poll(now, h, &mut Tee { inner: s, log: &mut log })
+        } else {
+            board.poll(now, h, s)
+        }
+    };
     let (mut trial, _) = run_trial_with(&mut fw, camera, cfg, index, seed)?;
+    trial.bus_bytes = log;
     // In-process the board's own counters are at hand (a GetStatus would report the same).
     let s = board.status();
     add_board_counters(&mut trial, &s);
     Ok(trial)
+}
+
+/// A servo bus end that keeps a copy of what is written to it.
+pub struct Tee<'a> {
+    pub inner: &'a mut LinkEnd,
+    pub log: &'a mut Vec<u8>,
+}
+
+impl embedded_io::ErrorType for Tee<'_> {
+    type Error = embedded_io::ErrorKind;
+}
+
+impl embedded_io::Read for Tee<'_> {
+    fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+        embedded_io::Read::read(self.inner, buf)
+    }
+}
+
+impl embedded_io::ReadReady for Tee<'_> {
+    fn read_ready(&mut self) -> Result<bool, Self::Error> {
+        embedded_io::ReadReady::read_ready(self.inner)
+    }
+}
+
+impl embedded_io::Write for Tee<'_> {
+    fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+        let n = embedded_io::Write::write(self.inner, buf)?;
+        self.log.extend_from_slice(&buf[..n]);
+        Ok(n)
+    }
+
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        embedded_io::Write::flush(self.inner)
+    }
 }
 
 /// Adds the board's link counters and watchdog trips to a trial's.
@@ -623,6 +712,7 @@ pub fn run_trial_with<F: world::Firmware>(
             watchdog_trips: 0,
             sim_s: 0.0,
             wall_s: 0.0,
+            bus_bytes: Vec::new(),
         },
         error: None,
         status: None,
@@ -654,6 +744,12 @@ pub fn run_trial_with<F: world::Firmware>(
     let pc = sc.port.counters();
     t.crc_errors = bus.crc_errors + pc.crc_errors;
     t.resyncs = bus.resyncs() + pc.resyncs();
+    if let Some(d) = w.servos.dynamixel() {
+        // The servos refuse a Goal Position outside their limits; either way it is counted.
+        t.limit_violations += d.counters().limit_violations;
+        t.crc_errors += d.rx_counters().crc_errors;
+        t.resyncs += d.rx_counters().errors() - d.rx_counters().crc_errors;
+    }
     t.sim_s = report.end_us as f64 * 1e-6;
     t.wall_s = report.wall_s;
     Ok((t, sc.status))
