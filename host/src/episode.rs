@@ -29,7 +29,8 @@ use msr_shared::blob::Model;
 use msr_shared::frame::{
     encode_message_vec, FrameAccumulator, LinkCounters, Sequencer, MAX_WIRE_FRAME,
 };
-use msr_shared::msg::{BoardToHost, Config, Detection, FrameHeader, HostToBoard, Status, CHUNK};
+use msr_shared::deliver::face_header;
+use msr_shared::msg::{BoardToHost, Config, Detection, HostToBoard, Status, CHUNK};
 use msr_sim::body::BodyPose;
 use msr_sim::link::{FaultConfig, LinkEnd};
 use msr_sim::render::{Renderer, Variation};
@@ -341,16 +342,11 @@ impl HostPort {
     pub fn encode_face(&mut self, crop: crop::CropBox, grey: &[u8]) -> Vec<u8> {
         self.frame_id = self.frame_id.wrapping_add(1);
         let id = self.frame_id;
-        let h = FrameHeader {
-            frame: id,
-            crop_x: crop.x as u16,
-            crop_y: crop.y as u16,
-            width: crop.width as u16,
-            height: crop.height as u16,
-        };
+        let size = [crop.width as u16, crop.height as u16];
+        let h = face_header(id, [crop.x as u16, crop.y as u16], size, CHUNK as u16, grey);
         let mut out = self.encode(&HostToBoard::FrameStart(h));
-        for (i, data) in grey.chunks(CHUNK).enumerate() {
-            let offset = (i * CHUNK) as u16;
+        for (i, data) in grey.chunks(h.chunk as usize).enumerate() {
+            let offset = (i * h.chunk as usize) as u16;
             out.extend(self.encode(&HostToBoard::FrameChunk {
                 frame: id,
                 offset,

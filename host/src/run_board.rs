@@ -278,6 +278,8 @@ pub fn describe(m: &BoardToHost) -> String {
         ),
         BoardToHost::ModelAccepted { crc32 } => format!("model accepted, crc {crc32:08x}"),
         BoardToHost::Pong { nonce } => format!("pong {nonce}"),
+        BoardToHost::FrameAck(a) => format!("frame {} round {}: {:?}", a.frame, a.round, a.state),
+        BoardToHost::UploadAck { next } => format!("upload: the board wants byte {next} next"),
     }
 }
 

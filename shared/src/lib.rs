@@ -4,6 +4,8 @@
 //! - [`frame`]: how bytes become messages on either serial link: postcard inside, a header with
 //!   protocol version and sequence number, a CRC-16, COBS around it, `0x00` between frames.
 //! - [`msg`]: the messages of the host link (host <-> board) and of the servo bus (board <-> servos).
+//! - [`deliver`]: the host's half of face-frame delivery (selective repeat) and the chunk size
+//!   for a line.
 //! - [`blob`]: the versioned model blob the board runs, with a validating, borrowing parser.
 //!
 //! `no_std` and heap-free; the `std` feature adds the blob writer and `std::error::Error` impls.
@@ -11,6 +13,7 @@
 #![forbid(unsafe_code)]
 
 pub mod blob;
+pub mod deliver;
 pub mod frame;
 pub mod joints;
 pub mod msg;

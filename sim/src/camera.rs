@@ -8,7 +8,8 @@ use crate::world::World;
 use crate::Robot;
 use image::GrayImage;
 use msr_shared::frame::{encode_message_vec, Sequencer};
-use msr_shared::msg::{FrameHeader, HostToBoard, CHUNK};
+use msr_shared::deliver::face_header;
+use msr_shared::msg::{HostToBoard, CHUNK};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
@@ -78,8 +79,9 @@ pub fn face_crop(rgb: &image::RgbImage, origin: [u32; 2]) -> GrayImage {
     to_grey(&sub)
 }
 
-/// Wire bytes of one face crop on the host link: a `FrameStart` and `FrameChunk`s of at most
-/// [`CHUNK`] bytes, each its own frame.
+/// Wire bytes of one face crop on the host link, for a clean line: a `FrameStart` and
+/// `FrameChunk`s of [`CHUNK`] bytes, each its own frame, sent once (a lossy line needs
+/// `msr_shared::deliver::FaceSender`, which repeats what the board missed).
 pub fn frame_wire(frame: u16, crop: &GrayImage, origin: [u32; 2], seq: &mut Sequencer) -> Result<Vec<u8>, String> {
     let fits = |v: u32| u16::try_from(v).is_ok();
     if !(fits(origin[0]) && fits(origin[1]) && fits(crop.width()) && fits(crop.height()))
@@ -87,16 +89,11 @@ pub fn frame_wire(frame: u16, crop: &GrayImage, origin: [u32; 2], seq: &mut Sequ
     {
         return Err(format!("a {}x{} crop at {origin:?} does not fit the frame messages", crop.width(), crop.height()));
     }
-    let header = FrameHeader {
-        frame,
-        crop_x: origin[0] as u16,
-        crop_y: origin[1] as u16,
-        width: crop.width() as u16,
-        height: crop.height() as u16,
-    };
+    let size = [crop.width() as u16, crop.height() as u16];
+    let header = face_header(frame, [origin[0] as u16, origin[1] as u16], size, CHUNK as u16, crop.as_raw());
     let mut out = encode_message_vec(seq.next(), &HostToBoard::FrameStart(header)).expect("header fits");
-    for (i, data) in crop.as_raw().chunks(CHUNK).enumerate() {
-        let msg = HostToBoard::FrameChunk { frame, offset: (i * CHUNK) as u16, data };
+    for (i, data) in crop.as_raw().chunks(header.chunk as usize).enumerate() {
+        let msg = HostToBoard::FrameChunk { frame, offset: (i * header.chunk as usize) as u16, data };
         out.extend(encode_message_vec(seq.next(), &msg).expect("a chunk fits a frame"));
     }
     Ok(out)
@@ -108,6 +105,7 @@ mod tests {
     use crate::link::LinkEnd;
     use crate::world::{run, Flow, WorldConfig};
     use msr_shared::frame::{FrameAccumulator, MAX_WIRE_FRAME};
+    use msr_shared::msg::FrameHeader;
 
     #[test]
     fn a_board_receives_the_crop_the_camera_took() {
