@@ -84,14 +84,15 @@ pub struct FaceSender {
 }
 
 impl FaceSender {
-    /// Starts a frame: `FrameStart`, every chunk, then a wait for the board's ack (the board
-    /// answers the last chunk). No ack `timeout_us` after the line went idle: a `FramePoll`.
+    /// Starts a frame: `FrameStart`, every chunk and a `FramePoll`, then a wait for the board's
+    /// ack (it answers the last chunk and the poll: two chances on a noisy line). No ack
+    /// `timeout_us` after the line went idle: another `FramePoll`.
     pub fn new(header: FrameHeader, timeout_us: u64) -> FaceSender {
         FaceSender {
             header,
             queue: ChunkSet::first(header.chunks()),
             start_due: true,
-            poll_due: false,
+            poll_due: true,
             round: 0,
             wait_from: None,
             timeout_us,
@@ -444,7 +445,7 @@ mod tests {
     }
 
     #[test]
-    fn a_clean_frame_is_start_chunks_and_one_wait() {
+    fn a_clean_frame_is_start_chunks_poll_and_one_wait() {
         let h = header(20);
         let px = vec![7u8; h.pixels()];
         let mut s = FaceSender::new(h, 5000);
@@ -458,6 +459,7 @@ mod tests {
                 other => panic!("{other:?}"),
             }
         }
+        assert_eq!(s.next(&px), Some(HostToBoard::FramePoll { header: h, round: 0 }));
         assert_eq!(s.next(&px), None);
         s.sent(1000);
         s.check(5999);
@@ -466,7 +468,7 @@ mod tests {
         assert_eq!(s.finished(), Some(FrameState::Complete));
         s.check(1_000_000);
         assert_eq!(s.next(&px), None);
-        assert_eq!(s.stats, SendStats { chunks_sent: 20, ..Default::default() });
+        assert_eq!(s.stats, SendStats { chunks_sent: 20, polls: 1, ..Default::default() });
     }
 
     #[test]
@@ -512,7 +514,7 @@ mod tests {
         let px = vec![1u8; 58 * 75];
         let a = l.start([0, 0], [58, 75], px.clone(), 0);
         let mut msgs = Vec::new();
-        assert_eq!(l.pump(|m| msgs.push(format!("{m:?}"))), 21);
+        assert_eq!(l.pump(|m| msgs.push(format!("{m:?}"))), 22);
         l.sent(100);
         // Half the first round lost: the estimate rises, the next frame's chunks shrink.
         let mut m = ChunkSet::EMPTY;
@@ -526,13 +528,13 @@ mod tests {
         // Superseded before it finished.
         let b = l.start([0, 0], [58, 75], px.clone(), 200_000);
         assert!(l.fixed_chunk.is_none());
-        assert!(l.pump(|_| {}) > 21, "smaller chunks now");
+        assert!(l.pump(|_| {}) > 22, "smaller chunks now");
         assert_eq!(l.on_message(&ack(a, 1, FrameState::Complete)), None, "an old frame's ack");
         assert_eq!(l.on_message(&ack(b, 0, FrameState::Complete)), Some(b));
         assert_eq!(l.in_flight_since(), None);
         let s = l.stats;
         assert_eq!((s.frames, s.delivered, s.superseded, s.face_bytes), (2, 1, 1, 4350));
         assert_eq!(s.chunks_resent, 10);
-        assert_eq!(s.polls, 1);
+        assert_eq!(s.polls, 3);
     }
 }

@@ -129,9 +129,29 @@ pub fn is_older(a: u16, b: u16) -> bool {
     back != 0 && back < STALE_WINDOW
 }
 
-/// One bit per chunk of a face frame, [`MAX_FRAME_CHUNKS`] of them.
+/// One bit per chunk of a face frame, [`MAX_FRAME_CHUNKS`] of them. On the wire: the bitmap up
+/// to its last non-zero byte, with a length (an ack is short when few chunks are missing, and a
+/// short ack is less likely to be hit on a noisy line).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(into = "Trimmed", from = "Trimmed")]
 pub struct ChunkSet([u8; BITMAP_BYTES]);
+
+type Trimmed = heapless::Vec<u8, BITMAP_BYTES>;
+
+impl From<ChunkSet> for Trimmed {
+    fn from(s: ChunkSet) -> Trimmed {
+        let used = s.0.iter().rposition(|b| *b != 0).map_or(0, |i| i + 1);
+        Trimmed::from_slice(&s.0[..used]).unwrap_or_default()
+    }
+}
+
+impl From<Trimmed> for ChunkSet {
+    fn from(v: Trimmed) -> ChunkSet {
+        let mut s = ChunkSet::EMPTY;
+        s.0[..v.len()].copy_from_slice(&v);
+        s
+    }
+}
 
 impl ChunkSet {
     pub const EMPTY: ChunkSet = ChunkSet([0; BITMAP_BYTES]);
@@ -531,15 +551,22 @@ mod tests {
 
     #[test]
     fn frame_ack_literal() {
-        // Variant 5 (FrameAck), frame 3, round 1, state 1 (Missing), then the 32 bitmap bytes
-        // (a fixed-size array: no length): chunks 0 and 9 missing.
+        // Variant 5 (FrameAck), frame 3, round 1, state 1 (Missing), then the bitmap's length
+        // and bytes up to the last non-zero one: chunks 0 and 9 missing.
         let mut m = ChunkSet::EMPTY;
         m.insert(0);
         m.insert(9);
         let ack = BoardToHost::FrameAck(FrameAck { frame: 3, round: 1, state: FrameState::Missing(m) });
-        let mut expect = vec![0x05, 0x03, 0x01, 0x01, 0x01, 0x02];
-        expect.extend([0u8; BITMAP_BYTES - 2]);
-        assert_eq!(postcard::to_slice(&ack, &mut [0u8; 64]).unwrap(), &expect[..]);
+        assert_eq!(
+            postcard::to_slice(&ack, &mut [0u8; 64]).unwrap(),
+            &[0x05, 0x03, 0x01, 0x01, 0x02, 0x01, 0x02]
+        );
+        let back: BoardToHost = postcard::from_bytes(&[0x05, 0x03, 0x01, 0x01, 0x02, 0x01, 0x02]).unwrap();
+        assert_eq!(back, ack);
+        // A bitmap longer than 32 bytes does not parse.
+        let mut long = vec![0x05, 0x03, 0x01, 0x01, 33];
+        long.extend([0xFF; 33]);
+        assert!(postcard::from_bytes::<BoardToHost>(&long).is_err());
         let done = BoardToHost::FrameAck(FrameAck { frame: 3, round: 0, state: FrameState::Complete });
         assert_eq!(postcard::to_slice(&done, &mut [0u8; 8]).unwrap(), &[0x05, 0x03, 0x00, 0x00]);
         assert_eq!(
