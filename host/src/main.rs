@@ -1,8 +1,8 @@
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
-    let cli = msr_host::cli::Cli::parse();
-    match msr_host::cli::run(cli) {
+    let cli = msr_host::cmd::Cli::parse();
+    match msr_host::cmd::run(cli) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
             // One clear line (with its causes), never a panic trace.

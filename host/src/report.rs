@@ -1,7 +1,7 @@
 //! The demo's `index.html`: for a few test frames the frame, the crop, the predicted face, the
 //! saliency, the binarised map and the detection; the loss curves; the tables; the reach poses.
 //! Pictures are PNGs in `DIR/pictures/`, linked (not embedded) so the page stays small.
-use crate::crop;
+use crate::data::crop;
 use anyhow::{Context, Result};
 use image::{imageops, Rgb, RgbImage};
 use imageproc::drawing::{draw_cross_mut, draw_hollow_rect_mut};
@@ -56,7 +56,7 @@ fn frame_pictures(
         .to_rgb8();
     let face = crate::detect::cropper_of(model)?.crop(&frame)?;
     let head = [f.head_yaw as f32, f.head_pitch as f32];
-    let d = crate::fixed::detect(model, &face, head)?;
+    let d = crate::detect::fixed::detect(model, &face, head)?;
     let (w, h) = (face.crop.width, face.crop.height);
     let mut full = rgb_frame.clone();
     draw_hollow_rect_mut(

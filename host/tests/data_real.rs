@@ -1,5 +1,5 @@
 //! Loading the published real frames: crops, head angles, marks.
-use msr_host::crop::CropMode;
+use msr_host::data::crop::CropMode;
 use msr_host::data::{Dataset, Layout};
 use msr_sim::layout::Split;
 use std::path::PathBuf;

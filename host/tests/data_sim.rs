@@ -1,5 +1,5 @@
 //! Loading a sim dataset (written by `msr dataset`), and clear errors for broken ones.
-use msr_host::crop::CropMode;
+use msr_host::data::crop::CropMode;
 use msr_host::data::{Dataset, Layout};
 use msr_sim::layout::Split;
 use std::process::Command;

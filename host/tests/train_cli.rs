@@ -1,7 +1,7 @@
 //! `msr train`, `train-reach` and `quantize` from the command line on a tiny sim dataset: the
 //! output layout others rely on, the threshold policy, and bad input (one clear line, non-zero
 //! exit, no panic). Plumbing, not quality: 1-2 epochs.
-use msr_host::predictor::FacePredictor;
+use msr_host::models::predictor::FacePredictor;
 use serde_json::Value;
 use std::path::Path;
 use std::process::{Command, Output};
@@ -73,7 +73,7 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     let stats = msr_host::train::load_stats(&out, &info_t).unwrap();
     // Trained on sub-pixel crops (the default); the statistics hold for crops made that way.
     assert_eq!(info["crop"], "subpixel");
-    assert_eq!(info_t.crop, msr_host::crop::CropMode::Subpixel);
+    assert_eq!(info_t.crop, msr_host::data::crop::CropMode::Subpixel);
     let ds = msr_host::data::Dataset::load(&data, info_t.crop).unwrap();
     let (heads, faces): (Vec<[f32; 2]>, Vec<Vec<f32>>) = ds
         .split(msr_sim::layout::Split::Train)
@@ -81,7 +81,7 @@ fn train_writes_the_layout_and_quantize_matches_float() {
         .map(|s| (s.head, s.face_unit()))
         .unzip();
     let preds = m.predict_batch(&heads, &faces);
-    let again = msr_host::calibrate::error_stats(h, w, faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..]))).unwrap();
+    let again = msr_host::train::calibrate::error_stats(h, w, faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..]))).unwrap();
     assert_eq!(again.frames, stats.frames);
     let worst = again.mu.iter().zip(&stats.mu).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
     assert!(worst < 1e-3, "mu from the loaded model differs by {worst} grey levels");

@@ -1,6 +1,6 @@
 //! `msr demo` end to end on small settings: it must write the model, the report with its keys,
 //! and the page with its pictures.
-use msr_host::demo;
+use msr_host::cmd::demo;
 
 /// `../shared/data/nao-red-real` from the repository root.
 fn real_dir() -> std::path::PathBuf {
@@ -14,7 +14,7 @@ fn demo_writes_model_report_and_page() {
     demo::run(demo::Args {
         out: out.clone(),
         robot: msr_sim::Robot::Red,
-        crop: msr_host::crop::CropMode::Subpixel,
+        crop: msr_host::data::crop::CropMode::Subpixel,
         frames: 200,
         epochs: 4,
         trials: 3,

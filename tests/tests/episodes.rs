@@ -9,11 +9,11 @@ use msr_sim::Robot;
 fn run(robot: Robot, cfg: &EpisodeConfig, n: usize, seed: u64) -> (Summary, Vec<Trial>) {
     let blob = common::trained_model(robot);
     let trials = episode::run_inproc(&blob, cfg, n, seed, &|t| {
-        eprintln!("{}", msr_host::mirror_test::describe(t))
+        eprintln!("{}", msr_host::cmd::mirror_test::describe(t))
     })
     .unwrap();
     let s = episode::summarise(Backend::Inproc, robot, &trials);
-    eprintln!("{}", msr_host::mirror_test::readable(&s));
+    eprintln!("{}", msr_host::cmd::mirror_test::readable(&s));
     (s, trials)
 }
 

@@ -2,8 +2,8 @@
 //! it opens a real board: `msr run --port PATH`.
 mod common;
 
-use msr_host::run_board::{self, Session};
-use msr_host::sim_board::SimBoard;
+use msr_host::cmd::run::{self as run_board, Session};
+use msr_host::episode::sim_board::SimBoard;
 use msr_shared::msg::{BoardToHost, Mode};
 use msr_sim::Robot;
 use std::time::Duration;
@@ -72,7 +72,7 @@ fn msr_run_streams_a_frame_folder_and_uploads_over_the_pty() {
         f.save(frames.join(format!("{i:03}.png"))).unwrap();
     }
     let board = SimBoard::start(None).unwrap();
-    let args = msr_host::run_board::Args {
+    let args = msr_host::cmd::run::Args {
         port: board.path().to_string(),
         baud: 921_600,
         model: model_path.clone(),
@@ -85,7 +85,7 @@ fn msr_run_streams_a_frame_folder_and_uploads_over_the_pty() {
         timeout_ms: 3000,
         json: true,
     };
-    msr_host::run_board::run(args).unwrap();
+    msr_host::cmd::run::run(args).unwrap();
     let served = board.stop().unwrap();
     let model = msr_shared::blob::Model::parse(&blob).unwrap();
     assert_eq!(

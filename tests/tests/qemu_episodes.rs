@@ -11,7 +11,7 @@
 //! spend a minute uploading.
 
 use msr_host::episode::{self, Camera, EpisodeConfig, Trial};
-use msr_host::episode_qemu::QemuBoard;
+use msr_host::episode::qemu::QemuBoard;
 use msr_sim::qemu;
 use msr_sim::render::Renderer;
 use msr_sim::Robot;
@@ -44,7 +44,7 @@ fn conv_model(robot: Robot) -> Vec<u8> {
         data,
         model: ModelKind::Decoder,
         arch: msr_host::models::ArchKind::Conv,
-        crop: msr_host::crop::CropMode::Subpixel,
+        crop: msr_host::data::crop::CropMode::Subpixel,
         out: models.clone(),
         epochs: 20,
         batch: 128,
@@ -54,16 +54,16 @@ fn conv_model(robot: Robot) -> Vec<u8> {
         seed: 0,
         normalisation: NormArg::Std,
         two_sided: false,
-        sigma_floor: msr_host::calibrate::DEFAULT_SIGMA_FLOOR,
-        threshold: msr_host::calibrate::DEFAULT_THRESHOLD,
+        sigma_floor: msr_host::train::calibrate::DEFAULT_SIGMA_FLOOR,
+        threshold: msr_host::train::calibrate::DEFAULT_THRESHOLD,
         threshold_percentile: None,
-        min_area: msr_host::calibrate::DEFAULT_MIN_AREA,
+        min_area: msr_host::train::calibrate::DEFAULT_MIN_AREA,
         device: DeviceArg::Cpu,
         quiet: true,
     })
     .expect("train the decoder");
-    let reach = msr_host::model_blob::train_sim_reach(70, 0).expect("train the reach network");
-    let blob = msr_host::model_blob::blob_from_training(&models, "decoder", &reach).expect("make the blob");
+    let reach = msr_host::quant::model_blob::train_sim_reach(70, 0).expect("train the reach network");
+    let blob = msr_host::quant::model_blob::blob_from_training(&models, "decoder", &reach).expect("make the blob");
     std::fs::create_dir_all(&dir).unwrap();
     let tmp = dir.join(format!("{key}.{}.tmp", std::process::id()));
     std::fs::write(&tmp, &blob).unwrap();
@@ -118,7 +118,7 @@ fn qemu_episodes_touch_marks_and_match_in_process() {
     for (cfg, i) in plan {
         let camera = Camera { renderer: &renderer, cropper: &cropper };
         let t = board.trial(camera, cfg, i, episode::trial_seed(7, i)).unwrap();
-        eprintln!("qemu:    {}", msr_host::mirror_test::describe(&t));
+        eprintln!("qemu:    {}", msr_host::cmd::mirror_test::describe(&t));
         qemu_trials.push(t);
     }
     let output = board.finish().unwrap();
@@ -127,7 +127,7 @@ fn qemu_episodes_touch_marks_and_match_in_process() {
     for ((cfg, i), q) in plan.iter().zip(&qemu_trials) {
         let camera = Camera { renderer: &renderer, cropper: &cropper };
         let t = episode::run_trial_inproc(&blob, camera, cfg, *i, episode::trial_seed(7, *i)).unwrap();
-        eprintln!("inproc:  {}", msr_host::mirror_test::describe(&t));
+        eprintln!("inproc:  {}", msr_host::cmd::mirror_test::describe(&t));
         // Same firmware (bit-exact builds), same world, one clock: the same trial, to the bit.
         assert_eq!(outcome(q), outcome(&t), "trial {i}: QEMU and in-process differ");
     }

@@ -27,8 +27,8 @@
 //! than at +-5 deg, so one threshold for all poses must either miss marks at the observe
 //! posture or fire on unmarked frames at the edges (2-15 % of the evaluation table's unmarked
 //! frames when the observe posture's threshold held everywhere).
-use crate::calibrate::{self, ErrorStats, NoveltyParams};
-use crate::predictor::FacePredictor;
+use crate::train::calibrate::{self, ErrorStats, NoveltyParams};
+use crate::models::predictor::FacePredictor;
 use anyhow::{Context, Result};
 use msr_sim::body::BodyPose;
 use msr_sim::render::{Renderer, Variation};
@@ -202,7 +202,7 @@ pub const MARKED_FRAMES: usize = 160;
 #[allow(clippy::too_many_arguments)] // the model, its calibration and what to render
 pub fn frames(
     robot: Robot,
-    cropper: &crate::crop::Cropper,
+    cropper: &crate::data::crop::Cropper,
     model: &dyn FacePredictor,
     stats: &ErrorStats,
     p: &NoveltyParams,
@@ -224,7 +224,7 @@ pub fn frames(
         let pose = BodyPose::head(head[0] as f64, head[1] as f64);
         let mark = (i >= normal).then(|| msr_sim::dataset::render_marked(&renderer, &pose, &Variation::CLEAN, &mut rng).0);
         let r = renderer.render(&pose, mark.as_ref(), &Variation::random(&mut rng));
-        let grey = crate::crop::to_grey(&image::DynamicImage::ImageRgb8(r.rgb));
+        let grey = crate::data::crop::to_grey(&image::DynamicImage::ImageRgb8(r.rgb));
         let face = cropper.crop(&grey)?;
         let mark_box = r.mark.filter(|m| m.pixels > 0).map(|m| {
             let [x0, y0, x1, y1] = m.box_xyxy.map(|v| v as f64);
@@ -267,7 +267,7 @@ pub fn apply(dir: &Path, name: &str, robot: Robot, max_head: f32, seed: u64) -> 
     let template = image::open(&tpl_path)
         .with_context(|| format!("reading {}", tpl_path.display()))?
         .to_luma8();
-    let cropper = crate::crop::Cropper::new(template, info.crop);
+    let cropper = crate::data::crop::Cropper::new(template, info.crop);
     let (h, w) = (info.face_h, info.face_w);
     let choice = |poses: Poses| -> Result<Option<Choice>> {
         let f = frames(robot, &cropper, &model, &stats, &info.novelty, (NORMAL_FRAMES, MARKED_FRAMES), seed, poses)?;

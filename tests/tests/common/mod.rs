@@ -47,7 +47,7 @@ pub fn trained_model(robot: Robot) -> Vec<u8> {
         data: data.clone(),
         model: ModelKind::Decoder,
         arch: msr_host::models::ArchKind::Mlp,
-        crop: msr_host::crop::CropMode::Subpixel,
+        crop: msr_host::data::crop::CropMode::Subpixel,
         out: models.clone(),
         epochs: TRAIN_EPOCHS,
         batch: 128,
@@ -57,16 +57,16 @@ pub fn trained_model(robot: Robot) -> Vec<u8> {
         seed: 0,
         normalisation: NormArg::Std,
         two_sided: false,
-        sigma_floor: msr_host::calibrate::DEFAULT_SIGMA_FLOOR,
-        threshold: msr_host::calibrate::DEFAULT_THRESHOLD,
+        sigma_floor: msr_host::train::calibrate::DEFAULT_SIGMA_FLOOR,
+        threshold: msr_host::train::calibrate::DEFAULT_THRESHOLD,
         threshold_percentile: None,
-        min_area: msr_host::calibrate::DEFAULT_MIN_AREA,
+        min_area: msr_host::train::calibrate::DEFAULT_MIN_AREA,
         device: DeviceArg::Cpu,
         quiet: true,
     })
     .expect("train the decoder");
-    let reach = msr_host::model_blob::train_sim_reach(70, 0).expect("train the reach network");
-    let blob = msr_host::model_blob::blob_from_training(&models, "decoder", &reach)
+    let reach = msr_host::quant::model_blob::train_sim_reach(70, 0).expect("train the reach network");
+    let blob = msr_host::quant::model_blob::blob_from_training(&models, "decoder", &reach)
         .expect("make the blob");
     // Write then rename, so a concurrent test binary never reads half a file.
     let tmp = dir.join(format!("{key}.{}.tmp", std::process::id()));

@@ -14,7 +14,7 @@
 //! - detection: pixels with saliency `> threshold`, 8-connected components, those of at least
 //!   `min_area` pixels; the largest wins (first in raster order on ties). With a fragment merge
 //!   (`NoveltyParams::merge`, off by default: the paper's stage) nearby components are joined
-//!   before the area test, as the firmware does (`crate::pipeline::pick`).
+//!   before the area test, as the firmware does (`crate::detect::pipeline::pick`).
 //!
 //! Threshold policy: the default is the paper's 4.59. With `--threshold-percentile P`, the
 //! threshold is the P-th percentile (linear interpolation, as numpy's default) of the *detection
@@ -232,11 +232,11 @@ pub fn blobs(mask: &[bool], h: usize, w: usize, min_area: u32) -> Vec<Blob> {
 /// nearby fragments, the largest blob of at least `min_area` (first in raster order on ties).
 pub fn detect(sal: &[f64], h: usize, w: usize, p: &NoveltyParams) -> Option<Blob> {
     let mask: Vec<bool> = sal.iter().map(|&s| s > p.threshold).collect();
-    let all: Vec<crate::pipeline::Blob> = blobs(&mask, h, w, 1)
+    let all: Vec<crate::detect::pipeline::Blob> = blobs(&mask, h, w, 1)
         .into_iter()
-        .map(|b| crate::pipeline::Blob { area: b.area, box_xyxy: b.box_xyxy, centroid: b.centroid })
+        .map(|b| crate::detect::pipeline::Blob { area: b.area, box_xyxy: b.box_xyxy, centroid: b.centroid })
         .collect();
-    crate::pipeline::pick(&all, p.min_area as u32, p.merge)
+    crate::detect::pipeline::pick(&all, p.min_area as u32, p.merge)
         .map(|b| Blob { area: b.area, box_xyxy: b.box_xyxy, centroid: b.centroid })
 }
 

@@ -1,5 +1,14 @@
 //! Argument parsing and dispatch for `msr`. Each command lives in its own module.
-use crate::{dataset, train, train_reach, quantize, import, detect, blobs, eval, bench, mirror_test, run_board, demo};
+pub mod dataset;
+pub mod blobs;
+pub mod mirror_test;
+pub mod demo;
+pub mod run;
+
+use crate::{train, detect, eval, bench};
+use crate::train::reach as train_reach;
+use crate::quant::{quantize, import};
+use self::run as run_board;
 use anyhow::Result;
 use clap::{Parser, Subcommand};
 

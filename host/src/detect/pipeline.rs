@@ -1,7 +1,7 @@
 //! The detection pipeline on the host, stage by stage: predicted face -> saliency -> blobs ->
 //! winner -> reach. The float engine lives here; the fixed engine is the firmware's code
-//! (`crate::fixed`). Both give a [`Detection`] so that `detect` and `eval` treat them alike.
-use crate::crop::CropBox;
+//! (`crate::detect::fixed`). Both give a [`Detection`] so that `detect` and `eval` treat them alike.
+use crate::data::crop::CropBox;
 use msr_shared::blob::{Merge, Normalisation, PoseRegion, Reach, Sided, REACH_HIDDEN, REACH_OUT};
 use serde::Serialize;
 

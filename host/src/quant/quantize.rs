@@ -26,12 +26,12 @@
 //! (`msr_firmware`): PSNR of the predicted faces over the test split's head poses, and, on the test
 //! frames, detection agreement (both find nothing, or both find a blob with centroids at most 1 px
 //! apart) and the centroid difference. The float side is the trained model with the float
-//! statistics and the same novelty settings (`crate::calibrate::detect`).
-use crate::calibrate::{self, ErrorStats, NoveltyParams};
+//! statistics and the same novelty settings (`crate::train::calibrate::detect`).
+use crate::train::calibrate::{self, ErrorStats, NoveltyParams};
 use crate::data::Dataset;
 use crate::models::{FloatLayer, float_forward_all};
-use crate::predictor::FacePredictor;
-use crate::{train, train_reach};
+use crate::models::predictor::FacePredictor;
+use crate::train::{self, reach as train_reach};
 use anyhow::{bail, ensure, Context, Result};
 use msr_shared::blob::{
     Activation, CropMode, LayerKind, LayerSpec, Model, ModelSpec, Novelty, Reach, Weights,
@@ -438,7 +438,7 @@ pub fn run(args: Args) -> Result<()> {
         let novelty = x.novelty.at(s.head);
         let sal = calibrate::saliency(&calibrate::error_map(f, p), &x.stats, &novelty);
         let fl = calibrate::detect(&sal, h, w, &novelty);
-        let fx = crate::fixed::detect_with(&mut ws, &blob_model, &s.face, s.head)?;
+        let fx = crate::detect::fixed::detect_with(&mut ws, &blob_model, &s.face, s.head)?;
         let fx = fx.blob.map(|b| [b.centroid[0] - s.face.crop.x as f64, b.centroid[1] - s.face.crop.y as f64]);
         nf += fl.is_some() as usize;
         nq += fx.is_some() as usize;

@@ -22,11 +22,12 @@
 //!
 //! `quantized_agreement`: the share of test frames where the float and fixed decoder rows (sigma
 //! weighting) agree: both find nothing, or both find a blob with centroids at most 1 px apart.
+pub mod metrics;
 use crate::data::{Dataset, Sample};
 use crate::detect::{dequantized_decoder, float_engine_of, parse_blob, read_blob};
-use crate::metrics::{auroc, detection_score};
-use crate::pipeline::{Detection, Settings};
-use crate::predictor::FacePredictor;
+use crate::eval::metrics::{auroc, detection_score};
+use crate::detect::pipeline::{Detection, Settings};
+use crate::models::predictor::FacePredictor;
 use anyhow::{ensure, Context, Result};
 use msr_shared::blob::{Model, CRC32};
 use msr_sim::layout::Split;
@@ -212,7 +213,7 @@ pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> 
         let mut ws = Box::new(msr_firmware::Workspace::new());
         for s in &test {
             d.push(
-                crate::fixed::detect_with(&mut ws, m, &s.face, s.head)
+                crate::detect::fixed::detect_with(&mut ws, m, &s.face, s.head)
                     .with_context(|| format!("frame {}", s.file.display()))?,
             );
         }
@@ -397,7 +398,7 @@ fn trained_model(
     dir: &Path,
     name: &str,
     face: (usize, usize),
-    crop: crate::crop::CropMode,
+    crop: crate::data::crop::CropMode,
 ) -> Result<Option<FloatModel>, String> {
     if !dir.join(format!("{name}.json")).is_file() {
         return Ok(None);
@@ -440,7 +441,7 @@ fn trained_model(
 /// The published float decoder with its float64 statistics (sigma + 1e-5, as the published code)
 /// and its novelty settings.
 fn published_float_decoder(manifest: &Path) -> Result<FloatModel> {
-    let p = crate::import::Published::load(manifest)?;
+    let p = crate::quant::import::Published::load(manifest)?;
     let (h, w) = (p.decoder.face_h, p.decoder.face_w);
     ensure!(p.mu.len() == h * w, "statistics do not match the face");
     Ok(FloatModel {

@@ -74,7 +74,7 @@ pub fn run(a: Args) -> Result<()> {
     };
     let trials = match a.backend {
         Backend::Inproc => episode::run_inproc(&blob, &cfg, a.trials, a.seed, &progress)?,
-        Backend::Qemu => crate::episode_qemu::run_qemu(&blob, &cfg, a.trials, a.seed, &progress)?,
+        Backend::Qemu => crate::episode::qemu::run_qemu(&blob, &cfg, a.trials, a.seed, &progress)?,
     };
     if let Some(p) = &a.trials_out {
         std::fs::write(p, serde_json::to_vec_pretty(&trials)?)?;

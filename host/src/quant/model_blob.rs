@@ -1,7 +1,7 @@
 //! A model blob from a training folder and a reach network, for the demo and the end-to-end
 //! tests: the quantizer of `msr quantize`, without its report.
-use crate::quantize;
-use crate::train_reach::{self, ReachModel};
+use crate::quant::quantize;
+use crate::train::reach::{self as train_reach, ReachModel};
 use anyhow::{ensure, Result};
 use std::path::Path;
 

@@ -4,8 +4,8 @@
 //! The manifest (`shared/data/nao-red-real/manifest.json`) names every file and tensor; nothing is
 //! assumed beyond it. Weights are PyTorch `Linear` (`W` is `[out, in]`), which is the blob's Dense
 //! layout, so they go in without transposing.
-use crate::crop::load_grey;
-use crate::predictor::FacePredictor;
+use crate::data::crop::load_grey;
+use crate::models::predictor::FacePredictor;
 use anyhow::{bail, ensure, Context, Result};
 use image::GrayImage;
 use msr_shared::blob::{

@@ -21,8 +21,8 @@ pub struct Args {
     #[arg(long, default_value = "red")]
     pub robot: Robot,
     /// Face crop of the trained models: subpixel, or pixel (the published code)
-    #[arg(long, default_value_t = crate::crop::CropMode::Subpixel)]
-    pub crop: crate::crop::CropMode,
+    #[arg(long, default_value_t = crate::data::crop::CropMode::Subpixel)]
+    pub crop: crate::data::crop::CropMode,
     /// Frames rendered (the paper's 1300)
     #[arg(long, default_value_t = 1300)]
     pub frames: usize,
@@ -82,10 +82,10 @@ fn train_args(data: &Path, out: &Path, model: ModelKind, a: &Args) -> train::Arg
         seed: a.seed,
         normalisation: NormArg::Std,
         two_sided: false,
-        sigma_floor: crate::calibrate::DEFAULT_SIGMA_FLOOR,
-        threshold: crate::calibrate::DEFAULT_THRESHOLD,
+        sigma_floor: crate::train::calibrate::DEFAULT_SIGMA_FLOOR,
+        threshold: crate::train::calibrate::DEFAULT_THRESHOLD,
         threshold_percentile: None,
-        min_area: crate::calibrate::DEFAULT_MIN_AREA,
+        min_area: crate::train::calibrate::DEFAULT_MIN_AREA,
         device: DeviceArg::Cpu,
         quiet: true,
     }
@@ -126,7 +126,7 @@ pub fn run(a: Args) -> Result<()> {
 
     // 2. Decoder and autoencoder, calibrated.
     let models = out.join("models");
-    if a.crop == crate::crop::CropMode::Subpixel {
+    if a.crop == crate::data::crop::CropMode::Subpixel {
         notes.push(
             "Face crops at sub-pixel precision (`crop::CropMode::Subpixel`), not the published whole-pixel crop: the \
              template match's peak is refined by a parabola and the face resampled bilinearly, so that it does not \
@@ -159,9 +159,9 @@ pub fn run(a: Args) -> Result<()> {
 
     // 3. Reach.
     p.start("3/8 reach pairs by the sim's IK (70, as the published robot's) and the 2-10-5 reach network");
-    let reach = crate::model_blob::train_sim_reach(70, a.seed)?;
-    let (xs, ys) = crate::model_blob::sim_reach_pairs(70, a.seed);
-    let rms = crate::train_reach::rms(&reach, &xs, &ys);
+    let reach = crate::quant::model_blob::train_sim_reach(70, a.seed)?;
+    let (xs, ys) = crate::quant::model_blob::sim_reach_pairs(70, a.seed);
+    let rms = crate::train::reach::rms(&reach, &xs, &ys);
     p.done(
         "reach_s",
         &format!(
@@ -172,7 +172,7 @@ pub fn run(a: Args) -> Result<()> {
 
     // 4. Quantize.
     p.start("4/8 quantizing to the fixed-point model blob");
-    let blob = crate::model_blob::blob_from_training(&models, "decoder", &reach)?;
+    let blob = crate::quant::model_blob::blob_from_training(&models, "decoder", &reach)?;
     let model_path = out.join("model.msrm");
     std::fs::write(&model_path, &blob)?;
     p.done(
@@ -210,7 +210,7 @@ pub fn run(a: Args) -> Result<()> {
     let quiet = |_: &episode::Trial| {};
     let trials = episode::run_inproc(&blob, &cfg, a.trials, a.seed, &quiet)?;
     let inproc = episode::summarise(Backend::Inproc, a.robot, &trials);
-    p.done("episodes_inproc_s", &crate::mirror_test::readable(&inproc));
+    p.done("episodes_inproc_s", &crate::cmd::mirror_test::readable(&inproc));
     let mut mirror = json!({ "inproc": inproc, "trials": trials });
     if msr_sim::qemu::qemu_available() {
         p.start(&format!(
@@ -220,7 +220,7 @@ pub fn run(a: Args) -> Result<()> {
         ));
         match qemu_episodes(&blob, &cfg, &trials, a.qemu_trials, a.seed) {
             Ok((s, matching, note)) => {
-                p.done("episodes_qemu_s", &format!("{}; {note}", crate::mirror_test::readable(&s)));
+                p.done("episodes_qemu_s", &format!("{}; {note}", crate::cmd::mirror_test::readable(&s)));
                 mirror["qemu"] = json!(s);
                 mirror["qemu_matching_inproc"] = json!(matching);
                 notes.push(format!("QEMU episodes: {note}."));
@@ -297,7 +297,7 @@ pub fn run(a: Args) -> Result<()> {
 }
 
 /// The chosen novelty settings in a few words.
-fn novelty_line(n: &crate::calibrate::NoveltyParams) -> String {
+fn novelty_line(n: &crate::train::calibrate::NoveltyParams) -> String {
     let merge = |m: msr_shared::blob::Merge| {
         if m.is_on() {
             format!("merge fragments of >= {} px within {} px", m.fragment, m.margin)
@@ -353,7 +353,7 @@ fn qemu_episodes(
     let model = msr_shared::blob::Model::parse(blob).map_err(|e| anyhow::anyhow!("model blob: {e}"))?;
     let cropper = crate::detect::cropper_of(&model)?;
     let renderer = msr_sim::render::Renderer::new(cfg.robot);
-    let mut board = crate::episode_qemu::QemuBoard::start(blob)?;
+    let mut board = crate::episode::qemu::QemuBoard::start(blob)?;
     let upload_s = board.upload_s;
     let mut done = Vec::new();
     for i in 0..n {
@@ -385,7 +385,7 @@ fn qemu_episodes(
 /// detections on unmarked frames.
 pub fn real_check(real_dir: &Path, out: &Path) -> Result<Value> {
     let manifest = real_dir.join(crate::data::MANIFEST_FILE);
-    let published = crate::import::Published::load(&manifest)?;
+    let published = crate::quant::import::Published::load(&manifest)?;
     let bytes = published
         .to_spec()?
         .to_bytes()
@@ -396,7 +396,7 @@ pub fn real_check(real_dir: &Path, out: &Path) -> Result<Value> {
     let ds = crate::data::Dataset::load(real_dir, crate::detect::crop_mode_of(&model))?;
     let (mut marked, mut hits, mut unmarked, mut false_alarms) = (0, 0, 0, 0);
     for s in &ds.samples {
-        let d = crate::fixed::detect(&model, &s.face, s.head)?;
+        let d = crate::detect::fixed::detect(&model, &s.face, s.head)?;
         match &s.mark {
             Some(m) => {
                 marked += 1;

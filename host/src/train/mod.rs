@@ -11,13 +11,13 @@
 //!
 //! Frames: the training split's unmarked frames train the model and make the statistics; the test
 //! split gives the per-epoch test loss (mark pixels excluded) and, for `--threshold-percentile`,
-//! its unmarked frames are the normal held-out frames (see `crate::calibrate`). `msr demo` then
+//! its unmarked frames are the normal held-out frames (see `crate::train::calibrate`). `msr demo` then
 //! applies the calibrated novelty policy (`policy`), which may lower the threshold and turn on the
 //! fragment merge, and rewrites `{name}.json`.
-use crate::calibrate::{self, ErrorStats, NoveltyParams};
+use self::calibrate::{ErrorStats, NoveltyParams};
 use crate::data::{Dataset, Sample};
 use crate::models::{ArchKind, Autoencoder, Decoder, DecoderSpec, FloatLayer};
-use crate::predictor::FacePredictor;
+use crate::models::predictor::FacePredictor;
 use anyhow::{bail, ensure, Context, Result};
 use burn::prelude::*;
 use fit::{HyperParams, Samples};
@@ -29,6 +29,8 @@ use std::path::{Path, PathBuf};
 pub mod fit;
 pub mod plot;
 pub mod policy;
+pub mod calibrate;
+pub mod reach;
 #[cfg(test)]
 pub(crate) mod synthetic;
 

@@ -9,7 +9,8 @@
 //!
 //! Frames are cropped as they load (template matching on 2 threads, in the [`CropMode`] asked for)
 //! and only the crops are kept.
-use crate::crop::{crop_face_with, load_grey, CropBox, CropMode, Face};
+pub mod crop;
+use crate::data::crop::{crop_face_with, load_grey, CropBox, CropMode, Face};
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use image::GrayImage;
 use msr_sim::layout::{DatasetIndex, Split, INDEX_FILE};

@@ -6,7 +6,7 @@
 //! with the model's template, send it, and print the board's answer (a detection, an error, a
 //! status). Writes are paced to the line rate: a PTY or a USB bridge without flow control would
 //! otherwise let a large upload overrun the board's receive buffers.
-use crate::crop;
+use crate::data::crop;
 use crate::episode::HostPort;
 use anyhow::{anyhow, bail, Context, Result};
 use image::GrayImage;

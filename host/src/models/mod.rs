@@ -4,6 +4,7 @@
 //! A decoder is described by a [`DecoderSpec`] (stored in the model's JSON), so a saved record can
 //! be rebuilt and every layer maps one-to-one onto a blob layer kind: Dense, ConvTranspose2d, Crop.
 //! Activations: tanh inside, sigmoid on the last layer (as the paper and the published code).
+pub mod predictor;
 use anyhow::{bail, ensure, Result};
 use burn::module::Param;
 use burn::nn::conv::{ConvTranspose2d, ConvTranspose2dConfig};

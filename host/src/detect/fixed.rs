@@ -1,8 +1,8 @@
 //! The fixed-point engine: the firmware's own pipeline (decoder, saliency, blobs, winner, reach),
 //! built for the host, on a face crop. Nothing here re-implements a stage; it only converts the
 //! firmware's results to the host's [`Detection`].
-use crate::crop::Face;
-use crate::pipeline::{saliency, Blob, Detection};
+use crate::data::crop::Face;
+use crate::detect::pipeline::{saliency, Blob, Detection};
 use anyhow::{anyhow, ensure, Result};
 use msr_firmware::blobs::{self as fw_blobs, Labeller};
 use msr_firmware::{Settings, Workspace};

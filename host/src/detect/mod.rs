@@ -1,9 +1,11 @@
 //! `msr detect`: find a mark in one camera frame with a model blob: template crop on the host,
 //! then the pipeline on the crop (the firmware's fixed-point code by default).
-use crate::crop::{load_grey, CropBox, CropMode, Cropper, Face};
-use crate::import::{Dense, DenseDecoder};
-use crate::pipeline::{Detection, FloatEngine, Settings, JOINTS};
-use crate::predictor::FacePredictor;
+pub mod pipeline;
+pub mod fixed;
+use crate::data::crop::{load_grey, CropBox, CropMode, Cropper, Face};
+use crate::quant::import::{Dense, DenseDecoder};
+use crate::detect::pipeline::{Detection, FloatEngine, Settings, JOINTS};
+use crate::models::predictor::FacePredictor;
 use anyhow::{bail, ensure, Context, Result};
 use image::GrayImage;
 use msr_shared::blob::{LayerKind, Model};
@@ -113,7 +115,7 @@ pub fn detect_face(
         model.face_h
     );
     match engine {
-        EngineArg::Fixed => crate::fixed::detect(model, face, head),
+        EngineArg::Fixed => crate::detect::fixed::detect(model, face, head),
         EngineArg::Float => {
             let dec = dequantized_decoder(model)?;
             let eng = float_engine_of(model);
@@ -175,7 +177,7 @@ pub fn to_json(d: &Detection) -> String {
     #[derive(serde::Serialize)]
     struct Out {
         crop: CropBox,
-        blob: Option<crate::pipeline::Blob>,
+        blob: Option<crate::detect::pipeline::Blob>,
         joints: Option<Joints>,
     }
     #[derive(serde::Serialize)]

@@ -1,5 +1,5 @@
 //! `msr blobs`: list the 8-connected blobs of a binary mask with the firmware's blob stage.
-use crate::pipeline::Blob;
+use crate::detect::pipeline::Blob;
 use anyhow::{ensure, Context, Result};
 use serde_json::json;
 use std::path::PathBuf;
@@ -58,7 +58,7 @@ pub fn find(mask: &[bool], w: usize, h: usize, min_area: u32) -> Result<(Vec<Blo
         "mask has {} pixels, not {w}x{h}",
         mask.len()
     );
-    let (all, overflow) = crate::fixed::blobs(mask, w, h)?;
+    let (all, overflow) = crate::detect::fixed::blobs(mask, w, h)?;
     Ok((
         all.into_iter().filter(|b| b.area >= min_area).collect(),
         overflow,

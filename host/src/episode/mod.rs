@@ -20,7 +20,9 @@
 //!
 //! While the arm is up the board pauses detection, so the PC sends frames only every
 //! [`ARM_UP_FRAME_PERIOD_US`] then, enough to keep the face watchdog (500 ms) fed.
-use crate::crop;
+pub mod qemu;
+pub mod sim_board;
+use crate::data::crop;
 use anyhow::{anyhow, Context, Result};
 use image::{DynamicImage, GrayImage};
 use msr_firmware::model::{ModelStore, UploadError};
