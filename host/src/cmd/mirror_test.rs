@@ -1,6 +1,7 @@
 //! `msr mirror-test`: run mirror-test episodes: sim world, emulated links, firmware in-process or
 //! in QEMU. See [`crate::episode`] for what one trial is.
-use crate::episode::{self, Backend, EpisodeConfig, Summary, Trial};
+use crate::episode::{self, Backend, EpisodeConfig, FaultLinks, Summary, Trial};
+use msr_sim::link::FaultConfig;
 use anyhow::{bail, Result};
 use msr_sim::Robot;
 use std::path::PathBuf;
@@ -18,10 +19,20 @@ pub struct Args {
     pub backend: Backend,
     #[arg(long, default_value = "red")]
     pub robot: Robot,
-    /// Bit-error rate on both directions of both links
+    /// Bit-error rate on both directions of the links `--faults-on` names
     #[arg(long, default_value_t = 0.0)]
     pub ber: f64,
-    /// Cut both links for this many milliseconds in every trial
+    /// Bursts (the sim's burst model): probability per byte that a burst of `--burst-len`
+    /// random bytes starts
+    #[arg(long, default_value_t = 0.0)]
+    pub burst_rate: f64,
+    /// Bytes a burst replaces
+    #[arg(long, default_value_t = 16)]
+    pub burst_len: u32,
+    /// Which links the faults (--ber, bursts, --disconnect-ms) hit
+    #[arg(long, value_enum, default_value_t = FaultLinks::Both)]
+    pub faults_on: FaultLinks,
+    /// Cut the links for this many milliseconds in every trial
     #[arg(long)]
     pub disconnect_ms: Option<u64>,
     /// When the cut starts, milliseconds into the trial
@@ -49,11 +60,22 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     if !(0.0..=1.0).contains(&a.no_mark_share) {
         bail!("--no-mark-share must be in 0..=1, got {}", a.no_mark_share);
     }
-    let mut c = EpisodeConfig::new(a.robot).with_ber(a.ber);
-    c.no_mark_share = a.no_mark_share;
-    if let Some(ms) = a.disconnect_ms {
-        c = c.with_disconnect(a.disconnect_at_ms * 1000, ms * 1000);
+    if !(0.0..=1.0).contains(&a.burst_rate) {
+        bail!("--burst-rate must be in 0..=1, got {}", a.burst_rate);
     }
+    let faults = FaultConfig {
+        bit_error_rate: a.ber,
+        burst_rate: a.burst_rate,
+        burst_len: a.burst_len,
+        disconnects: a
+            .disconnect_ms
+            .map(|ms| (a.disconnect_at_ms * 1000, ms * 1000))
+            .into_iter()
+            .collect(),
+        ..Default::default()
+    };
+    let mut c = EpisodeConfig::new(a.robot).with_faults(&faults, a.faults_on);
+    c.no_mark_share = a.no_mark_share;
     if let Some(p) = a.parallel {
         c.parallel = p.max(1);
     }
@@ -110,7 +132,8 @@ pub fn readable(s: &Summary) -> String {
     let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
     format!(
         "{} {}: {} trials, touched {}/{} marked ({:.1} %), false reaches {}/{} unmarked, median touch error {} mm, \
-         median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, watchdog trips {}",
+         median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, watchdog trips {}; \
+         face link: goodput {:.0} B/s, {} chunks sent again, {} frames superseded",
         s.backend,
         s.robot,
         s.trials,
@@ -124,6 +147,9 @@ pub fn readable(s: &Summary) -> String {
         s.limit_violations,
         s.crc_errors,
         s.resyncs,
-        s.watchdog_trips
+        s.watchdog_trips,
+        s.goodput_bytes_per_s,
+        s.retransmissions,
+        s.frames_superseded
     )
 }
