@@ -148,6 +148,7 @@ impl Session {
         };
         let mut out = std::mem::take(&mut self.pending);
         out.extend(self.host.receive(&buf[..n]));
+        self.host.check_version()?;
         Ok(out)
     }
 

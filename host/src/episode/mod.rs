@@ -29,7 +29,8 @@ use msr_firmware::model::{ModelStore, UploadError};
 use msr_firmware::Board;
 use msr_shared::blob::Model;
 use msr_shared::frame::{
-    encode_message_vec, FrameAccumulator, LinkCounters, Sequencer, MAX_WIRE_FRAME,
+    encode_message_vec, FrameAccumulator, FrameError, LinkCounters, Sequencer, MAX_WIRE_FRAME,
+    PROTOCOL_VERSION,
 };
 use msr_shared::deliver::{face_header, FaceLink, LinkStats};
 use msr_shared::msg::{BoardToHost, Config, Detection, HostToBoard, Status, CHUNK};
@@ -373,6 +374,8 @@ pub struct HostPort {
     seq: Sequencer,
     rx: Box<FrameAccumulator<MAX_WIRE_FRAME>>,
     frame_id: u16,
+    /// The protocol version of a board that speaks another one, once one of its frames came.
+    foreign: Option<u8>,
 }
 
 impl Default for HostPort {
@@ -381,6 +384,7 @@ impl Default for HostPort {
             seq: Sequencer::default(),
             rx: Box::new(FrameAccumulator::new()),
             frame_id: 0,
+            foreign: None,
         }
     }
 }
@@ -430,14 +434,28 @@ impl HostPort {
     pub fn receive(&mut self, bytes: &[u8]) -> Vec<BoardToHost> {
         let mut out = Vec::new();
         for &b in bytes {
-            if let Some(Ok(f)) = self.rx.push(b) {
-                match f.message::<BoardToHost>() {
+            match self.rx.push(b) {
+                Some(Ok(f)) => match f.message::<BoardToHost>() {
                     Ok(m) => out.push(m),
                     Err(_) => self.rx.count_malformed(),
-                }
+                },
+                Some(Err(FrameError::Version(v))) => self.foreign = Some(v),
+                _ => {}
             }
         }
         out
+    }
+
+    /// Fails once a frame of another protocol version came: a board with older (or newer)
+    /// firmware, which would not understand this host either.
+    pub fn check_version(&self) -> Result<()> {
+        match self.foreign {
+            Some(v) => Err(anyhow!(
+                "the board speaks host-link protocol version {v}, this host version {PROTOCOL_VERSION}: \
+                 flash firmware and msr of the same release"
+            )),
+            None => Ok(()),
+        }
     }
 
     pub fn counters(&self) -> &LinkCounters {
@@ -517,7 +535,9 @@ impl Scenario<'_> {
                 w.host.send(&bytes);
             }
         }
-        for m in self.port.receive(&w.host.receive()) {
+        let msgs = self.port.receive(&w.host.receive());
+        self.port.check_version()?;
+        for m in msgs {
             self.faces.on_message(&m);
             match m {
                 BoardToHost::Detection(d) => {
@@ -846,6 +866,26 @@ pub fn read_model(path: &std::path::Path) -> Result<Vec<u8>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_board_of_another_protocol_version_is_a_clear_error() {
+        // A version-1 board's Pong { nonce: 5 }: version 1, seq 0, payload 00 05, CRC-16/UMTS.
+        let raw = [1u8, 0, 0, 0, 5];
+        let crc = msr_shared::frame::CRC16.checksum(&raw).to_le_bytes();
+        assert!(!crc.contains(&0), "the literal assumes a CRC without zero bytes");
+        // COBS of 01 00 00 00 05 c0 c1: runs [01] [] [] [05 c0 c1], then the delimiter.
+        let wire = [0x02, 0x01, 0x01, 0x01, 0x04, 0x05, crc[0], crc[1], 0x00];
+        let mut port = HostPort::default();
+        assert!(port.check_version().is_ok());
+        assert!(port.receive(&wire).is_empty());
+        let e = port.check_version().unwrap_err().to_string();
+        assert!(e.contains("version 1, this host version 2"), "{e}");
+        // The same message from a board of this version is taken.
+        let mut port = HostPort::default();
+        let good = encode_message_vec(0, &BoardToHost::Pong { nonce: 5 }).unwrap();
+        assert_eq!(port.receive(&good), vec![BoardToHost::Pong { nonce: 5 }]);
+        assert!(port.check_version().is_ok());
+    }
 
     #[test]
     fn trial_seeds_wrap_and_differ() {
