@@ -210,7 +210,7 @@ impl Assembly {
         let chunk = h.chunk as usize;
         let i = offset as usize / chunk;
         let range = h.chunk_range(i);
-        if offset as usize % chunk != 0 || i >= h.chunks() || data.len() != range.len() {
+        if !(offset as usize).is_multiple_of(chunk) || i >= h.chunks() || data.len() != range.len() {
             return Err(AssemblyError::Chunk);
         }
         if !self.missing.remove(i) {

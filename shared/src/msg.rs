@@ -31,12 +31,27 @@
 //! | every chunk present | checks `crc32`; on a match answers `Complete` and runs the pipeline **once**; on a mismatch marks every chunk missing again and answers so |
 //!
 //! Reordering is thus handled by offsets (chunks may come in any order), duplication by the
-//! missing set and the last completed frame id, loss by the host: after each round it waits for
-//! the ack of that round; what the ack lists missing it sends again, ending the round with a
-//! `FramePoll`; no ack within its timeout, it polls again. A frame that is not complete by the
-//! host's deadline is superseded by a fresh camera frame, so the board never runs the pipeline on
-//! a stale or partial image, nor on one with a corrupted byte (CRC-16 per chunk, CRC-32 over the
-//! image). The host side is [`crate::deliver::FaceSender`].
+//! missing set and the last completed frame id, loss by the host. The host
+//! ([`crate::deliver::FaceSender`]) sends round 0 (`FrameStart`, every chunk, `FramePoll` round
+//! 0), then waits for that round's ack; each ack listing missing chunks starts the next round:
+//! those chunks and a `FramePoll` with the new round number. Acks of other rounds or frames are
+//! ignored (late duplicates); no ack within its timeout after the line went idle, it polls the
+//! same round again. A `Complete` ack or a [`Detection`] of the frame ends it; a frame that is
+//! not complete by the host's deadline (two frame periods in the episodes) is superseded by a
+//! fresh camera frame. So the board never runs the pipeline on a stale or partial image, nor on
+//! one with a corrupted byte (CRC-16 per chunk, CRC-32 over the image), and runs it once per
+//! frame id.
+//!
+//! Board to host, nothing is repeated but the reach: while the arm is up the board answers each
+//! whole frame with the [`Detection`] that started the reach (same frame id), so a host that
+//! lost it still learns of the reach; a host takes a confirmed detection once per frame id.
+//! Other lost reports (detections, errors, statuses) are not recovered: the next frame brings a
+//! new one.
+//!
+//! Bounds. Board: one image buffer (`MAX_FACE_PIXELS` = 6144 bytes), one [`FrameHeader`], one
+//! [`ChunkSet`] (32 bytes), the last completed id, the last reach (one [`Detection`]); the
+//! receive accumulator of [`crate::frame`] (264 bytes) per link; the model staging area of the
+//! store. Host: one frame in flight (its pixels and a [`ChunkSet`]); nothing grows with loss.
 //!
 //! # Model uploads: go-back to the last good chunk
 //!
