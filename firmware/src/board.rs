@@ -6,7 +6,7 @@
 use crate::confirm::Confirm;
 use crate::dynamixel::{BusEvent, Master, Polled};
 use crate::link::{
-    read_ready, Assembly, AssemblyError, Rx, Tx, Watchdog, FACE_TIMEOUT_US, READ_CHUNK,
+    read_ready, Assembly, Progress, Rx, Tx, Watchdog, FACE_TIMEOUT_US, READ_CHUNK,
     SERVO_TIMEOUT_US,
 };
 use crate::model::{self, ModelStore, Upload, UploadError};
@@ -15,10 +15,12 @@ use crate::pipeline::{self, Workspace};
 use crate::saliency::Settings;
 use embedded_io::{Read, ReadReady, Write};
 use msr_shared::blob::{Merge, Model};
+use msr_shared::frame::FrameError;
 use msr_shared::joints::REACH_JOINTS;
 use msr_shared::msg::{
-    BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameHeader, HostToBoard,
-    JointTarget, Mode, ServoBusKind, ServoBusReport, ServoIdReport, ServoToBoard, Status,
+    BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameAck, FrameHeader,
+    FrameState, HostToBoard, JointTarget, Mode, ServoBusKind, ServoBusReport, ServoIdReport,
+    ServoToBoard, Status,
 };
 
 /// Most bytes taken from one link per poll, so a flood cannot starve the control loop.
@@ -60,6 +62,9 @@ struct Core<S: ModelStore> {
     /// The servo bus speaks Dynamixel Protocol 2.0 with this master (`None`: framed).
     dxl: Option<Master>,
     dxl_stopped: bool,
+    /// The detection that started the reach in progress, repeated while the arm is up so
+    /// that a host that lost it still learns of the reach.
+    last_reach: Option<Detection>,
 }
 
 /// The firmware. `S` holds the model blobs (see [`ModelStore`]).
@@ -102,6 +107,7 @@ impl<S: ModelStore> Board<S> {
                 clamped_targets: 0,
                 dxl: None,
                 dxl_stopped: false,
+                last_reach: None,
             },
         }
     }
@@ -160,28 +166,33 @@ impl<S: ModelStore> Board<S> {
             }
             taken += n;
             for &b in &buf[..n] {
-                if let Some(Ok(f)) = self.host_rx.push(b) {
-                    match f.message::<HostToBoard>() {
+                match self.host_rx.push(b) {
+                    Some(Ok(f)) => match f.message::<HostToBoard>() {
                         Ok(msg) => core.on_host(now_us, msg, &mut self.ws, &mut self.frame, host),
                         Err(_) => self.host_rx.count_malformed(),
+                    },
+                    // A host of another protocol: say so rather than go quiet.
+                    Some(Err(FrameError::Version(v))) => {
+                        core.error(host, ErrorCode::Version, v as u32)
                     }
+                    _ => {}
                 }
                 if core.status_pending {
                     core.status_pending = false;
-                    let s = core.status(&self.host_rx, &self.servo_rx);
+                    let s = core.status(&self.host_rx, &self.servo_rx, &self.frame);
                     core.host_tx.send(host, &BoardToHost::Status(s));
                 }
             }
         }
         if core.face_wd.check(now_us) {
             core.error(host, ErrorCode::FaceTimeout, 0);
-            let s = core.status(&self.host_rx, &self.servo_rx);
+            let s = core.status(&self.host_rx, &self.servo_rx, &self.frame);
             core.host_tx.send(host, &BoardToHost::Status(s));
         }
         if core.servo_wd.check(now_us) {
             core.motion.stop();
             core.error(host, ErrorCode::ServoTimeout, 0);
-            let s = core.status(&self.host_rx, &self.servo_rx);
+            let s = core.status(&self.host_rx, &self.servo_rx, &self.frame);
             core.host_tx.send(host, &BoardToHost::Status(s));
         }
         let due = *core.next_tick_us.get_or_insert(now_us);
@@ -198,7 +209,7 @@ impl<S: ModelStore> Board<S> {
 
     /// Counters and state, as `GetStatus` answers.
     pub fn status(&self) -> Status {
-        self.core.status(&self.host_rx, &self.servo_rx)
+        self.core.status(&self.host_rx, &self.servo_rx, &self.frame)
     }
 
     pub fn store(&self) -> &S {
@@ -254,7 +265,7 @@ impl<S: ModelStore> Core<S> {
         }
     }
 
-    fn status(&self, host_rx: &Rx, servo_rx: &Rx) -> Status {
+    fn status(&self, host_rx: &Rx, servo_rx: &Rx, frame: &Assembly) -> Status {
         Status {
             mode: self.mode(),
             model_crc: self.loaded.map_or(0, |l| l.crc),
@@ -268,6 +279,9 @@ impl<S: ModelStore> Core<S> {
             clamped_targets: self
                 .clamped_targets
                 .saturating_add(self.dxl.as_ref().map_or(0, |m| m.refused_targets)),
+            frames_superseded: frame.superseded,
+            chunks_ignored: frame.ignored,
+            frame_crc_errors: frame.crc_errors,
         }
     }
 
@@ -338,20 +352,30 @@ impl<S: ModelStore> Core<S> {
                 offset,
                 data,
             } => match frame.chunk(id, offset, data) {
-                Ok(Some(h)) => self.on_frame(now_us, h, frame.pixels(&h), ws, host),
-                Ok(None) => {}
-                Err(AssemblyError::Size | AssemblyError::Chunk) => {
-                    self.error(host, ErrorCode::BadFrame, id as u32)
+                Ok(Progress::Quiet) => {}
+                Ok(Progress::Ack(a)) => self.ack(host, a),
+                Ok(Progress::Complete(h)) => {
+                    self.ack(host, FrameAck { frame: h.frame, round: 0, state: FrameState::Complete });
+                    self.on_frame(now_us, h, frame.pixels(&h), ws, host)
                 }
+                Err(_) => self.error(host, ErrorCode::BadFrame, id as u32),
             },
-            HostToBoard::ModelBegin { len, crc32 } => {
-                if let Err(e) = self.upload.begin(&mut self.store, len, crc32) {
-                    self.error(host, ErrorCode::BadUpload, e.detail());
-                }
-            }
+            HostToBoard::FramePoll { header, round } => match self.loaded {
+                None => self.error(host, ErrorCode::NoModel, 0),
+                Some(l) => match frame.poll(header, round, l.face_w, l.face_h) {
+                    Ok(a) => self.ack(host, a),
+                    Err(_) => self.error(host, ErrorCode::BadFrame, header.frame as u32),
+                },
+            },
+            HostToBoard::ModelBegin { len, crc32 } => match self.upload.begin(&mut self.store, len, crc32) {
+                Ok(next) => self.upload_ack(host, next),
+                Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
+            },
             HostToBoard::ModelChunk { offset, data } => {
-                if let Err(e) = self.upload.chunk(&mut self.store, offset, data) {
-                    self.error(host, ErrorCode::BadUpload, e.detail());
+                match self.upload.chunk(&mut self.store, offset, data) {
+                    Ok(None) => {}
+                    Ok(Some(next)) => self.upload_ack(host, next),
+                    Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
                 }
             }
             HostToBoard::ModelCommit => match self.upload.commit(&mut self.store) {
@@ -361,6 +385,7 @@ impl<S: ModelStore> Core<S> {
                     self.host_tx
                         .send(host, &BoardToHost::ModelAccepted { crc32: crc });
                 }
+                Err(UploadError::Incomplete { next }) => self.upload_ack(host, next),
                 Err(e @ UploadError::Invalid(_)) => {
                     self.error(host, ErrorCode::BadModel, e.detail())
                 }
@@ -443,6 +468,14 @@ impl<S: ModelStore> Core<S> {
         }
     }
 
+    fn ack<H: Write>(&mut self, host: &mut H, a: FrameAck) {
+        self.host_tx.send(host, &BoardToHost::FrameAck(a));
+    }
+
+    fn upload_ack<H: Write>(&mut self, host: &mut H, next: u32) {
+        self.host_tx.send(host, &BoardToHost::UploadAck { next });
+    }
+
     /// Applies a configuration, all or nothing.
     fn configure(&mut self, c: &Config) -> bool {
         let s = Settings {
@@ -484,8 +517,13 @@ impl<S: ModelStore> Core<S> {
             self.motion.go_home();
         }
         if self.motion.arm_up() {
-            return; // Detection pauses while the arm is up.
+            // Detection pauses while the arm is up; the reach is reported again.
+            if let Some(d) = self.last_reach {
+                self.host_tx.send(host, &BoardToHost::Detection(d));
+            }
+            return;
         }
+        self.last_reach = None;
         let (Some(yaw), Some(pitch)) = (self.measured[0], self.measured[1]) else {
             self.error(host, ErrorCode::ServoTimeout, 1);
             return;
@@ -542,6 +580,9 @@ impl<S: ModelStore> Core<S> {
             confirmed,
             reach: det.reach,
         };
+        if confirmed {
+            self.last_reach = Some(d);
+        }
         self.host_tx.send(host, &BoardToHost::Detection(d));
     }
 

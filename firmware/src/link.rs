@@ -2,9 +2,9 @@
 //! watchdogs. The board ([`crate::board`]) uses these; they hold no policy of their own.
 
 use embedded_io::{Read, ReadReady, Write};
-use msr_shared::blob::MAX_FACE_PIXELS;
+use msr_shared::blob::{CRC32, MAX_FACE_PIXELS};
 use msr_shared::frame::{encode_message, FrameAccumulator, MAX_WIRE_FRAME};
-use msr_shared::msg::FrameHeader;
+use msr_shared::msg::{is_older, ChunkSet, FrameAck, FrameHeader, FrameState};
 use serde::Serialize;
 
 /// Face watchdog: no complete face frame for this long -> hold still and report.
@@ -108,19 +108,42 @@ impl Watchdog {
     }
 }
 
-/// Why a frame chunk was refused; the frame in progress is dropped.
+/// Why a face-frame message was refused; the frame in progress is kept.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum AssemblyError {
-    /// Size differs from the model's face, or larger than the buffer.
+    /// Size differs from the model's face, larger than the buffer, or a chunk size or count
+    /// the protocol does not allow.
     Size,
-    /// A chunk for no frame or another frame, out of order, or past the end.
+    /// A chunk whose offset is not a chunk boundary of its frame, or whose length is wrong.
     Chunk,
 }
 
-/// Collects a face image from its chunks.
+/// What a face-frame message did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Progress {
+    /// Stored, or a duplicate / stale message ignored; nothing to answer.
+    Quiet,
+    /// Answer the host with this ack.
+    Ack(FrameAck),
+    /// The image is whole and passed its CRC-32: answer `Complete` and run the pipeline on
+    /// [`Assembly::pixels`].
+    Complete(FrameHeader),
+}
+
+/// Reassembles one face frame at a time from chunks in any order (selective repeat; the rules
+/// are in [`msr_shared::msg`]). Bounded: one image buffer of `MAX_FACE_PIXELS` bytes, one
+/// header, one [`ChunkSet`] and the id of the last completed frame.
 pub struct Assembly {
     header: Option<FrameHeader>,
-    received: usize,
+    missing: ChunkSet,
+    /// The last frame completed, to answer its duplicates and polls.
+    done: Option<u16>,
+    /// Unfinished frames dropped for a newer one.
+    pub superseded: u32,
+    /// Chunks and starts that were duplicates or for a frame not in progress.
+    pub ignored: u32,
+    /// Whole images whose CRC-32 did not match.
+    pub crc_errors: u32,
     buf: [u8; MAX_FACE_PIXELS],
 }
 
@@ -134,57 +157,111 @@ impl Assembly {
     pub const fn new() -> Self {
         Assembly {
             header: None,
-            received: 0,
+            missing: ChunkSet::EMPTY,
+            done: None,
+            superseded: 0,
+            ignored: 0,
+            crc_errors: 0,
             buf: [0; MAX_FACE_PIXELS],
         }
     }
 
-    /// Drops any frame in progress.
+    /// Drops any frame in progress and forgets the last one (a new model).
     pub fn clear(&mut self) {
         self.header = None;
-        self.received = 0;
+        self.done = None;
     }
 
-    /// `FrameStart`: the image must be `face_w x face_h`.
+    /// The frame in progress, if any.
+    pub fn current(&self) -> Option<FrameHeader> {
+        self.header
+    }
+
+    /// Is `frame` the one in progress or done, or older than them?
+    fn seen(&self, frame: u16) -> bool {
+        let known = |f: u16| f == frame || is_older(frame, f);
+        self.header.is_some_and(|h| known(h.frame)) || self.done.is_some_and(known)
+    }
+
+    /// `FrameStart`: a newer frame supersedes the one in progress; the same or an older one is
+    /// ignored. The image must be `face_w x face_h`.
     pub fn start(&mut self, h: FrameHeader, face_w: u16, face_h: u16) -> Result<(), AssemblyError> {
-        self.clear();
-        let n = h.width as usize * h.height as usize;
-        if h.width != face_w || h.height != face_h || n == 0 || n > MAX_FACE_PIXELS {
+        if self.seen(h.frame) {
+            self.ignored = self.ignored.saturating_add(1);
+            return Ok(());
+        }
+        if h.width != face_w || h.height != face_h || !h.is_valid() || h.pixels() > MAX_FACE_PIXELS {
             return Err(AssemblyError::Size);
         }
+        if self.header.is_some() {
+            self.superseded = self.superseded.saturating_add(1);
+        }
         self.header = Some(h);
+        self.missing = ChunkSet::first(h.chunks());
         Ok(())
     }
 
-    /// `FrameChunk`: in order, no gaps. Returns the header once the image is complete.
-    pub fn chunk(
-        &mut self,
-        frame: u16,
-        offset: u16,
-        data: &[u8],
-    ) -> Result<Option<FrameHeader>, AssemblyError> {
-        let Some(h) = self.header else {
-            return Err(AssemblyError::Chunk);
+    /// `FrameChunk`: stores a chunk of the frame in progress.
+    pub fn chunk(&mut self, frame: u16, offset: u16, data: &[u8]) -> Result<Progress, AssemblyError> {
+        let Some(h) = self.header.filter(|h| h.frame == frame) else {
+            self.ignored = self.ignored.saturating_add(1);
+            return Ok(Progress::Quiet);
         };
-        let n = h.width as usize * h.height as usize;
-        let end = offset as usize + data.len();
-        if frame != h.frame || offset as usize != self.received || end > n {
-            self.clear();
+        let chunk = h.chunk as usize;
+        let i = offset as usize / chunk;
+        let range = h.chunk_range(i);
+        if !(offset as usize).is_multiple_of(chunk) || i >= h.chunks() || data.len() != range.len() {
             return Err(AssemblyError::Chunk);
         }
-        self.buf[offset as usize..end].copy_from_slice(data);
-        self.received = end;
-        if end == n {
-            self.header = None;
-            self.received = 0;
-            return Ok(Some(h));
+        if !self.missing.remove(i) {
+            self.ignored = self.ignored.saturating_add(1);
+            return Ok(Progress::Quiet);
         }
-        Ok(None)
+        self.buf[range].copy_from_slice(data);
+        if self.missing.is_empty() {
+            return Ok(self.finish(h, 0));
+        }
+        if i + 1 == h.chunks() {
+            // The end of the first round: tell the host what to send again.
+            return Ok(Progress::Ack(self.ack(h.frame, 0)));
+        }
+        Ok(Progress::Quiet)
+    }
+
+    /// `FramePoll`: where the frame stands; starts it if its `FrameStart` was lost.
+    pub fn poll(&mut self, h: FrameHeader, round: u8, face_w: u16, face_h: u16) -> Result<FrameAck, AssemblyError> {
+        if !self.seen(h.frame) {
+            self.start(h, face_w, face_h)?;
+        }
+        Ok(self.ack(h.frame, round))
+    }
+
+    fn ack(&self, frame: u16, round: u8) -> FrameAck {
+        let state = match self.header {
+            Some(h) if h.frame == frame => FrameState::Missing(self.missing),
+            _ if self.done == Some(frame) => FrameState::Complete,
+            _ => FrameState::Stale,
+        };
+        FrameAck { frame, round, state }
+    }
+
+    /// All chunks are in: the image must match its CRC-32, else every chunk is asked again.
+    fn finish(&mut self, h: FrameHeader, round: u8) -> Progress {
+        if CRC32.checksum(&self.buf[..h.pixels()]) == h.crc32 {
+            self.header = None;
+            self.done = Some(h.frame);
+            return Progress::Complete(h);
+        }
+        self.crc_errors = self.crc_errors.saturating_add(1);
+        self.missing = ChunkSet::first(h.chunks());
+        Progress::Ack(self.ack(h.frame, round))
     }
 
     /// The pixels of the frame just completed.
     pub fn pixels(&self, h: &FrameHeader) -> &[u8] {
-        let n = (h.width as usize * h.height as usize).min(MAX_FACE_PIXELS);
-        &self.buf[..n]
+        &self.buf[..h.pixels().min(MAX_FACE_PIXELS)]
     }
 }
+
+#[cfg(test)]
+mod tests;

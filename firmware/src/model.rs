@@ -22,6 +22,8 @@ pub enum UploadError {
     Crc,
     /// The blob failed validation.
     Invalid(BlobError),
+    /// A commit before all bytes arrived; the board wants `next` next.
+    Incomplete { next: u32 },
 }
 
 impl UploadError {
@@ -33,6 +35,7 @@ impl UploadError {
             UploadError::Store => 3,
             UploadError::Crc => 4,
             UploadError::Invalid(e) => e.code(),
+            UploadError::Incomplete { .. } => 5,
         }
     }
 }
@@ -140,7 +143,9 @@ pub fn validate(bytes: &[u8]) -> Result<Model<'_>, BlobError> {
     Ok(m)
 }
 
-/// An upload in progress.
+/// An upload in progress. Chunks are taken in order only (flash is written once, forwards);
+/// what arrived is kept until a `ModelBegin` of another blob, so an upload resumes from the
+/// last good chunk after a lost chunk or a restarted host.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Upload {
     state: Option<UploadState>,
@@ -151,6 +156,8 @@ struct UploadState {
     len: usize,
     crc32: u32,
     received: usize,
+    /// A gap was reported since the last good chunk (report it once, not per chunk).
+    gap_reported: bool,
 }
 
 impl Upload {
@@ -162,13 +169,20 @@ impl Upload {
         self.state.is_some()
     }
 
-    /// `ModelBegin`: starts over, whatever was in progress.
+    /// `ModelBegin`: the offset wanted next. An unfinished upload of the same length and CRC
+    /// resumes where it stopped; anything else starts over.
     pub fn begin<S: ModelStore>(
         &mut self,
         store: &mut S,
         len: u32,
         crc32: u32,
-    ) -> Result<(), UploadError> {
+    ) -> Result<u32, UploadError> {
+        if let Some(st) = self.state.as_mut() {
+            if st.len == len as usize && st.crc32 == crc32 {
+                st.gap_reported = false;
+                return Ok(st.received as u32);
+            }
+        }
         self.state = None;
         let len = len as usize;
         if len > store.capacity() {
@@ -179,39 +193,51 @@ impl Upload {
             len,
             crc32,
             received: 0,
+            gap_reported: false,
         });
-        Ok(())
+        Ok(0)
     }
 
-    /// `ModelChunk`: chunks must come in order; a gap or overlap aborts the upload.
+    /// `ModelChunk`: stores the bytes past what arrived; `Ok(Some(next))` asks the host to go
+    /// back to `next` (a chunk came after a gap; said once per gap). Duplicates are ignored.
     pub fn chunk<S: ModelStore>(
         &mut self,
         store: &mut S,
         offset: u32,
         data: &[u8],
-    ) -> Result<(), UploadError> {
+    ) -> Result<Option<u32>, UploadError> {
         let Some(st) = self.state.as_mut() else {
             return Err(UploadError::Sequence);
         };
-        let end = (offset as usize).checked_add(data.len());
-        if offset as usize != st.received || end.is_none_or(|e| e > st.len) {
-            self.state = None;
+        let offset = offset as usize;
+        let Some(end) = offset.checked_add(data.len()).filter(|e| *e <= st.len) else {
             return Err(UploadError::Sequence);
+        };
+        if offset > st.received {
+            let first = !core::mem::replace(&mut st.gap_reported, true);
+            return Ok(first.then_some(st.received as u32));
         }
-        if let Err(e) = store.write(offset as usize, data) {
+        if end <= st.received {
+            return Ok(None);
+        }
+        let fresh = &data[st.received - offset..];
+        if let Err(e) = store.write(st.received, fresh) {
             self.state = None;
             return Err(e);
         }
-        st.received += data.len();
-        Ok(())
+        st.received = end;
+        st.gap_reported = false;
+        Ok(None)
     }
 
-    /// `ModelCommit`: checks and switches. Returns the new model's CRC (its identity).
+    /// `ModelCommit`: checks and switches. Returns the new model's CRC (its identity). Before
+    /// all bytes arrived: [`UploadError::Incomplete`], and the upload stays open.
     pub fn commit<S: ModelStore>(&mut self, store: &mut S) -> Result<u32, UploadError> {
-        let st = self.state.take().ok_or(UploadError::Sequence)?;
+        let st = self.state.ok_or(UploadError::Sequence)?;
         if st.received != st.len {
-            return Err(UploadError::Sequence);
+            return Err(UploadError::Incomplete { next: st.received as u32 });
         }
+        self.state = None;
         let bytes = store.staged();
         if bytes.len() != st.len || CRC32.checksum(bytes) != st.crc32 {
             return Err(UploadError::Crc);

@@ -339,6 +339,9 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
             "crc_errors",
             "resyncs",
             "watchdog_trips",
+            "goodput_bytes_per_s",
+            "retransmissions",
+            "frames_superseded",
         ],
     ));
     if let Some(e) = mt["qemu"].get("error") {

@@ -587,6 +587,7 @@ fn trial(index: usize, mark: Option<&str>, ended_before_mark: bool, touched: boo
         watchdog_trips: 0,
         sim_s: 0.0,
         wall_s: 0.0,
+        link: Default::default(),
         bus_bytes: Vec::new(),
     }
 }

@@ -12,12 +12,23 @@
 //! COBS removes every zero byte, so `0x00` always ends a frame and a receiver that joins mid-stream
 //! or sees garbage resynchronises at the next zero. [`FrameAccumulator`] does that in bounded memory:
 //! a damaged, oversized or foreign frame is counted and dropped whole.
+//!
+//! This layer does not repeat anything: a frame is delivered once, intact, or not at all.
+//! Loss, duplication and reordering of whole frames are left to the messages ([`crate::msg`]
+//! says what each side does). The only buffer is the accumulator's `N` bytes
+//! ([`MAX_WIRE_FRAME`], 264) per receiving link; a sender encodes into a stack buffer of the same
+//! size. Sequence numbers count gaps ([`LinkCounters::seq_gaps`]) for diagnosis only.
+//!
+//! A frame of another [`PROTOCOL_VERSION`] passes the CRC and is refused as
+//! [`FrameError::Version`]: the receiver knows the peer is alive but speaks another protocol.
 
 use core::fmt;
 use serde::{Deserialize, Serialize};
 
-/// Bumped whenever a message layout changes incompatibly.
-pub const PROTOCOL_VERSION: u8 = 1;
+/// Bumped whenever a message layout changes incompatibly. Version 2: face frames by selective
+/// repeat (`FrameHeader::chunk` and `crc32`, `FramePoll`, `FrameAck`), resumable uploads
+/// (`UploadAck`); version 1 sent each frame once and dropped it on any lost chunk.
+pub const PROTOCOL_VERSION: u8 = 2;
 /// Largest postcard payload in one frame.
 pub const MAX_PAYLOAD: usize = 256;
 /// Version byte and sequence number.
@@ -312,10 +323,10 @@ mod tests {
 
     #[test]
     fn literal_frame() {
-        // version 1, seq 0x0102, payload [0x00, 0x2A]; CRC-16/UMTS of 01 02 01 00 2A.
-        let crc = CRC16.checksum(&[1, 2, 1, 0, 0x2A]).to_le_bytes();
+        // version 2, seq 0x0102, payload [0x00, 0x2A]; CRC-16/UMTS of 02 02 01 00 2A.
+        let crc = CRC16.checksum(&[2, 2, 1, 0, 0x2A]).to_le_bytes();
         let bytes = wire(0x0102, &[0x00, 0x2A]);
-        let mut expect = vec![0x04, 0x01, 0x02, 0x01, 0x04, 0x2A];
+        let mut expect = vec![0x04, 0x02, 0x02, 0x01, 0x04, 0x2A];
         expect.extend_from_slice(&crc);
         expect.push(0x00);
         // COBS: the zero inside the payload splits the frame into two runs.
@@ -387,7 +398,8 @@ mod tests {
 
     #[test]
     fn wrong_version_is_refused() {
-        let mut raw = vec![2u8, 0, 0, 0xAA];
+        // A version-1 frame (the protocol before selective repeat): seq 0, payload AA.
+        let mut raw = vec![1u8, 0, 0, 0xAA];
         let crc = CRC16.checksum(&raw).to_le_bytes();
         raw.extend_from_slice(&crc);
         let mut enc = vec![0u8; 16];
@@ -395,7 +407,8 @@ mod tests {
         enc.truncate(n);
         enc.push(0);
         let mut acc = Acc::new();
-        assert_eq!(feed(&mut acc, &enc), vec![Err(FrameError::Version(2))]);
+        assert_eq!(feed(&mut acc, &enc), vec![Err(FrameError::Version(1))]);
+        assert_eq!(acc.counters().malformed, 1);
     }
 
     #[test]

@@ -25,8 +25,10 @@
 //! assert_eq!(got, grey);
 //! ```
 use crate::blob::CRC32;
-use crate::frame::{encode_message_vec, FrameAccumulator, LinkCounters, Sequencer, MAX_WIRE_FRAME};
-use crate::msg::{BoardToHost, FrameHeader, HostToBoard, CHUNK};
+use crate::frame::{
+    encode_message_vec, FrameAccumulator, FrameError, LinkCounters, Sequencer, MAX_WIRE_FRAME, PROTOCOL_VERSION,
+};
+use crate::msg::{BoardToHost, HostToBoard, CHUNK};
 
 /// A face crop that the frame messages cannot carry.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -55,13 +57,36 @@ pub struct HostPort {
     seq: Sequencer,
     rx: Box<FrameAccumulator<MAX_WIRE_FRAME>>,
     frame_id: u16,
+    /// The protocol version of a board that speaks another one, once one of its frames came.
+    foreign: Option<u8>,
 }
 
 impl Default for HostPort {
     fn default() -> Self {
-        HostPort { seq: Sequencer::default(), rx: Box::new(FrameAccumulator::new()), frame_id: 0 }
+        HostPort { seq: Sequencer::default(), rx: Box::new(FrameAccumulator::new()), frame_id: 0, foreign: None }
     }
 }
+
+/// A board that speaks another host-link protocol version (older or newer firmware), which
+/// would not understand this host either.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct VersionMismatch {
+    /// The board's version.
+    pub board: u8,
+}
+
+impl core::fmt::Display for VersionMismatch {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "the board speaks host-link protocol version {}, this host version {}: \
+             flash firmware and msr of the same release",
+            self.board, PROTOCOL_VERSION
+        )
+    }
+}
+
+impl std::error::Error for VersionMismatch {}
 
 impl HostPort {
     /// The wire bytes of one message.
@@ -88,16 +113,19 @@ impl HostPort {
         if grey.len() != pixels {
             return Err(FaceError::Length { expected: pixels, got: grey.len() });
         }
-        let h = FrameHeader {
+        // Sent once, for a clean line; a lossy line needs `crate::deliver::FaceLink`, which
+        // repeats what the board missed.
+        let h = crate::deliver::face_header(
             frame,
-            crop_x: origin[0] as u16,
-            crop_y: origin[1] as u16,
-            width: size[0] as u16,
-            height: size[1] as u16,
-        };
+            [origin[0] as u16, origin[1] as u16],
+            [size[0] as u16, size[1] as u16],
+            CHUNK as u16,
+            grey,
+        );
         let mut out = self.encode(&HostToBoard::FrameStart(h));
-        for (i, data) in grey.chunks(CHUNK).enumerate() {
-            out.extend(self.encode(&HostToBoard::FrameChunk { frame, offset: (i * CHUNK) as u16, data }));
+        for (i, data) in grey.chunks(h.chunk as usize).enumerate() {
+            let offset = (i * h.chunk as usize) as u16;
+            out.extend(self.encode(&HostToBoard::FrameChunk { frame, offset, data }));
         }
         Ok(out)
     }
@@ -116,14 +144,21 @@ impl HostPort {
     pub fn receive(&mut self, bytes: &[u8]) -> Vec<BoardToHost> {
         let mut out = Vec::new();
         for &b in bytes {
-            if let Some(Ok(f)) = self.rx.push(b) {
-                match f.message::<BoardToHost>() {
+            match self.rx.push(b) {
+                Some(Ok(f)) => match f.message::<BoardToHost>() {
                     Ok(m) => out.push(m),
                     Err(_) => self.rx.count_malformed(),
-                }
+                },
+                Some(Err(FrameError::Version(v))) => self.foreign = Some(v),
+                _ => {}
             }
         }
         out
+    }
+
+    /// Fails once a frame of another protocol version came.
+    pub fn check_version(&self) -> Result<(), VersionMismatch> {
+        self.foreign.map_or(Ok(()), |board| Err(VersionMismatch { board }))
     }
 
     /// What the receiving side counted so far.
@@ -135,6 +170,27 @@ impl HostPort {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_board_of_another_protocol_version_is_a_clear_error() {
+        // A version-1 board's Pong { nonce: 5 }: version 1, seq 0, payload 00 05, CRC-16/UMTS.
+        let raw = [1u8, 0, 0, 0, 5];
+        let crc = crate::frame::CRC16.checksum(&raw).to_le_bytes();
+        assert!(!crc.contains(&0), "the literal assumes a CRC without zero bytes");
+        // COBS of 01 00 00 00 05 c0 c1: runs [01] [] [] [05 c0 c1], then the delimiter.
+        let wire = [0x02, 0x01, 0x01, 0x01, 0x04, 0x05, crc[0], crc[1], 0x00];
+        let mut port = HostPort::default();
+        assert!(port.check_version().is_ok());
+        assert!(port.receive(&wire).is_empty());
+        let e = port.check_version().unwrap_err().to_string();
+        assert!(e.contains("version 1, this host version 2"), "{e}");
+        // The same message from a board of this version is taken.
+        let mut port = HostPort::default();
+        let good = encode_message_vec(0, &BoardToHost::Pong { nonce: 5 }).unwrap();
+        assert_eq!(port.receive(&good), vec![BoardToHost::Pong { nonce: 5 }]);
+        assert!(port.check_version().is_ok());
+    }
+
 
     #[test]
     fn crops_the_messages_cannot_carry_are_errors() {

@@ -6,6 +6,8 @@
 //! - [`msg`]: the messages of the host link (host <-> board) and of the servo bus (board <-> servos).
 //! - [`dynamixel`]: Dynamixel Protocol 2.0 packets (the servo bus of a real robot) and the
 //!   X-series control table.
+//! - [`deliver`]: the host's half of face-frame delivery (selective repeat) and the chunk size
+//!   for a line.
 //! - [`blob`]: the versioned model blob the board runs, with a validating, borrowing parser.
 //! - `host_port` (`std`): the PC's side of the host link, the one encoder of face crops and
 //!   model uploads.
@@ -15,6 +17,7 @@
 #![forbid(unsafe_code)]
 
 pub mod blob;
+pub mod deliver;
 pub mod dynamixel;
 pub mod frame;
 pub mod joints;

@@ -3,8 +3,71 @@
 //! - Host link (a PC or the sim, to the board): [`HostToBoard`] and [`BoardToHost`].
 //! - Servo bus (the board, to the joint servos): [`BoardToServo`] and [`ServoToBoard`].
 //!
-//! Large things (a face image, a model blob) travel in chunks of at most [`CHUNK`] bytes so that
-//! every frame stays below [`crate::frame::MAX_PAYLOAD`] and a damaged frame costs one chunk.
+//! Large things (a face image, a model blob) travel in chunks so that every frame stays below
+//! [`crate::frame::MAX_PAYLOAD`] and a damaged frame costs one chunk, which is sent again.
+//!
+//! # Face frames: selective repeat
+//!
+//! The host sends `FrameStart(h)`, then the chunks `FrameChunk { frame, offset, data }` with
+//! `offset = i * h.chunk` for chunk `i` (every chunk `h.chunk` bytes, the last one the rest).
+//! The host picks `h.chunk` in [`MIN_CHUNK`]`..=`[`CHUNK`] for the line
+//! ([`crate::deliver::chunk_for`]: large on a clean line, small on a noisy one), at most
+//! [`MAX_FRAME_CHUNKS`] chunks a frame. `h.crc32` is the CRC-32 of the whole image.
+//!
+//! The board (`msr_firmware::link::Assembly`) keeps **one** frame in progress: its header, the
+//! [`ChunkSet`] of missing chunks ([`BITMAP_BYTES`] bytes) and the image buffer
+//! (`MAX_FACE_PIXELS` bytes), all static; nothing else is buffered for face frames.
+//!
+//! | event on the board | what it does |
+//! |---|---|
+//! | `FrameStart`/`FramePoll` for a newer frame (or none in progress) | drops the unfinished frame (counted as superseded) and starts this one |
+//! | the same for the frame in progress | a duplicate: ignored (a poll is answered) |
+//! | the same for an older frame (fewer than [`STALE_WINDOW`] ids back) | stale: ignored, a poll answered [`FrameState::Stale`] |
+//! | a chunk of the frame in progress | stored and marked, unless already there (a duplicate, ignored) |
+//! | a chunk of another frame, or before its header | dropped (reordered or stale); the host's poll recovers it |
+//! | a chunk of the wrong length or offset | refused (`BadFrame`), the frame in progress is kept |
+//! | the last chunk (`i = n - 1`) of a frame still missing some | answers [`FrameAck`] round 0 with the missing set |
+//! | `FramePoll { header, round }` | answers [`FrameAck`] for that round: missing set, `Complete`, or `Stale` |
+//! | every chunk present | checks `crc32`; on a match answers `Complete` and runs the pipeline **once**; on a mismatch marks every chunk missing again and answers so |
+//!
+//! Reordering is thus handled by offsets (chunks may come in any order), duplication by the
+//! missing set and the last completed frame id, loss by the host. The host
+//! ([`crate::deliver::FaceSender`]) sends round 0 (`FrameStart`, every chunk, `FramePoll` round
+//! 0), then waits for that round's ack; each ack listing missing chunks starts the next round:
+//! those chunks and a `FramePoll` with the new round number. Acks of other rounds or frames are
+//! ignored (late duplicates); no ack within its timeout after the line went idle, it polls the
+//! same round again. A `Complete` ack or a [`Detection`] of the frame ends it; a frame that is
+//! not complete by the host's deadline (two frame periods in the episodes) is superseded by a
+//! fresh camera frame. So the board never runs the pipeline on a stale or partial image, nor on
+//! one with a corrupted byte (CRC-16 per chunk, CRC-32 over the image), and runs it once per
+//! frame id.
+//!
+//! Board to host, nothing is repeated but the reach: while the arm is up the board answers each
+//! whole frame with the [`Detection`] that started the reach (same frame id), so a host that
+//! lost it still learns of the reach; a host takes a confirmed detection once per frame id.
+//! Other lost reports (detections, errors, statuses) are not recovered: the next frame brings a
+//! new one.
+//!
+//! Bounds. Board: one image buffer (`MAX_FACE_PIXELS` = 6144 bytes), one [`FrameHeader`], one
+//! [`ChunkSet`] (32 bytes), the last completed id, the last reach (one [`Detection`]); the
+//! receive accumulator of [`crate::frame`] (264 bytes) per link; the model staging area of the
+//! store. Host: one frame in flight (its pixels and a [`ChunkSet`]); nothing grows with loss.
+//!
+//! # Model uploads: go-back to the last good chunk
+//!
+//! `ModelBegin { len, crc32 }` answers [`BoardToHost::UploadAck`] with the offset the board
+//! wants next: 0 for a new upload, or how far an unfinished upload of the same `len` and `crc32`
+//! got (a resumed upload, e.g. after the host restarted). The board takes `ModelChunk`s only in
+//! order: a duplicate (already stored) is ignored, a chunk past a gap is dropped and answered
+//! once with `UploadAck` (the host goes back to that offset). `ModelCommit` before all bytes
+//! arrived answers `UploadAck` too and keeps what arrived. The staging area is the only buffer
+//! (the store's capacity); chunks are written once, in order, so flash works as staging.
+//!
+//! # Versions
+//!
+//! Every frame carries [`crate::frame::PROTOCOL_VERSION`]. A board that receives a frame of
+//! another version answers [`ErrorCode::Version`] (detail: the version it got) and drops it; a
+//! host that receives one stops with an error naming both versions.
 
 use crate::blob::{Normalisation, Sided};
 use crate::joints::Joint;
@@ -12,6 +75,14 @@ use serde::{Deserialize, Serialize};
 
 /// Largest data chunk in a frame or model chunk message.
 pub const CHUNK: usize = 224;
+/// Smallest face chunk a host may choose.
+pub const MIN_CHUNK: usize = 24;
+/// Most chunks in one face frame.
+pub const MAX_FRAME_CHUNKS: usize = 256;
+/// Bytes of a [`ChunkSet`].
+pub const BITMAP_BYTES: usize = MAX_FRAME_CHUNKS / 8;
+/// A frame id this many or more behind the board's current one is a restarted host, not stale.
+pub const STALE_WINDOW: u16 = 64;
 /// Most joints in one servo-bus message: head and both arms.
 pub const MAX_BUS_JOINTS: usize = 14;
 
@@ -28,6 +99,149 @@ pub struct FrameHeader {
     /// Crop size; must equal the model's face size.
     pub width: u16,
     pub height: u16,
+    /// Chunk size of this frame, [`MIN_CHUNK`]`..=`[`CHUNK`].
+    pub chunk: u16,
+    /// CRC-32 (ISO-HDLC, as blobs) of the whole image.
+    pub crc32: u32,
+}
+
+impl FrameHeader {
+    /// Pixels in the image.
+    pub fn pixels(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// Chunks the image travels in (0 when `chunk` is 0).
+    pub fn chunks(&self) -> usize {
+        if self.chunk == 0 {
+            return 0;
+        }
+        self.pixels().div_ceil(self.chunk as usize)
+    }
+
+    /// Chunk size in range, at most [`MAX_FRAME_CHUNKS`] chunks, a non-empty image.
+    pub fn is_valid(&self) -> bool {
+        (MIN_CHUNK..=CHUNK).contains(&(self.chunk as usize))
+            && self.pixels() > 0
+            && self.chunks() <= MAX_FRAME_CHUNKS
+    }
+
+    /// Where chunk `i` lies in the image.
+    pub fn chunk_range(&self, i: usize) -> core::ops::Range<usize> {
+        let start = i * self.chunk as usize;
+        start.min(self.pixels())..(start + self.chunk as usize).min(self.pixels())
+    }
+
+    /// Is `frame` older than this header's frame by less than [`STALE_WINDOW`]?
+    pub fn is_stale(&self, frame: u16) -> bool {
+        is_older(frame, self.frame)
+    }
+}
+
+/// Is frame id `a` behind `b` by 1 to [`STALE_WINDOW`]` - 1` (wrapping)?
+pub fn is_older(a: u16, b: u16) -> bool {
+    let back = b.wrapping_sub(a);
+    back != 0 && back < STALE_WINDOW
+}
+
+/// One bit per chunk of a face frame, [`MAX_FRAME_CHUNKS`] of them. On the wire: the bitmap up
+/// to its last non-zero byte, with a length (an ack is short when few chunks are missing, and a
+/// short ack is less likely to be hit on a noisy line).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(into = "Trimmed", from = "Trimmed")]
+pub struct ChunkSet([u8; BITMAP_BYTES]);
+
+type Trimmed = heapless::Vec<u8, BITMAP_BYTES>;
+
+impl From<ChunkSet> for Trimmed {
+    fn from(s: ChunkSet) -> Trimmed {
+        let used = s.0.iter().rposition(|b| *b != 0).map_or(0, |i| i + 1);
+        Trimmed::from_slice(&s.0[..used]).unwrap_or_default()
+    }
+}
+
+impl From<Trimmed> for ChunkSet {
+    fn from(v: Trimmed) -> ChunkSet {
+        let mut s = ChunkSet::EMPTY;
+        s.0[..v.len()].copy_from_slice(&v);
+        s
+    }
+}
+
+impl ChunkSet {
+    pub const EMPTY: ChunkSet = ChunkSet([0; BITMAP_BYTES]);
+
+    /// Chunks `0..n`.
+    pub fn first(n: usize) -> ChunkSet {
+        let mut s = ChunkSet::EMPTY;
+        for i in 0..n.min(MAX_FRAME_CHUNKS) {
+            s.insert(i);
+        }
+        s
+    }
+
+    pub fn contains(&self, i: usize) -> bool {
+        i < MAX_FRAME_CHUNKS && self.0[i / 8] & (1 << (i % 8)) != 0
+    }
+
+    pub fn insert(&mut self, i: usize) {
+        if i < MAX_FRAME_CHUNKS {
+            self.0[i / 8] |= 1 << (i % 8);
+        }
+    }
+
+    /// Removes `i`; returns whether it was there.
+    pub fn remove(&mut self, i: usize) -> bool {
+        let had = self.contains(i);
+        if had {
+            self.0[i / 8] &= !(1 << (i % 8));
+        }
+        had
+    }
+
+    pub fn len(&self) -> usize {
+        self.0.iter().map(|b| b.count_ones() as usize).sum()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.0.iter().all(|b| *b == 0)
+    }
+
+    /// The smallest member.
+    pub fn first_member(&self) -> Option<usize> {
+        let (byte, b) = self.0.iter().enumerate().find(|(_, b)| **b != 0)?;
+        Some(byte * 8 + b.trailing_zeros() as usize)
+    }
+
+    /// The members in increasing order.
+    pub fn iter(&self) -> impl Iterator<Item = usize> + '_ {
+        (0..MAX_FRAME_CHUNKS).filter(|i| self.contains(*i))
+    }
+
+    /// The bitmap, bit `i % 8` of byte `i / 8` for chunk `i`.
+    pub fn bytes(&self) -> &[u8; BITMAP_BYTES] {
+        &self.0
+    }
+}
+
+/// Where a face frame stands on the board.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum FrameState {
+    /// All chunks arrived and the image passed its CRC-32; the pipeline ran on it once.
+    Complete,
+    /// In progress: these chunks are missing.
+    Missing(ChunkSet),
+    /// An older frame than the one in progress: it will never be processed.
+    Stale,
+}
+
+/// The board's answer about one face frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FrameAck {
+    pub frame: u16,
+    /// The `FramePoll` round answered; 0 for acks the last chunk or completion triggered.
+    pub round: u8,
+    pub state: FrameState,
 }
 
 /// Run-time settings the host may change. Out-of-range values are refused by the board.
@@ -76,6 +290,11 @@ pub enum HostToBoard<'a> {
     ModelCommit,
     Configure(Config),
     GetStatus,
+    /// Asks where a face frame stands; starts it if the board has not seen its `FrameStart`.
+    FramePoll {
+        header: FrameHeader,
+        round: u8,
+    },
     /// Chooses the servo bus protocol; the Dynamixel master starts up anew.
     UseServoBus(ServoBusKind),
     /// A new Dynamixel joint map (refused as a whole with [`ErrorCode::BadServoMap`]); the
@@ -174,6 +393,12 @@ pub struct Status {
     pub servo_watchdog_trips: u32,
     /// Targets that were outside the limits and were clamped or dropped before sending.
     pub clamped_targets: u32,
+    /// Face frames dropped unfinished because a newer one started.
+    pub frames_superseded: u32,
+    /// Face chunks that arrived twice, or for a frame not in progress.
+    pub chunks_ignored: u32,
+    /// Reassembled images whose CRC-32 did not match (all chunks asked for again).
+    pub frame_crc_errors: u32,
 }
 
 /// Why the board refused something.
@@ -193,6 +418,8 @@ pub enum ErrorCode {
     ServoTimeout,
     /// A frame arrived but no model is loaded.
     NoModel,
+    /// A frame of another protocol version arrived; `detail` is its version.
+    Version,
     /// Dynamixel start-up: no answer to Ping; `detail` is the ID. Nothing moves.
     ServoMissing,
     /// A Dynamixel servo refused a start-up step or raised its Alert: `detail` is the ID, its
@@ -213,6 +440,9 @@ pub enum BoardToHost {
     /// The uploaded model passed validation and runs now.
     ModelAccepted { crc32: u32 },
     Error { code: ErrorCode, detail: u32 },
+    FrameAck(FrameAck),
+    /// The model upload byte offset the board wants next.
+    UploadAck { next: u32 },
     ServoBus(ServoBusReport),
 }
 
@@ -347,9 +577,27 @@ mod tests {
             face_watchdog_trips: u32::MAX,
             servo_watchdog_trips: u32::MAX,
             clamped_targets: u32::MAX,
+            frames_superseded: u32::MAX,
+            chunks_ignored: u32::MAX,
+            frame_crc_errors: u32::MAX,
         };
         let mut buf = [0u8; MAX_PAYLOAD];
         round_trip(&BoardToHost::Status(status), &mut buf);
+        let all = ChunkSet::first(MAX_FRAME_CHUNKS);
+        let ack = FrameAck { frame: u16::MAX, round: u8::MAX, state: FrameState::Missing(all) };
+        let mut buf = [0u8; MAX_PAYLOAD];
+        round_trip(&BoardToHost::FrameAck(ack), &mut buf);
+        let header = FrameHeader {
+            frame: u16::MAX,
+            crop_x: u16::MAX,
+            crop_y: u16::MAX,
+            width: u16::MAX,
+            height: u16::MAX,
+            chunk: u16::MAX,
+            crc32: u32::MAX,
+        };
+        let mut buf = [0u8; MAX_PAYLOAD];
+        round_trip(&HostToBoard::FramePoll { header, round: u8::MAX }, &mut buf);
     }
 
     #[test]
@@ -367,6 +615,67 @@ mod tests {
             }
         }
         assert_eq!(got, Some(Ok(format!("{msg:?}"))));
+    }
+
+    #[test]
+    fn frame_ack_literal() {
+        // Variant 5 (FrameAck), frame 3, round 1, state 1 (Missing), then the bitmap's length
+        // and bytes up to the last non-zero one: chunks 0 and 9 missing.
+        let mut m = ChunkSet::EMPTY;
+        m.insert(0);
+        m.insert(9);
+        let ack = BoardToHost::FrameAck(FrameAck { frame: 3, round: 1, state: FrameState::Missing(m) });
+        assert_eq!(
+            postcard::to_slice(&ack, &mut [0u8; 64]).unwrap(),
+            &[0x05, 0x03, 0x01, 0x01, 0x02, 0x01, 0x02]
+        );
+        let back: BoardToHost = postcard::from_bytes(&[0x05, 0x03, 0x01, 0x01, 0x02, 0x01, 0x02]).unwrap();
+        assert_eq!(back, ack);
+        // A bitmap longer than 32 bytes does not parse.
+        let mut long = vec![0x05, 0x03, 0x01, 0x01, 33];
+        long.extend([0xFF; 33]);
+        assert!(postcard::from_bytes::<BoardToHost>(&long).is_err());
+        let done = BoardToHost::FrameAck(FrameAck { frame: 3, round: 0, state: FrameState::Complete });
+        assert_eq!(postcard::to_slice(&done, &mut [0u8; 8]).unwrap(), &[0x05, 0x03, 0x00, 0x00]);
+        assert_eq!(
+            postcard::to_slice(&BoardToHost::UploadAck { next: 300 }, &mut [0u8; 8]).unwrap(),
+            &[0x06, 0xAC, 0x02]
+        );
+    }
+
+    #[test]
+    fn chunk_geometry() {
+        let h = FrameHeader { frame: 1, crop_x: 0, crop_y: 0, width: 58, height: 75, chunk: 224, crc32: 0 };
+        assert_eq!(h.pixels(), 4350);
+        assert_eq!(h.chunks(), 20);
+        assert_eq!(h.chunk_range(19), 4256..4350);
+        assert_eq!(h.chunk_range(20), 4350..4350);
+        assert!(h.is_valid());
+        assert!(!FrameHeader { chunk: MIN_CHUNK as u16 - 1, ..h }.is_valid());
+        assert!(!FrameHeader { chunk: CHUNK as u16 + 1, ..h }.is_valid());
+        // 96 x 64 in chunks of 24 is exactly 256 chunks; one pixel more is too many.
+        assert!(FrameHeader { width: 96, height: 64, chunk: 24, ..h }.is_valid());
+        assert!(!FrameHeader { width: 97, height: 64, chunk: 24, ..h }.is_valid());
+        assert!(!FrameHeader { chunk: 0, ..h }.is_valid());
+        assert!(is_older(5, 6) && is_older(u16::MAX, 0) && !is_older(6, 6) && !is_older(7, 6));
+        assert!(!is_older(6u16.wrapping_sub(STALE_WINDOW), 6), "a restarted host is not stale");
+    }
+
+    #[test]
+    fn chunk_set() {
+        let mut s = ChunkSet::first(20);
+        assert_eq!(s.len(), 20);
+        assert!(s.remove(3) && !s.remove(3));
+        assert_eq!(s.iter().take(4).collect::<Vec<_>>(), vec![0, 1, 2, 4]);
+        assert_eq!(s.first_member(), Some(0));
+        let mut t = ChunkSet::EMPTY;
+        t.insert(203);
+        assert_eq!(t.first_member(), Some(203));
+        assert_eq!(ChunkSet::EMPTY.first_member(), None);
+        s.insert(MAX_FRAME_CHUNKS); // out of range: ignored
+        assert_eq!(s.len(), 19);
+        assert!(ChunkSet::EMPTY.is_empty() && !s.is_empty());
+        assert_eq!(ChunkSet::first(MAX_FRAME_CHUNKS + 5).len(), MAX_FRAME_CHUNKS);
     }
 
     #[test]

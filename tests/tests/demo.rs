@@ -22,6 +22,7 @@ fn demo_writes_model_report_and_page() {
         real: Some(real_dir()),
         seed: 0,
         html_only: false,
+        servo_bus: msr_host::episode::ServoBus::Dynamixel,
     })
     .unwrap();
     let blob = std::fs::read(out.join("model.msrm")).unwrap();

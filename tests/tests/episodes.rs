@@ -101,10 +101,11 @@ fn no_mark_no_reach() {
 }
 
 #[test]
-fn bit_errors_are_counted_and_never_unsafe() {
-    // A face frame is about 4.7 KB on the wire and needs every one of its 20 chunks: at BER 1e-4
-    // about 2 % of frames get through whole, at 1e-3 none. The board must stay safe, say so, and
-    // never reach for what it did not see.
+fn bit_errors_are_recovered_and_never_unsafe() {
+    // A face frame is about 4.7 KB on the wire in 20 chunks: at BER 1e-4 about one chunk in six
+    // is hit, at 1e-3 nearly all of them at that size. The PC sends again what the board missed
+    // (and shrinks the chunks for the line), so whole frames still arrive: the robot sees and
+    // reaches, safely, and never for what it did not see.
     for ber in [1e-4, 1e-3] {
         let c = marked_only(Robot::Red).with_ber(ber);
         let (s, trials) = run(Robot::Red, &c, 2, 21);
@@ -113,14 +114,13 @@ fn bit_errors_are_counted_and_never_unsafe() {
             s.crc_errors > 0 && s.resyncs >= s.crc_errors,
             "ber {ber}: {s:?}"
         );
+        assert!(s.retransmissions > 0, "ber {ber}: {s:?}");
         assert_eq!(s.false_reaches, 0);
-        if ber >= 1e-3 {
-            // Not one whole frame: no detection, so no reach; the arm stays home.
-            assert!(
-                trials.iter().all(|t| t.detections == 0 && !t.reached),
-                "{trials:#?}"
-            );
-        }
+        assert!(
+            trials.iter().all(|t| t.link.delivered >= 10),
+            "frames get through: {trials:#?}"
+        );
+        assert!(s.touched >= 1, "ber {ber}: {s:?}");
     }
 }
 

@@ -6,7 +6,7 @@ use crate::testkit::mlp_spec;
 use msr_shared::blob::CRC32;
 use msr_shared::frame::{encode_message, FrameAccumulator, MAX_WIRE_FRAME};
 use msr_shared::joints::HOME_POSTURE;
-use msr_shared::msg::{JointState, CHUNK};
+use msr_shared::msg::{ChunkSet, JointState, CHUNK};
 use proptest::prelude::*;
 use std::collections::VecDeque;
 
@@ -165,13 +165,7 @@ impl Rig {
     }
 
     fn frame(&mut self, id: u16, pixels: &[u8]) {
-        let h = FrameHeader {
-            frame: id,
-            crop_x: 140,
-            crop_y: 95,
-            width: FACE.1,
-            height: FACE.0,
-        };
+        let h = header(id, pixels);
         self.host_send(&HostToBoard::FrameStart(h));
         for (i, c) in pixels.chunks(CHUNK).enumerate() {
             self.host_send(&HostToBoard::FrameChunk {
@@ -226,6 +220,11 @@ impl Rig {
             }
         }
     }
+}
+
+/// The header of a face frame in chunks of [`CHUNK`].
+fn header(id: u16, pixels: &[u8]) -> FrameHeader {
+    msr_shared::deliver::face_header(id, [140, 95], [FACE.1, FACE.0], CHUNK as u16, pixels)
 }
 
 fn blob() -> &'static [u8] {
@@ -311,7 +310,11 @@ fn detects_confirms_reaches_holds_and_returns() {
         rig.frame(i, &face(home, true));
         rig.run(100);
     }
-    assert_eq!(rig.detections().len(), 8);
+    let again = rig.detections();
+    assert!(
+        again.len() > 8 && again[8..].iter().all(|x| *x == d[7]),
+        "only the reach is reported again, unchanged: {again:?}"
+    );
     // Keep frames coming (the face watchdog) until the cycle ends.
     let mut t = 0;
     while rig.board.phase() != Phase::Observe {
@@ -374,6 +377,10 @@ fn bad_uploads_keep_the_running_model() {
         data: &other[..CHUNK],
     });
     rig.host_send(&HostToBoard::ModelCommit);
+    rig.run(2);
+    // The chunk after the gap and the early commit both ask for the missing chunk.
+    let next = BoardToHost::UploadAck { next: CHUNK as u32 };
+    assert_eq!(rig.replies.iter().filter(|r| **r == next).count(), 2);
     // Too large, and a commit with nothing begun.
     rig.host_send(&HostToBoard::ModelBegin {
         len: STORE as u32 + 1,
@@ -396,6 +403,143 @@ fn bad_uploads_keep_the_running_model() {
     rig.upload(&other, CRC32.checksum(&other));
     let crc2 = Model::parse(&other).unwrap().crc32;
     assert_eq!(rig.board.status().model_crc, crc2);
+}
+
+fn acks(rig: &Rig) -> Vec<FrameAck> {
+    rig.replies
+        .iter()
+        .filter_map(|r| match r {
+            BoardToHost::FrameAck(a) => Some(*a),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn lost_chunks_are_asked_for_and_the_frame_completes() {
+    let mut rig = Rig::new(Some(blob()));
+    rig.run(100);
+    let px = face([HOME_POSTURE[0], HOME_POSTURE[1]], true);
+    // 480 pixels in chunks of 24: 20 chunks; 3, 7 and the last one are lost.
+    let h = msr_shared::deliver::face_header(5, [140, 95], [FACE.1, FACE.0], 24, &px);
+    assert_eq!(h.chunks(), 20);
+    rig.host_send(&HostToBoard::FrameStart(h));
+    for i in (0..19).filter(|i| ![3, 7].contains(i)) {
+        let r = h.chunk_range(i);
+        rig.host_send(&HostToBoard::FrameChunk { frame: 5, offset: r.start as u16, data: &px[r] });
+    }
+    rig.run(5);
+    assert!(acks(&rig).is_empty(), "no ack before the last chunk or a poll");
+    rig.host_send(&HostToBoard::FramePoll { header: h, round: 0 });
+    rig.run(2);
+    let mut missing = ChunkSet::EMPTY;
+    for i in [3, 7, 19] {
+        missing.insert(i);
+    }
+    assert_eq!(acks(&rig), vec![FrameAck { frame: 5, round: 0, state: FrameState::Missing(missing) }]);
+    // Duplicates of stored chunks change nothing; a chunk with a corrupted byte that passed
+    // the CRC-16 makes the image fail its CRC-32: every chunk is asked for again.
+    let r = h.chunk_range(0);
+    rig.host_send(&HostToBoard::FrameChunk { frame: 5, offset: 0, data: &px[r] });
+    for i in [3, 7] {
+        let r = h.chunk_range(i);
+        rig.host_send(&HostToBoard::FrameChunk { frame: 5, offset: r.start as u16, data: &px[r] });
+    }
+    let r = h.chunk_range(19);
+    let mut bad = px[r.clone()].to_vec();
+    bad[2] ^= 4;
+    rig.host_send(&HostToBoard::FrameChunk { frame: 5, offset: r.start as u16, data: &bad });
+    rig.run(5);
+    let a = acks(&rig);
+    assert_eq!(a.last().unwrap().state, FrameState::Missing(ChunkSet::first(20)));
+    assert!(rig.detections().is_empty(), "the pipeline never saw the damaged image");
+    let s = rig.board.status();
+    assert_eq!((s.frame_crc_errors, s.chunks_ignored, s.frames), (1, 1, 0));
+    // Sent again whole, in reverse order: complete, acked once, processed once.
+    for i in (0..20).rev() {
+        let r = h.chunk_range(i);
+        rig.host_send(&HostToBoard::FrameChunk { frame: 5, offset: r.start as u16, data: &px[r] });
+    }
+    rig.run(5);
+    assert_eq!(acks(&rig).last().unwrap().state, FrameState::Complete);
+    assert_eq!(rig.detections().len(), 1);
+    assert!(rig.detections()[0].blob.is_some());
+    // A late poll or duplicate chunk of the finished frame: Complete again, no second run.
+    rig.host_send(&HostToBoard::FramePoll { header: h, round: 2 });
+    rig.host_send(&HostToBoard::FrameChunk { frame: 5, offset: 0, data: &px[..24] });
+    rig.run(5);
+    assert_eq!(acks(&rig).last(), Some(&FrameAck { frame: 5, round: 2, state: FrameState::Complete }));
+    assert_eq!(rig.detections().len(), 1);
+    assert_eq!(rig.board.status().frames, 1);
+    // A poll for a frame whose start was lost starts it; an older one is stale.
+    let h7 = FrameHeader { frame: 7, ..h };
+    rig.host_send(&HostToBoard::FramePoll { header: h7, round: 0 });
+    rig.host_send(&HostToBoard::FramePoll { header: FrameHeader { frame: 4, ..h }, round: 0 });
+    rig.run(2);
+    let a = acks(&rig);
+    assert_eq!(a[a.len() - 2].state, FrameState::Missing(ChunkSet::first(20)));
+    assert_eq!(a[a.len() - 1], FrameAck { frame: 4, round: 0, state: FrameState::Stale });
+    // A newer frame supersedes the unfinished 7; 7's chunks are then ignored.
+    rig.frame(8, &px);
+    rig.host_send(&HostToBoard::FrameChunk { frame: 7, offset: 0, data: &px[..24] });
+    rig.run(5);
+    assert_eq!(rig.detections().len(), 2);
+    assert_eq!(rig.detections()[1].frame, 8);
+    assert_eq!(rig.board.status().frames_superseded, 1);
+}
+
+#[test]
+fn an_upload_resumes_from_the_last_good_chunk() {
+    let mut rig = Rig::new(Some(blob()));
+    rig.run(20);
+    let other = mlp_spec(4, FACE.0, FACE.1).to_bytes().unwrap();
+    let crc32 = CRC32.checksum(&other);
+    let begin = HostToBoard::ModelBegin { len: other.len() as u32, crc32 };
+    rig.host_send(&begin);
+    let chunks: Vec<&[u8]> = other.chunks(CHUNK).collect();
+    assert!(chunks.len() > 4);
+    // Chunk 2 is lost: chunks 3 and 4 are past a gap; the board says where to go back once.
+    for i in [0, 1, 3, 4] {
+        rig.host_send(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data: chunks[i] });
+    }
+    rig.run(3);
+    let want = |n: usize| BoardToHost::UploadAck { next: (n * CHUNK) as u32 };
+    assert_eq!(rig.replies.iter().filter(|r| **r == want(2)).count(), 1);
+    assert!(rig.replies.contains(&want(0)), "a new upload starts at 0");
+    // The host restarts: the same begin resumes at chunk 2, not 0.
+    rig.host_send(&begin);
+    rig.run(2);
+    assert_eq!(rig.replies.iter().filter(|r| **r == want(2)).count(), 2);
+    // A duplicate of a stored chunk is harmless.
+    rig.host_send(&HostToBoard::ModelChunk { offset: 0, data: chunks[0] });
+    for (i, c) in chunks.iter().enumerate().skip(2) {
+        rig.host_send(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data: c });
+        rig.run(1);
+    }
+    rig.host_send(&HostToBoard::ModelCommit);
+    rig.run(2);
+    let crc = Model::parse(&other).unwrap().crc32;
+    assert!(rig.replies.contains(&BoardToHost::ModelAccepted { crc32: crc }), "{:?}", rig.errors());
+    // Another blob's begin starts over.
+    rig.host_send(&HostToBoard::ModelBegin { len: 100, crc32: 1 });
+    rig.run(2);
+    assert_eq!(rig.replies.last(), Some(&want(0)));
+}
+
+#[test]
+fn a_host_of_another_protocol_version_is_told() {
+    let mut rig = Rig::new(Some(blob()));
+    rig.run(5);
+    // A version-1 host's GetStatus: version 1, seq 0, payload [0x07], CRC-16/UMTS, COBS.
+    let raw = [1u8, 0, 0, 7];
+    let crc = msr_shared::frame::CRC16.checksum(&raw).to_le_bytes();
+    assert!(!crc.contains(&0), "the literal assumes a CRC without zero bytes");
+    // COBS of 01 00 00 07 c0 c1: runs [01] [] [07 c0 c1], then the delimiter.
+    let frame = [0x02, 0x01, 0x01, 0x04, 0x07, crc[0], crc[1], 0x00];
+    rig.host.rx.extend(frame);
+    rig.run(2);
+    assert_eq!(rig.errors(), vec![(ErrorCode::Version, 1)]);
+    assert!(!rig.replies.iter().any(|r| matches!(r, BoardToHost::Status(_))));
 }
 
 #[test]
@@ -475,18 +619,12 @@ fn truncated_oversized_and_garbled_frames_are_counted_and_survived() {
     assert!(rig.replies.contains(&BoardToHost::Pong { nonce: 7 }));
     // Face frames of the wrong size, chunks out of order or past the end.
     let h = FrameHeader {
-        frame: 9,
-        crop_x: 0,
-        crop_y: 0,
         width: 10,
         height: 10,
+        ..header(9, &[0; 100])
     };
     rig.host_send(&HostToBoard::FrameStart(h));
-    rig.host_send(&HostToBoard::FrameStart(FrameHeader {
-        width: FACE.1,
-        height: FACE.0,
-        ..h
-    }));
+    rig.host_send(&HostToBoard::FrameStart(header(9, &face([0.0, 0.0], false))));
     rig.host_send(&HostToBoard::FrameChunk {
         frame: 9,
         offset: 100,
@@ -498,16 +636,20 @@ fn truncated_oversized_and_garbled_frames_are_counted_and_survived() {
         data: &[1, 2, 3],
     });
     rig.run(5);
+    // The wrong size and the chunk off a chunk boundary are refused; the chunk of another
+    // frame is ignored (a reordered or stale chunk is no error).
     assert_eq!(
         rig.errors()
             .iter()
             .filter(|e| e.0 == ErrorCode::BadFrame)
             .count(),
-        3
+        2
     );
+    assert_eq!(rig.board.status().chunks_ignored, 1);
     rig.frame(10, &face([0.0, 0.0], false));
     rig.run(20);
     assert_eq!(rig.detections().len(), 1);
+    assert_eq!(rig.board.status().frames_superseded, 1, "frame 9 never finished");
     rig.host_send(&HostToBoard::GetStatus);
     rig.run(2);
     assert!(matches!(rig.replies.last(), Some(BoardToHost::Status(s)) if s.frames == 1));

@@ -192,6 +192,8 @@ pub fn check(c: &Command) -> Result<()> {
         Command::MirrorTest(a) => {
             int("--trials", a.trials, 1, MAX_TRIALS, "")?;
             real("--ber", a.ber, 0.0, 1.0, " (errors per bit)")?;
+            real("--burst-rate", a.burst_rate, 0.0, 1.0, " (bursts per byte)")?;
+            int("--burst-len", a.burst_len, 1, 65_536, " bytes")?;
             real("--no-mark-share", a.no_mark_share, 0.0, 1.0, "")?;
             if let Some(ms) = a.disconnect_ms {
                 int("--disconnect-ms", ms, 0, 60_000, " ms")?;

@@ -1,6 +1,7 @@
 //! `msr mirror-test`: run mirror-test episodes: sim world, emulated links, firmware in-process or
 //! in QEMU. See [`crate::episode`] for what one trial is.
-use crate::episode::{self, Backend, EpisodeConfig, ServoBus, Summary, Trial};
+use crate::episode::{self, Backend, EpisodeConfig, FaultLinks, ServoBus, Summary, Trial};
+use msr_sim::link::FaultConfig;
 use anyhow::{bail, Result};
 use msr_sim::Robot;
 use std::path::PathBuf;
@@ -26,10 +27,20 @@ pub struct Args {
     /// in trial order)
     #[arg(long)]
     pub bus_log: Option<PathBuf>,
-    /// Bit-error rate on both directions of both links
+    /// Bit-error rate on both directions of the links `--faults-on` names
     #[arg(long, default_value_t = 0.0)]
     pub ber: f64,
-    /// Cut both links for this many milliseconds in every trial
+    /// Bursts (the sim's burst model): probability per byte that a burst of `--burst-len`
+    /// random bytes starts
+    #[arg(long, default_value_t = 0.0)]
+    pub burst_rate: f64,
+    /// Bytes a burst replaces
+    #[arg(long, default_value_t = 16)]
+    pub burst_len: u32,
+    /// Which links the faults (--ber, bursts, --disconnect-ms) hit
+    #[arg(long, value_enum, default_value_t = FaultLinks::Both)]
+    pub faults_on: FaultLinks,
+    /// Cut the links for this many milliseconds in every trial
     #[arg(long)]
     pub disconnect_ms: Option<u64>,
     /// When the cut starts, milliseconds into the trial
@@ -57,15 +68,26 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     if !(0.0..=1.0).contains(&a.no_mark_share) {
         bail!("--no-mark-share must be in 0..=1, got {}", a.no_mark_share);
     }
-    let mut c = EpisodeConfig::new(a.robot).with_ber(a.ber);
+    if !(0.0..=1.0).contains(&a.burst_rate) {
+        bail!("--burst-rate must be in 0..=1, got {}", a.burst_rate);
+    }
+    let faults = FaultConfig {
+        bit_error_rate: a.ber,
+        burst_rate: a.burst_rate,
+        burst_len: a.burst_len,
+        disconnects: a
+            .disconnect_ms
+            .map(|ms| (a.disconnect_at_ms * 1000, ms * 1000))
+            .into_iter()
+            .collect(),
+        ..Default::default()
+    };
+    let mut c = EpisodeConfig::new(a.robot).with_faults(&faults, a.faults_on);
     c.no_mark_share = a.no_mark_share;
     c.servo_bus = a.servo_bus;
     c.log_bus = a.bus_log.is_some();
     if a.bus_log.is_some() && a.backend != Backend::Inproc {
         bail!("--bus-log needs --backend inproc");
-    }
-    if let Some(ms) = a.disconnect_ms {
-        c = c.with_disconnect(a.disconnect_at_ms * 1000, ms * 1000);
     }
     if let Some(p) = a.parallel {
         c.parallel = p.max(1);
@@ -145,7 +167,7 @@ pub fn readable(s: &Summary) -> String {
     format!(
         "{} {} ({} servo bus): {} trials, touched {}/{} marked ({} %), false reaches {} ({} trials without a mark{early}), \
          median touch error {} mm, median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, \
-         watchdog trips {}",
+         watchdog trips {}; face link: goodput {:.0} B/s, {} chunks sent again, {} frames superseded",
         s.backend,
         s.robot,
         s.servo_bus,
@@ -160,6 +182,9 @@ pub fn readable(s: &Summary) -> String {
         s.limit_violations,
         s.crc_errors,
         s.resyncs,
-        s.watchdog_trips
+        s.watchdog_trips,
+        s.goodput_bytes_per_s,
+        s.retransmissions,
+        s.frames_superseded
     )
 }

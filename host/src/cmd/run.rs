@@ -2,15 +2,18 @@
 //!
 //! The host side of the host link as it runs against a real board: open the port with
 //! `serialport`, optionally upload a model blob (begin, chunks, commit; the board answers
-//! `ModelAccepted` or an error and keeps its previous model), then for each frame crop the face
-//! with the model's template, send it, and print the board's answer (a detection, an error, a
-//! status). Writes are paced to the line rate: a PTY or a USB bridge without flow control would
+//! `ModelAccepted` or an error and keeps its previous model; a lost chunk or an interrupted
+//! upload resumes where the board says it stopped), then for each frame crop the face with the
+//! model's template, send it (selective repeat: what the board missed is sent again), and print
+//! the board's answer (a detection, an error, a status) and at the end the link's goodput,
+//! retransmissions and superseded frames. Writes are paced to the line rate: a PTY or a USB bridge without flow control would
 //! otherwise let a large upload overrun the board's receive buffers.
 use crate::data::crop;
 use msr_shared::host_port::HostPort;
 use anyhow::{anyhow, bail, Context, Result};
 use image::GrayImage;
-use msr_shared::msg::{BoardToHost, HostToBoard, Status};
+use msr_shared::deliver::{FaceLink, LinkStats};
+use msr_shared::msg::{BoardToHost, HostToBoard, Status, CHUNK};
 use msr_sim::Robot;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
@@ -63,7 +66,18 @@ pub struct Session {
     host: HostPort,
     byte_time: Duration,
     pending: Vec<BoardToHost>,
+    faces: FaceLink,
+    /// The session's clock for the face link's timeouts.
+    t0: Instant,
+    /// Model bytes sent again on resuming uploads.
+    pub upload_resent: u64,
 }
+
+/// How long the PC waits for the board's ack of a face-frame round after its last byte went
+/// out: USB serial bridges batch reads for up to 16 ms.
+pub const ACK_TIMEOUT: Duration = Duration::from_millis(25);
+/// Tries (begin, chunks from where the board stands, commit) before an upload is given up.
+pub const UPLOAD_TRIES: usize = 8;
 
 impl Session {
     pub fn open(path: &str, baud: u32) -> Result<Session> {
@@ -79,6 +93,9 @@ impl Session {
             host: HostPort::default(),
             byte_time: Duration::from_secs_f64(10.0 / baud as f64),
             pending: Vec::new(),
+            faces: FaceLink::new(ACK_TIMEOUT.as_micros() as u64),
+            t0: Instant::now(),
+            upload_resent: 0,
         })
     }
 
@@ -133,6 +150,7 @@ impl Session {
         };
         let mut out = std::mem::take(&mut self.pending);
         out.extend(self.host.receive(&buf[..n]));
+        self.host.check_version()?;
         Ok(out)
     }
 
@@ -159,36 +177,112 @@ impl Session {
     }
 
     /// Uploads a blob; `Ok(crc)` when the board accepted it, an error with the board's reason
-    /// otherwise (the board then keeps the model it had).
+    /// otherwise (the board then keeps the model it had). `timeout` is per try: a try that gets
+    /// no answer starts again with `ModelBegin`, which the board answers with where to resume.
     pub fn upload(&mut self, blob: &[u8], timeout: Duration) -> Result<u32> {
-        let bytes = self.host.encode_upload(blob);
-        self.send(&bytes)?;
-        let (msgs, ok) = self.wait_for(timeout, |m| {
-            matches!(
-                m,
-                BoardToHost::ModelAccepted { .. } | BoardToHost::Error { .. }
-            )
-        })?;
-        match msgs.last() {
-            Some(BoardToHost::ModelAccepted { crc32 }) if ok => Ok(*crc32),
-            Some(BoardToHost::Error { code, detail }) if ok => {
-                bail!("the board refused the model: {code:?} (detail {detail})")
+        let crc32 = msr_shared::blob::CRC32.checksum(blob);
+        let begin = HostToBoard::ModelBegin { len: blob.len() as u32, crc32 };
+        let mut resume: Option<usize> = None;
+        let mut sent_to = 0usize;
+        for _ in 0..UPLOAD_TRIES {
+            let from = match resume.take() {
+                Some(n) => n,
+                None => {
+                    self.send_message(&begin)?;
+                    let (msgs, _) = self.wait_for(timeout, |m| {
+                        matches!(m, BoardToHost::UploadAck { .. } | BoardToHost::Error { .. })
+                    })?;
+                    match msgs.last() {
+                        Some(BoardToHost::UploadAck { next }) => *next as usize,
+                        Some(BoardToHost::Error { code, detail }) => {
+                            bail!("the board refused the model: {code:?} (detail {detail})")
+                        }
+                        _ => continue,
+                    }
+                }
+            };
+            let from = from.min(blob.len());
+            self.upload_resent += sent_to.saturating_sub(from) as u64;
+            let mut bytes = Vec::new();
+            for (i, data) in blob[from..].chunks(CHUNK).enumerate() {
+                let offset = (from + i * CHUNK) as u32;
+                bytes.extend(self.host.encode(&HostToBoard::ModelChunk { offset, data }));
             }
-            _ => bail!("no answer to the model upload within {timeout:?}"),
+            bytes.extend(self.host.encode(&HostToBoard::ModelCommit));
+            self.send(&bytes)?;
+            sent_to = blob.len();
+            let (msgs, _) = self.wait_for(timeout, |m| {
+                matches!(
+                    m,
+                    BoardToHost::ModelAccepted { .. }
+                        | BoardToHost::Error { .. }
+                        | BoardToHost::UploadAck { .. }
+                )
+            })?;
+            match msgs.last() {
+                Some(BoardToHost::ModelAccepted { crc32 }) => return Ok(*crc32),
+                Some(BoardToHost::Error { code, detail }) => {
+                    bail!("the board refused the model: {code:?} (detail {detail})")
+                }
+                // A gap: go back to where the board stands (its answer to the commit, if a gap
+                // answer came first, says the same or later).
+                Some(BoardToHost::UploadAck { next }) => {
+                    let later = self.wait_for(Duration::from_millis(20), |m| {
+                        matches!(m, BoardToHost::UploadAck { .. } | BoardToHost::ModelAccepted { .. })
+                    })?;
+                    match later.0.last() {
+                        Some(BoardToHost::ModelAccepted { crc32 }) => return Ok(*crc32),
+                        Some(BoardToHost::UploadAck { next }) => resume = Some(*next as usize),
+                        _ => resume = Some(*next as usize),
+                    }
+                }
+                _ => {}
+            }
         }
+        bail!("the model upload did not complete in {UPLOAD_TRIES} tries of {timeout:?}")
     }
 
     /// Sends one face crop and waits up to `timeout` for the board's answer to it (a detection
-    /// or an error). While the arm is up the board does not answer frames (detection pauses), so
-    /// a streaming caller waits about a frame period, not longer: the face watchdog (500 ms)
-    /// wants frames to keep coming.
+    /// or an error), sending again what the board says it missed. While the arm is up the board
+    /// answers frames with the reach in progress. A frame not through by `timeout` is
+    /// superseded by the next one. Protocol messages (acks) are not returned.
     pub fn send_face(&mut self, face: &crop::Face, timeout: Duration) -> Result<Vec<BoardToHost>> {
-        let bytes = self.host.encode_face(face.crop.origin(), face.crop.size(), &face.grey)?;
-        self.send(&bytes)?;
-        let (msgs, _) = self.wait_for(timeout, |m| {
-            matches!(m, BoardToHost::Detection(_) | BoardToHost::Error { .. })
-        })?;
-        Ok(msgs)
+        let now = |t0: Instant| t0.elapsed().as_micros() as u64;
+        let c = face.crop;
+        let size = [c.width as u16, c.height as u16];
+        self.faces.start([c.x as u16, c.y as u16], size, face.grey.clone(), now(self.t0));
+        let deadline = Instant::now() + timeout;
+        let mut got = Vec::new();
+        loop {
+            self.faces.check(now(self.t0));
+            let mut bytes = Vec::new();
+            let host = &mut self.host;
+            self.faces.pump(|m| bytes.extend(host.encode(m)));
+            if !bytes.is_empty() {
+                self.send(&bytes)?; // paced: the line is idle when it returns
+            }
+            self.faces.sent(now(self.t0));
+            for m in self.poll()? {
+                self.faces.on_message(&m);
+                match m {
+                    BoardToHost::FrameAck(_) | BoardToHost::UploadAck { .. } => {}
+                    BoardToHost::Detection(_) | BoardToHost::Error { .. } => {
+                        got.push(m);
+                        return Ok(got);
+                    }
+                    m => got.push(m),
+                }
+            }
+            if Instant::now() >= deadline {
+                return Ok(got);
+            }
+        }
+    }
+
+    /// What the face link did so far, and the face bytes delivered per second of the session.
+    pub fn link_stats(&self) -> (LinkStats, f64) {
+        let s = self.faces.stats;
+        (s, s.face_bytes as f64 / self.t0.elapsed().as_secs_f64().max(1e-9))
     }
 
     pub fn status(&mut self, timeout: Duration) -> Result<Status> {
@@ -281,6 +375,8 @@ pub fn describe(m: &BoardToHost) -> String {
         BoardToHost::ModelAccepted { crc32 } => format!("model accepted, crc {crc32:08x}"),
         BoardToHost::Pong { nonce } => format!("pong {nonce}"),
         BoardToHost::ServoBus(r) => format!("servo bus: {r:?}"),
+        BoardToHost::FrameAck(a) => format!("frame {} round {}: {:?}", a.frame, a.round, a.state),
+        BoardToHost::UploadAck { next } => format!("upload: the board wants byte {next} next"),
     }
 }
 
@@ -357,6 +453,17 @@ pub fn run(a: Args) -> Result<()> {
     }
     let st = s.status(timeout)?;
     print(&BoardToHost::Status(st), a.json)?;
+    let (link, goodput) = s.link_stats();
+    if a.json {
+        let j = serde_json::json!({ "link": link, "goodput_bytes_per_s": goodput, "upload_resent_bytes": s.upload_resent });
+        println!("{j}");
+    } else {
+        println!(
+            "link: {} of {} frames through, {} superseded, goodput {:.0} face bytes/s, {} chunks sent again, \
+             {} polls ({} after a timeout), {} model bytes sent again",
+            link.delivered, link.frames, link.superseded, goodput, link.chunks_resent, link.polls, link.timeouts, s.upload_resent
+        );
+    }
     let _ = std::io::stdout().flush();
     Ok(())
 }

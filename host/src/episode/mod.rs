@@ -28,6 +28,7 @@ use image::{DynamicImage, GrayImage};
 use msr_firmware::model::{ModelStore, UploadError};
 use msr_firmware::Board;
 use msr_shared::blob::Model;
+use msr_shared::deliver::{FaceLink, LinkStats};
 use msr_shared::host_port::HostPort;
 use msr_shared::msg::{BoardToHost, Config, Detection, HostToBoard, ServoBusKind, Status};
 use msr_sim::body::BodyPose;
@@ -45,6 +46,12 @@ pub const HELD_TOLERANCE_RAD: f64 = 0.01;
 pub const ARM_UP_FRAME_PERIOD_US: u64 = 250_000;
 /// Joint samples for the judge: the DCM period.
 pub const SAMPLE_US: u64 = 10_000;
+/// How long after its line went idle the PC waits for the board's ack of a face-frame round
+/// before polling again: two 1 ms ticks, the ack's bytes, a margin.
+pub const FACE_ACK_TIMEOUT_US: u64 = 4_000;
+/// A face frame still unfinished this many frame periods after it started is superseded by a
+/// fresh camera frame (the face watchdog wants a whole frame every 500 ms).
+pub const FACE_MAX_AGE_PERIODS: u64 = 2;
 
 /// What runs the firmware.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
@@ -89,6 +96,18 @@ impl ServoBus {
             ServoBus::Dynamixel => ServoBusKind::Dynamixel,
         }
     }
+}
+
+/// Which links a fault setting hits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum FaultLinks {
+    /// The host link (PC to board) only.
+    Host,
+    /// The servo bus (board to servos) only.
+    Servo,
+    /// Both.
+    Both,
 }
 
 /// How trials run.
@@ -140,6 +159,24 @@ impl EpisodeConfig {
                 .min(4),
             pace: None,
         }
+    }
+
+    /// Faults on both directions of the chosen links (added to what is there).
+    pub fn with_faults(mut self, f: &FaultConfig, on: FaultLinks) -> Self {
+        let add = |to: &mut FaultConfig| {
+            to.bit_error_rate = f.bit_error_rate;
+            to.drop_rate = f.drop_rate;
+            to.burst_rate = f.burst_rate;
+            to.burst_len = f.burst_len;
+            to.disconnects.extend(f.disconnects.iter().copied());
+        };
+        if on != FaultLinks::Servo {
+            add(&mut self.host_faults);
+        }
+        if on != FaultLinks::Host {
+            add(&mut self.servo_faults);
+        }
+        self
     }
 
     /// The same bit-error rate on every direction of both links.
@@ -207,6 +244,8 @@ pub struct Trial {
     pub crc_errors: u32,
     pub resyncs: u32,
     pub watchdog_trips: u32,
+    /// The PC's face-frame delivery: frames delivered and superseded, bytes, chunks resent.
+    pub link: LinkStats,
     pub sim_s: f64,
     pub wall_s: f64,
     /// What the board sent on the servo bus, when [`EpisodeConfig::log_bus`].
@@ -235,6 +274,12 @@ pub struct Summary {
     pub crc_errors: u64,
     pub resyncs: u64,
     pub watchdog_trips: u64,
+    /// Face bytes the board took whole per simulated second, over all trials.
+    pub goodput_bytes_per_s: f64,
+    /// Face chunks sent again (selective repeat).
+    pub retransmissions: u64,
+    /// Face frames given up unfinished for a newer one.
+    pub frames_superseded: u64,
 }
 
 pub fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -274,6 +319,13 @@ pub fn summarise(backend: Backend, robot: Robot, bus: ServoBus, trials: &[Trial]
         crc_errors: sum(|t| t.crc_errors),
         resyncs: sum(|t| t.resyncs),
         watchdog_trips: sum(|t| t.watchdog_trips),
+        goodput_bytes_per_s: {
+            let secs: f64 = trials.iter().map(|t| t.sim_s).sum();
+            let bytes: u64 = trials.iter().map(|t| t.link.face_bytes).sum();
+            if secs > 0.0 { bytes as f64 / secs } else { 0.0 }
+        },
+        retransmissions: trials.iter().map(|t| t.link.chunks_resent).sum(),
+        frames_superseded: trials.iter().map(|t| t.link.superseded as u64).sum(),
     }
 }
 
@@ -404,6 +456,10 @@ struct Scenario<'a> {
     camera: Camera<'a>,
     rng: ChaCha8Rng,
     port: HostPort,
+    /// Face frames out, with selective repeat.
+    faces: FaceLink,
+    /// The frame id of the reach last seen (the board repeats it while the arm is up).
+    last_reach_frame: Option<u16>,
     marked: bool,
     mark: Option<msr_sim::marks::Mark>,
     next_frame_us: u64,
@@ -437,13 +493,20 @@ impl Scenario<'_> {
                 w.host.send(&bytes);
             }
         }
-        for m in self.port.receive(&w.host.receive()) {
+        let msgs = self.port.receive(&w.host.receive());
+        self.port.check_version()?;
+        for m in msgs {
+            self.faces.on_message(&m);
             match m {
                 BoardToHost::Detection(d) => {
+                    if d.confirmed && self.last_reach_frame == Some(d.frame) {
+                        continue; // The reach again, while the arm is up.
+                    }
                     if d.blob.is_some() {
                         self.trial.detections += 1;
                     }
                     if d.confirmed {
+                        self.last_reach_frame = Some(d.frame);
                         self.on_reach(now, d);
                     }
                     self.detections.push((now, d));
@@ -474,18 +537,32 @@ impl Scenario<'_> {
         } else {
             self.cfg.frame_period_us
         };
-        if now >= self.next_frame_us && w.host.tx_idle_at_us() <= now {
+        // A new camera frame once the last one is through (or has taken too long: superseded).
+        let ready = match self.faces.in_flight_since() {
+            None => w.host.tx_idle_at_us() <= now,
+            Some(t) => now.saturating_sub(t) >= FACE_MAX_AGE_PERIODS * period,
+        };
+        if now >= self.next_frame_us && ready {
             let (_, face) = self
                 .camera
                 .shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng)?;
-            let bytes = self.port.encode_face(face.crop.origin(), face.crop.size(), &face.grey)?;
-            w.host.send(&bytes);
+            let c = face.crop;
+            let size = [c.width as u16, c.height as u16];
+            self.faces.start([c.x as u16, c.y as u16], size, face.grey, now);
             self.trial.frames_sent += 1;
             if self.mark.is_some() {
                 self.frames_with_mark += 1;
             }
             self.next_frame_us = now + period;
         }
+        self.faces.check(now);
+        let mut bytes = Vec::new();
+        let port = &mut self.port;
+        self.faces.pump(|m| bytes.extend(port.encode(m)));
+        if !bytes.is_empty() {
+            w.host.send(&bytes);
+        }
+        self.faces.sent(w.host.tx_idle_at_us());
         if now >= self.next_sample_us {
             self.next_sample_us = now + SAMPLE_US;
             self.sample(now, w);
@@ -685,6 +762,8 @@ pub fn run_trial_with<F: world::Firmware>(
         camera,
         rng,
         port: HostPort::default(),
+        faces: FaceLink::new(FACE_ACK_TIMEOUT_US),
+        last_reach_frame: None,
         marked,
         mark: None,
         next_frame_us: 0,
@@ -710,6 +789,7 @@ pub fn run_trial_with<F: world::Firmware>(
             crc_errors: 0,
             resyncs: 0,
             watchdog_trips: 0,
+            link: LinkStats::default(),
             sim_s: 0.0,
             wall_s: 0.0,
             bus_bytes: Vec::new(),
@@ -740,6 +820,7 @@ pub fn run_trial_with<F: world::Firmware>(
     sc.trial.ended_before_mark = sc.marked && sc.mark.is_none();
     let mut t = sc.trial.clone();
     t.limit_violations = w.servos.counters().limit_violations;
+    t.link = sc.faces.stats;
     let bus = w.servos.frame_counters();
     let pc = sc.port.counters();
     t.crc_errors = bus.crc_errors + pc.crc_errors;
