@@ -13,7 +13,9 @@
 //! - `host`: the same library stages on this PC, timed with the OS clock; stage figures are
 //!   nanoseconds per frame (median of the repetitions), `"unit": "ns"`. It says how fast the host
 //!   tools run the pipeline and nothing about the board: instruction, RAM, flash and stack
-//!   figures are `null` there.
+//!   figures are `null` there. It adds a `crop` stage, which only the host runs: the face crop
+//!   of a 320 x 240 camera frame (grey conversion, template match, cut) on one core, in the
+//!   model's crop mode; `total_ns` counts the board's stages only.
 //!
 //! Models: `--model FILE` (repeatable) benchmarks those blobs. Without it, two blobs are made
 //! here with the architectures of the default conv decoder and the published MLP decoder
@@ -328,6 +330,21 @@ pub fn bench_host(m: &BenchModel, reps: usize) -> Result<Value> {
     }
     let stages = [median(dec), median(sal), median(blo), median(rea)];
     let macs = model.decoder_macs();
+    // The host's face crop of a 320 x 240 camera frame (grey conversion, template match, cut),
+    // on one core, in the model's crop mode: frames of the red robot at a few head poses.
+    let renderer = msr_sim::render::Renderer::new(msr_sim::Robot::Red);
+    let cropper = crate::data::crop::Cropper::new(renderer.template(), crate::detect::crop_mode_of(&model));
+    let mut crop = Vec::new();
+    for head in POSES {
+        let pose = msr_sim::body::BodyPose::head(head[0] as f64, head[1] as f64);
+        let rgb = image::DynamicImage::ImageRgb8(renderer.render(&pose, None, &msr_sim::render::Variation::CLEAN).rgb);
+        for _ in 0..reps {
+            let t0 = Instant::now();
+            std::hint::black_box(cropper.crop(&crate::data::crop::to_grey(&rgb))?);
+            crop.push(t0.elapsed());
+        }
+    }
+    let crop = median(crop);
     Ok(json!({
         "backend": "host",
         "unit": "ns",
@@ -335,7 +352,7 @@ pub fn bench_host(m: &BenchModel, reps: usize) -> Result<Value> {
         "source": m.source,
         "face": [model.face_h, model.face_w],
         "macs": macs,
-        "stages": {"decoder": stages[0], "saliency": stages[1], "blobs": stages[2], "reach": stages[3]},
+        "stages": {"decoder": stages[0], "saliency": stages[1], "blobs": stages[2], "reach": stages[3], "crop": crop},
         "total_instructions": null,
         "total_ns": stages.iter().sum::<f64>(),
         "instructions_per_mac": null,
@@ -499,7 +516,10 @@ pub fn elf_sizes(path: &Path) -> Result<ElfSizes> {
 fn print_table(v: &Value) {
     let unit = v["unit"].as_str().unwrap_or("");
     println!("{} ({}, {}), {} MACs, figures in {} per frame:", v["model"].as_str().unwrap_or("?"), v["backend"].as_str().unwrap_or("?"), v["source"].as_str().unwrap_or("?"), v["macs"], unit);
-    for k in ["decoder", "saliency", "blobs", "reach"] {
+    for k in ["decoder", "saliency", "blobs", "reach", "crop"] {
+        if v["stages"][k].is_null() {
+            continue;
+        }
         println!("  {k:<10} {}", v["stages"][k]);
     }
     for k in ["instructions_per_mac", "post_decoder_instructions_per_pixel", "ns_per_mac", "static_ram_bytes", "code_bytes", "flash_bytes", "stack_peak_bytes"] {

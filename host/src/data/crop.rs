@@ -2,12 +2,13 @@
 //! (not normalised), crop = the best-scoring window at template size, no resize.
 //!
 //! `TM_CCOEFF(x, y) = sum (T - mean T) * I(window) = (n CC(x, y) - sum(T) sum(I(window))) / n`.
-//! The cross-correlation `CC` is one matrix product (each template row against every stretch of the
-//! frame, `matrixmultiply`), the window sums come from an integral image (imageproc). Each row dot
-//! product is an integer below 2^24, so f32 holds it exactly and the scores are exact integers: the
-//! winner is the true `TM_CCOEFF` argmax, first in row-major order on ties (as OpenCV's
-//! `minMaxLoc`). imageproc's own `match_template` sums 4350 products one by one in f32 (rounding,
-//! and about 30x slower); the tests check against it and against a brute-force reference.
+//! The cross-correlation `CC` comes from FFTs in f64 (rustfft), rounded to the exact integers (see
+//! [`cross_correlation`]), the window sums from an integral image (imageproc), so the scores are
+//! exact integers: the winner is the true `TM_CCOEFF` argmax, first in row-major order on ties (as
+//! OpenCV's `minMaxLoc`). imageproc's own `match_template` sums 4350 products one by one in f32
+//! (rounding, and far slower); the tests check against it, against a brute-force reference and
+//! against the previous implementation (one f32 matrix product) on a whole dataset and the real
+//! frames.
 //!
 //! [`CropMode::Subpixel`] (our default for trained models; the published model keeps whole
 //! pixels) refines the winner to a fraction of a pixel: per axis, the vertex of the parabola
@@ -21,6 +22,7 @@
 use anyhow::{bail, Context, Result};
 use image::{DynamicImage, GrayImage};
 use imageproc::integral_image::{integral_image, sum_image_pixels};
+use rustfft::num_complex::Complex;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
@@ -101,47 +103,130 @@ pub fn load_grey(path: &Path) -> Result<GrayImage> {
 
 /// Cross-correlation of `tpl` over every window of `frame` (row-major, `(fh-th+1) x (fw-tw+1)`),
 /// exact.
+///
+/// By FFT in f64: the circular correlation of the frame with the zero-padded template equals the
+/// linear one on every whole window (no window wraps), every value is an integer below 2^33,
+/// and the transforms' rounding error (about 1e-6 here) is far below 0.5, so rounding gives the
+/// exact sums. The template's spectrum and the plans are kept per thread for the next frame.
 pub fn cross_correlation(frame: &GrayImage, tpl: &GrayImage) -> Vec<i64> {
-    let (fw, fh) = (frame.width() as usize, frame.height() as usize);
-    let (tw, th) = (tpl.width() as usize, tpl.height() as usize);
-    let f: Vec<f32> = frame.as_raw().iter().map(|&v| v as f32).collect();
-    let t: Vec<f32> = tpl.as_raw().iter().map(|&v| v as f32).collect();
-    // A[i][k] = f[i + k] (every stretch of tw pixels of the flat frame), B[k][r] = t[r][k]:
-    // C[i][r] = template row r against the stretch starting at flat index i.
-    let m = fw * fh - tw + 1;
-    let mut c = vec![0f32; m * th];
-    // SAFETY: A reads f[i + k] for i < m, k < tw, i.e. up to fw*fh - 1; B reads t[r*tw + k] for
-    // r < th, k < tw; C is m x th, column-major (C[i][r] at r*m + i), written without aliasing.
-    unsafe {
-        matrixmultiply::sgemm(
-            m,
-            tw,
-            th,
-            1.0,
-            f.as_ptr(),
-            1,
-            1,
-            t.as_ptr(),
-            1,
-            tw as isize,
-            0.0,
-            c.as_mut_ptr(),
-            1,
-            m as isize,
-        );
+    thread_local! {
+        static CORRELATOR: std::cell::RefCell<Option<Correlator>> = const { std::cell::RefCell::new(None) };
     }
-    let (ow, oh) = (fw - tw + 1, fh - th + 1);
-    let mut out = vec![0i64; ow * oh];
-    for y in 0..oh {
-        let dst = &mut out[y * ow..(y + 1) * ow];
-        for r in 0..th {
-            let src = &c[r * m + (y + r) * fw..][..ow];
-            for (o, &v) in dst.iter_mut().zip(src) {
-                *o += v as i64;
+    CORRELATOR.with_borrow_mut(|slot| {
+        let fits = slot.as_ref().is_some_and(|c| c.fits(frame, tpl));
+        if !fits {
+            *slot = Some(Correlator::new(frame.width() as usize, frame.height() as usize, tpl));
+        }
+        slot.as_mut().expect("just set").correlate(frame)
+    })
+}
+
+/// FFT plans for one frame size and the spectrum of one template.
+struct Correlator {
+    fw: usize,
+    fh: usize,
+    tpl: GrayImage,
+    r2c: std::sync::Arc<dyn realfft::RealToComplex<f64>>,
+    c2r: std::sync::Arc<dyn realfft::ComplexToReal<f64>>,
+    col_fwd: std::sync::Arc<dyn rustfft::Fft<f64>>,
+    col_inv: std::sync::Arc<dyn rustfft::Fft<f64>>,
+    /// Conjugated template spectrum, column-major: frequency `(ky, kx)` at `kx * fh + ky`.
+    tpl_spec: Vec<Complex<f64>>,
+    spec: Vec<Complex<f64>>,
+    row: Vec<f64>,
+    row_spec: Vec<Complex<f64>>,
+    scratch: Vec<Complex<f64>>,
+}
+
+impl Correlator {
+    fn new(fw: usize, fh: usize, tpl: &GrayImage) -> Correlator {
+        let mut real = realfft::RealFftPlanner::<f64>::new();
+        let mut complex = rustfft::FftPlanner::<f64>::new();
+        let (r2c, c2r) = (real.plan_fft_forward(fw), real.plan_fft_inverse(fw));
+        let (col_fwd, col_inv) = (complex.plan_fft_forward(fh), complex.plan_fft_inverse(fh));
+        let scratch_len = [
+            r2c.get_scratch_len(),
+            c2r.get_scratch_len(),
+            col_fwd.get_inplace_scratch_len(),
+            col_inv.get_inplace_scratch_len(),
+        ]
+        .into_iter()
+        .max()
+        .unwrap_or(0);
+        let nc = fw / 2 + 1;
+        let mut c = Correlator {
+            fw,
+            fh,
+            tpl: tpl.clone(),
+            r2c,
+            c2r,
+            col_fwd,
+            col_inv,
+            tpl_spec: Vec::new(),
+            spec: vec![Complex::default(); nc * fh],
+            row: vec![0.0; fw],
+            row_spec: vec![Complex::default(); nc],
+            scratch: vec![Complex::default(); scratch_len],
+        };
+        c.forward(tpl.as_raw(), tpl.width() as usize, tpl.height() as usize);
+        c.tpl_spec = c.spec.iter().map(|v| v.conj()).collect();
+        c
+    }
+
+    fn fits(&self, frame: &GrayImage, tpl: &GrayImage) -> bool {
+        (frame.width() as usize, frame.height() as usize) == (self.fw, self.fh) && self.tpl == *tpl
+    }
+
+    /// `self.spec` = 2-D spectrum of the `w x h` image `px` zero-padded to the frame size.
+    fn forward(&mut self, px: &[u8], w: usize, h: usize) {
+        let (fh, nc) = (self.fh, self.fw / 2 + 1);
+        self.spec.fill(Complex::default());
+        for y in 0..h {
+            self.row.fill(0.0);
+            for (d, &v) in self.row.iter_mut().zip(&px[y * w..(y + 1) * w]) {
+                *d = v as f64;
+            }
+            self.r2c
+                .process_with_scratch(&mut self.row, &mut self.row_spec, &mut self.scratch)
+                .expect("buffer sizes come from the plan");
+            for (kx, &v) in self.row_spec.iter().enumerate() {
+                self.spec[kx * fh + y] = v;
             }
         }
+        debug_assert_eq!(self.spec.len(), nc * fh);
+        self.col_fwd.process_with_scratch(&mut self.spec, &mut self.scratch);
     }
-    out
+
+    fn correlate(&mut self, frame: &GrayImage) -> Vec<i64> {
+        let (fw, fh, nc) = (self.fw, self.fh, self.fw / 2 + 1);
+        let (tw, th) = (self.tpl.width() as usize, self.tpl.height() as usize);
+        let (ow, oh) = (fw - tw + 1, fh - th + 1);
+        self.forward(frame.as_raw(), fw, fh);
+        for (v, t) in self.spec.iter_mut().zip(&self.tpl_spec) {
+            *v *= t;
+        }
+        self.col_inv.process_with_scratch(&mut self.spec, &mut self.scratch);
+        let scale = 1.0 / (fw * fh) as f64;
+        let mut out = vec![0i64; ow * oh];
+        for y in 0..oh {
+            for (kx, d) in self.row_spec.iter_mut().enumerate() {
+                *d = self.spec[kx * fh + y];
+            }
+            // The result is real: the DC (and, for an even width, the Nyquist) bin's imaginary
+            // part is rounding noise, which the inverse real transform refuses.
+            self.row_spec[0].im = 0.0;
+            if fw % 2 == 0 {
+                self.row_spec[nc - 1].im = 0.0;
+            }
+            self.c2r
+                .process_with_scratch(&mut self.row_spec, &mut self.row, &mut self.scratch)
+                .expect("buffer sizes come from the plan");
+            for (o, &v) in out[y * ow..(y + 1) * ow].iter_mut().zip(&self.row) {
+                *o = (v * scale).round() as i64;
+            }
+        }
+        out
+    }
 }
 
 /// Widest template whose row sums stay exact in f32 (255 * 255 * 258 < 2^24).
@@ -159,6 +244,11 @@ struct Scores {
 
 impl Scores {
     fn of(frame: &GrayImage, tpl: &GrayImage) -> Result<Scores> {
+        Self::of_with(frame, tpl, cross_correlation)
+    }
+
+    /// The scores with a given cross-correlation (the tests pass the previous implementation).
+    fn of_with(frame: &GrayImage, tpl: &GrayImage, cc: fn(&GrayImage, &GrayImage) -> Vec<i64>) -> Result<Scores> {
         let (fw, fh, tw, th) = (frame.width(), frame.height(), tpl.width(), tpl.height());
         if tw == 0 || th == 0 {
             bail!("face template is empty");
@@ -176,7 +266,7 @@ impl Scores {
         }
         let n = (tw * th) as i64;
         let t_sum: i64 = tpl.as_raw().iter().map(|&v| v as i64).sum();
-        let cc = cross_correlation(frame, tpl);
+        let cc = cc(frame, tpl);
         let integral = integral_image::<_, u32>(frame);
         let (ow, oh) = (fw - tw + 1, fh - th + 1);
         let s = cc
@@ -254,7 +344,10 @@ pub fn crop_face(frame: &GrayImage, tpl: &GrayImage) -> Result<Face> {
 
 /// Crops the face out of a grey frame in the given mode (see the module notes).
 pub fn crop_face_with(frame: &GrayImage, tpl: &GrayImage, mode: CropMode) -> Result<Face> {
-    let scores = Scores::of(frame, tpl)?;
+    crop_from(frame, tpl, mode, Scores::of(frame, tpl)?)
+}
+
+fn crop_from(frame: &GrayImage, tpl: &GrayImage, mode: CropMode, scores: Scores) -> Result<Face> {
     let (crop, score) = scores.window(tpl)?;
     let (grey, shift) = match mode {
         CropMode::Pixel => (cut(frame, crop), [0.0; 2]),
@@ -322,6 +415,51 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
 
+    /// The previous implementation (one matrix product, `matrixmultiply`), kept as the oracle the
+        /// FFT one must agree with exactly.
+    pub fn cross_correlation_gemm(frame: &GrayImage, tpl: &GrayImage) -> Vec<i64> {
+        let (fw, fh) = (frame.width() as usize, frame.height() as usize);
+        let (tw, th) = (tpl.width() as usize, tpl.height() as usize);
+        let f: Vec<f32> = frame.as_raw().iter().map(|&v| v as f32).collect();
+        let t: Vec<f32> = tpl.as_raw().iter().map(|&v| v as f32).collect();
+        // A[i][k] = f[i + k] (every stretch of tw pixels of the flat frame), B[k][r] = t[r][k]:
+        // C[i][r] = template row r against the stretch starting at flat index i.
+        let m = fw * fh - tw + 1;
+        let mut c = vec![0f32; m * th];
+        // SAFETY: A reads f[i + k] for i < m, k < tw, i.e. up to fw*fh - 1; B reads t[r*tw + k] for
+        // r < th, k < tw; C is m x th, column-major (C[i][r] at r*m + i), written without aliasing.
+        unsafe {
+            matrixmultiply::sgemm(
+                m,
+                tw,
+                th,
+                1.0,
+                f.as_ptr(),
+                1,
+                1,
+                t.as_ptr(),
+                1,
+                tw as isize,
+                0.0,
+                c.as_mut_ptr(),
+                1,
+                m as isize,
+            );
+        }
+        let (ow, oh) = (fw - tw + 1, fh - th + 1);
+        let mut out = vec![0i64; ow * oh];
+        for y in 0..oh {
+            let dst = &mut out[y * ow..(y + 1) * ow];
+            for r in 0..th {
+                let src = &c[r * m + (y + r) * fw..][..ow];
+                for (o, &v) in dst.iter_mut().zip(src) {
+                    *o += v as i64;
+                }
+            }
+        }
+        out
+    }
+
     /// Exact `TM_CCOEFF * n` at one window: `sum (n T - sum T) * I`, in integers.
     fn ccoeff_exact(frame: &GrayImage, tpl: &GrayImage, t_sum: i64, x: u32, y: u32) -> i64 {
         let n = (tpl.width() * tpl.height()) as i64;
@@ -352,6 +490,61 @@ mod tests {
             }
         }
         (best.1, best.2)
+    }
+
+    #[test]
+    fn fft_correlation_equals_the_gemm_oracle() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        // Odd and even sizes, a template as large as the frame, and saturated pixels.
+        for (fw, fh, tw, th) in [(40, 30, 9, 7), (41, 33, 10, 5), (64, 48, 64, 48), (75, 58, 75, 1), (320, 240, 75, 58)] {
+            for fill in [None, Some(255u8)] {
+                let frame = GrayImage::from_fn(fw, fh, |_, _| image::Luma([fill.unwrap_or_else(|| rng.gen())]));
+                let tpl = GrayImage::from_fn(tw, th, |_, _| image::Luma([fill.unwrap_or_else(|| rng.gen())]));
+                assert_eq!(cross_correlation(&frame, &tpl), cross_correlation_gemm(&frame, &tpl), "{fw}x{fh} / {tw}x{th}");
+            }
+        }
+    }
+
+    /// Both crop modes, by the FFT scores and by the previous implementation's, on every frame.
+    fn assert_same_crops(frames: &[GrayImage], tpl: &GrayImage) {
+        crate::data::parallel_map(frames, |f| {
+            let old = Scores::of_with(f, tpl, cross_correlation_gemm).unwrap();
+            for mode in [CropMode::Pixel, CropMode::Subpixel] {
+                let want = crop_from(f, tpl, mode, Scores { s: old.s.clone(), ow: old.ow, oh: old.oh }).unwrap();
+                assert_eq!(crop_face_with(f, tpl, mode).unwrap(), want, "{mode:?}");
+            }
+            Ok(())
+        })
+        .unwrap();
+    }
+
+    #[test]
+    fn crops_of_a_whole_dataset_equal_the_previous_implementation() {
+        let dir = tempfile::tempdir().unwrap();
+        let cfg = msr_sim::dataset::DatasetConfig::paper(msr_sim::Robot::Red, 0);
+        let index = msr_sim::dataset::write_dataset(&cfg, dir.path()).unwrap();
+        assert_eq!(index.frames.len(), 1300);
+        let tpl = load_grey(&dir.path().join(&index.template)).unwrap();
+        let frames: Vec<GrayImage> = index.frames.iter().map(|f| load_grey(&dir.path().join(&f.file)).unwrap()).collect();
+        assert_same_crops(&frames, &tpl);
+    }
+
+    #[test]
+    fn crops_of_the_real_frames_equal_the_previous_implementation() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/nao-red-real");
+        if !dir.exists() {
+            eprintln!("skipping: {} not found", dir.display());
+            return;
+        }
+        let mut names: Vec<_> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .filter(|n| n.starts_with("test") && n.ends_with(".png"))
+            .collect();
+        names.sort();
+        assert_eq!(names.len(), 15, "{names:?}");
+        let frames: Vec<GrayImage> = names.iter().map(|n| load_grey(&dir.join(n)).unwrap()).collect();
+        assert_same_crops(&frames, &load_grey(&dir.join("head_filter.png")).unwrap());
     }
 
     #[test]

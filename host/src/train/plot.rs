@@ -21,35 +21,43 @@ fn draw(h: &History, title: &str, path: &Path, text: bool) -> Result<()> {
     }
     let hi = all.iter().copied().fold(0.0, f64::max) * 1.05;
     let n = h.train_loss.len().max(h.test_loss.len()).max(2);
-    let root = BitMapBackend::new(path, (800, 500)).into_drawing_area();
-    root.fill(&WHITE).map_err(|x| e(&x))?;
-    let mut b = ChartBuilder::on(&root);
-    b.margin(12);
-    if text {
-        b.caption(title, ("sans-serif", 22)).x_label_area_size(40).y_label_area_size(70);
-    }
-    let mut chart = b.build_cartesian_2d(1usize..n, 0.0..hi).map_err(|x| e(&x))?;
-    if text {
-        chart
-            .configure_mesh()
-            .x_desc("epoch")
-            .y_desc("MSE (grey/255)")
-            .y_label_formatter(&|v| format!("{v:.4}"))
-            .draw()
-            .map_err(|x| e(&x))?;
-    }
-    let series = [(&h.train_loss, BLUE, "train"), (&h.test_loss, RED, "test")];
-    for (v, colour, name) in series {
-        let pts: Vec<(usize, f64)> =
-            v.iter().enumerate().filter(|(_, y)| y.is_finite() && **y > 0.0).map(|(i, y)| (i + 1, *y)).collect();
-        let s = chart.draw_series(LineSeries::new(pts, colour.stroke_width(2))).map_err(|x| e(&x))?;
+    // Drawn into memory and written with `image`: plotters' own PNG encoder would compile a
+    // second version of `image`.
+    let (w, hgt) = (800u32, 500u32);
+    let mut buf = vec![0u8; (w * hgt * 3) as usize];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (w, hgt)).into_drawing_area();
+        root.fill(&WHITE).map_err(|x| e(&x))?;
+        let mut b = ChartBuilder::on(&root);
+        b.margin(12);
         if text {
-            s.label(name).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+            b.caption(title, ("sans-serif", 22)).x_label_area_size(40).y_label_area_size(70);
         }
+        let mut chart = b.build_cartesian_2d(1usize..n, 0.0..hi).map_err(|x| e(&x))?;
+        if text {
+            chart
+                .configure_mesh()
+                .x_desc("epoch")
+                .y_desc("MSE (grey/255)")
+                .y_label_formatter(&|v| format!("{v:.4}"))
+                .draw()
+                .map_err(|x| e(&x))?;
+        }
+        let series = [(&h.train_loss, BLUE, "train"), (&h.test_loss, RED, "test")];
+        for (v, colour, name) in series {
+            let pts: Vec<(usize, f64)> =
+                v.iter().enumerate().filter(|(_, y)| y.is_finite() && **y > 0.0).map(|(i, y)| (i + 1, *y)).collect();
+            let s = chart.draw_series(LineSeries::new(pts, colour.stroke_width(2))).map_err(|x| e(&x))?;
+            if text {
+                s.label(name).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour));
+            }
+        }
+        if text {
+            chart.configure_series_labels().border_style(BLACK).background_style(WHITE).draw().map_err(|x| e(&x))?;
+        }
+        root.present().map_err(|x| e(&x))?;
     }
-    if text {
-        chart.configure_series_labels().border_style(BLACK).background_style(WHITE).draw().map_err(|x| e(&x))?;
-    }
-    root.present().map_err(|x| e(&x))?;
+    let img = image::RgbImage::from_raw(w, hgt, buf).ok_or_else(|| anyhow!("loss plot: buffer size"))?;
+    img.save(path).map_err(|x| e(&x))?;
     Ok(())
 }

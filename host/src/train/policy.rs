@@ -210,29 +210,27 @@ pub fn frames(
     seed: u64,
     poses: Poses,
 ) -> Result<Vec<Frame>> {
-    let renderer = Renderer::new(robot);
-    let salt = match poses {
-        Poses::Observe => 0x0B5E_C0A1_1B2A_7E00,
-        Poses::Range(_) => 0x6E4E_2A11_C0A1_1B2A,
+    // The decoder and the autoencoder of one run are calibrated on the same frames: they are
+    // rendered and cropped once per process and kept (a few MB) for the next model.
+    type Key = (Robot, crate::data::crop::Cropper, (usize, usize), u64, Poses);
+    type Rendered = Vec<([f32; 2], crate::data::crop::Face, Option<[f64; 4]>)>;
+    static CACHE: std::sync::Mutex<Vec<(Key, std::sync::Arc<Rendered>)>> = std::sync::Mutex::new(Vec::new());
+    let key: Key = (robot, cropper.clone(), (normal, marked), seed, poses);
+    let cached = CACHE.lock().unwrap_or_else(|e| e.into_inner()).iter().find(|(k, _)| *k == key).map(|(_, r)| r.clone());
+    let rendered = match cached {
+        Some(r) => r,
+        None => {
+            let r = std::sync::Arc::new(render_and_crop(robot, cropper, (normal, marked), seed, poses)?);
+            let mut cache = CACHE.lock().unwrap_or_else(|e| e.into_inner());
+            if cache.len() >= 4 {
+                cache.remove(0);
+            }
+            cache.push((key, r.clone()));
+            r
+        }
     };
-    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ salt);
-    let mut faces = Vec::with_capacity(normal + marked);
-    let mut heads = Vec::with_capacity(normal + marked);
-    for i in 0..normal + marked {
-        let head = poses.draw(&mut rng);
-        heads.push(head);
-        let pose = BodyPose::head(head[0] as f64, head[1] as f64);
-        let mark = (i >= normal).then(|| msr_sim::dataset::render_marked(&renderer, &pose, &Variation::CLEAN, &mut rng).0);
-        let r = renderer.render(&pose, mark.as_ref(), &Variation::random(&mut rng));
-        let grey = crate::data::crop::to_grey(&image::DynamicImage::ImageRgb8(r.rgb));
-        let face = cropper.crop(&grey)?;
-        let mark_box = r.mark.filter(|m| m.pixels > 0).map(|m| {
-            let [x0, y0, x1, y1] = m.box_xyxy.map(|v| v as f64);
-            let (cx, cy) = (face.crop.x as f64, face.crop.y as f64);
-            [x0 - cx, y0 - cy, x1 - cx, y1 - cy]
-        });
-        faces.push((face, mark_box));
-    }
+    let heads: Vec<[f32; 2]> = rendered.iter().map(|(h, _, _)| *h).collect();
+    let faces: Vec<(&crate::data::crop::Face, Option<[f64; 4]>)> = rendered.iter().map(|(_, f, b)| (f, *b)).collect();
     let units: Vec<Vec<f32>> = faces.iter().map(|(f, _)| f.unit()).collect();
     let preds = model.predict_batch(&heads, &units);
     Ok(units
@@ -244,6 +242,38 @@ pub fn frames(
             mark_box,
         })
         .collect())
+}
+
+/// The rendering and cropping half of [`frames`]: head angles, face, mark box in face pixels.
+fn render_and_crop(
+    robot: Robot,
+    cropper: &crate::data::crop::Cropper,
+    (normal, marked): (usize, usize),
+    seed: u64,
+    poses: Poses,
+) -> Result<Vec<([f32; 2], crate::data::crop::Face, Option<[f64; 4]>)>> {
+    let renderer = Renderer::new(robot);
+    let salt = match poses {
+        Poses::Observe => 0x0B5E_C0A1_1B2A_7E00,
+        Poses::Range(_) => 0x6E4E_2A11_C0A1_1B2A,
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(seed ^ salt);
+    let mut out = Vec::with_capacity(normal + marked);
+    for i in 0..normal + marked {
+        let head = poses.draw(&mut rng);
+        let pose = BodyPose::head(head[0] as f64, head[1] as f64);
+        let mark = (i >= normal).then(|| msr_sim::dataset::render_marked(&renderer, &pose, &Variation::CLEAN, &mut rng).0);
+        let r = renderer.render(&pose, mark.as_ref(), &Variation::random(&mut rng));
+        let grey = crate::data::crop::to_grey(&image::DynamicImage::ImageRgb8(r.rgb));
+        let face = cropper.crop(&grey)?;
+        let mark_box = r.mark.filter(|m| m.pixels > 0).map(|m| {
+            let [x0, y0, x1, y1] = m.box_xyxy.map(|v| v as f64);
+            let (cx, cy) = (face.crop.x as f64, face.crop.y as f64);
+            [x0 - cx, y0 - cy, x1 - cx, y1 - cy]
+        });
+        out.push((head, face, mark_box));
+    }
+    Ok(out)
 }
 
 /// What [`apply`] chose.
