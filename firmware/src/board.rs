@@ -19,7 +19,7 @@ use msr_shared::frame::FrameError;
 use msr_shared::joints::REACH_JOINTS;
 use msr_shared::msg::{
     BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameAck, FrameHeader,
-    FrameState, HostToBoard, JointTarget, Mode, ServoBusKind, ServoBusReport, ServoIdReport,
+    FrameState, HostToBoard, JointTarget, Mode, ServoBusKind, ServoBusReport,
     ServoToBoard, Status,
 };
 
@@ -428,16 +428,7 @@ impl<S: ModelStore> Core<S> {
         if let Some(m) = &self.dxl {
             r.kind = ServoBusKind::Dynamixel;
             r.running = m.stage() == crate::dynamixel::Stage::Running;
-            for (o, s) in r.servos.iter_mut().zip(m.stats()) {
-                *o = ServoIdReport {
-                    id: s.id,
-                    timeouts: s.timeouts,
-                    bad_answers: s.bad_answers,
-                    errors: s.errors,
-                    alerts: s.alerts,
-                    hardware_error: s.hardware_error,
-                };
-            }
+            r.servos = *m.stats();
             r.rx_errors = m.rx_counters().errors();
             r.busy_periods = m.busy_periods;
         }

@@ -65,21 +65,8 @@ impl BusTiming {
     }
 }
 
-/// Per-ID fault counters.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct IdStats {
-    pub id: u8,
-    /// Answers that did not come.
-    pub timeouts: u32,
-    /// Answers from the wrong ID, of the wrong length, or with an impossible position.
-    pub bad_answers: u32,
-    /// Statuses with an error number (the servo refused an instruction).
-    pub errors: u32,
-    /// Statuses with the Alert bit.
-    pub alerts: u32,
-    /// The last Hardware Error Status read.
-    pub hardware_error: u8,
-}
+/// Per-ID fault counters: the host-link report's type, so the board sends them as they are.
+pub use msr_shared::msg::ServoIdReport as IdStats;
 
 /// Something the host should hear about.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -612,7 +612,8 @@ fn mirror_test_summary_counts_early_ends_apart_and_has_no_rate_without_marks() {
 #[test]
 fn link_losses_are_not_blamed_on_detection() {
     // Was: trials whose frames got no answer over the link at --ber 1e-4 were failed as
-    // "detection: no blob in 0 frames with the mark".
+    // "detection: no blob in 0 frames with the mark". Since host-link protocol 2 repeats lost
+    // chunks, frames get through at 1e-4; at 1e-2 (most chunks of every round damaged) none do.
     let Some(dir) = real_dir() else { return };
     let tmp = tempfile::tempdir().unwrap();
     let blob = tmp.path().join("p.msrm");
@@ -620,7 +621,7 @@ fn link_losses_are_not_blamed_on_detection() {
     assert!(ok, "{err}");
     let trials = tmp.path().join("t.json");
     let (ok, _, err) = msr(&[
-        "mirror-test", "--model", blob.to_str().unwrap(), "--trials", "2", "--ber", "1e-4", "--no-mark-share", "0",
+        "mirror-test", "--model", blob.to_str().unwrap(), "--trials", "2", "--ber", "1e-2", "--no-mark-share", "0",
         "--trials-out", trials.to_str().unwrap(), "--json",
     ]);
     assert!(ok, "{err}");
