@@ -454,7 +454,11 @@ enum Stage {
 struct Scenario<'a> {
     cfg: &'a EpisodeConfig,
     camera: Camera<'a>,
+    /// Camera noise: how many frames are shot depends on the link.
     rng: ChaCha8Rng,
+    /// The mark alone, on a stream of its own, so that a noisy link (more or fewer frames shot
+    /// before the mark) does not change which mark a seed draws.
+    mark_rng: ChaCha8Rng,
     port: HostPort,
     /// Face frames out, with selective repeat.
     faces: FaceLink,
@@ -524,7 +528,7 @@ impl Scenario<'_> {
                 self.camera.renderer,
                 &w.body_pose(),
                 &Variation::CLEAN,
-                &mut self.rng,
+                &mut self.mark_rng,
             );
             let p = msr_sim::body::project_head(&m.point_head(), 0.0, 0.0);
             self.trial.mark = Some(format!("{} {}", m.colour, m.kind));
@@ -757,10 +761,13 @@ pub fn run_trial_with<F: world::Firmware>(
 ) -> Result<(Trial, Option<Status>)> {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let marked = !rng.gen_bool(cfg.no_mark_share.clamp(0.0, 1.0));
+    let mut mark_rng = ChaCha8Rng::seed_from_u64(seed);
+    mark_rng.set_stream(1);
     let mut sc = Scenario {
         cfg,
         camera,
         rng,
+        mark_rng,
         port: HostPort::default(),
         faces: FaceLink::new(FACE_ACK_TIMEOUT_US),
         last_reach_frame: None,
