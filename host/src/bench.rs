@@ -28,7 +28,7 @@
 //! output channels (every product of the scatter), crops none. For the default conv decoder
 //! that is 211 648, of which 209 064 reach the 58 x 75 face (the others land in the padding or
 //! the column the crop drops).
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context, Result};
@@ -53,29 +53,6 @@ pub enum Backend {
     Host,
 }
 
-#[derive(clap::Args, Debug)]
-pub struct Args {
-    #[arg(long, value_enum, default_value = "qemu")]
-    pub backend: Backend,
-    /// Model blob(s) to benchmark; default: synthetic conv and published-MLP blobs, 58 x 75.
-    #[arg(long)]
-    pub model: Vec<PathBuf>,
-    /// Print JSON (one object per model, a list when several) instead of a table.
-    #[arg(long)]
-    pub json: bool,
-    /// Also write the benchmarked blobs to DIR as `<model>.msrm` (e.g. to build one into an
-    /// image with `MSR_MODEL_BLOB`).
-    #[arg(long, value_name = "DIR")]
-    pub save_models: Option<PathBuf>,
-    /// Host backend: repetitions per stage and frame.
-    #[arg(long, default_value_t = 50)]
-    pub reps: usize,
-    /// Weight type of the synthetic blobs (`msr quantize --weights auto` takes i16 when the
-    /// blob fits a board upload slot; the board runs both, i16 faster).
-    #[arg(long, value_enum, default_value = "i16")]
-    pub weights: SynthWeights,
-}
-
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SynthWeights {
     I8,
@@ -98,41 +75,6 @@ pub struct BenchModel {
     /// `"synthetic"` or the file it came from.
     pub source: String,
     pub blob: Vec<u8>,
-}
-
-pub fn run(args: Args) -> Result<()> {
-    let models = if args.model.is_empty() {
-        let i8w = args.weights == SynthWeights::I8;
-        vec![synthetic_with(ArchKind::Conv, i8w)?, synthetic_with(ArchKind::Mlp, i8w)?]
-    } else {
-        args.model.iter().map(|p| from_file(p)).collect::<Result<Vec<_>>>()?
-    };
-    if let Some(dir) = &args.save_models {
-        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        for m in &models {
-            let p = dir.join(format!("{}.msrm", m.name));
-            let inputs: Vec<(&str, &std::path::Path)> = args.model.iter().map(|m| ("--model", m.as_path())).collect();
-            crate::fsio::check_outputs(&inputs, &[("--save-models", &p)])?;
-            crate::fsio::write(&p, &m.blob)?;
-            eprintln!("wrote {} ({} bytes)", p.display(), m.blob.len());
-        }
-    }
-    let mut out = Vec::new();
-    for m in &models {
-        let v = match args.backend {
-            Backend::Qemu => bench_qemu(m)?,
-            Backend::Host => bench_host(m, args.reps.max(1))?,
-        };
-        if !args.json {
-            print_table(&v);
-        }
-        out.push(v);
-    }
-    if args.json {
-        let v = if out.len() == 1 { out.remove(0) } else { Value::Array(out) };
-        println!("{}", serde_json::to_string_pretty(&v)?);
-    }
-    Ok(())
 }
 
 /// Reads a blob and names it by its architecture.
@@ -513,7 +455,8 @@ pub fn elf_sizes(path: &Path) -> Result<ElfSizes> {
     Ok(s)
 }
 
-fn print_table(v: &Value) {
+/// The results of one model as a table on stdout.
+pub fn print_table(v: &Value) {
     let unit = v["unit"].as_str().unwrap_or("");
     println!("{} ({}, {}), {} MACs, figures in {} per frame:", v["model"].as_str().unwrap_or("?"), v["backend"].as_str().unwrap_or("?"), v["source"].as_str().unwrap_or("?"), v["macs"], unit);
     for k in ["decoder", "saliency", "blobs", "reach", "crop"] {

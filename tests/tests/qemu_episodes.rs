@@ -10,67 +10,15 @@
 //! UART takes 20 to 40 KB/s, so the shared test model (the fully connected decoder, 1.2 MB) would
 //! spend a minute uploading.
 
+mod common;
+
+use common::conv_model;
 use msr_host::episode::{self, Camera, EpisodeConfig, Trial};
 use msr_host::episode::qemu::QemuBoard;
 use msr_sim::qemu;
 use msr_sim::render::Renderer;
 use msr_sim::Robot;
-use std::path::{Path, PathBuf};
 
-/// A small convolutional model of `robot`, trained once and kept under `target/msr-tests/`.
-fn conv_model(robot: Robot) -> Vec<u8> {
-    use msr_host::train::{self, DeviceArg, ModelKind, NormArg};
-    static LOCK: std::sync::Mutex<()> = std::sync::Mutex::new(());
-    let _g = LOCK.lock().unwrap_or_else(|e| e.into_inner());
-    let dir = std::env::var_os("CARGO_TARGET_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../target"))
-        .join("msr-tests");
-    let key = format!("{}-conv-f400-e20-subpixel-v2", robot.name());
-    let path = dir.join(format!("{key}.msrm"));
-    if let Ok(b) = std::fs::read(&path) {
-        if msr_shared::blob::Model::parse(&b).is_ok() {
-            return b;
-        }
-    }
-    let work = dir.join(format!("{key}-work-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&work);
-    let data = work.join("data");
-    let mut cfg = msr_sim::dataset::DatasetConfig::paper(robot, 7);
-    cfg.count = 400;
-    msr_sim::dataset::write_dataset(&cfg, &data).expect("render the training set");
-    let models = work.join("models");
-    train::run(train::Args {
-        data,
-        model: ModelKind::Decoder,
-        arch: msr_host::models::ArchKind::Conv,
-        crop: msr_host::data::crop::CropMode::Subpixel,
-        out: models.clone(),
-        epochs: 20,
-        batch: 128,
-        lr: 0.005,
-        lr_step: 10,
-        lr_decay: 0.5,
-        seed: 0,
-        normalisation: NormArg::Std,
-        two_sided: false,
-        sigma_floor: msr_host::train::calibrate::DEFAULT_SIGMA_FLOOR,
-        threshold: msr_host::train::calibrate::DEFAULT_THRESHOLD,
-        threshold_percentile: None,
-        min_area: msr_host::train::calibrate::DEFAULT_MIN_AREA,
-        device: DeviceArg::Cpu,
-        quiet: true,
-    })
-    .expect("train the decoder");
-    let reach = msr_host::quant::model_blob::train_sim_reach(70, 0).expect("train the reach network");
-    let blob = msr_host::quant::model_blob::blob_from_training(&models, "decoder", &reach).expect("make the blob");
-    std::fs::create_dir_all(&dir).unwrap();
-    let tmp = dir.join(format!("{key}.{}.tmp", std::process::id()));
-    std::fs::write(&tmp, &blob).unwrap();
-    std::fs::rename(&tmp, &path).unwrap();
-    let _ = std::fs::remove_dir_all(&work);
-    blob
-}
 
 fn available() -> bool {
     if !qemu::qemu_available() {

@@ -5,8 +5,7 @@
 //! time. What the demo does differently from the paper's full protocol, and why, is printed and
 //! stored in `report.json` under `notes`.
 use crate::episode::{self, Backend, EpisodeConfig};
-use crate::models::ArchKind;
-use crate::train::{self, DeviceArg, ModelKind, NormArg};
+use crate::train::{self, ModelKind};
 use anyhow::{Context, Result};
 use msr_sim::Robot;
 use serde_json::{json, Value};
@@ -70,28 +69,13 @@ impl Progress {
     }
 }
 
-fn train_args(data: &Path, out: &Path, model: ModelKind, a: &Args) -> train::Args {
-    train::Args {
-        data: data.to_path_buf(),
-        model,
-        arch: ArchKind::Conv,
-        crop: a.crop,
-        out: out.to_path_buf(),
-        epochs: a.epochs,
-        batch: 128,
-        lr: 0.005,
-        lr_step: 10,
-        lr_decay: 0.5,
-        seed: a.seed,
-        normalisation: NormArg::Std,
-        two_sided: false,
-        sigma_floor: crate::train::calibrate::DEFAULT_SIGMA_FLOOR,
-        threshold: crate::train::calibrate::DEFAULT_THRESHOLD,
-        threshold_percentile: None,
-        min_area: crate::train::calibrate::DEFAULT_MIN_AREA,
-        device: DeviceArg::Cpu,
-        quiet: true,
-    }
+fn train_config(data: &Path, out: &Path, model: ModelKind, a: &Args) -> train::TrainConfig {
+    train::TrainConfig::new(data.to_path_buf(), out.to_path_buf())
+        .with_model(model)
+        .with_crop(a.crop)
+        .with_epochs(a.epochs)
+        .with_seed(a.seed)
+        .with_quiet(true)
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -138,7 +122,7 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     p.start(&format!("2/8 training the decoder ({} epochs, Adam lr 0.005 halved every 10, batch 128) and calibrating", a.epochs));
-    train::run(train_args(&data, &models, ModelKind::Decoder, &a))?;
+    train::run(train_config(&data, &models, ModelKind::Decoder, &a))?;
     let max_head = dcfg.max_head_angle as f32;
     let choice = train::policy::apply(&models, "decoder", a.robot, max_head, a.seed)?;
     notes.push(novelty_note(&choice));
@@ -152,7 +136,7 @@ pub fn run(a: Args) -> Result<()> {
         ),
     );
     p.start("   training the autoencoder (2-d code, same decoder)");
-    train::run(train_args(&data, &models, ModelKind::Autoencoder, &a))?;
+    train::run(train_config(&data, &models, ModelKind::Autoencoder, &a))?;
     train::policy::apply(&models, "autoencoder", a.robot, max_head, a.seed)?;
     let ae_info = train::load(&models, "autoencoder")?.info()?.clone();
     p.done(

@@ -6,10 +6,14 @@ pub mod demo;
 pub mod run;
 pub mod check;
 pub mod servos;
+pub mod train;
+pub mod train_reach;
+pub mod quantize;
+pub mod import;
+pub mod detect;
+pub mod eval;
+pub mod bench;
 
-use crate::{train, detect, eval, bench};
-use crate::train::reach as train_reach;
-use crate::quant::{quantize, import};
 use self::run as run_board;
 use anyhow::Result;
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};

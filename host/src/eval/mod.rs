@@ -32,24 +32,7 @@ use anyhow::{ensure, Context, Result};
 use msr_shared::blob::{Model, CRC32};
 use msr_sim::layout::Split;
 use serde::Serialize;
-use std::path::{Path, PathBuf};
-
-#[derive(clap::Args, Debug)]
-pub struct Args {
-    /// The model blob (.msrm)
-    #[arg(long)]
-    pub model: PathBuf,
-    /// Dataset folder (sim layout or the published manifest layout)
-    #[arg(long)]
-    pub data: PathBuf,
-    /// The published manifest the blob was imported from: its float decoder and float64
-    /// statistics make the float decoder rows (instead of the blob's dequantized decoder)
-    #[arg(long)]
-    pub manifest: Option<PathBuf>,
-    /// Print JSON instead of markdown
-    #[arg(long)]
-    pub json: bool,
-}
+use std::path::Path;
 
 #[derive(Serialize, Debug, Clone)]
 pub struct Row {
@@ -88,16 +71,6 @@ pub struct Report {
     pub rows: Vec<Row>,
     pub absent: Vec<Absent>,
     pub quantized_agreement: Option<f64>,
-}
-
-pub fn run(args: Args) -> Result<()> {
-    let report = evaluate_with(&args.model, &args.data, args.manifest.as_deref())?;
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-    } else {
-        print!("{}", markdown(&report));
-    }
-    Ok(())
 }
 
 const WEIGHTINGS: [&str; 2] = ["sigma", "none"];

@@ -18,28 +18,41 @@ use msr_shared::blob::{
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
 
-#[derive(clap::Args, Debug)]
-pub struct Args {
-    /// The published manifest.json
+/// What [`import`] reads and writes: `ImportConfig::new(manifest, out)` keeps the manifest's
+/// threshold and the published code's two-sided saliency.
+#[derive(burn::config::Config, Debug)]
+pub struct ImportConfig {
+    /// The published manifest.json.
     pub manifest: PathBuf,
-    /// Where to write the model blob
-    #[arg(long)]
+    /// Where to write the model blob.
     pub out: PathBuf,
-    /// Threshold on the saliency (sigma units); default: the manifest's training threshold (4.59)
-    #[arg(long)]
+    /// Threshold on the saliency (sigma units); default: the manifest's training threshold (4.59).
     pub threshold: Option<f32>,
-    /// Saliency |e - mu| / sigma (two, the published code) or (e - mu) / sigma (one)
-    #[arg(long, value_enum, default_value_t = SidedArg::Two)]
-    pub sided: SidedArg,
+    /// Saliency |e - mu| / sigma (two, the published code) or (e - mu) / sigma (one).
+    #[config(default = "Sided::Two")]
+    pub sided: Sided,
 }
 
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SidedArg {
-    One,
-    Two,
+/// What [`import`] wrote and how close its fixed point is to the float decoder.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ImportReport {
+    pub blob_bytes: usize,
+    pub arch: String,
+    pub layers: usize,
+    /// Per layer `w_shift.in_shift->out_shift`.
+    pub shifts: Vec<String>,
+    pub face_w: usize,
+    pub face_h: usize,
+    pub threshold: f32,
+    pub min_area: u16,
+    /// Head poses the fidelity was measured over.
+    pub poses: usize,
+    pub psnr_db: f64,
+    pub max_abs_grey: f64,
 }
 
-pub fn run(args: Args) -> Result<()> {
+/// Imports the published model into a blob at `out`.
+pub fn import(args: &ImportConfig) -> Result<ImportReport> {
     let mut model = Published::load(&args.manifest)?;
     if let Some(t) = args.threshold {
         ensure!(
@@ -48,10 +61,7 @@ pub fn run(args: Args) -> Result<()> {
         );
         model.threshold = t;
     }
-    model.sided = match args.sided {
-        SidedArg::One => Sided::One,
-        SidedArg::Two => Sided::Two,
-    };
+    model.sided = args.sided;
     let spec = model.to_spec()?;
     let bytes = spec
         .to_bytes()
@@ -64,25 +74,19 @@ pub fn run(args: Args) -> Result<()> {
         .collect();
     let heads = model.head_angles.clone().unwrap_or_else(grid_heads);
     let (psnr, max_abs) = fidelity(&bytes, &model.decoder, &heads)?;
-    println!(
-        "wrote {} ({} bytes): decoder {} ({} layers, i16 weights, shifts w.in->out {}), face {}x{}, \
-         threshold {}, min area {}",
-        args.out.display(),
-        bytes.len(),
-        model.decoder.arch(),
-        spec.layers.len(),
-        shifts.join(" "),
-        model.decoder.face_w,
-        model.decoder.face_h,
-        model.threshold,
-        model.min_area
-    );
-    println!(
-        "fixed point (firmware decoder) vs float over {} head poses: PSNR {psnr:.1} dB, largest \
-         difference {max_abs:.2} grey levels",
-        heads.len()
-    );
-    Ok(())
+    Ok(ImportReport {
+        blob_bytes: bytes.len(),
+        arch: model.decoder.arch().to_string(),
+        layers: spec.layers.len(),
+        shifts,
+        face_w: model.decoder.face_w as usize,
+        face_h: model.decoder.face_h as usize,
+        threshold: model.threshold,
+        min_area: model.min_area,
+        poses: heads.len(),
+        psnr_db: psnr,
+        max_abs_grey: max_abs,
+    })
 }
 
 /// A 21 x 21 grid over +-5 degrees, when the manifest lists no head angles.

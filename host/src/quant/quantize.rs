@@ -69,7 +69,7 @@ pub enum ShiftPolicy {
     Trained,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum WeightArg {
     /// i16 if the blob fits a board upload slot (faster on the M4), else i8 if it keeps the
@@ -79,28 +79,23 @@ pub enum WeightArg {
     I16,
 }
 
-#[derive(clap::Args, Debug)]
-pub struct Args {
-    /// Output folder of `msr train` (its decoder is quantized)
-    #[arg(long)]
+/// What [`quantize`] turns into a blob: `QuantizeConfig::new(train, reach, out)` keeps the
+/// training's threshold, picks the weight type by [`WeightArg::Auto`] and reports on the
+/// training's dataset.
+#[derive(burn::config::Config, Debug)]
+pub struct QuantizeConfig {
+    /// Output folder of `msr train` (its decoder is quantized).
     pub train: PathBuf,
-    /// Reach network from `msr train-reach` (safetensors with its .json scaling beside it)
-    #[arg(long)]
+    /// Reach network from `msr train-reach` (safetensors with its .json scaling beside it).
     pub reach: PathBuf,
-    /// Threshold in saliency units (default: the one chosen at training)
-    #[arg(long)]
-    pub threshold: Option<f64>,
-    #[arg(long, value_enum, default_value_t = WeightArg::Auto)]
-    pub weights: WeightArg,
-    /// Dataset for the float-vs-fixed report (default: the one the model was trained on)
-    #[arg(long)]
-    pub data: Option<PathBuf>,
-    /// The model blob to write
-    #[arg(long)]
+    /// The model blob to write (its report goes beside it, `.json` added).
     pub out: PathBuf,
-    /// Print the report as JSON
-    #[arg(long)]
-    pub json: bool,
+    /// Threshold in saliency units (default: the one chosen at training).
+    pub threshold: Option<f64>,
+    #[config(default = "WeightArg::Auto")]
+    pub weights: WeightArg,
+    /// Dataset for the float-vs-fixed report (default: the one the model was trained on).
+    pub data: Option<PathBuf>,
 }
 
 /// Largest magnitude of a layer's input that the previous layer can produce.
@@ -468,7 +463,8 @@ pub struct Report {
     pub psnr_target_db: f64,
 }
 
-pub fn run(args: Args) -> Result<()> {
+/// Quantizes, writes the blob and its report (`{out}.json`), and returns the report.
+pub fn quantize(args: &QuantizeConfig) -> Result<Report> {
     let model = train::load(&args.train, "decoder")
         .with_context(|| format!("loading the trained decoder from {}", args.train.display()))?;
     let info = model.info()?.clone();
@@ -540,26 +536,7 @@ pub fn run(args: Args) -> Result<()> {
     let json = serde_json::to_string_pretty(&report)?;
     let report_path = PathBuf::from(format!("{}.json", args.out.display()));
     crate::fsio::write(&report_path, &json)?;
-    if args.json {
-        println!("{json}");
-    } else {
-        println!(
-            "wrote {} ({} bytes, {} weights, {} MACs): PSNR {:.1} dB over {} poses{}; detection agreement {:.1} % on {} test frames (float {}, fixed {} detections), centroid difference max {} px",
-            report.blob,
-            report.blob_bytes,
-            report.weights,
-            report.decoder_macs,
-            report.psnr_db,
-            report.psnr_poses,
-            report.psnr_i8_db.map(|p| format!(" (i8: {p:.1} dB)")).unwrap_or_default(),
-            100.0 * report.detection_agreement,
-            report.test_frames,
-            report.float_detections,
-            report.fixed_detections,
-            report.centroid_diff_px_max.map(|d| format!("{d:.2}")).unwrap_or("-".into()),
-        );
-    }
-    Ok(())
+    Ok(report)
 }
 
 /// Used by tests and other tools: a blob straight from float layers with default shifts.

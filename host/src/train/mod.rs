@@ -53,7 +53,9 @@ impl ModelKind {
     }
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+/// The saliency's normaliser.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
 pub enum NormArg {
     /// (e - mu) / sigma, the published code
     Std,
@@ -61,7 +63,9 @@ pub enum NormArg {
     Variance,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+/// Where burn trains.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
 pub enum DeviceArg {
     /// burn's pure-Rust CPU backend (flex)
     Cpu,
@@ -71,56 +75,55 @@ pub enum DeviceArg {
     Wgpu,
 }
 
-#[derive(clap::Args, Debug)]
-pub struct Args {
-    /// Dataset folder (sim layout or the published manifest layout)
-    #[arg(long)]
+/// What [`run`] trains, on what, and how: `TrainConfig::new(data, out)` gives the defaults of
+/// `msr train` (the published conv decoder's recipe); `with_*` changes one. `msr train` builds it
+/// from its flags (`crate::cmd::train`), `msr demo` and the tests in code.
+#[derive(burn::config::Config, Debug)]
+pub struct TrainConfig {
+    /// Dataset folder (sim layout or the published manifest layout).
     pub data: PathBuf,
-    #[arg(long, value_enum, default_value_t = ModelKind::Decoder)]
-    pub model: ModelKind,
-    #[arg(long, value_enum, default_value_t = ArchKind::Conv)]
-    pub arch: ArchKind,
-    /// Face crop: subpixel (refined and resampled; see `crop`) or pixel (the published code)
-    #[arg(long, default_value_t = CropMode::Subpixel)]
-    pub crop: CropMode,
-    /// Output folder
-    #[arg(long)]
+    /// Output folder.
     pub out: PathBuf,
-    #[arg(long, default_value_t = 50)]
+    #[config(default = "ModelKind::Decoder")]
+    pub model: ModelKind,
+    #[config(default = "ArchKind::Conv")]
+    pub arch: ArchKind,
+    /// Face crop: sub-pixel (refined and resampled) or pixel (the published code).
+    #[config(default = "CropMode::Subpixel")]
+    pub crop: CropMode,
+    #[config(default = 50)]
     pub epochs: usize,
-    #[arg(long, default_value_t = 128)]
+    #[config(default = 128)]
     pub batch: usize,
-    #[arg(long, default_value_t = 0.005)]
+    #[config(default = 0.005)]
     pub lr: f64,
-    /// Multiply the learning rate by --lr-decay every this many epochs
-    #[arg(long, default_value_t = 10)]
+    /// Multiply the learning rate by `lr_decay` every this many epochs.
+    #[config(default = 10)]
     pub lr_step: usize,
-    #[arg(long, default_value_t = 0.5)]
+    #[config(default = 0.5)]
     pub lr_decay: f64,
-    #[arg(long, default_value_t = 0)]
+    #[config(default = 0)]
     pub seed: u64,
-    /// Saliency normaliser
-    #[arg(long, value_enum, default_value_t = NormArg::Std)]
+    #[config(default = "NormArg::Std")]
     pub normalisation: NormArg,
-    /// Two-sided saliency |e - mu| / n (the published code); default one-sided (e - mu) / n
-    #[arg(long)]
+    /// Two-sided saliency |e - mu| / n (the published code); default one-sided (e - mu) / n.
+    #[config(default = false)]
     pub two_sided: bool,
-    /// Floor on sigma in grey levels before normalising
-    #[arg(long, default_value_t = calibrate::DEFAULT_SIGMA_FLOOR)]
+    /// Floor on sigma in grey levels before normalising.
+    #[config(default = "calibrate::DEFAULT_SIGMA_FLOOR")]
     pub sigma_floor: f64,
-    /// Fixed threshold in saliency units (the paper's 0.018 * 255)
-    #[arg(long, default_value_t = calibrate::DEFAULT_THRESHOLD, conflicts_with = "threshold_percentile")]
+    /// Fixed threshold in saliency units (the paper's 0.018 * 255).
+    #[config(default = "calibrate::DEFAULT_THRESHOLD")]
     pub threshold: f64,
-    /// Pick the threshold as this percentile of the detection scores of the unmarked test frames
-    #[arg(long)]
+    /// Pick the threshold as this percentile of the detection scores of the unmarked test frames.
     pub threshold_percentile: Option<f64>,
-    /// Smallest blob that counts as a detection, pixels
-    #[arg(long, default_value_t = calibrate::DEFAULT_MIN_AREA)]
+    /// Smallest blob that counts as a detection, pixels.
+    #[config(default = "calibrate::DEFAULT_MIN_AREA")]
     pub min_area: u16,
-    #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
+    #[config(default = "DeviceArg::Cpu")]
     pub device: DeviceArg,
-    /// No progress bars
-    #[arg(long)]
+    /// No progress bars.
+    #[config(default = false)]
     pub quiet: bool,
 }
 
@@ -228,7 +231,8 @@ fn samples<'a>(it: impl Iterator<Item = &'a Sample>, keep_marked: bool) -> Sampl
     s
 }
 
-pub fn run(args: Args) -> Result<()> {
+/// Trains, calibrates and writes the output folder (see the module doc).
+pub fn run(args: TrainConfig) -> Result<()> {
     ensure!(args.min_area >= 1, "--min-area must be at least 1");
     if let Some(p) = args.threshold_percentile {
         ensure!((0.0..=100.0).contains(&p), "--threshold-percentile must be within 0..=100, got {p}");

@@ -26,29 +26,28 @@ pub const JOINTS: [&str; O] = ["HeadYaw", "HeadPitch", "LShoulderPitch", "LShoul
 /// The published network's per-joint RMS error on its own 70 training pairs (radians).
 pub const PUBLISHED_FIT_RMS: [f64; O] = [0.15, 0.11, 0.11, 0.07, 0.05];
 
-#[derive(clap::Args, Debug)]
-pub struct Args {
-    /// CSV of mark positions, one `x,y` row per pair (full-frame pixels)
-    #[arg(long)]
+/// What [`run`] trains from and where it writes: `ReachConfig::new(inputs, targets, out)` gives
+/// the paper's recipe (10^4 iterations, lr 0.01, one run, the leave-one-out report).
+#[derive(burn::config::Config, Debug)]
+pub struct ReachConfig {
+    /// CSV of mark positions, one `x,y` row per pair (full-frame pixels).
     pub inputs: PathBuf,
-    /// CSV of joint angles, one row of 5 per pair (radians), same order as --inputs
-    #[arg(long)]
+    /// CSV of joint angles, one row of 5 per pair (radians), same order as `inputs`.
     pub targets: PathBuf,
-    /// Output safetensors file; the scaling and report go to the same name with .json
-    #[arg(long)]
+    /// Output safetensors file; the scaling and report go to the same name with .json.
     pub out: PathBuf,
-    #[arg(long, default_value_t = 10_000)]
+    #[config(default = 10_000)]
     pub iterations: usize,
-    #[arg(long, default_value_t = 0.01)]
+    #[config(default = 0.01)]
     pub lr: f64,
-    #[arg(long, default_value_t = 0)]
+    #[config(default = 0)]
     pub seed: u64,
-    /// Train from this many seeds and keep the lowest training loss (1: the paper's single run)
-    #[arg(long, default_value_t = 1)]
+    /// Train from this many seeds and keep the lowest training loss (1: the paper's single run).
+    #[config(default = 1)]
     pub restarts: usize,
-    /// Skip the leave-one-out report (one training per pair)
-    #[arg(long)]
-    pub no_loo: bool,
+    /// The leave-one-out report (one training per pair).
+    #[config(default = true)]
+    pub leave_one_out: bool,
 }
 
 /// Weights of the 2-10-5 network, PyTorch layout (`[out][in]`).
@@ -406,11 +405,13 @@ pub fn load(weights: &Path) -> Result<ReachModel> {
     Ok(m)
 }
 
-fn fmt_rms(v: &[f64; O]) -> String {
+/// Per-joint RMS errors in one line.
+pub fn fmt_rms(v: &[f64; O]) -> String {
     JOINTS.iter().zip(v).map(|(j, v)| format!("{j} {v:.3}")).collect::<Vec<_>>().join(", ")
 }
 
-pub fn run(args: Args) -> Result<()> {
+/// Trains the network on the CSV pairs and writes it with its sidecar (which it returns).
+pub fn run(args: &ReachConfig) -> Result<Sidecar> {
     let xs = read_rows::<I>(&args.inputs)?;
     let ys = read_rows::<O>(&args.targets)?;
     ensure!(
@@ -426,16 +427,7 @@ pub fn run(args: Args) -> Result<()> {
     let model = train(&xs, &ys, &opts)?;
     let seconds = started.elapsed().as_secs_f64();
     let fit = rms(&model, &xs, &ys);
-    println!("reach: {} pairs, {} iterations in {seconds:.2} s", xs.len(), args.iterations);
-    println!("fit RMS (rad):           {}", fmt_rms(&fit));
-    let loo = if args.no_loo {
-        None
-    } else {
-        let l = leave_one_out(&xs, &ys, &opts)?;
-        println!("leave-one-out RMS (rad): {}", fmt_rms(&l));
-        Some(l)
-    };
-    println!("published fit RMS (rad): {}", fmt_rms(&PUBLISHED_FIT_RMS));
+    let loo = if args.leave_one_out { Some(leave_one_out(&xs, &ys, &opts)?) } else { None };
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
@@ -458,10 +450,8 @@ pub fn run(args: Args) -> Result<()> {
         published_fit_rms_rad: PUBLISHED_FIT_RMS,
         training_seconds: seconds,
     };
-    let side_path = sidecar_path(&args.out);
-    crate::fsio::write(&side_path, serde_json::to_string_pretty(&side)?)?;
-    println!("wrote {} and {}", args.out.display(), side_path.display());
-    Ok(())
+    crate::fsio::write(&sidecar_path(&args.out), serde_json::to_string_pretty(&side)?)?;
+    Ok(side)
 }
 
 #[cfg(test)]

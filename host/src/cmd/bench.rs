@@ -1,0 +1,65 @@
+//! `msr bench`: the pipeline's costs per model, on the Cortex-M4 image in QEMU or on this PC.
+use crate::bench::{bench_host, bench_qemu, from_file, print_table, synthetic_with, Backend, SynthWeights};
+use crate::models::ArchKind;
+use anyhow::{Context, Result};
+use serde_json::Value;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    #[arg(long, value_enum, default_value = "qemu")]
+    pub backend: Backend,
+    /// Model blob(s) to benchmark; default: synthetic conv and published-MLP blobs, 58 x 75.
+    #[arg(long)]
+    pub model: Vec<PathBuf>,
+    /// Print JSON (one object per model, a list when several) instead of a table.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write the benchmarked blobs to DIR as `<model>.msrm` (e.g. to build one into an
+    /// image with `MSR_MODEL_BLOB`).
+    #[arg(long, value_name = "DIR")]
+    pub save_models: Option<PathBuf>,
+    /// Host backend: repetitions per stage and frame.
+    #[arg(long, default_value_t = 50)]
+    pub reps: usize,
+    /// Weight type of the synthetic blobs (`msr quantize --weights auto` takes i16 when the
+    /// blob fits a board upload slot; the board runs both, i16 faster).
+    #[arg(long, value_enum, default_value = "i16")]
+    pub weights: SynthWeights,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let models = if args.model.is_empty() {
+        let i8w = args.weights == SynthWeights::I8;
+        vec![synthetic_with(ArchKind::Conv, i8w)?, synthetic_with(ArchKind::Mlp, i8w)?]
+    } else {
+        args.model.iter().map(|p| from_file(p)).collect::<Result<Vec<_>>>()?
+    };
+    if let Some(dir) = &args.save_models {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+        for m in &models {
+            let p = dir.join(format!("{}.msrm", m.name));
+            let inputs: Vec<(&str, &std::path::Path)> = args.model.iter().map(|m| ("--model", m.as_path())).collect();
+            crate::fsio::check_outputs(&inputs, &[("--save-models", &p)])?;
+            crate::fsio::write(&p, &m.blob)?;
+            eprintln!("wrote {} ({} bytes)", p.display(), m.blob.len());
+        }
+    }
+    let mut out = Vec::new();
+    for m in &models {
+        let v = match args.backend {
+            Backend::Qemu => bench_qemu(m)?,
+            Backend::Host => bench_host(m, args.reps.max(1))?,
+        };
+        if !args.json {
+            print_table(&v);
+        }
+        out.push(v);
+    }
+    if args.json {
+        let v = if out.len() == 1 { out.remove(0) } else { Value::Array(out) };
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    }
+    Ok(())
+}
+

@@ -1,0 +1,31 @@
+//! `msr eval`: [`eval::evaluate_with`] on the flags' blob and dataset, printed.
+use crate::eval;
+use anyhow::Result;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// The model blob (.msrm)
+    #[arg(long)]
+    pub model: PathBuf,
+    /// Dataset folder (sim layout or the published manifest layout)
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The published manifest the blob was imported from: its float decoder and float64
+    /// statistics make the float decoder rows (instead of the blob's dequantized decoder)
+    #[arg(long)]
+    pub manifest: Option<PathBuf>,
+    /// Print JSON instead of markdown
+    #[arg(long)]
+    pub json: bool,
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let report = eval::evaluate_with(&args.model, &args.data, args.manifest.as_deref())?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{}", eval::markdown(&report));
+    }
+    Ok(())
+}

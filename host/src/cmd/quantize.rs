@@ -1,0 +1,63 @@
+//! `msr quantize`: flags to a [`QuantizeConfig`], then [`quantize::quantize`], then the report.
+use crate::quant::quantize::{self, QuantizeConfig, WeightArg};
+use anyhow::Result;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Output folder of `msr train` (its decoder is quantized)
+    #[arg(long)]
+    pub train: PathBuf,
+    /// Reach network from `msr train-reach` (safetensors with its .json scaling beside it)
+    #[arg(long)]
+    pub reach: PathBuf,
+    /// Threshold in saliency units (default: the one chosen at training)
+    #[arg(long)]
+    pub threshold: Option<f64>,
+    #[arg(long, value_enum, default_value_t = WeightArg::Auto)]
+    pub weights: WeightArg,
+    /// Dataset for the float-vs-fixed report (default: the one the model was trained on)
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// The model blob to write
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Print the report as JSON
+    #[arg(long)]
+    pub json: bool,
+}
+
+impl Args {
+    /// The library's configuration for these flags.
+    pub fn config(&self) -> QuantizeConfig {
+        let mut c = QuantizeConfig::new(self.train.clone(), self.reach.clone(), self.out.clone())
+            .with_weights(self.weights);
+        c.threshold = self.threshold;
+        c.data = self.data.clone();
+        c
+    }
+}
+
+pub fn run(args: Args) -> Result<()> {
+    let report = quantize::quantize(&args.config())?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "wrote {} ({} bytes, {} weights, {} MACs): PSNR {:.1} dB over {} poses{}; detection agreement {:.1} % on {} test frames (float {}, fixed {} detections), centroid difference max {} px",
+            report.blob,
+            report.blob_bytes,
+            report.weights,
+            report.decoder_macs,
+            report.psnr_db,
+            report.psnr_poses,
+            report.psnr_i8_db.map(|p| format!(" (i8: {p:.1} dB)")).unwrap_or_default(),
+            100.0 * report.detection_agreement,
+            report.test_frames,
+            report.float_detections,
+            report.fixed_detections,
+            report.centroid_diff_px_max.map(|d| format!("{d:.2}")).unwrap_or("-".into()),
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,127 @@
+//! `msr train`: flags to a [`TrainConfig`], then [`crate::train::run`].
+use crate::models::ArchKind;
+use crate::train::{calibrate, DeviceArg, ModelKind, NormArg, TrainConfig};
+use anyhow::Result;
+use msr_shared::blob::CropMode;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Dataset folder (sim layout or the published manifest layout)
+    #[arg(long)]
+    pub data: PathBuf,
+    #[arg(long, value_enum, default_value_t = ModelKind::Decoder)]
+    pub model: ModelKind,
+    #[arg(long, value_enum, default_value_t = ArchKind::Conv)]
+    pub arch: ArchKind,
+    /// Face crop: subpixel (refined and resampled; see `crop`) or pixel (the published code)
+    #[arg(long, default_value_t = CropMode::Subpixel)]
+    pub crop: CropMode,
+    /// Output folder
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 50)]
+    pub epochs: usize,
+    #[arg(long, default_value_t = 128)]
+    pub batch: usize,
+    #[arg(long, default_value_t = 0.005)]
+    pub lr: f64,
+    /// Multiply the learning rate by --lr-decay every this many epochs
+    #[arg(long, default_value_t = 10)]
+    pub lr_step: usize,
+    #[arg(long, default_value_t = 0.5)]
+    pub lr_decay: f64,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Saliency normaliser
+    #[arg(long, value_enum, default_value_t = NormArg::Std)]
+    pub normalisation: NormArg,
+    /// Two-sided saliency |e - mu| / n (the published code); default one-sided (e - mu) / n
+    #[arg(long)]
+    pub two_sided: bool,
+    /// Floor on sigma in grey levels before normalising
+    #[arg(long, default_value_t = calibrate::DEFAULT_SIGMA_FLOOR)]
+    pub sigma_floor: f64,
+    /// Fixed threshold in saliency units (the paper's 0.018 * 255)
+    #[arg(long, default_value_t = calibrate::DEFAULT_THRESHOLD, conflicts_with = "threshold_percentile")]
+    pub threshold: f64,
+    /// Pick the threshold as this percentile of the detection scores of the unmarked test frames
+    #[arg(long)]
+    pub threshold_percentile: Option<f64>,
+    /// Smallest blob that counts as a detection, pixels
+    #[arg(long, default_value_t = calibrate::DEFAULT_MIN_AREA)]
+    pub min_area: u16,
+    #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
+    pub device: DeviceArg,
+    /// No progress bars
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+impl Args {
+    /// The library's configuration for these flags.
+    pub fn config(&self) -> TrainConfig {
+        let mut c = TrainConfig::new(self.data.clone(), self.out.clone())
+            .with_model(self.model)
+            .with_arch(self.arch)
+            .with_crop(self.crop)
+            .with_epochs(self.epochs)
+            .with_batch(self.batch)
+            .with_lr(self.lr)
+            .with_lr_step(self.lr_step)
+            .with_lr_decay(self.lr_decay)
+            .with_seed(self.seed)
+            .with_normalisation(self.normalisation)
+            .with_two_sided(self.two_sided)
+            .with_sigma_floor(self.sigma_floor)
+            .with_threshold(self.threshold)
+            .with_min_area(self.min_area)
+            .with_device(self.device)
+            .with_quiet(self.quiet);
+        c.threshold_percentile = self.threshold_percentile;
+        c
+    }
+}
+
+pub fn run(a: Args) -> Result<()> {
+    crate::train::run(a.config())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        args: Args,
+    }
+
+    #[test]
+    fn flag_defaults_are_the_library_defaults() {
+        let cli = Cli::parse_from(["msr", "--data", "d", "--out", "o"]);
+        let from_flags = cli.args.config();
+        let lib = TrainConfig::new("d".into(), "o".into());
+        assert_eq!(format!("{from_flags}"), format!("{lib}"));
+    }
+
+    #[test]
+    fn every_flag_reaches_the_config() {
+        let cli = Cli::parse_from([
+            "msr", "--data", "d", "--out", "o", "--model", "autoencoder", "--arch", "mlp", "--crop",
+            "pixel", "--epochs", "3", "--batch", "7", "--lr", "0.1", "--lr-step", "2",
+            "--lr-decay", "0.9", "--seed", "5", "--normalisation", "variance", "--two-sided",
+            "--sigma-floor", "2", "--threshold-percentile", "99", "--min-area", "4", "--quiet",
+        ]);
+        let c = cli.args.config();
+        assert_eq!(c.model, ModelKind::Autoencoder);
+        assert_eq!(c.arch, ArchKind::Mlp);
+        assert_eq!(c.crop, CropMode::Pixel);
+        assert_eq!((c.epochs, c.batch, c.lr_step, c.seed, c.min_area), (3, 7, 2, 5, 4));
+        assert_eq!((c.lr, c.lr_decay, c.sigma_floor), (0.1, 0.9, 2.0));
+        assert_eq!(c.normalisation, NormArg::Variance);
+        assert!(c.two_sided && c.quiet);
+        assert_eq!(c.threshold_percentile, Some(99.0));
+    }
+}

@@ -1,0 +1,53 @@
+//! `msr train-reach`: flags to a [`ReachConfig`], then [`reach::run`], then the report.
+use crate::train::reach::{self, fmt_rms, ReachConfig, PUBLISHED_FIT_RMS};
+use anyhow::Result;
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// CSV of mark positions, one `x,y` row per pair (full-frame pixels)
+    #[arg(long)]
+    pub inputs: PathBuf,
+    /// CSV of joint angles, one row of 5 per pair (radians), same order as --inputs
+    #[arg(long)]
+    pub targets: PathBuf,
+    /// Output safetensors file; the scaling and report go to the same name with .json
+    #[arg(long)]
+    pub out: PathBuf,
+    #[arg(long, default_value_t = 10_000)]
+    pub iterations: usize,
+    #[arg(long, default_value_t = 0.01)]
+    pub lr: f64,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Train from this many seeds and keep the lowest training loss (1: the paper's single run)
+    #[arg(long, default_value_t = 1)]
+    pub restarts: usize,
+    /// Skip the leave-one-out report (one training per pair)
+    #[arg(long)]
+    pub no_loo: bool,
+}
+
+impl Args {
+    /// The library's configuration for these flags.
+    pub fn config(&self) -> ReachConfig {
+        ReachConfig::new(self.inputs.clone(), self.targets.clone(), self.out.clone())
+            .with_iterations(self.iterations)
+            .with_lr(self.lr)
+            .with_seed(self.seed)
+            .with_restarts(self.restarts)
+            .with_leave_one_out(!self.no_loo)
+    }
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let side = reach::run(&a.config())?;
+    println!("reach: {} pairs, {} iterations in {:.2} s", side.pairs, side.iterations, side.training_seconds);
+    println!("fit RMS (rad):           {}", fmt_rms(&side.fit_rms_rad));
+    if let Some(l) = &side.loo_rms_rad {
+        println!("leave-one-out RMS (rad): {}", fmt_rms(l));
+    }
+    println!("published fit RMS (rad): {}", fmt_rms(&PUBLISHED_FIT_RMS));
+    println!("wrote {} and {}", a.out.display(), reach::sidecar_path(&a.out).display());
+    Ok(())
+}
