@@ -13,3 +13,4 @@ pub mod eval;
 pub mod episode;
 pub mod bench;
 pub mod report;
+pub mod demo;

@@ -1,6 +1,9 @@
 //! The demo's `index.html`: for a few test frames the frame, the crop, the predicted face, the
 //! saliency, the binarised map and the detection; the loss curves; the tables; the reach poses.
 //! Pictures are PNGs in `DIR/pictures/`, linked (not embedded) so the page stays small.
+//!
+//! The page is made from a [`DemoReport`] alone (and the files beside it), the struct `msr demo`
+//! writes as `report.json`; `msr demo --html-only` reads it back.
 use crate::data::crop;
 use anyhow::{Context, Result};
 use image::{imageops, Rgb, RgbImage};
@@ -8,9 +11,65 @@ use imageproc::drawing::{draw_cross_mut, draw_hollow_rect_mut};
 use imageproc::rect::Rect;
 use msr_shared::blob::Model;
 use msr_sim::layout::{DatasetIndex, Split};
+use crate::episode::{Summary, Trial};
+use crate::train::ModelInfo;
+use serde::{Deserialize, Serialize};
 use serde_json::Value;
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::Path;
+
+/// `report.json`: what `msr demo` found.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct DemoReport {
+    pub robot: msr_sim::Robot,
+    /// The paper's table on the test split.
+    pub eval: crate::eval::Report,
+    pub mirror_test: MirrorTestReport,
+    /// The published model on the real frames; `None` when there were none (`real_skipped` says).
+    pub real: Option<RealCheck>,
+    pub real_skipped: Option<String>,
+    /// `msr bench --backend host` for the demo's model, as that command prints it.
+    pub bench: Value,
+    /// Seconds per step (`dataset_s`, `train_decoder_s`, ...) and `total_s`.
+    pub timings: BTreeMap<String, f64>,
+    pub training: Training,
+    /// The reach network's fit on its 70 sim pairs, per joint.
+    pub reach_fit_rms_rad: [f64; 5],
+    /// What the demo does differently from the paper's full protocol, and why.
+    pub notes: Vec<String>,
+}
+
+/// The two trained models' `{name}.json`.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Training {
+    pub decoder: ModelInfo,
+    pub autoencoder: ModelInfo,
+}
+
+/// The demo's mirror-test episodes.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct MirrorTestReport {
+    pub inproc: Summary,
+    /// The in-process trials one by one.
+    pub trials: Vec<Trial>,
+    /// The first trials again under QEMU.
+    pub qemu: Option<Summary>,
+    /// Of those, how many came out as in-process.
+    pub qemu_matching_inproc: Option<usize>,
+    /// Why there are no QEMU episodes.
+    pub qemu_error: Option<String>,
+}
+
+/// The published model on the real frames: marks found (centroid in the box) and detections on
+/// unmarked frames.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RealCheck {
+    pub marked: usize,
+    pub hits: usize,
+    pub unmarked: usize,
+    pub false_alarms: usize,
+}
 
 /// Crops are shown this many times larger.
 const ZOOM: u32 = 3;
@@ -203,17 +262,17 @@ fn kv(v: &Value) -> String {
     s
 }
 
-pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Result<()> {
+fn value<T: Serialize>(x: &T) -> Value {
+    serde_json::to_value(x).unwrap_or(Value::Null)
+}
+
+pub fn write_html(out: &Path, report: &DemoReport, blob: &[u8], data: &Path) -> Result<()> {
     let pics = out.join("pictures");
     std::fs::create_dir_all(&pics)?;
     let model = Model::parse(blob).map_err(|e| anyhow::anyhow!("model blob: {e}"))?;
     let index: DatasetIndex =
         serde_json::from_slice(&std::fs::read(data.join(msr_sim::layout::INDEX_FILE))?)?;
-    let robot: msr_sim::Robot = report["robot"]
-        .as_str()
-        .unwrap_or("red")
-        .parse()
-        .unwrap_or(msr_sim::Robot::Red);
+    let robot = report.robot;
 
     let mut h = String::new();
     let _ = write!(
@@ -262,13 +321,12 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
             let _ = write!(h, "<figure><img src=\"models/{name}_loss.png\" width=520><figcaption>{name}: loss per epoch</figcaption></figure>");
         }
     }
-    let tr = &report["training"];
-    let rows: Vec<Value> = ["decoder", "autoencoder"]
+    let tr = &report.training;
+    let rows: Vec<Value> = [("decoder", &tr.decoder), ("autoencoder", &tr.autoencoder)]
         .iter()
-        .map(|n| {
-            let t = &tr[*n];
-            serde_json::json!({"model": n, "arch": t["arch"], "train frames": t["train_frames"], "epochs": t["hyper"]["epochs"],
-                "final train MSE": t["final_train_mse"], "final test MSE": t["final_test_mse"], "training s": t["training_seconds"]})
+        .map(|(n, t)| {
+            serde_json::json!({"model": n, "arch": t.arch, "train frames": t.train_frames, "epochs": t.hyper.epochs,
+                "final train MSE": t.final_train_mse, "final test MSE": t.final_test_mse, "training s": t.training_seconds})
         })
         .collect();
     h.push_str(&table(
@@ -285,17 +343,17 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
     ));
 
     // Tables.
-    let ev = &report["eval"];
-    let region = match ev["region"].as_object() {
+    let ev = &report.eval;
+    let region = match &ev.region {
         Some(g) => format!(
-            "; near the observe posture (head angles within {} rad of {}) threshold {}, merge {}",
-            num(&g["radius"]), esc(&g["centre"].to_string()), num(&g["threshold"]), esc(&g["merge"].to_string())
+            "; near the observe posture (head angles within {} rad of {:?}) threshold {}, merge {}",
+            g.radius, g.centre, g.threshold, esc(&value(&g.merge).to_string())
         ),
         None => String::new(),
     };
     let _ = write!(h, "<h2>Detection on the test split (the paper's table)</h2><p>{} test frames ({} marked, {} unmarked), threshold {}{region}, min area {}. Quantized agreement (float vs fixed decoder, sigma weighting): {}.</p>",
-        num(&ev["test_frames"]), num(&ev["marked"]), num(&ev["unmarked"]), num(&ev["threshold"]), num(&ev["min_area"]), num(&ev["quantized_agreement"]));
-    let rows = ev["rows"].as_array().cloned().unwrap_or_default();
+        ev.test_frames, ev.marked, ev.unmarked, ev.threshold, ev.min_area, num(&value(&ev.quantized_agreement)));
+    let rows: Vec<Value> = ev.rows.iter().map(value).collect();
     h.push_str(&table(
         &rows,
         &[
@@ -310,18 +368,16 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
             "pixel_auroc",
         ],
     ));
-    if let Some(abs) = ev["absent"].as_array().filter(|a| !a.is_empty()) {
-        h.push_str(&table(abs, &["model", "weighting", "engine", "reason"]));
+    if !ev.absent.is_empty() {
+        let abs: Vec<Value> = ev.absent.iter().map(value).collect();
+        h.push_str(&table(&abs, &["model", "weighting", "engine", "reason"]));
     }
 
-    let mt = &report["mirror_test"];
+    let mt = &report.mirror_test;
     let _ = write!(h, "<h2>Mirror-test episodes</h2><p>Each trial: the robot at home, a mark appears at 0.4 s (none in 20 % of trials), frames stream over the emulated 921600-baud host link, the board detects, confirms (3 of 5 frames) and reaches at speed fraction 0.1; the sim judges by forward kinematics (fingertip within 20 mm of the mark's point over 1 s of the hold).</p>");
-    let bus = mt["inproc"]["servo_bus"].as_str().unwrap_or("framed");
+    let bus = mt.inproc.servo_bus.as_str();
     let _ = write!(h, "<p>Servo bus: <b>{bus}</b>{}</p>", if bus == "dynamixel" { " (Dynamixel Protocol 2.0 at 1 Mbaud: the board is the bus master of emulated XM430-W350 servos, with one Sync Write of goals and one Sync Read of positions every 10 ms)" } else { " (the project's framed servo messages)" });
-    let mut sums = vec![mt["inproc"].clone()];
-    if mt["qemu"].is_object() && mt["qemu"].get("error").is_none() {
-        sums.push(mt["qemu"].clone());
-    }
+    let sums: Vec<Value> = std::iter::once(&mt.inproc).chain(&mt.qemu).map(value).collect();
     h.push_str(&table(
         &sums,
         &[
@@ -344,14 +400,14 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
             "frames_superseded",
         ],
     ));
-    if let Some(e) = mt["qemu"].get("error") {
-        let _ = write!(h, "<p>QEMU: {}</p>", num(e));
+    if let Some(e) = &mt.qemu_error {
+        let _ = write!(h, "<p>QEMU: {}</p>", esc(e));
     }
-    let trials = mt["trials"].as_array().cloned().unwrap_or_default();
-    let misses: Vec<Value> = trials
+    let misses: Vec<Value> = mt
+        .trials
         .iter()
-        .filter(|t| t["mark"].is_string() && t["touched"] == false || t["false_reach"] == true)
-        .cloned()
+        .filter(|t| t.mark.is_some() && !t.touched || t.false_reach)
+        .map(value)
         .collect();
     if !misses.is_empty() {
         let _ = write!(h, "<p>Trials that did not touch (and why):</p>");
@@ -363,34 +419,32 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
 
     // Reach poses.
     let _ = write!(h, "<h2>Reach poses</h2><p>The robot at the posture the board streamed, as its camera sees it in the mirror, for a few touched trials.</p>");
-    for t in trials.iter().filter(|t| t["touched"] == true).take(4) {
-        let Some(q) = t["reach_target"].as_array().and_then(|a| {
-            let v: Vec<f32> = a
-                .iter()
-                .filter_map(|x| x.as_f64().map(|f| f as f32))
-                .collect();
-            <[f32; 5]>::try_from(v).ok()
-        }) else {
+    for t in mt.trials.iter().filter(|t| t.touched).take(4) {
+        let Some(q) = t.reach_target else {
             continue;
         };
-        let file = format!("reach{}.png", t["index"]);
+        let file = format!("reach{}.png", t.index);
         if reach_picture(robot, q, &pics.join(&file)).is_ok() {
-            let _ = write!(h, "<figure><img src=\"pictures/{file}\"><figcaption>trial {}: {} - {} mm<br>[{:.2}, {:.2}, {:.2}, {:.2}, {:.2}] rad</figcaption></figure>",
-                t["index"], num(&t["mark"]), num(&t["touch_error_mm"]), q[0], q[1], q[2], q[3], q[4]);
+            let mm = t.touch_error_mm.map_or("-".into(), |d| format!("{d:.1}"));
+            let _ = write!(h, "<figure><img src=\"pictures/{file}\"><figcaption>trial {}: {} - {mm} mm<br>[{:.2}, {:.2}, {:.2}, {:.2}, {:.2}] rad</figcaption></figure>",
+                t.index, esc(t.mark.as_deref().unwrap_or("-")), q[0], q[1], q[2], q[3], q[4]);
         }
     }
 
     let _ = write!(
         h,
         "<h2>The published model on the real frames</h2>{}",
-        kv(&report["real"])
+        match (&report.real, &report.real_skipped) {
+            (Some(r), _) => kv(&value(r)),
+            (None, why) => format!("<p>Skipped: {}</p>", esc(why.as_deref().unwrap_or("no real frames"))),
+        }
     );
     let _ = write!(
         h,
         "<h2>The pipeline's cost on this PC</h2>{}",
-        kv(&report["bench"])
+        kv(&report.bench)
     );
-    if let Some(st) = report["bench"]["stages"].as_object() {
+    if let Some(st) = report.bench["stages"].as_object() {
         let _ = write!(
             h,
             "<p>Stages (ns): {}</p>",
@@ -400,11 +454,11 @@ pub fn write_html(out: &Path, report: &Value, blob: &[u8], data: &Path) -> Resul
                 .join(", ")
         );
     }
-    let _ = write!(h, "<h2>Timings (s)</h2>{}", kv(&report["timings"]));
-    if let Some(n) = report["notes"].as_array() {
+    let _ = write!(h, "<h2>Timings (s)</h2>{}", kv(&value(&report.timings)));
+    if !report.notes.is_empty() {
         h.push_str("<h2>Notes</h2><ul>");
-        for x in n {
-            let _ = write!(h, "<li>{}</li>", num(x));
+        for x in &report.notes {
+            let _ = write!(h, "<li>{}</li>", esc(x));
         }
         h.push_str("</ul>");
     }

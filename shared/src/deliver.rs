@@ -248,7 +248,7 @@ fn pow(b: f32, e: f32) -> f32 {
 
 /// What a [`FaceLink`] did, for goodput and retransmission reports.
 #[cfg(any(feature = "std", test))]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 pub struct LinkStats {
     /// Frames started.
     pub frames: u32,

@@ -1,6 +1,7 @@
 //! `msr demo` end to end on small settings: it must write the model, the report with its keys,
 //! and the page with its pictures.
-use msr_host::cmd::demo;
+use msr_host::demo::{self, DemoConfig};
+use msr_host::report::{DemoReport, RealCheck};
 
 /// `../shared/data/nao-red-real` from the repository root.
 fn real_dir() -> std::path::PathBuf {
@@ -11,43 +12,39 @@ fn real_dir() -> std::path::PathBuf {
 fn demo_writes_model_report_and_page() {
     let out = std::env::temp_dir().join(format!("msr-demo-test-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&out);
-    demo::run(demo::Args {
-        out: out.clone(),
-        robot: msr_sim::Robot::Red,
-        crop: msr_host::data::crop::CropMode::Subpixel,
-        frames: 200,
-        epochs: 4,
-        trials: 3,
-        qemu_trials: 1,
-        real: Some(real_dir()),
-        seed: 0,
-        html_only: false,
-        servo_bus: msr_host::episode::ServoBus::Dynamixel,
-    })
+    let returned = demo::run(
+        &DemoConfig::new(out.clone())
+            .with_frames(200)
+            .with_epochs(4)
+            .with_trials(3)
+            .with_qemu_trials(1)
+            .with_real(Some(real_dir())),
+    )
     .unwrap();
     let blob = std::fs::read(out.join("model.msrm")).unwrap();
     msr_shared::blob::Model::parse(&blob).unwrap();
-    let r: serde_json::Value =
+    // report.json is the typed report, whole: it reads back as what the demo returned.
+    let r: DemoReport =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
-    for k in ["eval", "mirror_test", "real", "bench", "timings"] {
-        assert!(r.get(k).is_some(), "report.json lacks {k}");
-    }
-    assert!(r["eval"]["rows"].as_array().is_some_and(|a| !a.is_empty()));
-    assert!(r["eval"].get("quantized_agreement").is_some());
-    assert_eq!(r["mirror_test"]["inproc"]["trials"], 3);
-    assert_eq!(r["mirror_test"]["inproc"]["limit_violations"], 0);
-    for k in ["marked", "hits", "unmarked", "false_alarms"] {
-        assert!(r["real"].get(k).is_some(), "real lacks {k}");
-    }
+    assert_eq!(serde_json::to_value(&r).unwrap(), serde_json::to_value(&returned).unwrap());
+    assert!(!r.eval.rows.is_empty());
+    assert!(r.eval.quantized_agreement.is_some());
+    assert!(r.bench.get("stages").is_some() && r.timings.contains_key("total_s"));
+    assert_eq!(r.mirror_test.inproc.trials, 3);
+    assert_eq!(r.mirror_test.trials.len(), 3);
+    assert_eq!(r.mirror_test.inproc.limit_violations, 0);
+    assert_eq!(r.mirror_test.inproc.servo_bus, "dynamixel");
     if real_dir().join("manifest.json").exists() {
         // The published model on the real frames, as the mission says it must do.
-        assert_eq!(r["real"]["marked"], 9);
-        assert_eq!(r["real"]["hits"], 9);
-        assert_eq!(r["real"]["unmarked"], 6);
-        assert_eq!(r["real"]["false_alarms"], 0);
+        let want = RealCheck { marked: 9, hits: 9, unmarked: 6, false_alarms: 0 };
+        assert_eq!(r.real, Some(want));
     } else {
+        assert!(r.real.is_none() && r.real_skipped.is_some());
         eprintln!("SKIPPED the real-frame part: no {}", real_dir().display());
     }
+    // The page can be made again from report.json alone.
+    std::fs::remove_file(out.join("index.html")).unwrap();
+    msr_host::demo::rewrite_html(&out).unwrap();
     let html = std::fs::read_to_string(out.join("index.html")).unwrap();
     assert!(html.contains("pictures/test0_saliency.png") && html.contains("Reach poses"));
     assert!(out.join("pictures/test0_saliency.png").exists());

@@ -38,7 +38,7 @@ use msr_sim::world::{self, Flow, World, WorldConfig};
 use msr_sim::Robot;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 /// The reach is held when every reach joint is this close to its target.
 pub const HELD_TOLERANCE_RAD: f64 = 0.01;
@@ -73,7 +73,7 @@ impl Backend {
 }
 
 /// The servo bus's protocol, as the command line names it.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ServoBus {
     /// The project's frames (postcard + COBS), full duplex, 921600 baud.
@@ -215,7 +215,7 @@ impl EpisodeConfig {
 }
 
 /// One trial's outcome.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Trial {
     pub index: usize,
     /// The mark (kind, colour) when one was put on the face.
@@ -254,7 +254,7 @@ pub struct Trial {
 }
 
 /// The summary `msr mirror-test --json` prints, exactly these keys.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Summary {
     pub backend: String,
     pub robot: String,

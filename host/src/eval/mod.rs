@@ -31,14 +31,14 @@ use crate::models::predictor::FacePredictor;
 use anyhow::{ensure, Context, Result};
 use msr_shared::blob::{Model, CRC32};
 use msr_sim::layout::Split;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-#[derive(Serialize, Debug, Clone)]
+#[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct Row {
-    pub model: &'static str,
-    pub weighting: &'static str,
-    pub engine: &'static str,
+    pub model: String,
+    pub weighting: String,
+    pub engine: String,
     pub overlap_over_mark_area: Option<f64>,
     pub precision_ai_over_ai_ad: Option<f64>,
     pub hit_rate: Option<f64>,
@@ -49,15 +49,15 @@ pub struct Row {
     pub source: String,
 }
 
-#[derive(Serialize, Debug, Clone)]
+#[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct Absent {
-    pub model: &'static str,
-    pub weighting: &'static str,
-    pub engine: &'static str,
+    pub model: String,
+    pub weighting: String,
+    pub engine: String,
     pub reason: String,
 }
 
-#[derive(Serialize, Debug)]
+#[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct Report {
     pub data: String,
     pub blob: String,
@@ -143,9 +143,9 @@ pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> 
             Err(reason) => {
                 for weighting in WEIGHTINGS {
                     absent.push(Absent {
-                        model: name,
-                        weighting,
-                        engine: "float",
+                        model: name.into(),
+                        weighting: weighting.into(),
+                        engine: "float".into(),
                         reason: reason.clone(),
                     });
                 }
@@ -204,9 +204,9 @@ pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> 
     }
     for weighting in WEIGHTINGS {
         absent.push(Absent {
-            model: "autoencoder",
-            weighting,
-            engine: "fixed",
+            model: "autoencoder".into(),
+            weighting: weighting.into(),
+            engine: "fixed".into(),
             reason: "the board runs decoders only: a model blob maps head angles to a face".into(),
         });
     }
@@ -331,9 +331,9 @@ fn row(
     }
     let per = |v: f64, n: usize| if n > 0 { Some(v / n as f64) } else { None };
     Row {
-        model: model_name,
-        weighting,
-        engine,
+        model: model_name.into(),
+        weighting: weighting.into(),
+        engine: engine.into(),
         overlap_over_mark_area: per(overlap, marked),
         precision_ai_over_ai_ad: per(precision, marked),
         hit_rate: per(hits as f64, marked),
