@@ -571,24 +571,10 @@ fn trial(index: usize, mark: Option<&str>, ended_before_mark: bool, touched: boo
         index,
         mark: mark.map(String::from),
         ended_before_mark,
-        mark_pixel: None,
         reached: touched || ended_before_mark,
         false_reach: ended_before_mark,
         touched,
-        touch_error_mm: None,
-        latency_ms: None,
-        reach_target: None,
-        failure: None,
-        frames_sent: 0,
-        detections: 0,
-        limit_violations: 0,
-        crc_errors: 0,
-        resyncs: 0,
-        watchdog_trips: 0,
-        sim_s: 0.0,
-        wall_s: 0.0,
-        link: Default::default(),
-        bus_bytes: Vec::new(),
+        ..Default::default()
     }
 }
 

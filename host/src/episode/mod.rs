@@ -214,8 +214,8 @@ impl EpisodeConfig {
     }
 }
 
-/// One trial's outcome.
-#[derive(Clone, Debug, Serialize, Deserialize)]
+/// One trial's outcome (`Default`: nothing happened yet).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct Trial {
     pub index: usize,
     /// The mark (kind, colour) when one was put on the face.
@@ -778,29 +778,7 @@ pub fn run_trial_with<F: world::Firmware>(
         stage: Stage::Watching,
         target: None,
         held: Vec::new(),
-        trial: Trial {
-            index,
-            mark: None,
-            ended_before_mark: false,
-            mark_pixel: None,
-            reached: false,
-            false_reach: false,
-            touched: false,
-            touch_error_mm: None,
-            latency_ms: None,
-            reach_target: None,
-            failure: None,
-            frames_sent: 0,
-            detections: 0,
-            limit_violations: 0,
-            crc_errors: 0,
-            resyncs: 0,
-            watchdog_trips: 0,
-            link: LinkStats::default(),
-            sim_s: 0.0,
-            wall_s: 0.0,
-            bus_bytes: Vec::new(),
-        },
+        trial: Trial { index, ..Default::default() },
         error: None,
         status: None,
         detections: Vec::new(),
