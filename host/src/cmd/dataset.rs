@@ -93,24 +93,18 @@ fn human_bytes(b: f64) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clap::Parser;
-
-    #[derive(Parser)]
-    struct Cli {
-        #[command(flatten)]
-        args: Args,
-    }
+    use crate::cmd::parse_args;
 
     #[test]
     fn writes_a_dataset_from_the_command_line() {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("ds");
-        let cli = Cli::try_parse_from([
+        let args: Args = parse_args(&[
             "msr", "--robot", "skin", "--count", "10", "--seed", "4", "--reach-pairs", "3", "--out",
             out.to_str().unwrap(),
         ])
         .unwrap();
-        run(cli.args).unwrap();
+        run(args).unwrap();
         let index: msr_sim::layout::DatasetIndex =
             serde_json::from_slice(&std::fs::read(out.join(msr_sim::layout::INDEX_FILE)).unwrap()).unwrap();
         assert_eq!((index.robot.as_str(), index.seed, index.frames.len()), ("skin", 4, 10));
@@ -121,12 +115,12 @@ mod tests {
 
     #[test]
     fn bad_arguments_are_refused_with_a_message() {
-        assert!(Cli::try_parse_from(["msr", "--robot", "blue", "--out", "x"]).is_err());
-        assert!(Cli::try_parse_from(["msr", "--count", "-3", "--out", "x"]).is_err());
-        assert!(Cli::try_parse_from(["msr", "--robot", "red"]).is_err(), "--out is required");
+        assert!(parse_args::<Args>(&["msr", "--robot", "blue", "--out", "x"]).is_err());
+        assert!(parse_args::<Args>(&["msr", "--count", "-3", "--out", "x"]).is_err());
+        assert!(parse_args::<Args>(&["msr", "--robot", "red"]).is_err(), "--out is required");
         let dir = tempfile::tempdir().unwrap();
-        let cli = Cli::try_parse_from(["msr", "--max-angle-deg", "90", "--out", dir.path().to_str().unwrap()]).unwrap();
-        let e = run(cli.args).unwrap_err().to_string();
+        let args: Args = parse_args(&["msr", "--max-angle-deg", "90", "--out", dir.path().to_str().unwrap()]).unwrap();
+        let e = run(args).unwrap_err().to_string();
         assert!(e.contains("head angle range"), "{e}");
     }
 }

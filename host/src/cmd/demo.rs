@@ -70,17 +70,11 @@ pub fn run(a: Args) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clap::Parser;
-
-    #[derive(Parser)]
-    struct Cli {
-        #[command(flatten)]
-        args: Args,
-    }
+    use crate::cmd::parse_args;
 
     #[test]
     fn flag_defaults_are_the_library_defaults() {
-        let cli = Cli::parse_from(["msr"]);
-        assert_eq!(format!("{}", cli.args.config()), format!("{}", DemoConfig::new("demo-out".into())));
+        let args: Args = parse_args(&["msr"]).unwrap();
+        assert_eq!(format!("{}", args.config()), format!("{}", DemoConfig::new("demo-out".into())));
     }
 }

@@ -120,6 +120,17 @@ pub fn one_line(e: &anyhow::Error) -> String {
     out.split_whitespace().collect::<Vec<_>>().join(" ")
 }
 
+/// One command's flags parsed alone (`argv[0]` is the program name), for the commands' tests.
+#[cfg(test)]
+pub(crate) fn parse_args<A: clap::Args>(argv: &[&str]) -> Result<A, clap::Error> {
+    #[derive(Parser)]
+    struct One<A: clap::Args> {
+        #[command(flatten)]
+        args: A,
+    }
+    One::<A>::try_parse_from(argv).map(|o| o.args)
+}
+
 /// Runs a parsed command: its arguments and paths are checked first ([`check::check`]).
 pub fn run(cli: Cli) -> Result<()> {
     check::check(&cli.command)?;

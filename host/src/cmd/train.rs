@@ -90,31 +90,26 @@ pub fn run(a: Args) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use clap::Parser;
-
-    #[derive(Parser)]
-    struct Cli {
-        #[command(flatten)]
-        args: Args,
-    }
+    use crate::cmd::parse_args;
 
     #[test]
     fn flag_defaults_are_the_library_defaults() {
-        let cli = Cli::parse_from(["msr", "--data", "d", "--out", "o"]);
-        let from_flags = cli.args.config();
+        let args: Args = parse_args(&["msr", "--data", "d", "--out", "o"]).unwrap();
+        let from_flags = args.config();
         let lib = TrainConfig::new("d".into(), "o".into());
         assert_eq!(format!("{from_flags}"), format!("{lib}"));
     }
 
     #[test]
     fn every_flag_reaches_the_config() {
-        let cli = Cli::parse_from([
+        let args: Args = parse_args(&[
             "msr", "--data", "d", "--out", "o", "--model", "autoencoder", "--arch", "mlp", "--crop",
             "pixel", "--epochs", "3", "--batch", "7", "--lr", "0.1", "--lr-step", "2",
             "--lr-decay", "0.9", "--seed", "5", "--normalisation", "variance", "--two-sided",
             "--sigma-floor", "2", "--threshold-percentile", "99", "--min-area", "4", "--quiet",
-        ]);
-        let c = cli.args.config();
+        ])
+        .unwrap();
+        let c = args.config();
         assert_eq!(c.model, ModelKind::Autoencoder);
         assert_eq!(c.arch, ArchKind::Mlp);
         assert_eq!(c.crop, CropMode::Pixel);
