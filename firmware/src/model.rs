@@ -23,6 +23,8 @@ pub enum UploadError {
     /// The blob failed validation.
     Invalid(BlobError),
     /// A commit before all bytes arrived; the board wants `next` next.
+    /// `next`: the byte offset the board wants next.
+    #[allow(missing_docs)]
     Incomplete { next: u32 },
 }
 
@@ -78,6 +80,7 @@ impl<const N: usize> Default for RamStore<N> {
 }
 
 impl<const N: usize> RamStore<N> {
+    /// Empty slots, running `builtin` (if any) until the first good upload.
     pub const fn new(builtin: Option<&'static [u8]>) -> Self {
         RamStore {
             slots: [Slot([0; N]), Slot([0; N])],
@@ -161,10 +164,12 @@ struct UploadState {
 }
 
 impl Upload {
+    /// No upload in progress.
     pub const fn new() -> Self {
         Upload { state: None }
     }
 
+    /// A `ModelBegin` was accepted and no commit (or store write failure) has ended it yet.
     pub fn in_progress(&self) -> bool {
         self.state.is_some()
     }
