@@ -49,7 +49,7 @@ pub mod inst {
 /// The status packet's error byte: bit 7 is the Alert (look at Hardware Error Status), bits 0-6
 /// the error number of the instruction's processing.
 pub mod error {
-    /// Bit 7: the device has an error in Hardware Error Status (see [`table::hw`]).
+    /// Bit 7: the device has an error in Hardware Error Status (see [`table::hw`](crate::dynamixel::table::hw)).
     pub const ALERT: u8 = 0x80;
     /// Result Fail (1): the device failed to process the instruction.
     pub const RESULT_FAIL: u8 = 0x01;
