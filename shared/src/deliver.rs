@@ -60,7 +60,7 @@ pub struct SendStats {
     pub chunks_sent: u32,
     /// Chunks written again because an ack listed them missing.
     pub chunks_resent: u32,
-    /// `FramePoll`s written, first and after a timeout.
+    /// `FramePoll`s written: one per round, and one after each timeout.
     pub polls: u32,
     /// Waits for an ack that ran out.
     pub timeouts: u32,
