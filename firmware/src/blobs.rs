@@ -26,16 +26,21 @@ const NONE: u16 = u16::MAX;
 /// One connected component.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Blob {
+    /// Pixels in the component.
     pub area: u32,
     /// Inclusive box.
     pub x0: u16,
+    /// Top row of the box (see `x0`).
     pub y0: u16,
+    /// Right column of the box, inclusive.
     pub x1: u16,
+    /// Bottom row of the box, inclusive.
     pub y1: u16,
     /// Sums of the pixels' column and row indices. 64 bits: a component of every pixel of the
     /// widest, tallest mask the labeller takes sums to about 2^40, far past 32 bits (a 4000 x
     /// 3000 mask already wraps a u32).
     pub sum_x: u64,
+    /// See `sum_x`.
     pub sum_y: u64,
     /// Raster index (`y * width + x`) of the component's first pixel: the OpenCV label order.
     pub first: u32,
@@ -139,6 +144,7 @@ impl<const LABELS: usize, const RUNS: usize> Default for Labeller<LABELS, RUNS> 
 }
 
 impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
+    /// An empty labeller; `const`, so it can live in a `static`.
     pub const fn new() -> Self {
         Labeller {
             slots: [EMPTY_SLOT; LABELS],

@@ -212,6 +212,7 @@ impl<S: ModelStore> Board<S> {
         self.core.status(&self.host_rx, &self.servo_rx, &self.frame)
     }
 
+    /// The model store: the running blob and the upload staging area.
     pub fn store(&self) -> &S {
         &self.core.store
     }

@@ -12,6 +12,7 @@ pub const DEFAULT_N: u8 = 5;
 pub const MAX_N: u8 = 32;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// The K-of-N confirmation filter: a bit per frame of the last N, mark or not.
 pub struct Confirm {
     k: u8,
     n: u8,
@@ -44,10 +45,12 @@ impl Confirm {
         }
     }
 
+    /// Marks needed in the window (K).
     pub fn k(&self) -> u8 {
         self.k
     }
 
+    /// Window length in frames (N).
     pub fn n(&self) -> u8 {
         self.n
     }

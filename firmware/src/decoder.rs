@@ -92,6 +92,7 @@ impl Default for Decoder {
 }
 
 impl Decoder {
+    /// Empty buffers, nothing cached; `const`, so it can live in a `static` (about 32 KiB).
     pub const fn new() -> Self {
         Decoder {
             act: [Act([0; MAX_ACTIVATION_LEN]), Act([0; MAX_ACTIVATION_LEN])],

@@ -37,6 +37,7 @@ const MAX_PACKET: usize = 128;
 /// Line settings the master plans with.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct BusTiming {
+    /// Bus speed, bits per second (8N1).
     pub baud: u32,
     /// The servos' Return Delay Time, in microseconds.
     pub return_delay_us: u32,
@@ -72,13 +73,21 @@ pub use msr_shared::msg::ServoIdReport as IdStats;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BusEvent {
     /// No answer to a start-up Ping.
+    /// `id`: the mapped ID that did not answer.
+    #[allow(missing_docs)]
     Missing { id: u8 },
     /// A start-up step failed for this servo: it refused (error number), or the limits read
     /// back differ (`error` 0).
+    /// `id`: the servo; `error`: the status's error byte (0: the limits read back differ).
+    #[allow(missing_docs)]
     StartFailed { id: u8, error: u8 },
     /// The servo raised its Alert; `hardware` is its Hardware Error Status.
+    /// `id`: the servo.
+    #[allow(missing_docs)]
     Alert { id: u8, hardware: u8 },
     /// The servo stopped answering (reported once until it answers again).
+    /// `id`: the servo.
+    #[allow(missing_docs)]
     Lost { id: u8 },
     /// Start-up done: streaming.
     Ready,
@@ -88,9 +97,14 @@ pub enum BusEvent {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stage {
     /// Start-up step `step` of servo `index` (steps: ping, torque off, limits, read back, on).
+    /// `index`: position in the joint map; `step`: 0 ping, 1 torque off, 2 limits, 3 read back, 4 torque on.
+    #[allow(missing_docs)]
     Start { index: u8, step: u8 },
     /// Start-up failed; it begins again at `retry_us`.
+    /// `retry_us`: board time, microseconds.
+    #[allow(missing_docs)]
     Failed { retry_us: u64 },
+    /// Start-up done: every control period writes goals and reads positions.
     Running,
 }
 
@@ -180,10 +194,12 @@ impl Master {
         Ok(())
     }
 
+    /// The joint map in use.
     pub fn map(&self) -> &[JointMapEntry; MAP_JOINTS] {
         &self.map
     }
 
+    /// Where start-up stands, or `Running`.
     pub fn stage(&self) -> Stage {
         self.stage
     }
@@ -194,6 +210,7 @@ impl Master {
         self.stats.iter().any(|s| s.hardware_error != 0)
     }
 
+    /// Per-ID fault counters, in joint-map order.
     pub fn stats(&self) -> &[IdStats; MAP_JOINTS] {
         &self.stats
     }

@@ -16,6 +16,7 @@ pub const FRAMES: u32 = 16;
 /// What the golden run gave.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct GoldenReport {
+    /// Frames run (always [`FRAMES`]).
     pub frames: u32,
     /// Frames whose winner was found.
     pub detections: u32,

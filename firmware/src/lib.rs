@@ -4,10 +4,45 @@
 //!
 //! # The API others call
 //!
-//! **The board** ([`Board`]): a pure function of bytes in and commands out.
-//! ```ignore
-//! static mut BOARD: Board<RamStore<{ 256 * 1024 }>> = Board::new(RamStore::new(Some(BLOB)));
-//! loop { board.poll(now_us, &mut host_uart, &mut servo_uart); }
+//! **The board** ([`Board`]): a pure function of bytes in and commands out. On a board, a loop
+//! calls `board.poll(now_us, &mut host_uart, &mut servo_uart)`; here the two UARTs are byte
+//! queues, and the host asks for a ping:
+//! ```
+//! use embedded_io::{ErrorType, Read, ReadReady, Write};
+//! use msr_firmware::{Board, RamStore};
+//! use msr_shared::host_port::HostPort;
+//! use msr_shared::msg::{BoardToHost, HostToBoard};
+//! use std::collections::VecDeque;
+//!
+//! /// What a UART gives the board: bytes that arrived, and bytes it sent.
+//! #[derive(Default)]
+//! struct Wire { rx: VecDeque<u8>, tx: Vec<u8> }
+//! impl ErrorType for Wire { type Error = core::convert::Infallible; }
+//! impl ReadReady for Wire {
+//!     fn read_ready(&mut self) -> Result<bool, Self::Error> { Ok(!self.rx.is_empty()) }
+//! }
+//! impl Read for Wire {
+//!     fn read(&mut self, buf: &mut [u8]) -> Result<usize, Self::Error> {
+//!         let n = buf.len().min(self.rx.len());
+//!         for (b, x) in buf.iter_mut().zip(self.rx.drain(..n)) { *b = x; }
+//!         Ok(n)
+//!     }
+//! }
+//! impl Write for Wire {
+//!     fn write(&mut self, buf: &[u8]) -> Result<usize, Self::Error> {
+//!         self.tx.extend_from_slice(buf);
+//!         Ok(buf.len())
+//!     }
+//!     fn flush(&mut self) -> Result<(), Self::Error> { Ok(()) }
+//! }
+//!
+//! // No model yet (a built-in one would be `RamStore::new(Some(BLOB))`), no room for uploads.
+//! let mut board = Box::new(Board::new(RamStore::<0>::new(None)));
+//! let (mut host, mut servos) = (Wire::default(), Wire::default());
+//! let mut pc = HostPort::default();
+//! host.rx.extend(pc.encode(&HostToBoard::Ping { nonce: 7 }));
+//! board.poll(0, &mut host, &mut servos);
+//! assert!(pc.receive(&host.tx).contains(&BoardToHost::Pong { nonce: 7 }));
 //! ```
 //! `host_uart` and `servo_uart` implement `embedded_io::{Read, Write, ReadReady}`; `poll` never
 //! blocks on reads (it takes what `read_ready` says is there), answers the host link
@@ -17,7 +52,7 @@
 //!
 //! **One frame, for host tools** ([`detect`]): crop pixels + crop offset + head angles + model
 //! -> winning blob, full-frame centroid, reach angles:
-//! ```ignore
+//! ```text
 //! let mut ws = Box::new(Workspace::new());
 //! let model = msr_shared::blob::Model::parse(&bytes)?;
 //! let det = detect(&mut ws, &model, &Settings::of(&model), &crop, [crop_x, crop_y], [yaw, pitch])?;
@@ -65,6 +100,7 @@
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
 // Index loops read best in the numeric kernels.
 #![allow(clippy::needless_range_loop)]
+#![warn(missing_docs)]
 
 pub mod blobs;
 pub mod board;

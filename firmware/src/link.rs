@@ -26,6 +26,7 @@ pub struct Tx {
 }
 
 impl Tx {
+    /// A sender starting at sequence number 0; `const`, so it can live in a `static`.
     pub const fn new() -> Self {
         Tx {
             seq: 0,
@@ -63,10 +64,12 @@ pub struct Watchdog {
     period_us: u64,
     last_us: Option<u64>,
     tripped: bool,
+    /// Times the period passed without a feed.
     pub trips: u32,
 }
 
 impl Watchdog {
+    /// A watchdog that trips when `period_us` passes without a feed; unarmed until the first feed.
     pub const fn new(period_us: u64) -> Self {
         Watchdog {
             period_us,
@@ -94,6 +97,7 @@ impl Watchdog {
         }
     }
 
+    /// Tripped and not fed since.
     pub fn tripped(&self) -> bool {
         self.tripped
     }
@@ -103,6 +107,7 @@ impl Watchdog {
         self.last_us.is_some()
     }
 
+    /// When the last feed came (board time, microseconds), `None` before the first.
     pub fn last_us(&self) -> Option<u64> {
         self.last_us
     }
@@ -154,6 +159,7 @@ impl Default for Assembly {
 }
 
 impl Assembly {
+    /// No frame in progress; `const`, so it can live in a `static`.
     pub const fn new() -> Self {
         Assembly {
             header: None,

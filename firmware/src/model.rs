@@ -23,6 +23,8 @@ pub enum UploadError {
     /// The blob failed validation.
     Invalid(BlobError),
     /// A commit before all bytes arrived; the board wants `next` next.
+    /// `next`: the byte offset the board wants next.
+    #[allow(missing_docs)]
     Incomplete { next: u32 },
 }
 
@@ -78,6 +80,7 @@ impl<const N: usize> Default for RamStore<N> {
 }
 
 impl<const N: usize> RamStore<N> {
+    /// Empty slots, running `builtin` (if any) until the first good upload.
     pub const fn new(builtin: Option<&'static [u8]>) -> Self {
         RamStore {
             slots: [Slot([0; N]), Slot([0; N])],
@@ -161,10 +164,12 @@ struct UploadState {
 }
 
 impl Upload {
+    /// No upload in progress.
     pub const fn new() -> Self {
         Upload { state: None }
     }
 
+    /// A `ModelBegin` was accepted and no commit (or store write failure) has ended it yet.
     pub fn in_progress(&self) -> bool {
         self.state.is_some()
     }
@@ -247,3 +252,88 @@ impl Upload {
         Ok(crc)
     }
 }
+
+#[cfg(feature = "std")]
+mod heap {
+    use super::{ModelStore, UploadError};
+
+    /// A model store on the heap (with the `std` feature: the in-process board on a PC, and tests):
+    /// the active blob and a staging area, 4-byte aligned.
+    pub struct HeapStore {
+        slots: [std::vec::Vec<u32>; 2],
+        lens: [usize; 2],
+        active: Option<usize>,
+        capacity: usize,
+    }
+
+    impl HeapStore {
+        /// A store whose uploads may take `capacity` bytes, running `builtin` until an upload.
+        pub fn new(builtin: Option<&[u8]>, capacity: usize) -> HeapStore {
+            let words = capacity.div_ceil(4);
+            let mut s = HeapStore {
+                slots: [std::vec![0; words], std::vec![0; words]],
+                lens: [0; 2],
+                active: None,
+                capacity,
+            };
+            if let Some(b) = builtin {
+                let mut w = std::vec![0u32; b.len().div_ceil(4)];
+                bytemuck::cast_slice_mut::<u32, u8>(&mut w)[..b.len()].copy_from_slice(b);
+                s.slots[0] = w;
+                s.lens[0] = b.len();
+                s.active = Some(0);
+                if s.slots[1].len() < words {
+                    s.slots[1] = std::vec![0; words];
+                }
+            }
+            s
+        }
+
+        fn staging(&self) -> usize {
+            self.active.map_or(0, |i| 1 - i)
+        }
+    }
+
+    impl ModelStore for HeapStore {
+        fn active(&self) -> Option<&[u8]> {
+            self.active
+                .map(|i| &bytemuck::cast_slice::<u32, u8>(&self.slots[i])[..self.lens[i]])
+        }
+        fn capacity(&self) -> usize {
+            self.capacity
+        }
+        fn begin(&mut self, len: usize) -> Result<(), UploadError> {
+            if len > self.capacity {
+                return Err(UploadError::TooLarge);
+            }
+            let s = self.staging();
+            if self.slots[s].len() * 4 < len {
+                self.slots[s] = std::vec![0; len.div_ceil(4)];
+            }
+            self.lens[s] = len;
+            Ok(())
+        }
+        fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError> {
+            let s = self.staging();
+            let end = offset
+                .checked_add(data.len())
+                .ok_or(UploadError::Sequence)?;
+            let bytes = bytemuck::cast_slice_mut::<u32, u8>(&mut self.slots[s]);
+            bytes
+                .get_mut(offset..end)
+                .ok_or(UploadError::TooLarge)?
+                .copy_from_slice(data);
+            Ok(())
+        }
+        fn staged(&self) -> &[u8] {
+            let s = self.staging();
+            let b = bytemuck::cast_slice::<u32, u8>(&self.slots[s]);
+            &b[..self.lens[s].min(b.len())]
+        }
+        fn activate(&mut self) {
+            self.active = Some(self.staging());
+        }
+    }
+}
+#[cfg(feature = "std")]
+pub use heap::HeapStore;

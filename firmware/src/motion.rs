@@ -31,6 +31,7 @@ pub enum Phase {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
+/// The reach behaviour: the phase, the goal and the posture commanded each period.
 pub struct Motion {
     /// Last commanded posture; `None` until the servos' positions are known.
     commanded: Option<[f32; N]>,
@@ -59,6 +60,7 @@ fn safe(p: [f32; N]) -> [f32; N] {
 }
 
 impl Motion {
+    /// Observing at home, nothing commanded yet, default speed and hold time.
     pub const fn new() -> Self {
         Motion {
             commanded: None,
@@ -70,6 +72,7 @@ impl Motion {
         }
     }
 
+    /// Where the behaviour is.
     pub fn phase(&self) -> Phase {
         self.phase
     }
@@ -79,14 +82,17 @@ impl Motion {
         self.phase != Phase::Observe
     }
 
+    /// The posture last commanded (radians, [`REACH_JOINTS`] order); `None` until the servos reported.
     pub fn commanded(&self) -> Option<[f32; N]> {
         self.commanded
     }
 
+    /// Fraction of each joint's maximum velocity used, `0 < f <= 1`.
     pub fn speed_fraction(&self) -> f32 {
         self.speed_fraction
     }
 
+    /// How long a reach is held, milliseconds.
     pub fn hold_ms(&self) -> u32 {
         self.hold_ms
     }

@@ -18,6 +18,7 @@ pub enum DetectError {
     CropSize,
     /// The novelty settings are out of range.
     Settings,
+    /// The decoder refused the model (see [`DecodeError`]).
     Decode(DecodeError),
 }
 
@@ -50,6 +51,7 @@ pub struct FaceDetection {
     pub reach: Option<[f32; REACH_OUT]>,
     /// Reach angles that had to be clamped.
     pub reach_clamped: u32,
+    /// Pixels that passed the saliency test.
     pub salient_pixels: u32,
     /// All components found, and whether the labeller overflowed.
     pub blobs: Summary,
@@ -57,8 +59,11 @@ pub struct FaceDetection {
 
 /// Scratch and caches for [`detect`]; about 55 KiB.
 pub struct Workspace {
+    /// The face predictor and its cached prediction.
     pub decoder: Decoder,
+    /// The per-pixel threshold table, cached per model and setting.
     pub thresholds: Thresholds,
+    /// The connected-component labeller.
     pub labeller: FaceLabeller,
 }
 
@@ -69,6 +74,7 @@ impl Default for Workspace {
 }
 
 impl Workspace {
+    /// Empty scratch; `const`, so it can live in a `static`.
     pub const fn new() -> Self {
         Workspace {
             decoder: Decoder::new(),

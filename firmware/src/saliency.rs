@@ -14,9 +14,13 @@ use msr_shared::blob::{Merge, Model, Normalisation, Novelty, PoseRegion, Sided, 
 /// Novelty settings in force: the model's defaults, or what the host configured.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Settings {
+    /// Saliency threshold `t`, in units of the normalisation (finite, > 0).
     pub threshold: f32,
+    /// Whether `n` is sigma or sigma^2.
     pub normalisation: Normalisation,
+    /// One-sided (`e - mu > tn`) or two-sided (`|e - mu| > tn`) test.
     pub sided: Sided,
+    /// Smallest blob, pixels, that counts as a mark.
     pub min_area: u16,
     /// Fragment merge before the area test (the model's; the host cannot change it).
     pub merge: Merge,
@@ -103,6 +107,7 @@ pub fn threshold_q88(sigma_q88: u16, threshold: f32, normalisation: Normalisatio
 }
 
 impl Thresholds {
+    /// An empty table; the first [`Thresholds::prepare`] fills it.
     pub const fn new() -> Self {
         Thresholds {
             tn: [0; MAX_FACE_PIXELS],
@@ -130,10 +135,12 @@ impl Thresholds {
         true
     }
 
+    /// Forgets the table, so that the next [`Thresholds::prepare`] recomputes it.
     pub fn invalidate(&mut self) {
         self.key = None;
     }
 
+    /// The `tn` table, Q8.8 grey levels per pixel, row-major (empty before `prepare`).
     pub fn table(&self) -> &[u16] {
         &self.tn[..self.len]
     }

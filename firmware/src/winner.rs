@@ -11,13 +11,16 @@ pub const DEFAULT_MIN_AREA: u16 = 30;
 /// Keeps the best component offered so far.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Winner {
+    /// Smallest area, pixels, a component needs to be a candidate.
     pub min_area: u32,
+    /// The largest candidate so far (ties: first pixel first in raster order).
     pub best: Option<Blob>,
     /// Components offered that were large enough.
     pub candidates: u32,
 }
 
 impl Winner {
+    /// No winner yet; components under `min_area` pixels will be ignored.
     pub const fn new(min_area: u16) -> Self {
         Winner {
             min_area: min_area as u32,
@@ -26,6 +29,7 @@ impl Winner {
         }
     }
 
+    /// Considers one component; keeps it if it beats the best so far.
     pub fn offer(&mut self, b: &Blob) {
         if b.area < self.min_area {
             return;

@@ -1,30 +1,10 @@
 //! Bad input to import, detect and eval: one clear line on stderr, non-zero exit, never a panic.
 //! Manifests are edited copies of the published one, pointing at the published files.
+mod common;
+
+use common::{msr, msr_code, real_dir};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::Command;
-
-fn real_dir() -> Option<PathBuf> {
-    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/nao-red-real");
-    if d.join("manifest.json").is_file() {
-        Some(d.canonicalize().unwrap())
-    } else {
-        eprintln!("SKIP: real data folder {} is absent", d.display());
-        None
-    }
-}
-
-fn msr(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_msr"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn fails_with(args: &[&str], want: &str) {
     let (ok, out, err) = msr(args);
@@ -336,18 +316,6 @@ fn eval_on_the_real_frames_shows_sigma_weighting_matters() {
 // before any work (no model, port or dataset is needed to reach it) and is one line.
 
 /// Exit code, stdout, stderr.
-fn msr_code(args: &[&str]) -> (i32, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_msr"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.code().unwrap_or(-1),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
-
 fn file(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
     let p = dir.join(name);
     std::fs::write(&p, bytes).unwrap();

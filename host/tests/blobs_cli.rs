@@ -1,19 +1,9 @@
 //! `msr blobs` against an independent flood-fill reference on random masks, and its bad input.
+mod common;
+
+use common::msr;
 use rand::{Rng, SeedableRng};
 use serde_json::Value;
-use std::process::Command;
-
-fn msr(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_msr"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 /// (area, [x0, y0, x1, y1], [sum_x, sum_y]) per 8-connected component, in raster order of the
 /// first pixel: a plain stack flood fill, nothing shared with the firmware.

@@ -1,18 +1,10 @@
 //! Loading the published real frames: crops, head angles, marks.
+mod common;
+
+use common::real_dir;
 use msr_host::data::crop::CropMode;
 use msr_host::data::{Dataset, Layout};
 use msr_sim::layout::Split;
-use std::path::PathBuf;
-
-fn real_dir() -> Option<PathBuf> {
-    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/nao-red-real");
-    if d.join("manifest.json").is_file() {
-        Some(d)
-    } else {
-        eprintln!("SKIP: real data folder {} is absent", d.display());
-        None
-    }
-}
 
 #[test]
 fn loads_the_published_frames() {

@@ -1,31 +1,11 @@
 //! Acceptance: the imported published model on the 15 published real frames finds all 9 marks
 //! (centroid inside the mark's box) and nothing on the 6 unmarked frames, as the published method
 //! does at threshold 4.59. Runs the `msr` binary end to end: import, then detect.
+mod common;
+
+use common::{msr, real_dir};
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::Command;
-
-fn real_dir() -> Option<PathBuf> {
-    let d = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/nao-red-real");
-    if d.join("manifest.json").is_file() {
-        Some(d)
-    } else {
-        eprintln!("SKIP: real data folder {} is absent", d.display());
-        None
-    }
-}
-
-fn msr(args: &[&str]) -> (bool, String, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_msr"))
-        .args(args)
-        .output()
-        .unwrap();
-    (
-        out.status.success(),
-        String::from_utf8_lossy(&out.stdout).into_owned(),
-        String::from_utf8_lossy(&out.stderr).into_owned(),
-    )
-}
 
 fn import(dir: &Path, tmp: &Path) -> PathBuf {
     let blob = tmp.join("published.msrm");

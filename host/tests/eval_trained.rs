@@ -1,22 +1,11 @@
 //! `msr eval` on a sim dataset with trained float models next to a quantized blob: every row the
 //! pipeline can make is there, with its source; the autoencoder's fixed rows are absent with a
 //! reason. Small and short on purpose (a plumbing test, not a quality one).
+mod common;
+
+use common::msr_ok as msr;
 use serde_json::Value;
 use std::path::Path;
-use std::process::Command;
-
-fn msr(args: &[&str]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_msr"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "msr {args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8_lossy(&out.stdout).into_owned()
-}
 
 fn p(x: &Path) -> &str {
     x.to_str().unwrap()

@@ -64,6 +64,7 @@
 use core::fmt;
 use serde::{Deserialize, Serialize};
 
+/// The first 4 bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"MSRM";
 /// The newest version this build reads and writes (version 1 has no weight order byte,
 /// versions 1 and 2 no fragment merge, versions 1 to 3 no sub-pixel crop flag or pose region).
@@ -72,19 +73,29 @@ pub const VERSION: u16 = 4;
 pub const MAX_MERGE_MARGIN: u8 = 16;
 /// Inputs per block of the blocked weight order.
 pub const BLOCK: usize = 8;
+/// Bytes of the header, before the first layer descriptor.
 pub const HEADER_LEN: usize = 40;
+/// Bytes of one layer descriptor.
 pub const LAYER_DESC_LEN: usize = 32;
 /// Largest face the board handles.
 pub const MAX_FACE_H: usize = 64;
+/// Widest face the board handles.
 pub const MAX_FACE_W: usize = 96;
+/// Pixels of the largest face: the board's face buffer, in bytes.
 pub const MAX_FACE_PIXELS: usize = MAX_FACE_H * MAX_FACE_W;
+/// Most decoder layers in a blob.
 pub const MAX_LAYERS: usize = 16;
 /// Largest intermediate activation (elements) of any layer's output.
 pub const MAX_ACTIVATION_LEN: usize = 8192;
+/// Largest face template (a 320 x 240 frame), pixels.
 pub const MAX_TEMPLATE_PIXELS: usize = 240 * 320;
+/// Reach network inputs: the mark's full-frame centroid `[x, y]`, pixels.
 pub const REACH_IN: usize = 2;
+/// Reach network hidden units.
 pub const REACH_HIDDEN: usize = 10;
+/// Reach network outputs: one angle per [`crate::joints::REACH_JOINTS`] joint, radians.
 pub const REACH_OUT: usize = 5;
+/// f32 values of the reach section: the [`Reach`] fields in order (99).
 pub const REACH_FLOATS: usize = REACH_HIDDEN * REACH_IN
     + REACH_HIDDEN
     + REACH_OUT * REACH_HIDDEN
@@ -122,6 +133,7 @@ pub enum CropMode {
 }
 
 impl CropMode {
+    /// The name used on the command line and in reports: `"pixel"` or `"subpixel"`.
     pub fn name(self) -> &'static str {
         match self {
             CropMode::Pixel => "pixel",
@@ -157,19 +169,28 @@ pub enum Sided {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// What a decoder layer computes (descriptor byte 0).
 pub enum LayerKind {
+    /// Fully connected over the flattened CHW input (kind 0).
     Dense,
+    /// PyTorch `ConvTranspose2d`: out = (in - 1) * stride - 2 * padding + kernel (kind 1).
     ConvTranspose2d,
     /// Nearest-neighbour upsampling by `stride`, then a stride-1 convolution.
     UpConv,
+    /// Takes an `output`-sized window at (`crop_top`, `crop_left`) of the input; no weights (kind 3).
     Crop,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// The function applied to a layer's output (descriptor byte 1).
 pub enum Activation {
+    /// No function (0); the only one a Crop layer may have.
     Identity,
+    /// Hyperbolic tangent (1).
     Tanh,
+    /// Logistic sigmoid (2); the last layer's, so the face comes out as grey/255.
     Sigmoid,
+    /// `max(0, x)` (3).
     Relu,
 }
 
@@ -183,12 +204,16 @@ pub enum WeightOrder {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+/// The integer type of a layer's weights (descriptor byte 2).
 pub enum WeightType {
+    /// `i8` weights (code 1).
     I8,
+    /// Little-endian `i16` weights (code 2).
     I16,
 }
 
 impl WeightType {
+    /// Bytes per weight.
     pub const fn size(self) -> usize {
         match self {
             WeightType::I8 => 1,
@@ -200,15 +225,20 @@ impl WeightType {
 /// A channels x height x width shape.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Shape {
+    /// Channels.
     pub c: u16,
+    /// Height, pixels.
     pub h: u16,
+    /// Width, pixels.
     pub w: u16,
 }
 
 impl Shape {
+    /// Elements, `c * h * w`.
     pub const fn len(&self) -> usize {
         self.c as usize * self.h as usize * self.w as usize
     }
+    /// Whether any dimension is zero.
     pub const fn is_empty(&self) -> bool {
         self.len() == 0
     }
@@ -219,14 +249,19 @@ impl Shape {
 pub enum BlobError {
     /// Fewer bytes than the header, or than `total_len` says.
     Truncated,
+    /// The first 4 bytes are not [`MAGIC`].
     BadMagic,
+    /// A version outside `1..=`[`VERSION`]; holds the version found.
     UnsupportedVersion(u16),
+    /// Wrong `header_len`, unknown or version-inappropriate flags, or non-zero reserved bytes.
     BadHeader,
     /// `total_len` disagrees with the bytes given.
     LengthMismatch,
+    /// The CRC-32 of bytes 16.. does not match the header's: the blob is corrupt.
     Crc,
     /// Face size zero or over [`MAX_FACE_H`] x [`MAX_FACE_W`].
     FaceSize,
+    /// More than [`MAX_LAYERS`] layers.
     TooManyLayers,
     /// A layer descriptor with an unknown kind, activation, type or reserved bits set.
     BadLayer(u8),
@@ -242,6 +277,7 @@ pub enum BlobError {
     Novelty,
     /// Non-finite reach weights or scaling, or min >= max.
     Reach,
+    /// The template is 0 pixels high or wide, or over [`MAX_TEMPLATE_PIXELS`].
     Template,
     /// Bytes left over after the last section.
     TrailingBytes,
@@ -308,12 +344,17 @@ impl std::error::Error for BlobError {}
 /// Novelty detection parameters.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Novelty {
+    /// Saliency threshold, in units of the normalisation (finite, > 0).
     pub threshold: f32,
+    /// Whether the error is divided by sigma or sigma^2.
     pub normalisation: Normalisation,
+    /// One- or two-sided test.
     pub sided: Sided,
+    /// Smallest blob, pixels, that counts as a mark (>= 1).
     pub min_area: u16,
     /// The floor applied to sigma when the statistics were made (grey levels), for reference.
     pub sigma_floor: f32,
+    /// Fragment merge before the `min_area` test; [`Merge::OFF`] for the paper's blob stage.
     pub merge: Merge,
 }
 
@@ -332,6 +373,7 @@ impl Merge {
     /// The paper's blob stage: no merge.
     pub const OFF: Merge = Merge { margin: 0, fragment: 0 };
 
+    /// `margin` > 0.
     pub fn is_on(&self) -> bool {
         self.margin > 0
     }
@@ -356,7 +398,9 @@ pub struct PoseRegion {
     pub centre: [f32; 2],
     /// Radians, in the (yaw, pitch) plane.
     pub radius: f32,
+    /// Threshold used inside the region, in the model's normalisation (finite, > 0).
     pub threshold: f32,
+    /// Fragment merge used inside the region.
     pub merge: Merge,
 }
 
@@ -382,19 +426,33 @@ impl PoseRegion {
 /// One decoder layer, its tables borrowed from the blob.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Layer<'a> {
+    /// What the layer computes.
     pub kind: LayerKind,
+    /// Applied to the output before requantising.
     pub activation: Activation,
+    /// `i8` or `i16` weights.
     pub weight_type: WeightType,
+    /// Order of the stored weights (see the module notes); [`Layer::weight`] hides it.
     pub order: WeightOrder,
+    /// Input shape; the previous layer's output.
     pub input: Shape,
+    /// Output shape.
     pub output: Shape,
+    /// Kernel size (square), convolutions only.
     pub kernel: u8,
+    /// Convolution stride, or the upsampling factor of an UpConv.
     pub stride: u8,
+    /// PyTorch-style padding of the convolution.
     pub padding: u8,
+    /// First input row a Crop layer keeps.
     pub crop_top: u16,
+    /// First input column a Crop layer keeps.
     pub crop_left: u16,
+    /// Fraction bits of the weights.
     pub w_shift: i8,
+    /// Fraction bits of the i16 input.
     pub in_shift: i8,
+    /// Fraction bits of the i16 output.
     pub out_shift: i8,
     /// Raw little-endian weights; see [`Layer::weight`].
     pub weights: &'a [u8],
@@ -403,6 +461,7 @@ pub struct Layer<'a> {
 }
 
 impl<'a> Layer<'a> {
+    /// Number of weights.
     pub fn weight_count(&self) -> usize {
         self.weights.len() / self.weight_type.size()
     }
@@ -439,6 +498,7 @@ impl<'a> Layer<'a> {
         self.order == WeightOrder::Torch
     }
 
+    /// Number of biases (per output element for Dense, per output channel for convolutions).
     pub fn bias_count(&self) -> usize {
         self.bias.len() / 4
     }
@@ -498,16 +558,20 @@ impl<'a> Layer<'a> {
 pub struct U16Table<'a>(pub &'a [u8]);
 
 impl<'a> U16Table<'a> {
+    /// Number of values.
     pub fn len(&self) -> usize {
         self.0.len() / 2
     }
+    /// Whether the table holds no values.
     pub fn is_empty(&self) -> bool {
         self.0.is_empty()
     }
     #[inline]
+    /// Value `i`. Panics if out of range, like slice indexing.
     pub fn get(&self, i: usize) -> u16 {
         u16::from_le_bytes([self.0[2 * i], self.0[2 * i + 1]])
     }
+    /// The values in order.
     pub fn iter(&self) -> impl Iterator<Item = u16> + 'a {
         self.0.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]]))
     }
@@ -517,13 +581,21 @@ impl<'a> U16Table<'a> {
 /// the blob: it is small and the firmware runs it in f32.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Reach {
+    /// Hidden layer weights, `[hidden][input]`.
     pub w1: [[f32; REACH_IN]; REACH_HIDDEN],
+    /// Hidden layer biases.
     pub b1: [f32; REACH_HIDDEN],
+    /// Output layer weights, `[output][hidden]`.
     pub w2: [[f32; REACH_HIDDEN]; REACH_OUT],
+    /// Output layer biases.
     pub b2: [f32; REACH_OUT],
+    /// Input value mapped to 0: `u = (v - in_min) / (in_max - in_min)`; pixels.
     pub in_min: [f32; REACH_IN],
+    /// Input value mapped to 1; pixels. Each `in_min < in_max`.
     pub in_max: [f32; REACH_IN],
+    /// Joint angle for output 0: `angle = o * (out_max - out_min) + out_min`; radians.
     pub out_min: [f32; REACH_OUT],
+    /// Joint angle for output 1, radians. Each `out_min < out_max`.
     pub out_max: [f32; REACH_OUT],
 }
 
@@ -581,8 +653,11 @@ impl Reach {
 /// The face template the host crops with, borrowed from the blob.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Template<'a> {
+    /// Template height, pixels.
     pub h: u16,
+    /// Template width, pixels.
     pub w: u16,
+    /// `h * w` grey bytes, row-major.
     pub pixels: &'a [u8],
     /// How the host crops with it (flag bit 1).
     pub crop: CropMode,
@@ -591,17 +666,23 @@ pub struct Template<'a> {
 /// A validated model blob.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Model<'a> {
+    /// Face crop height the model expects, pixels (`1..=MAX_FACE_H`).
     pub face_h: u16,
+    /// Face crop width the model expects, pixels (`1..=MAX_FACE_W`).
     pub face_w: u16,
+    /// Threshold, normalisation and blob settings.
     pub novelty: Novelty,
+    /// The decoder, head angles in, predicted face out.
     pub layers: heapless::Vec<Layer<'a>, MAX_LAYERS>,
     /// Mean prediction error per pixel, Q8.8 grey levels, row-major.
     pub mu: U16Table<'a>,
     /// Its standard deviation per pixel, Q8.8 grey levels, row-major.
     pub sigma: U16Table<'a>,
+    /// The reach network, mark centroid to joint angles.
     pub reach: Reach,
     /// Settings of their own near one head pose (flag bit 2).
     pub region: Option<PoseRegion>,
+    /// The face template the host crops with (flag bit 0).
     pub template: Option<Template<'a>>,
     /// The CRC-32 from the header: the model's identity.
     pub crc32: u32,
@@ -825,6 +906,7 @@ impl<'a> Model<'a> {
         })
     }
 
+    /// Pixels of a face crop, `face_h * face_w`.
     pub fn face_pixels(&self) -> usize {
         self.face_h as usize * self.face_w as usize
     }
@@ -968,38 +1050,61 @@ mod writer {
     /// Weights of a layer being written.
     #[derive(Clone, Debug, PartialEq)]
     pub enum Weights {
+        /// `i8` weights.
         I8(Vec<i8>),
+        /// `i16` weights.
         I16(Vec<i16>),
     }
 
     /// A layer to write; fields as in [`Layer`].
     #[derive(Clone, Debug, PartialEq)]
     pub struct LayerSpec {
+        /// As [`Layer::kind`].
         pub kind: LayerKind,
+        /// As [`Layer::activation`].
         pub activation: Activation,
+        /// As [`Layer::input`].
         pub input: Shape,
+        /// As [`Layer::output`].
         pub output: Shape,
+        /// As [`Layer::kernel`].
         pub kernel: u8,
+        /// As [`Layer::stride`].
         pub stride: u8,
+        /// As [`Layer::padding`].
         pub padding: u8,
+        /// As [`Layer::crop_top`].
         pub crop_top: u16,
+        /// As [`Layer::crop_left`].
         pub crop_left: u16,
+        /// As [`Layer::w_shift`].
         pub w_shift: i8,
+        /// As [`Layer::in_shift`].
         pub in_shift: i8,
+        /// As [`Layer::out_shift`].
         pub out_shift: i8,
+        /// In PyTorch order; the writer chooses the stored order.
         pub weights: Weights,
+        /// One per output element (Dense) or output channel (convolutions), in the accumulator's scale.
         pub bias: Vec<i32>,
     }
 
     /// Everything that goes into a blob.
     #[derive(Clone, Debug, PartialEq)]
     pub struct ModelSpec {
+        /// Face height, pixels.
         pub face_h: u16,
+        /// Face width, pixels.
         pub face_w: u16,
+        /// As [`Model::novelty`].
         pub novelty: Novelty,
+        /// The decoder layers, first (head angles in) to last (face out).
         pub layers: Vec<LayerSpec>,
+        /// Mean prediction error per pixel, Q8.8 grey levels, row-major.
         pub mu: Vec<u16>,
+        /// Its standard deviation per pixel, Q8.8 grey levels, row-major.
         pub sigma: Vec<u16>,
+        /// As [`Model::reach`].
         pub reach: Reach,
         /// Novelty settings of their own near one head pose.
         pub region: Option<PoseRegion>,

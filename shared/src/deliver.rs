@@ -60,6 +60,7 @@ pub struct SendStats {
     pub chunks_sent: u32,
     /// Chunks written again because an ack listed them missing.
     pub chunks_resent: u32,
+    /// `FramePoll`s written: one per round, and one after each timeout.
     pub polls: u32,
     /// Waits for an ack that ran out.
     pub timeouts: u32,
@@ -80,6 +81,7 @@ pub struct FaceSender {
     wait_from: Option<u64>,
     timeout_us: u64,
     state: Option<FrameState>,
+    /// What this frame's delivery has cost so far.
     pub stats: SendStats,
 }
 
@@ -101,6 +103,7 @@ impl FaceSender {
         }
     }
 
+    /// The header sent in `FrameStart` and every `FramePoll`.
     pub fn header(&self) -> &FrameHeader {
         &self.header
     }
@@ -213,6 +216,7 @@ impl LineEstimate {
         self.byte_error += Self::GAIN * (p - self.byte_error);
     }
 
+    /// The chunk size for the current estimate ([`chunk_for`]).
     pub fn chunk(&self) -> u16 {
         chunk_for(self.byte_error)
     }
@@ -258,15 +262,19 @@ pub struct LinkStats {
     pub superseded: u32,
     /// Image bytes of the delivered frames.
     pub face_bytes: u64,
+    /// Chunks written, first sends and repeats.
     pub chunks_sent: u64,
     /// Chunks sent again (selective repeat).
     pub chunks_resent: u64,
+    /// `FramePoll`s written.
     pub polls: u64,
+    /// Waits for an ack that ran out (each followed by another poll).
     pub timeouts: u64,
 }
 
 #[cfg(any(feature = "std", test))]
 impl LinkStats {
+    /// Adds another run's counts into these.
     pub fn add(&mut self, o: &LinkStats) {
         self.frames += o.frames;
         self.delivered += o.delivered;
@@ -284,12 +292,14 @@ impl LinkStats {
 #[cfg(any(feature = "std", test))]
 #[derive(Clone, Debug)]
 pub struct FaceLink {
+    /// The line's byte error rate, learnt from the acks; sets the chunk size.
     pub estimate: LineEstimate,
     /// `Some(c)`: always chunks of `c` bytes.
     pub fixed_chunk: Option<u16>,
     timeout_us: u64,
     frame_id: u16,
     current: Option<InFlight>,
+    /// Totals over every frame sent.
     pub stats: LinkStats,
 }
 

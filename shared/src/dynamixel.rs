@@ -32,24 +32,38 @@ pub const CRC16: Crc<u16> = Crc::<u16>::new(&crc::CRC_16_UMTS);
 
 /// Instruction codes used here.
 pub mod inst {
+    /// Ping (0x01): the device answers its model number (2 bytes) and firmware version.
     pub const PING: u8 = 0x01;
+    /// Read (0x02): address (2) and length (2); the status carries the bytes read.
     pub const READ: u8 = 0x02;
+    /// Write (0x03): address (2) and data; answered by an empty status.
     pub const WRITE: u8 = 0x03;
+    /// Status (0x55): a device's answer, error byte first.
     pub const STATUS: u8 = 0x55;
+    /// Sync Read (0x82), to the broadcast ID: address, length and IDs; each device answers in the listed order.
     pub const SYNC_READ: u8 = 0x82;
+    /// Sync Write (0x83), to the broadcast ID: address, length, then `(id, data)` per device; no answers.
     pub const SYNC_WRITE: u8 = 0x83;
 }
 
 /// The status packet's error byte: bit 7 is the Alert (look at Hardware Error Status), bits 0-6
 /// the error number of the instruction's processing.
 pub mod error {
+    /// Bit 7: the device has an error in Hardware Error Status (see [`table::hw`](crate::dynamixel::table::hw)).
     pub const ALERT: u8 = 0x80;
+    /// Result Fail (1): the device failed to process the instruction.
     pub const RESULT_FAIL: u8 = 0x01;
+    /// Instruction Error (2): an undefined instruction, or Action without Reg Write.
     pub const INSTRUCTION: u8 = 0x02;
+    /// CRC Error (3): the instruction packet's CRC did not match.
     pub const CRC: u8 = 0x03;
+    /// Data Range Error (4): the value is outside the item's minimum/maximum.
     pub const DATA_RANGE: u8 = 0x04;
+    /// Data Length Error (5): the data is shorter than the item.
     pub const DATA_LENGTH: u8 = 0x05;
+    /// Data Limit Error (6): the value is outside the item's limits.
     pub const DATA_LIMIT: u8 = 0x06;
+    /// Access Error (7): writing a read-only or undefined item, or EEPROM with torque on; reading a write-only one.
     pub const ACCESS: u8 = 0x07;
 }
 
@@ -101,16 +115,19 @@ impl<'a> Writer<'a> {
         }
     }
 
+    /// Appends bytes, stuffing as needed.
     pub fn bytes(&mut self, bs: &[u8]) {
         for &b in bs {
             self.byte(b);
         }
     }
 
+    /// Appends a little-endian `u16`.
     pub fn u16(&mut self, v: u16) {
         self.bytes(&v.to_le_bytes());
     }
 
+    /// Appends a little-endian `u32`.
     pub fn u32(&mut self, v: u32) {
         self.bytes(&v.to_le_bytes());
     }
@@ -219,8 +236,11 @@ pub enum PacketError {
 /// One checked packet, unstuffed: `params` holds a status's error byte first.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Packet<'a> {
+    /// The device ID: the sender's for a status, the addressee's for an instruction.
     pub id: u8,
+    /// Instruction code (see [`inst`]); 0x55 for a status.
     pub instruction: u8,
+    /// Parameters, unstuffed (a status: error byte first).
     pub params: &'a [u8],
 }
 
@@ -228,11 +248,15 @@ pub struct Packet<'a> {
 #[derive(Debug, PartialEq, Eq)]
 pub enum Parsed<'a> {
     /// A packet; it took `used` bytes of the buffer (which now hold its unstuffed form).
+    /// `packet` borrows the buffer; `used` is its length on the wire, stuffing included.
+    #[allow(missing_docs)]
     Packet { packet: Packet<'a>, used: usize },
     /// The buffer starts with a packet that has not fully arrived yet.
     Incomplete,
     /// Drop `skip` bytes: noise before a header (`error: None`) or a broken packet's first byte
     /// (a header may start inside it).
+    /// `skip`: bytes to drop; `error`: why, `None` for noise.
+    #[allow(missing_docs)]
     Skip { skip: usize, error: Option<PacketError> },
 }
 
@@ -307,12 +331,19 @@ pub fn parse(buf: &mut [u8], max: usize) -> Parsed<'_> {
 /// What a [`Receiver`] has thrown away, by cause.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct RxCounters {
+    /// Packets that passed every check.
     pub packets: u32,
+    /// Bytes dropped before a header (line noise, or a broken packet's rest).
     pub noise_bytes: u32,
+    /// Packets with ID 0xFD or 0xFF.
     pub bad_id: u32,
+    /// Packets whose LEN is too short.
     pub bad_length: u32,
+    /// Packets longer than the receiver's `N` bytes.
     pub oversized: u32,
+    /// Packets whose CRC did not match.
     pub crc_errors: u32,
+    /// Packets with `FF FF FD` not followed by a stuffed `FD`.
     pub bad_stuffing: u32,
     /// Bytes that arrived while the buffer was full (lost).
     pub overruns: u32,
@@ -353,6 +384,7 @@ impl<const N: usize> Default for Receiver<N> {
 }
 
 impl<const N: usize> Receiver<N> {
+    /// An empty receiver with zeroed counters; `const`, so it can live in a `static`.
     pub const fn new() -> Self {
         Receiver { buf: [0; N], len: 0, consumed: 0, counters: RxCounters {
             packets: 0, noise_bytes: 0, bad_id: 0, bad_length: 0, oversized: 0, crc_errors: 0,
@@ -360,6 +392,7 @@ impl<const N: usize> Receiver<N> {
         } }
     }
 
+    /// What has been received and dropped so far.
     pub fn counters(&self) -> &RxCounters {
         &self.counters
     }
@@ -432,9 +465,11 @@ impl<const N: usize> Receiver<N> {
 /// A status packet's content.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Status<'a> {
+    /// The answering device's ID.
     pub id: u8,
     /// The error byte: [`error::ALERT`] and an error number.
     pub error: u8,
+    /// The parameters after the error byte (e.g. the bytes a Read asked for).
     pub params: &'a [u8],
 }
 
@@ -472,11 +507,20 @@ impl<'a> Status<'a> {
 /// An instruction packet's content (what a device receives).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Instruction<'a> {
+    /// Ping: is anyone there with this ID (or, broadcast, anyone at all)?
     Ping,
+    /// Read `len` bytes of the control table from `addr`.
+    #[allow(missing_docs)]
     Read { addr: u16, len: u16 },
+    /// Write `data` to the control table from `addr`.
+    #[allow(missing_docs)]
     Write { addr: u16, data: &'a [u8] },
+    /// Read `len` bytes from `addr` of each device in `ids`; they answer in that order.
+    #[allow(missing_docs)]
     SyncRead { addr: u16, len: u16, ids: &'a [u8] },
     /// `data` holds `(id, len bytes)` entries back to back; see [`Instruction::sync_entries`].
+    /// Each listed device gets its `len` bytes written at `addr`; none answers.
+    #[allow(missing_docs)]
     SyncWrite { addr: u16, len: u16, data: &'a [u8] },
     /// A status (0x55): not an instruction; e.g. another device's reply, or the echo of a
     /// half-duplex line.
@@ -486,6 +530,7 @@ pub enum Instruction<'a> {
 }
 
 impl<'a> Instruction<'a> {
+    /// Decodes an instruction packet; malformed parameters give [`Instruction::Other`].
     pub fn of(p: &Packet<'a>) -> Instruction<'a> {
         let q = p.params;
         let u16_at = |i: usize| u16::from_le_bytes([q[i], q[i + 1]]);

@@ -33,6 +33,7 @@ pub const PROTOCOL_VERSION: u8 = 2;
 pub const MAX_PAYLOAD: usize = 256;
 /// Version byte and sequence number.
 pub const HEADER_LEN: usize = 3;
+/// The CRC-16 at the end of a frame, little-endian.
 pub const CRC_LEN: usize = 2;
 /// Largest frame before COBS.
 pub const MAX_RAW_FRAME: usize = HEADER_LEN + MAX_PAYLOAD + CRC_LEN;
@@ -83,7 +84,9 @@ impl std::error::Error for FrameError {}
 /// A checked frame: CRC and version verified, payload not yet parsed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Frame<'a> {
+    /// The sender's sequence number (wraps at `u16::MAX`).
     pub seq: u16,
+    /// The postcard-encoded message, CRC and header stripped.
     pub payload: &'a [u8],
 }
 
@@ -163,8 +166,11 @@ pub fn decode_in_place(buf: &mut [u8]) -> Result<Frame<'_>, FrameError> {
 pub struct LinkCounters {
     /// Frames that passed the checks.
     pub frames: u32,
+    /// Frames dropped because the CRC did not match (flipped or lost bytes).
     pub crc_errors: u32,
+    /// Frames dropped because the COBS encoding was broken.
     pub cobs_errors: u32,
+    /// Frames longer than the accumulator's buffer, skipped to the next delimiter.
     pub oversized: u32,
     /// Too short, wrong version or an unparseable message.
     pub malformed: u32,
@@ -213,6 +219,7 @@ impl<const N: usize> Default for FrameAccumulator<N> {
 }
 
 impl<const N: usize> FrameAccumulator<N> {
+    /// An empty accumulator with zeroed counters; `const`, so it can live in a `static`.
     pub const fn new() -> Self {
         FrameAccumulator {
             buf: [0; N],
@@ -230,6 +237,7 @@ impl<const N: usize> FrameAccumulator<N> {
         }
     }
 
+    /// What this link has received and dropped so far.
     pub fn counters(&self) -> &LinkCounters {
         &self.counters
     }
@@ -292,6 +300,7 @@ pub struct Sequencer(u16);
 
 impl Sequencer {
     #[allow(clippy::should_implement_trait)] // never ends, so not an Iterator
+    /// The next sequence number: 0, 1, 2, … wrapping after `u16::MAX`.
     pub fn next(&mut self) -> u16 {
         let s = self.0;
         self.0 = self.0.wrapping_add(1);

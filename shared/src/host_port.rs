@@ -34,8 +34,12 @@ use crate::msg::{BoardToHost, HostToBoard, CHUNK};
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum FaceError {
     /// Origin or size beyond `u16`, or more pixels than a frame's `u16` offsets reach.
+    /// `origin` (the crop's top-left) and `size` (width, height) as given, in camera pixels.
+    #[allow(missing_docs)]
     TooLarge { origin: [u32; 2], size: [u32; 2] },
     /// `grey` does not hold `width * height` pixels.
+    /// `expected` is `width * height`, `got` the length of `grey`.
+    #[allow(missing_docs)]
     Length { expected: usize, got: usize },
 }
 

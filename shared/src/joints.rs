@@ -11,8 +11,11 @@ use serde::{Deserialize, Serialize};
 /// Position and velocity limits of one joint, in rad and rad/s.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct JointLimits {
+    /// Lowest angle that may be commanded, rad.
     pub min: f32,
+    /// Highest angle that may be commanded, rad.
     pub max: f32,
+    /// Largest speed, rad/s (absolute).
     pub max_velocity: f32,
 }
 
@@ -26,6 +29,8 @@ pub enum JointError {
     /// NaN or infinite.
     NotFinite(Joint),
     /// Finite but outside `[min, max]`.
+    /// `joint` is the joint asked for, `angle` the refused value in rad.
+    #[allow(missing_docs)]
     OutOfRange { joint: Joint, angle: f32 },
 }
 
@@ -58,6 +63,8 @@ macro_rules! joints {
         #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
         #[serde(try_from = "u8", into = "u8")]
         #[repr(u8)]
+        /// Each variant is the NAOqi joint of that name, e.g. `LShoulderPitch` the left shoulder pitch.
+        #[allow(missing_docs)]
         pub enum Joint { $($name = $id),* }
 
         impl Joint {
@@ -85,10 +92,12 @@ const fn lim(min: f32, max: f32, max_velocity: f32) -> Option<JointLimits> {
 }
 
 impl Joint {
+    /// The stable wire id (0..=24, NAOqi body order), as carried in messages.
     pub const fn id(self) -> u8 {
         self as u8
     }
 
+    /// The joint with wire id `id`, or [`JointError::UnknownId`] for 25 and above.
     pub const fn from_id(id: u8) -> Result<Joint, JointError> {
         if (id as usize) < Joint::ALL.len() {
             Ok(Joint::ALL[id as usize])

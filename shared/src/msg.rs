@@ -95,9 +95,11 @@ pub struct FrameHeader {
     /// the reach network's input; the nearest whole pixel when the host cropped at sub-pixel
     /// precision (`blob::CropMode::Subpixel`), so within half a pixel.
     pub crop_x: u16,
+    /// See `crop_x`.
     pub crop_y: u16,
     /// Crop size; must equal the model's face size.
     pub width: u16,
+    /// Crop height in pixels; must equal the model's face height.
     pub height: u16,
     /// Chunk size of this frame, [`MIN_CHUNK`]`..=`[`CHUNK`].
     pub chunk: u16,
@@ -169,6 +171,7 @@ impl From<Trimmed> for ChunkSet {
 }
 
 impl ChunkSet {
+    /// No chunks.
     pub const EMPTY: ChunkSet = ChunkSet([0; BITMAP_BYTES]);
 
     /// Chunks `0..n`.
@@ -180,10 +183,12 @@ impl ChunkSet {
         s
     }
 
+    /// Whether chunk `i` is a member (false for `i` >= [`MAX_FRAME_CHUNKS`]).
     pub fn contains(&self, i: usize) -> bool {
         i < MAX_FRAME_CHUNKS && self.0[i / 8] & (1 << (i % 8)) != 0
     }
 
+    /// Adds chunk `i`; ignored for `i` >= [`MAX_FRAME_CHUNKS`].
     pub fn insert(&mut self, i: usize) {
         if i < MAX_FRAME_CHUNKS {
             self.0[i / 8] |= 1 << (i % 8);
@@ -199,10 +204,12 @@ impl ChunkSet {
         had
     }
 
+    /// Number of members.
     pub fn len(&self) -> usize {
         self.0.iter().map(|b| b.count_ones() as usize).sum()
     }
 
+    /// No members.
     pub fn is_empty(&self) -> bool {
         self.0.iter().all(|b| *b == 0)
     }
@@ -238,9 +245,11 @@ pub enum FrameState {
 /// The board's answer about one face frame.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FrameAck {
+    /// The face frame's id, as in its [`FrameHeader`].
     pub frame: u16,
     /// The `FramePoll` round answered; 0 for acks the last chunk or completion triggered.
     pub round: u8,
+    /// Complete, stale, or the chunks still missing.
     pub state: FrameState,
 }
 
@@ -249,12 +258,15 @@ pub struct FrameAck {
 pub struct Config {
     /// Saliency threshold in units of the normalisation (sigma or sigma^2).
     pub threshold: f32,
+    /// Whether `threshold` divides by sigma or sigma^2.
     pub normalisation: Normalisation,
+    /// One-sided (`(e - mu) / n > t`) or two-sided (`|e - mu| / n > t`) test.
     pub sided: Sided,
     /// Smallest blob, in pixels, that counts as a mark.
     pub min_area: u16,
     /// A mark must be seen in `confirm_k` of the last `confirm_n` frames before a reach.
     pub confirm_k: u8,
+    /// Window length of the confirmation filter (`confirm_k <= confirm_n`).
     pub confirm_n: u8,
     /// Fraction of each joint's maximum velocity used when moving.
     pub speed_fraction: f32,
@@ -265,34 +277,49 @@ pub struct Config {
 /// Host to board.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum HostToBoard<'a> {
+    /// Asks the board whether it is alive; it answers [`BoardToHost::Pong`] with the same nonce.
     Ping {
+        /// Any value; echoed back so the host can match the answer.
         nonce: u32,
     },
+    /// Announces a face image (see the module docs); without a model the board answers [`ErrorCode::NoModel`].
     FrameStart(FrameHeader),
+    /// Part of a face image; a chunk of the wrong length or offset is refused with [`ErrorCode::BadFrame`].
     FrameChunk {
+        /// The frame id of its [`FrameStart`](HostToBoard::FrameStart).
         frame: u16,
         /// Byte offset of `data` in the row-major grey image.
         offset: u16,
         #[serde(borrow)]
+        /// `chunk` pixels (the last chunk: the rest), one grey byte each.
         data: &'a [u8],
     },
     /// Starts a model upload of `len` bytes whose CRC-32 (ISO-HDLC) is `crc32`.
     ModelBegin {
+        /// Blob length in bytes; more than the store's capacity is refused ([`ErrorCode::BadUpload`]).
         len: u32,
+        /// CRC-32 of the whole blob; a matching unfinished upload resumes.
         crc32: u32,
     },
+    /// Part of a model upload, taken only in order; a gap is answered by [`BoardToHost::UploadAck`].
     ModelChunk {
+        /// Byte offset of `data` in the blob.
         offset: u32,
         #[serde(borrow)]
+        /// At most [`CHUNK`] bytes of the blob.
         data: &'a [u8],
     },
     /// Validates the uploaded blob and switches to it; the old model stays if it is bad.
     ModelCommit,
+    /// New run-time settings; applied whole, or refused with [`ErrorCode::BadConfig`].
     Configure(Config),
+    /// Asks for a [`BoardToHost::Status`].
     GetStatus,
     /// Asks where a face frame stands; starts it if the board has not seen its `FrameStart`.
     FramePoll {
+        /// The frame's header, as in its `FrameStart`.
         header: FrameHeader,
+        /// The host's round number (0 for the first round), echoed in the [`FrameAck`].
         round: u8,
     },
     /// Chooses the servo bus protocol; the Dynamixel master starts up anew.
@@ -316,7 +343,9 @@ pub enum ServoBusKind {
 /// One Dynamixel servo's fault counters.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ServoIdReport {
+    /// Dynamixel ID of the servo.
     pub id: u8,
+    /// Instructions the servo did not answer in time.
     pub timeouts: u32,
     /// Answers from the wrong ID, of the wrong length, or with an impossible position.
     pub bad_answers: u32,
@@ -324,15 +353,18 @@ pub struct ServoIdReport {
     pub errors: u32,
     /// Statuses with the Alert bit.
     pub alerts: u32,
+    /// The servo's Hardware Error Status (Dynamixel control table address 70), as last read.
     pub hardware_error: u8,
 }
 
 /// The Dynamixel bus as the board sees it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct ServoBusReport {
+    /// The protocol the board is speaking on the servo bus.
     pub kind: ServoBusKind,
     /// Start-up done, streaming.
     pub running: bool,
+    /// Per-joint counters, in joint-map order.
     pub servos: [ServoIdReport; crate::dynamixel::map::MAP_JOINTS],
     /// Packets that failed their CRC or checks on the board's receiver.
     pub rx_errors: u32,
@@ -360,17 +392,22 @@ pub enum Mode {
 /// The winning blob, in full-frame pixels; boxes are inclusive.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BlobReport {
+    /// Pixels in the blob.
     pub area: u32,
+    /// Bounding box `[x0, y0, x1, y1]`, inclusive, in full-frame pixels.
     pub box_xyxy: [u16; 4],
+    /// Centre of mass `[x, y]` in full-frame pixels (sub-pixel).
     pub centroid: [f32; 2],
 }
 
 /// The board's answer to one face frame.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Detection {
+    /// The id of the face frame this answers.
     pub frame: u16,
     /// The head angles (HeadYaw, HeadPitch) the servos reported, which the decoder used.
     pub head: [f32; 2],
+    /// The winning blob, or `None` when no mark was seen.
     pub blob: Option<BlobReport>,
     /// The confirmation filter passed on this frame and a reach starts.
     pub confirmed: bool,
@@ -381,15 +418,23 @@ pub struct Detection {
 /// Counters and state, sent on request and when something goes wrong.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Status {
+    /// What the board is doing now.
     pub mode: Mode,
     /// CRC-32 of the running model blob, 0 when none.
     pub model_crc: u32,
+    /// Face frames received whole (their CRC-32 matched).
     pub frames: u32,
+    /// Frames on which a blob was found.
     pub detections: u32,
+    /// Reaches started.
     pub reaches: u32,
+    /// What the board's receiver saw on the host link.
     pub host_link: crate::frame::LinkCounters,
+    /// What the board's receiver saw on the servo link.
     pub servo_link: crate::frame::LinkCounters,
+    /// Times no face frame came within the face watchdog's period.
     pub face_watchdog_trips: u32,
+    /// Times no servo state came within the servo watchdog's period.
     pub servo_watchdog_trips: u32,
     /// Targets that were outside the limits and were clamped or dropped before sending.
     pub clamped_targets: u32,
@@ -434,21 +479,34 @@ pub enum ErrorCode {
 /// Board to host.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum BoardToHost {
+    /// Answers [`HostToBoard::Ping`] with its `nonce`.
+    #[allow(missing_docs)]
     Pong { nonce: u32 },
+    /// Answers [`HostToBoard::GetStatus`], and is sent when something goes wrong.
     Status(Status),
+    /// The answer to a whole face frame; while the arm is up, the one that started the reach again.
     Detection(Detection),
     /// The uploaded model passed validation and runs now.
+    /// `crc32` is the CRC-32 of the blob now running.
+    #[allow(missing_docs)]
     ModelAccepted { crc32: u32 },
+    /// Something was refused or went wrong; `detail` depends on `code` (see [`ErrorCode`]).
+    #[allow(missing_docs)]
     Error { code: ErrorCode, detail: u32 },
+    /// Where a face frame stands: after its last chunk, on completion, or in answer to a `FramePoll`.
     FrameAck(FrameAck),
     /// The model upload byte offset the board wants next.
+    /// `next` is a byte offset into the blob.
+    #[allow(missing_docs)]
     UploadAck { next: u32 },
+    /// Answers [`HostToBoard::GetServoBus`].
     ServoBus(ServoBusReport),
 }
 
 /// One joint's commanded position.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JointTarget {
+    /// Which joint.
     pub joint: Joint,
     /// Radians; the sender guarantees it is inside the joint's limits.
     pub position: f32,
@@ -460,6 +518,7 @@ pub mod fault {
     pub const LIMIT: u8 = 1 << 0;
     /// The servo is not following its target.
     pub const STALL: u8 = 1 << 1;
+    /// The servo is overheating.
     pub const OVERHEAT: u8 = 1 << 2;
     /// No target for the servo's hold timeout: holding position.
     pub const TIMEOUT: u8 = 1 << 3;
@@ -468,10 +527,13 @@ pub mod fault {
 /// One joint's reported state.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JointState {
+    /// Which joint.
     pub joint: Joint,
     /// Measured position in radians (encoder-quantised).
     pub position: f32,
+    /// Whether the servo's torque is on (it holds its position).
     pub stiffness: bool,
+    /// Fault bits, see [`fault`].
     pub faults: u8,
 }
 
@@ -480,19 +542,26 @@ pub struct JointState {
 pub enum BoardToServo {
     /// Position targets, sent every control period while moving or holding.
     Targets {
+        /// Board time in ms when the targets were sent (wraps after about 49 days).
         time_ms: u32,
+        /// One target per joint to move; at most [`MAX_BUS_JOINTS`].
         targets: heapless::Vec<JointTarget, MAX_BUS_JOINTS>,
     },
     /// Asks every servo on the bus for its state.
     StateRequest,
+    /// Turns every servo's torque on (`on: true`: they hold where they are) or off.
+    #[allow(missing_docs)]
     Stiffness { on: bool },
 }
 
 /// Servos to board.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub enum ServoToBoard {
+    /// Every joint's state, sent periodically and in answer to [`BoardToServo::StateRequest`].
     States {
+        /// Servo time in ms when the states were measured.
         time_ms: u32,
+        /// One state per joint on the bus; at most [`MAX_BUS_JOINTS`].
         states: heapless::Vec<JointState, MAX_BUS_JOINTS>,
     },
 }

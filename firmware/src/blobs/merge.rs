@@ -38,6 +38,7 @@ pub struct Fragments {
 }
 
 impl Fragments {
+    /// No fragments yet; components smaller than `fragment` pixels will be dropped.
     pub const fn new(fragment: u16) -> Self {
         Fragments {
             items: [super::EMPTY_BLOB; MAX_FRAGMENTS],

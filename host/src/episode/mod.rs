@@ -25,7 +25,7 @@ pub mod sim_board;
 use crate::data::crop;
 use anyhow::{anyhow, Context, Result};
 use image::{DynamicImage, GrayImage};
-use msr_firmware::model::{ModelStore, UploadError};
+use msr_firmware::model::ModelStore;
 use msr_firmware::Board;
 use msr_shared::blob::Model;
 use msr_shared::deliver::{FaceLink, LinkStats};
@@ -329,82 +329,7 @@ pub fn summarise(backend: Backend, robot: Robot, bus: ServoBus, trials: &[Trial]
     }
 }
 
-/// A model store on the heap: the active blob and a staging area, 4-byte aligned.
-pub struct HeapStore {
-    slots: [Vec<u32>; 2],
-    lens: [usize; 2],
-    active: Option<usize>,
-    capacity: usize,
-}
-
-impl HeapStore {
-    /// A store whose uploads may take `capacity` bytes, running `builtin` until an upload.
-    pub fn new(builtin: Option<&[u8]>, capacity: usize) -> HeapStore {
-        let words = capacity.div_ceil(4);
-        let mut s = HeapStore {
-            slots: [vec![0; words], vec![0; words]],
-            lens: [0; 2],
-            active: None,
-            capacity,
-        };
-        if let Some(b) = builtin {
-            let mut w = vec![0u32; b.len().div_ceil(4)];
-            bytemuck::cast_slice_mut::<u32, u8>(&mut w)[..b.len()].copy_from_slice(b);
-            s.slots[0] = w;
-            s.lens[0] = b.len();
-            s.active = Some(0);
-            if s.slots[1].len() < words {
-                s.slots[1] = vec![0; words];
-            }
-        }
-        s
-    }
-
-    fn staging(&self) -> usize {
-        self.active.map_or(0, |i| 1 - i)
-    }
-}
-
-impl ModelStore for HeapStore {
-    fn active(&self) -> Option<&[u8]> {
-        self.active
-            .map(|i| &bytemuck::cast_slice::<u32, u8>(&self.slots[i])[..self.lens[i]])
-    }
-    fn capacity(&self) -> usize {
-        self.capacity
-    }
-    fn begin(&mut self, len: usize) -> Result<(), UploadError> {
-        if len > self.capacity {
-            return Err(UploadError::TooLarge);
-        }
-        let s = self.staging();
-        if self.slots[s].len() * 4 < len {
-            self.slots[s] = vec![0; len.div_ceil(4)];
-        }
-        self.lens[s] = len;
-        Ok(())
-    }
-    fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError> {
-        let s = self.staging();
-        let end = offset
-            .checked_add(data.len())
-            .ok_or(UploadError::Sequence)?;
-        let bytes = bytemuck::cast_slice_mut::<u32, u8>(&mut self.slots[s]);
-        bytes
-            .get_mut(offset..end)
-            .ok_or(UploadError::TooLarge)?
-            .copy_from_slice(data);
-        Ok(())
-    }
-    fn staged(&self) -> &[u8] {
-        let s = self.staging();
-        let b = bytemuck::cast_slice::<u32, u8>(&self.slots[s]);
-        &b[..self.lens[s].min(b.len())]
-    }
-    fn activate(&mut self) {
-        self.active = Some(self.staging());
-    }
-}
+pub use msr_firmware::model::HeapStore;
 
 /// The in-process firmware: a board with the model built in.
 pub type InprocBoard = Board<HeapStore>;

@@ -17,6 +17,7 @@ pub const X_COUNTS_PER_RAD: f32 = COUNTS_PER_TURN as f32 / core::f32::consts::TA
 /// How one joint sits on its servo.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct JointMapEntry {
+    /// The joint this servo drives.
     pub joint: Joint,
     /// Dynamixel ID, 1..=252.
     pub id: u8,
@@ -24,9 +25,11 @@ pub struct JointMapEntry {
     pub forward: bool,
     /// Raw count at 0 rad.
     pub zero: i32,
+    /// Raw counts per radian of joint motion (> 0; [`X_COUNTS_PER_RAD`] for a direct drive).
     pub counts_per_rad: f32,
     /// The servo's own Min/Max Position Limit, written at start-up.
     pub raw_min: i32,
+    /// See `raw_min`; `raw_min <= raw_max`, both in 0..=4095.
     pub raw_max: i32,
 }
 
@@ -34,18 +37,32 @@ pub struct JointMapEntry {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub enum MapError {
     /// An ID of 0 or above 252, or one used twice.
+    /// `joint`: the entry at fault.
+    #[allow(missing_docs)]
     BadId { joint: Joint },
     /// A joint without limits, or one listed twice.
+    /// `joint`: the entry at fault.
+    #[allow(missing_docs)]
     BadJoint { joint: Joint },
     /// Counts per radian not finite, not positive, or a zero outside the encoder's range.
+    /// `joint`: the entry at fault.
+    #[allow(missing_docs)]
     BadScale { joint: Joint },
     /// Raw limits reversed or outside 0..=4095.
+    /// `joint`: the entry at fault.
+    #[allow(missing_docs)]
     BadRawLimits { joint: Joint },
     /// A raw limit that lands outside the joint's limits (rad): the servo could be sent there.
+    /// `joint`: the entry at fault.
+    #[allow(missing_docs)]
     LeavesLimits { joint: Joint },
     /// A target outside the joint's limits (rad) or not finite.
+    /// `joint`: the joint the target was for.
+    #[allow(missing_docs)]
     TargetOutOfRange { joint: Joint },
     /// A target that, converted, falls outside the raw limits.
+    /// `joint`: the joint the target was for; `raw`: the converted target, counts.
+    #[allow(missing_docs)]
     RawOutOfRange { joint: Joint, raw: i32 },
 }
 
