@@ -355,6 +355,49 @@ pub enum Mode {
     Return,
     /// A watchdog tripped: holding still until the link recovers.
     Halted,
+    /// A mark is confirmed; the head makes the self gate's probe before any reach.
+    SelfTest,
+}
+
+/// What the self gate decided about a confirmed mark.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum GateDecision {
+    /// The face followed the head: the reach starts.
+    Pass,
+    /// The face did not follow (another robot, a delayed picture): no reach.
+    Reject,
+    /// Could not tell: no reach. `Undecided` reasons are [`GateUndecided`].
+    Undecided(GateUndecided),
+}
+
+/// Why the self gate could not decide.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum GateUndecided {
+    /// The probe did not collect its frames in the model's timeout.
+    Timeout,
+    /// No face frames (face watchdog) or frames without a face in reach of the probe.
+    FaceLost,
+    /// The servos stopped reporting (servo watchdog, or a bus fault).
+    ServosSilent,
+    /// The head did not reach a probe pose (a joint limit, a stalled servo).
+    HeadStuck,
+}
+
+/// One decision of the self gate and its statistic (`firmware::self_gate`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GateReport {
+    /// The frame id that decided (or the last one seen).
+    pub frame: u16,
+    pub decision: GateDecision,
+    /// Measured over expected crop-offset gain (1.0: the robot's own mirror image); NaN when
+    /// undecided before both probe poses were seen.
+    pub gain_ratio: f32,
+    /// Distance of the resting face from the probe's line, pixels (NaN as above).
+    pub rest_px: f32,
+    /// Frames used at the two probe poses.
+    pub frames: [u8; 2],
+    /// From the mark's confirmation to the decision, ms.
+    pub elapsed_ms: u16,
 }
 
 /// The winning blob, in full-frame pixels; boxes are inclusive.
@@ -444,6 +487,8 @@ pub enum BoardToHost {
     /// The model upload byte offset the board wants next.
     UploadAck { next: u32 },
     ServoBus(ServoBusReport),
+    /// A decision of the self gate (protocol 3), sent once per probe.
+    SelfGate(GateReport),
 }
 
 /// One joint's commanded position.
