@@ -522,9 +522,21 @@ impl<S: ModelStore> Core<S> {
             self.motion.go_home();
         }
         if self.motion.phase() == Phase::Probe {
-            // The probe's frames go to the gate only: no detection while the head moves.
-            let step = match (self.gate.as_mut(), self.measured[0]) {
-                (Some(g), Some(yaw)) => g.on_frame(now_us, h.frame, h.crop_x, yaw),
+            // The probe's frames go to the gate only: no reach while the head moves.
+            let step = match (self.measured[0], self.measured[1]) {
+                (Some(yaw), Some(pitch)) => {
+                    let salient = match (self.settings, self.store.active()) {
+                        (Some(s), Some(bytes)) => Model::parse_trusted(bytes).ok().and_then(|m| {
+                            pipeline::detect(ws, &m, &s, pixels, [h.crop_x, h.crop_y], [yaw, pitch]).ok()
+                        }),
+                        _ => None,
+                    };
+                    let salient = salient.map_or(u32::MAX, |d| d.salient_pixels);
+                    match self.gate.as_mut() {
+                        Some(g) => g.on_frame(now_us, h.frame, h.crop_x, yaw, salient),
+                        None => Step::Wait,
+                    }
+                }
                 _ => Step::Wait,
             };
             self.gate_step(step, h.frame, host);
@@ -564,7 +576,7 @@ impl<S: ModelStore> Core<S> {
             self.detections = self.detections.saturating_add(1);
         }
         if let Some(g) = self.gate.as_mut() {
-            g.observe(h.crop_x, yaw);
+            g.observe(h.crop_x, yaw, det.salient_pixels);
         }
         let mut confirmed = false;
         if self.confirm.push(det.blob.is_some())

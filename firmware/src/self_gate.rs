@@ -38,18 +38,23 @@ pub enum Step {
 struct Acc {
     x: f32,
     yaw: f32,
+    salient: f32,
     n: u8,
 }
 
 impl Acc {
-    fn push(&mut self, x: f32, yaw: f32) {
+    fn push(&mut self, x: f32, yaw: f32, salient: u32) {
         self.x += x;
         self.yaw += yaw;
+        self.salient += salient as f32;
         self.n = self.n.saturating_add(1);
     }
     fn mean(&self) -> (f32, f32) {
         let n = self.n.max(1) as f32;
         (self.x / n, self.yaw / n)
+    }
+    fn salient(&self) -> f32 {
+        self.salient / self.n.max(1) as f32
     }
 }
 
@@ -57,8 +62,8 @@ impl Acc {
 struct Probe {
     started_us: u64,
     target: [f32; 5],
-    /// Resting crop x and yaw.
-    rest: (f32, f32),
+    /// Resting crop x, yaw and salient pixels.
+    rest: (f32, f32, f32),
     pitch: f32,
     /// 0: the `+amplitude` pose, 1: the `-amplitude` pose.
     stage: usize,
@@ -71,15 +76,15 @@ struct Probe {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Gate {
     p: SelfGate,
-    /// Latest resting frames: (crop x, yaw), newest last.
-    rest: [(f32, f32); REST_FRAMES],
+    /// Latest resting frames: (crop x, yaw, salient pixels), newest last.
+    rest: [(f32, f32, f32); REST_FRAMES],
     rest_n: usize,
     probe: Option<Probe>,
 }
 
 impl Gate {
     pub const fn new(p: SelfGate) -> Gate {
-        Gate { p, rest: [(0.0, 0.0); REST_FRAMES], rest_n: 0, probe: None }
+        Gate { p, rest: [(0.0, 0.0, 0.0); REST_FRAMES], rest_n: 0, probe: None }
     }
 
     pub fn params(&self) -> &SelfGate {
@@ -90,10 +95,11 @@ impl Gate {
         self.probe.is_some()
     }
 
-    /// A frame while observing (head at rest): kept as the resting face.
-    pub fn observe(&mut self, crop_x: u16, yaw: f32) {
+    /// A frame while observing (head at rest): kept as the resting face. `salient`: the
+    /// frame's salient pixels (reported with the decision, for calibration).
+    pub fn observe(&mut self, crop_x: u16, yaw: f32, salient: u32) {
         self.rest.copy_within(1.., 0);
-        self.rest[REST_FRAMES - 1] = (crop_x as f32, yaw);
+        self.rest[REST_FRAMES - 1] = (crop_x as f32, yaw, salient as f32);
         self.rest_n = (self.rest_n + 1).min(REST_FRAMES);
     }
 
@@ -117,10 +123,11 @@ impl Gate {
         let rest = &self.rest[REST_FRAMES - self.rest_n..];
         let n = rest.len() as f32;
         let x = rest.iter().map(|r| r.0).sum::<f32>() / n;
+        let sal = rest.iter().map(|r| r.2).sum::<f32>() / n;
         let pr = Probe {
             started_us: now_us,
             target,
-            rest: (x, head[0]),
+            rest: (x, head[0], sal),
             pitch: head[1],
             stage: 0,
             settled_since: None,
@@ -148,7 +155,7 @@ impl Gate {
     }
 
     /// A face frame arrived during the probe, with the head's reported yaw.
-    pub fn on_frame(&mut self, now_us: u64, frame: u16, crop_x: u16, yaw: f32) -> Step {
+    pub fn on_frame(&mut self, now_us: u64, frame: u16, crop_x: u16, yaw: f32, salient: u32) -> Step {
         let latency = self.p.latency_ms as u64 * 1000;
         let min = self.p.min_frames;
         let Some(pr) = self.probe.as_mut() else { return Step::Wait };
@@ -157,7 +164,7 @@ impl Gate {
         if now_us < since.saturating_add(latency) {
             return Step::Wait;
         }
-        pr.acc[pr.stage].push(crop_x as f32, yaw);
+        pr.acc[pr.stage].push(crop_x as f32, yaw, salient);
         if pr.acc[pr.stage].n < min {
             return Step::Wait;
         }
@@ -198,6 +205,7 @@ impl Gate {
                 decision: GateDecision::Undecided(why),
                 gain_ratio: f32::NAN,
                 rest_px: f32::NAN,
+                salient: [f32::NAN; 3],
                 frames: [0; 2],
                 elapsed_ms: elapsed_ms(started_us, now_us),
             },
@@ -213,6 +221,7 @@ impl Gate {
             decision: GateDecision::Undecided(GateUndecided::HeadStuck),
             gain_ratio: f32::NAN,
             rest_px: f32::NAN,
+            salient: [pr.rest.2, pr.acc[0].salient(), pr.acc[1].salient()],
             frames: [pr.acc[0].n, pr.acc[1].n],
             elapsed_ms: elapsed_ms(pr.started_us, now_us),
         };

@@ -569,6 +569,10 @@ fn dataset_states_its_size_first() {
 fn trial(index: usize, mark: Option<&str>, ended_before_mark: bool, touched: bool) -> msr_host::episode::Trial {
     msr_host::episode::Trial {
         index,
+        scene: "mirror".into(),
+        delay_ms: None,
+        other_babbles: None,
+        gate: Vec::new(),
         mark: mark.map(String::from),
         ended_before_mark,
         mark_pixel: None,

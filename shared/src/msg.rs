@@ -394,6 +394,9 @@ pub struct GateReport {
     pub gain_ratio: f32,
     /// Distance of the resting face from the probe's line, pixels (NaN as above).
     pub rest_px: f32,
+    /// Mean salient pixels of the decoder's prediction error at rest and at the two probe
+    /// poses (NaN as above): how well the face matches the one predicted for each head pose.
+    pub salient: [f32; 3],
     /// Frames used at the two probe poses.
     pub frames: [u8; 2],
     /// From the mark's confirmation to the decision, ms.
