@@ -42,6 +42,13 @@
 //! one with a corrupted byte (CRC-16 per chunk, CRC-32 over the image), and runs it once per
 //! frame id.
 //!
+//! The self gate (protocol 3): when the model has one, a confirmed mark does not start the
+//! reach at once. The board answers that frame's `Detection` with `confirmed: false`, turns
+//! its head for the probe (`Mode::SelfTest`; no detections while it runs), and sends one
+//! [`BoardToHost::SelfGate`] with the decision. On a pass the reach starts and the board sends
+//! a `Detection` with `confirmed: true`, no blob and the reach target, for the frame that
+//! decided; it is repeated while the arm is up, like any reach.
+//!
 //! Board to host, nothing is repeated but the reach: while the arm is up the board answers each
 //! whole frame with the [`Detection`] that started the reach (same frame id), so a host that
 //! lost it still learns of the reach; a host takes a confirmed detection once per frame id.
