@@ -13,7 +13,11 @@
 //!   delayed picture shows the probe's poses late, so not at all or backwards;
 //! - `rest_px`: the resting face (frames before the probe) must lie on the probe's line.
 //!
-//! Pass when `|gain_ratio - 1| <= gain_tol` and `rest_px <= rest_tol`. Anything that stops the
+//! Pass when `|gain_ratio - 1| <= gain_tol`, `rest_px <= rest_tol` and the face's y offset
+//! stays within `rest_tol` of its rest at both poses (a yaw probe does not move the own image
+//! up or down; a robot babbling its head does). A probe starts only after the head has rested
+//! [`REST_BEFORE_PROBE_US`] since the last one: a delayed picture of the last probe must not
+//! replay in step with the next. Anything that stops the
 //! test (no frames, silent servos, a head that does not get there, the timeout) is undecided,
 //! and undecided never reaches. Memory: a few floats, fixed.
 
@@ -37,14 +41,16 @@ pub enum Step {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct Acc {
     x: f32,
+    y: f32,
     yaw: f32,
     salient: f32,
     n: u8,
 }
 
 impl Acc {
-    fn push(&mut self, x: f32, yaw: f32, salient: u32) {
+    fn push(&mut self, x: f32, y: f32, yaw: f32, salient: u32) {
         self.x += x;
+        self.y += y;
         self.yaw += yaw;
         self.salient += salient as f32;
         self.n = self.n.saturating_add(1);
@@ -52,6 +58,9 @@ impl Acc {
     fn mean(&self) -> (f32, f32) {
         let n = self.n.max(1) as f32;
         (self.x / n, self.yaw / n)
+    }
+    fn y(&self) -> f32 {
+        self.y / self.n.max(1) as f32
     }
     fn salient(&self) -> f32 {
         self.salient / self.n.max(1) as f32
@@ -64,6 +73,8 @@ struct Probe {
     target: [f32; 5],
     /// Resting crop x, yaw and salient pixels.
     rest: (f32, f32, f32),
+    /// Resting crop y.
+    rest_y: f32,
     pitch: f32,
     /// 0: the `+amplitude` pose, 1: the `-amplitude` pose.
     stage: usize,
@@ -76,15 +87,18 @@ struct Probe {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Gate {
     p: SelfGate,
-    /// Latest resting frames: (crop x, yaw, salient pixels), newest last.
+    /// Latest resting frames: (crop x, yaw, salient pixels), newest last, and their crop y.
     rest: [(f32, f32, f32); REST_FRAMES],
+    rest_y: [f32; REST_FRAMES],
+    /// When the last probe ended.
+    last_end_us: Option<u64>,
     rest_n: usize,
     probe: Option<Probe>,
 }
 
 impl Gate {
     pub const fn new(p: SelfGate) -> Gate {
-        Gate { p, rest: [(0.0, 0.0, 0.0); REST_FRAMES], rest_n: 0, probe: None }
+        Gate { p, rest: [(0.0, 0.0, 0.0); REST_FRAMES], rest_y: [0.0; REST_FRAMES], last_end_us: None, rest_n: 0, probe: None }
     }
 
     pub fn params(&self) -> &SelfGate {
@@ -97,9 +111,11 @@ impl Gate {
 
     /// A frame while observing (head at rest): kept as the resting face. `salient`: the
     /// frame's salient pixels (reported with the decision, for calibration).
-    pub fn observe(&mut self, crop_x: u16, yaw: f32, salient: u32) {
+    pub fn observe(&mut self, crop: [u16; 2], yaw: f32, salient: u32) {
         self.rest.copy_within(1.., 0);
-        self.rest[REST_FRAMES - 1] = (crop_x as f32, yaw, salient as f32);
+        self.rest_y.copy_within(1.., 0);
+        self.rest[REST_FRAMES - 1] = (crop[0] as f32, yaw, salient as f32);
+        self.rest_y[REST_FRAMES - 1] = crop[1] as f32;
         self.rest_n = (self.rest_n + 1).min(REST_FRAMES);
     }
 
@@ -114,9 +130,13 @@ impl Gate {
         [pr.rest.1 + a, pr.pitch]
     }
 
-    /// A mark was confirmed at `now_us` with the head at `[yaw, pitch]`: the probe starts. The
-    /// reach `target` waits for the decision.
+    /// A mark was confirmed at `now_us` with the head at `[yaw, pitch]`: the probe starts
+    /// (`Wait`: not yet, the head has not rested long enough since the last probe; confirm
+    /// again later). The reach `target` waits for the decision.
     pub fn start(&mut self, now_us: u64, frame: u16, head: [f32; 2], target: [f32; 5]) -> Step {
+        if self.last_end_us.is_some_and(|t| now_us < t.saturating_add(REST_BEFORE_PROBE_US)) {
+            return Step::Wait;
+        }
         if self.rest_n == 0 {
             return self.undecided_at(now_us, now_us, frame, GateUndecided::FaceLost);
         }
@@ -124,10 +144,12 @@ impl Gate {
         let n = rest.len() as f32;
         let x = rest.iter().map(|r| r.0).sum::<f32>() / n;
         let sal = rest.iter().map(|r| r.2).sum::<f32>() / n;
+        let rest_y = self.rest_y[REST_FRAMES - self.rest_n..].iter().sum::<f32>() / n;
         let pr = Probe {
             started_us: now_us,
             target,
             rest: (x, head[0], sal),
+            rest_y,
             pitch: head[1],
             stage: 0,
             settled_since: None,
@@ -155,7 +177,7 @@ impl Gate {
     }
 
     /// A face frame arrived during the probe, with the head's reported yaw.
-    pub fn on_frame(&mut self, now_us: u64, frame: u16, crop_x: u16, yaw: f32, salient: u32) -> Step {
+    pub fn on_frame(&mut self, now_us: u64, frame: u16, crop: [u16; 2], yaw: f32, salient: u32) -> Step {
         let latency = self.p.latency_ms as u64 * 1000;
         let min = self.p.min_frames;
         let Some(pr) = self.probe.as_mut() else { return Step::Wait };
@@ -164,7 +186,7 @@ impl Gate {
         if now_us < since.saturating_add(latency) {
             return Step::Wait;
         }
-        pr.acc[pr.stage].push(crop_x as f32, yaw, salient);
+        pr.acc[pr.stage].push(crop[0] as f32, crop[1] as f32, yaw, salient);
         if pr.acc[pr.stage].n < min {
             return Step::Wait;
         }
@@ -176,6 +198,7 @@ impl Gate {
         }
         let pr = *pr;
         self.probe = None;
+        self.last_end_us = Some(now_us);
         self.decide(now_us, &pr)
     }
 
@@ -193,7 +216,10 @@ impl Gate {
     /// The probe cannot go on (a watchdog, a bus fault): undecided.
     pub fn abort(&mut self, now_us: u64, why: GateUndecided) -> Step {
         match self.probe.take() {
-            Some(pr) => self.undecided_at(pr.started_us, now_us, pr.last_frame, why),
+            Some(pr) => {
+                self.last_end_us = Some(now_us);
+                self.undecided_at(pr.started_us, now_us, pr.last_frame, why)
+            }
             None => Step::Wait,
         }
     }
@@ -235,11 +261,16 @@ impl Gate {
         let rest_px = (pr.rest.0 - line).abs();
         report.gain_ratio = ratio;
         report.rest_px = rest_px;
-        let pass = (ratio - 1.0).abs() <= self.p.gain_tol && rest_px <= self.p.rest_tol;
+        let level = pr.acc.iter().all(|a| (a.y() - pr.rest_y).abs() <= self.p.rest_tol);
+        let pass = (ratio - 1.0).abs() <= self.p.gain_tol && rest_px <= self.p.rest_tol && level;
         report.decision = if pass { GateDecision::Pass } else { GateDecision::Reject };
         Step::Done(report, pass.then_some(pr.target))
     }
 }
+
+/// Least rest of the head between two probes: longer than the longest video delay the gate
+/// must refuse (2 s), so that a delayed picture shows the head still when the next probe starts.
+pub const REST_BEFORE_PROBE_US: u64 = 2_500_000;
 
 /// The head is at a probe pose when its reported yaw is this share of the amplitude from it.
 pub const SETTLE_SHARE: f32 = 0.15;

@@ -20,23 +20,23 @@ fn params() -> SelfGate {
 fn run(xp: [u16; 2], xm: [u16; 2]) -> Step {
     let mut g = Gate::new(params());
     for _ in 0..3 {
-        g.observe(120, 0.0, 0);
+        g.observe([120, 50], 0.0, 0);
     }
     assert_eq!(g.start(0, 7, [0.0, 0.0], TARGET), Step::Head([0.07, 0.0]));
     g.on_servo(30 * MS, 0.02); // moving
     g.on_servo(60 * MS, 0.07); // settled
     g.on_servo(70 * MS, 0.069);
     // Inside the latency after settling: not used.
-    assert_eq!(g.on_frame(100 * MS, 8, 200, 0.07, 0), Step::Wait);
-    assert_eq!(g.on_frame(170 * MS, 9, xp[0], 0.07, 0), Step::Wait);
-    assert_eq!(g.on_frame(270 * MS, 10, xp[1], 0.07, 0), Step::Head([-0.07, 0.0]));
+    assert_eq!(g.on_frame(100 * MS, 8, [200, 50], 0.07, 0), Step::Wait);
+    assert_eq!(g.on_frame(170 * MS, 9, [xp[0], 50], 0.07, 0), Step::Wait);
+    assert_eq!(g.on_frame(270 * MS, 10, [xp[1], 50], 0.07, 0), Step::Head([-0.07, 0.0]));
     // The minus pose: the old settling no longer counts.
-    assert_eq!(g.on_frame(300 * MS, 11, 0, 0.0, 0), Step::Wait);
+    assert_eq!(g.on_frame(300 * MS, 11, [0, 50], 0.0, 0), Step::Wait);
     g.on_servo(400 * MS, -0.07);
-    assert_eq!(g.on_frame(450 * MS, 12, 0, -0.07, 0), Step::Wait);
-    assert_eq!(g.on_frame(499 * MS, 13, 0, -0.07, 0), Step::Wait, "latency not yet passed");
-    assert_eq!(g.on_frame(550 * MS, 14, xm[0], -0.07, 0), Step::Wait);
-    g.on_frame(650 * MS, 15, xm[1], -0.07, 0)
+    assert_eq!(g.on_frame(450 * MS, 12, [0, 50], -0.07, 0), Step::Wait);
+    assert_eq!(g.on_frame(499 * MS, 13, [0, 50], -0.07, 0), Step::Wait, "latency not yet passed");
+    assert_eq!(g.on_frame(550 * MS, 14, [xm[0], 50], -0.07, 0), Step::Wait);
+    g.on_frame(650 * MS, 15, [xm[1], 50], -0.07, 0)
 }
 
 fn done(s: Step) -> (GateReport, Option<[f32; 5]>) {
@@ -96,10 +96,10 @@ fn a_rest_off_the_probe_line_is_rejected() {
 #[test]
 fn a_head_that_never_settles_is_undecided() {
     let mut g = Gate::new(params());
-    g.observe(120, 0.0, 0);
+    g.observe([120, 50], 0.0, 0);
     g.start(0, 1, [0.0, 0.0], TARGET);
     g.on_servo(10 * MS, 0.01);
-    assert_eq!(g.on_frame(500 * MS, 2, 100, 0.01, 0), Step::Wait);
+    assert_eq!(g.on_frame(500 * MS, 2, [100, 50], 0.01, 0), Step::Wait);
     assert_eq!(g.poll(1999 * MS), Step::Wait);
     let (r, t) = done(g.poll(2000 * MS));
     assert_eq!(r.decision, GateDecision::Undecided(GateUndecided::HeadStuck));
@@ -111,7 +111,7 @@ fn a_head_that_never_settles_is_undecided() {
 #[test]
 fn no_frames_after_settling_times_out() {
     let mut g = Gate::new(params());
-    g.observe(120, 0.0, 0);
+    g.observe([120, 50], 0.0, 0);
     g.start(5 * MS, 1, [0.0, 0.0], TARGET);
     g.on_servo(60 * MS, 0.07);
     let (r, t) = done(g.poll(2005 * MS));
@@ -122,13 +122,13 @@ fn no_frames_after_settling_times_out() {
 #[test]
 fn silent_servos_and_a_lost_face_are_undecided() {
     let mut g = Gate::new(params());
-    g.observe(120, 0.0, 0);
+    g.observe([120, 50], 0.0, 0);
     g.start(0, 1, [0.0, 0.0], TARGET);
     let (r, t) = done(g.abort(300 * MS, GateUndecided::ServosSilent));
     assert_eq!((r.decision, t), (GateDecision::Undecided(GateUndecided::ServosSilent), None));
     assert_eq!(g.abort(400 * MS, GateUndecided::FaceLost), Step::Wait, "nothing left to abort");
     // No resting face at all: undecided at once.
-    let (r, t) = done(g.start(0, 3, [0.0, 0.0], TARGET));
+    let (r, t) = done(Gate::new(params()).start(0, 3, [0.0, 0.0], TARGET));
     assert_eq!((r.decision, t), (GateDecision::Undecided(GateUndecided::FaceLost), None));
 }
 
@@ -137,13 +137,42 @@ fn a_yaw_span_short_of_the_amplitude_is_undecided() {
     // The servos call each pose settled (within 15 %), but the frames' reported yaws span less
     // than one amplitude: a joint at its limit, say.
     let mut g = Gate::new(params());
-    g.observe(120, 0.0, 0);
+    g.observe([120, 50], 0.0, 0);
     g.start(0, 1, [0.0, 0.0], TARGET);
     g.on_servo(50 * MS, 0.07);
-    g.on_frame(200 * MS, 2, 110, 0.03, 0);
-    g.on_frame(300 * MS, 3, 110, 0.03, 0);
+    g.on_frame(200 * MS, 2, [110, 50], 0.03, 0);
+    g.on_frame(300 * MS, 3, [110, 50], 0.03, 0);
     g.on_servo(350 * MS, -0.07);
-    g.on_frame(500 * MS, 4, 130, -0.03, 0);
-    let (r, t) = done(g.on_frame(600 * MS, 5, 130, -0.03, 0));
+    g.on_frame(500 * MS, 4, [130, 50], -0.03, 0);
+    let (r, t) = done(g.on_frame(600 * MS, 5, [130, 50], -0.03, 0));
     assert_eq!((r.decision, t), (GateDecision::Undecided(GateUndecided::HeadStuck), None));
+}
+
+#[test]
+fn a_face_that_moves_up_or_down_is_rejected() {
+    let mut g = Gate::new(params());
+    for _ in 0..3 {
+        g.observe([120, 50], 0.0, 0);
+    }
+    g.start(0, 1, [0.0, 0.0], TARGET);
+    g.on_servo(50 * MS, 0.07);
+    g.on_frame(200 * MS, 2, [101, 53], 0.07, 0);
+    g.on_frame(300 * MS, 3, [101, 53], 0.07, 0);
+    g.on_servo(350 * MS, -0.07);
+    g.on_frame(500 * MS, 4, [139, 50], -0.07, 0);
+    let (r, t) = done(g.on_frame(600 * MS, 5, [139, 50], -0.07, 0));
+    assert_eq!((r.decision, t), (GateDecision::Reject, None));
+    assert!((r.gain_ratio - 1.0016).abs() < 1e-3);
+}
+
+#[test]
+fn the_next_probe_waits_for_the_head_to_rest() {
+    let mut g = Gate::new(params());
+    g.observe([120, 50], 0.0, 0);
+    g.start(0, 1, [0.0, 0.0], TARGET);
+    done(g.abort(400 * MS, GateUndecided::FaceLost));
+    g.observe([120, 50], 0.0, 0);
+    assert_eq!(g.start(2_899 * MS, 2, [0.0, 0.0], TARGET), Step::Wait);
+    assert!(!g.probing());
+    assert_eq!(g.start(2_900 * MS, 3, [0.0, 0.0], TARGET), Step::Head([0.07, 0.0]));
 }
