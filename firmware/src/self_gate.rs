@@ -15,7 +15,8 @@
 //!
 //! Pass when `|gain_ratio - 1| <= gain_tol`, `rest_px <= rest_tol` and the face's y offset
 //! stays within `rest_tol` of its rest at both poses (a yaw probe does not move the own image
-//! up or down; a robot babbling its head does). A probe starts only after the head has rested
+//! up or down; a robot babbling its head does), and the x offset holds within a pixel over the
+//! resting frames and over each pose's frames (the head holds still then; so does its image). A probe starts only after the head has rested
 //! [`REST_BEFORE_PROBE_US`] since the last one: a delayed picture of the last probe must not
 //! replay in step with the next. Anything that stops the
 //! test (no frames, silent servos, a head that does not get there, the timeout) is undecided,
@@ -41,6 +42,9 @@ pub enum Step {
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct Acc {
     x: f32,
+    /// Range of x over the frames (the face must hold still while the head does).
+    x_min: f32,
+    x_max: f32,
     y: f32,
     yaw: f32,
     salient: f32,
@@ -49,6 +53,11 @@ struct Acc {
 
 impl Acc {
     fn push(&mut self, x: f32, y: f32, yaw: f32, salient: u32) {
+        if self.n == 0 {
+            (self.x_min, self.x_max) = (x, x);
+        }
+        self.x_min = self.x_min.min(x);
+        self.x_max = self.x_max.max(x);
         self.x += x;
         self.y += y;
         self.yaw += yaw;
@@ -73,8 +82,9 @@ struct Probe {
     target: [f32; 5],
     /// Resting crop x, yaw and salient pixels.
     rest: (f32, f32, f32),
-    /// Resting crop y.
+    /// Resting crop y, and the range of the resting crop x.
     rest_y: f32,
+    rest_spread: f32,
     pitch: f32,
     /// 0: the `+amplitude` pose, 1: the `-amplitude` pose.
     stage: usize,
@@ -145,11 +155,13 @@ impl Gate {
         let x = rest.iter().map(|r| r.0).sum::<f32>() / n;
         let sal = rest.iter().map(|r| r.2).sum::<f32>() / n;
         let rest_y = self.rest_y[REST_FRAMES - self.rest_n..].iter().sum::<f32>() / n;
+        let (lo, hi) = rest.iter().fold((f32::MAX, f32::MIN), |(l, h), r| (l.min(r.0), h.max(r.0)));
         let pr = Probe {
             started_us: now_us,
             target,
             rest: (x, head[0], sal),
             rest_y,
+            rest_spread: hi - lo,
             pitch: head[1],
             stage: 0,
             settled_since: None,
@@ -261,7 +273,9 @@ impl Gate {
         let rest_px = (pr.rest.0 - line).abs();
         report.gain_ratio = ratio;
         report.rest_px = rest_px;
-        let level = pr.acc.iter().all(|a| (a.y() - pr.rest_y).abs() <= self.p.rest_tol);
+        // Still at rest and at each pose (within rounding), and level during a yaw probe.
+        let steady = pr.rest_spread <= 1.0 && pr.acc.iter().all(|a| a.x_max - a.x_min <= 1.0);
+        let level = steady && pr.acc.iter().all(|a| (a.y() - pr.rest_y).abs() <= self.p.rest_tol);
         let pass = (ratio - 1.0).abs() <= self.p.gain_tol && rest_px <= self.p.rest_tol && level;
         report.decision = if pass { GateDecision::Pass } else { GateDecision::Reject };
         Step::Done(report, pass.then_some(pr.target))

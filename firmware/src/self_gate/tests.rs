@@ -149,6 +149,16 @@ fn a_yaw_span_short_of_the_amplitude_is_undecided() {
 }
 
 #[test]
+fn a_face_that_moves_while_the_head_holds_is_rejected() {
+    // The right gain on average, but the two frames at the plus pose are 2 px apart.
+    let (r, t) = done(run([100, 102], [139, 139]));
+    assert_eq!((r.decision, t), (GateDecision::Reject, None));
+    assert!((r.gain_ratio - 1.0016).abs() < 1e-3);
+    // Within rounding: a pass.
+    assert_eq!(done(run([101, 100], [139, 138])).0.decision, GateDecision::Pass);
+}
+
+#[test]
 fn a_face_that_moves_up_or_down_is_rejected() {
     let mut g = Gate::new(params());
     for _ in 0..3 {
