@@ -13,6 +13,7 @@ use crate::model::{self, ModelStore, Upload, UploadError};
 use crate::motion::{Motion, Phase, PERIOD_US};
 use crate::pipeline::{self, Workspace};
 use crate::saliency::Settings;
+use crate::self_gate::{Gate, Step};
 use embedded_io::{Read, ReadReady, Write};
 use msr_shared::blob::{Merge, Model};
 use msr_shared::frame::FrameError;
@@ -20,7 +21,7 @@ use msr_shared::joints::REACH_JOINTS;
 use msr_shared::msg::{
     BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameAck, FrameHeader,
     FrameState, HostToBoard, JointTarget, Mode, ServoBusKind, ServoBusReport,
-    ServoToBoard, Status,
+    GateUndecided, ServoToBoard, Status,
 };
 
 /// Most bytes taken from one link per poll, so a flood cannot starve the control loop.
@@ -45,6 +46,8 @@ struct Core<S: ModelStore> {
     upload: Upload,
     settings: Option<Settings>,
     confirm: Confirm,
+    /// The model's self gate (`None`: a confirmed mark is reached at once).
+    gate: Option<Gate>,
     motion: Motion,
     measured: [Option<f32>; 5],
     host_tx: Tx,
@@ -65,6 +68,8 @@ struct Core<S: ModelStore> {
     /// The detection that started the reach in progress, repeated while the arm is up so
     /// that a host that lost it still learns of the reach.
     last_reach: Option<Detection>,
+    /// The time of the latest poll, for decisions made outside one.
+    last_poll_us: u64,
 }
 
 /// The firmware. `S` holds the model blobs (see [`ModelStore`]).
@@ -91,6 +96,7 @@ impl<S: ModelStore> Board<S> {
                 upload: Upload::new(),
                 settings: None,
                 confirm: Confirm::defaults(),
+                gate: None,
                 motion: Motion::new(),
                 measured: [None; 5],
                 host_tx: Tx::new(),
@@ -108,6 +114,7 @@ impl<S: ModelStore> Board<S> {
                 dxl: None,
                 dxl_stopped: false,
                 last_reach: None,
+                last_poll_us: 0,
             },
         }
     }
@@ -195,6 +202,7 @@ impl<S: ModelStore> Board<S> {
             let s = core.status(&self.host_rx, &self.servo_rx, &self.frame);
             core.host_tx.send(host, &BoardToHost::Status(s));
         }
+        core.gate_watch(now_us, host);
         let due = *core.next_tick_us.get_or_insert(now_us);
         if now_us >= due {
             core.tick(now_us, servo);
@@ -239,7 +247,12 @@ impl<S: ModelStore> Core<S> {
         ws.invalidate();
         self.loaded = None;
         self.settings = None;
+        self.gate = None;
+        if self.motion.phase() == Phase::Probe {
+            self.motion.go_home();
+        }
         if let Some(m) = self.store.active().and_then(|b| model::validate(b).ok()) {
+            self.gate = m.self_gate.map(Gate::new);
             self.loaded = Some(Loaded {
                 crc: m.crc32,
                 face_w: m.face_w,
@@ -263,6 +276,7 @@ impl<S: ModelStore> Core<S> {
             Phase::Reach => Mode::Reach,
             Phase::Hold => Mode::Hold,
             Phase::Return => Mode::Return,
+            Phase::Probe => Mode::SelfTest,
         }
     }
 
@@ -508,6 +522,27 @@ impl<S: ModelStore> Core<S> {
         if self.face_wd.feed(now_us) {
             self.motion.go_home();
         }
+        if self.motion.phase() == Phase::Probe {
+            // The probe's frames go to the gate only: no reach while the head moves.
+            let step = match (self.measured[0], self.measured[1]) {
+                (Some(yaw), Some(pitch)) => {
+                    let salient = match (self.settings, self.store.active()) {
+                        (Some(s), Some(bytes)) => Model::parse_trusted(bytes).ok().and_then(|m| {
+                            pipeline::detect(ws, &m, &s, pixels, [h.crop_x, h.crop_y], [yaw, pitch]).ok()
+                        }),
+                        _ => None,
+                    };
+                    let salient = salient.map_or(u32::MAX, |d| d.salient_pixels);
+                    match self.gate.as_mut() {
+                        Some(g) => g.on_frame(now_us, h.frame, [h.crop_x, h.crop_y], yaw, salient),
+                        None => Step::Wait,
+                    }
+                }
+                _ => Step::Wait,
+            };
+            self.gate_step(step, h.frame, host);
+            return;
+        }
         if self.motion.arm_up() {
             // Detection pauses while the arm is up; the reach is reported again.
             if let Some(d) = self.last_reach {
@@ -541,12 +576,20 @@ impl<S: ModelStore> Core<S> {
         if det.blob.is_some() {
             self.detections = self.detections.saturating_add(1);
         }
+        if let Some(g) = self.gate.as_mut() {
+            g.observe([h.crop_x, h.crop_y], yaw, det.salient_pixels);
+        }
         let mut confirmed = false;
         if self.confirm.push(det.blob.is_some())
             && !self.servo_wd.tripped()
             && !self.face_wd.tripped()
         {
-            if let Some(target) = det.reach {
+            if let (Some(target), Some(g)) = (det.reach, self.gate.as_mut()) {
+                // Not yet: first the probe that tells whether this face is ours.
+                self.confirm.reset();
+                let step = g.start(now_us, h.frame, head, target);
+                self.gate_step(step, h.frame, host);
+            } else if let Some(target) = det.reach {
                 if self.motion.reach(target) {
                     confirmed = true;
                     self.reaches = self.reaches.saturating_add(1);
@@ -576,6 +619,59 @@ impl<S: ModelStore> Core<S> {
             self.last_reach = Some(d);
         }
         self.host_tx.send(host, &BoardToHost::Detection(d));
+    }
+
+    /// Carries out what the self gate asks: a head pose, or its decision (reported on the host
+    /// link; a pass starts the reach as a confirmed detection of `frame`, anything else goes home).
+    fn gate_step<H: Write>(&mut self, step: Step, frame: u16, host: &mut H) {
+        match step {
+            Step::Wait => {}
+            Step::Head(head) => {
+                if !self.motion.probe(head) {
+                    // Not streaming (the servos went quiet just now): undecided.
+                    if let Some(g) = self.gate.as_mut() {
+                        let s = g.abort(self.last_poll_us, GateUndecided::ServosSilent);
+                        self.gate_step(s, frame, host);
+                    }
+                }
+            }
+            Step::Done(report, target) => {
+                self.host_tx.send(host, &BoardToHost::SelfGate(report));
+                match target {
+                    Some(t) if self.motion.reach(t) => {
+                        self.reaches = self.reaches.saturating_add(1);
+                        let head = [self.measured[0].unwrap_or(f32::NAN), self.measured[1].unwrap_or(f32::NAN)];
+                        let d = Detection { frame, head, blob: None, confirmed: true, reach: Some(t) };
+                        self.last_reach = Some(d);
+                        self.host_tx.send(host, &BoardToHost::Detection(d));
+                    }
+                    _ => self.motion.go_home(),
+                }
+            }
+        }
+    }
+
+    /// While probing: the servos' yaw to the gate, and the ways a probe ends without frames
+    /// (a watchdog, a bus fault, the timeout).
+    fn gate_watch<H: Write>(&mut self, now_us: u64, host: &mut H) {
+        self.last_poll_us = now_us;
+        let Some(g) = self.gate.as_mut() else { return };
+        if !g.probing() {
+            return;
+        }
+        let faulted = self.dxl.as_ref().is_some_and(|m| m.faulted());
+        let step = if self.servo_wd.tripped() || faulted || self.motion.commanded().is_none() {
+            g.abort(now_us, GateUndecided::ServosSilent)
+        } else if self.face_wd.tripped() {
+            g.abort(now_us, GateUndecided::FaceLost)
+        } else {
+            if let Some(yaw) = self.measured[0] {
+                g.on_servo(now_us, yaw);
+            }
+            g.poll(now_us)
+        };
+        let frame = self.last_reach.map_or(0, |d| d.frame);
+        self.gate_step(step, frame, host);
     }
 
     /// One control period.

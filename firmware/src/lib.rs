@@ -114,6 +114,7 @@ pub mod motion;
 pub mod pipeline;
 pub mod reach;
 pub mod saliency;
+pub mod self_gate;
 pub mod winner;
 
 #[cfg(test)]

@@ -28,6 +28,8 @@ pub enum Phase {
     Hold,
     /// Going back home.
     Return,
+    /// The self gate's head probe: the head moves, the arm stays home.
+    Probe,
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -132,9 +134,25 @@ impl Motion {
         self.commanded = None;
     }
 
-    /// Starts a reach; only from `Observe` with streaming running. The target is clamped.
+    /// Moves the head to `[yaw, pitch]` for the self gate, the rest staying where it is; only
+    /// from `Observe` or `Probe` with streaming running. Clamped like every goal.
+    pub fn probe(&mut self, head: [f32; 2]) -> bool {
+        let Some(c) = self.commanded else { return false };
+        if !matches!(self.phase, Phase::Observe | Phase::Probe) {
+            return false;
+        }
+        let mut g = c;
+        g[0] = head[0];
+        g[1] = head[1];
+        self.goal = safe(g);
+        self.phase = Phase::Probe;
+        true
+    }
+
+    /// Starts a reach; only from `Observe` (or the self gate's `Probe`) with streaming running.
+    /// The target is clamped.
     pub fn reach(&mut self, target: [f32; N]) -> bool {
-        if self.phase != Phase::Observe || self.commanded.is_none() {
+        if !matches!(self.phase, Phase::Observe | Phase::Probe) || self.commanded.is_none() {
             return false;
         }
         self.goal = safe(target);

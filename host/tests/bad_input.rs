@@ -537,6 +537,7 @@ fn dataset_states_its_size_first() {
 fn trial(index: usize, mark: Option<&str>, ended_before_mark: bool, touched: bool) -> msr_host::episode::Trial {
     msr_host::episode::Trial {
         index,
+        scene: "mirror".into(),
         mark: mark.map(String::from),
         ended_before_mark,
         reached: touched || ended_before_mark,

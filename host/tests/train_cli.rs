@@ -105,7 +105,16 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     assert!(r["psnr_db"].as_f64().unwrap() >= 40.0, "{report}");
     assert!(r["detection_agreement"].as_f64().unwrap() >= 0.9, "{report}");
     let bytes = std::fs::read(&blob).unwrap();
-    msr_shared::blob::Model::parse(&bytes).unwrap();
+    let gate = msr_shared::blob::Model::parse(&bytes).unwrap().self_gate;
+    // The gate by default, calibrated on the dataset's robot and reported; --no-self-gate is
+    // the same blob without it, byte for byte.
+    assert!(gate.is_some() && r["self_gate"]["gate"]["gain_px_per_rad"].is_number(), "{report}");
+    let plain = out.join("plain.msrm");
+    let report = ok(&["quantize", "--train", p(&out), "--reach", p(&reach), "--json", "--no-self-gate", "--out", p(&plain)]);
+    assert!(serde_json::from_str::<Value>(&report).unwrap()["self_gate"].is_null());
+    let plain = std::fs::read(&plain).unwrap();
+    assert_eq!(msr_shared::blob::Model::parse(&plain).unwrap().self_gate, None);
+    assert_eq!(msr_shared::blob::set_self_gate(&bytes, None).unwrap(), plain);
 
     // Bad input, on the real outputs above.
     fails(&["quantize", "--train", p(&out), "--reach", p(&tmp.path().join("nope.safetensors")), "--out", p(&blob)], "nope");

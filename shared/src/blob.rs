@@ -23,6 +23,8 @@
 //! pose region (if flags bit 2): centre_yaw f32, centre_pitch f32, radius f32, threshold f32,
 //!   merge_margin u8, reserved u8 (0), merge_fragment u16
 //! template (if flags bit 0): h u16, w u16, h*w u8 grey (padded to 4)
+//! self gate (if flags bit 3): amplitude f32, gain f32, gain_tol f32, rest_tol f32,
+//!   latency_ms u16, timeout_ms u16, min_frames u8, reserved u8 x3 (0)
 //! ```
 //!
 //! Fixed point: a layer's input is i16 with `in_shift` fraction bits, its weights (i8 or i16) have
@@ -51,6 +53,9 @@
 //! never crops: the template and the crop mode tell the host how to make the crops it sends.
 //! Bit 2 (version 4): a [`PoseRegion`], novelty settings of their own for head poses near one
 //! pose (the observe posture). The writer uses version 4 only for a blob with bit 1 or 2.
+//! Bit 3 (version 5): a [`SelfGate`], the test that the face moves with the robot's own head
+//! before a reach; the section comes last, so [`set_self_gate`] adds or removes it without
+//! touching the rest, and a blob without it is byte for byte what version 4 wrote.
 //!
 //! Fragment merge (version 3; bytes 36..40 are zero before): `merge_margin` 0 is the paper's
 //! blob stage. Otherwise 8-connected components of at least `merge_fragment` pixels whose
@@ -67,8 +72,9 @@ use serde::{Deserialize, Serialize};
 /// The first 4 bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"MSRM";
 /// The newest version this build reads and writes (version 1 has no weight order byte,
-/// versions 1 and 2 no fragment merge, versions 1 to 3 no sub-pixel crop flag or pose region).
-pub const VERSION: u16 = 4;
+/// versions 1 and 2 no fragment merge, versions 1 to 3 no sub-pixel crop flag or pose region,
+/// versions 1 to 4 no self gate).
+pub const VERSION: u16 = 5;
 /// Largest [`Merge::margin`].
 pub const MAX_MERGE_MARGIN: u8 = 16;
 /// Inputs per block of the blocked weight order.
@@ -105,6 +111,15 @@ pub const REACH_FLOATS: usize = REACH_HIDDEN * REACH_IN
 const FLAG_TEMPLATE: u16 = 1;
 const FLAG_SUBPIXEL: u16 = 2;
 const FLAG_REGION: u16 = 4;
+const FLAG_SELF_GATE: u16 = 8;
+/// Bytes of the self-gate section.
+pub const SELF_GATE_LEN: usize = 24;
+/// Largest [`SelfGate::amplitude`], radians (about 5.7 degrees: within the training poses).
+pub const MAX_GATE_AMPLITUDE: f32 = 0.1;
+/// Longest [`SelfGate::timeout_ms`].
+pub const MAX_GATE_TIMEOUT_MS: u16 = 3000;
+/// Most [`SelfGate::min_frames`].
+pub const MAX_GATE_FRAMES: u8 = 8;
 /// Largest [`PoseRegion::radius`], radians.
 pub const MAX_REGION_RADIUS: f32 = 0.5;
 
@@ -281,6 +296,8 @@ pub enum BlobError {
     Template,
     /// Bytes left over after the last section.
     TrailingBytes,
+    /// Self-gate parameters out of range.
+    SelfGate,
 }
 
 impl BlobError {
@@ -304,6 +321,7 @@ impl BlobError {
             BlobError::Reach => 15,
             BlobError::Template => 16,
             BlobError::TrailingBytes => 17,
+            BlobError::SelfGate => 18,
         }
     }
 }
@@ -334,6 +352,7 @@ impl fmt::Display for BlobError {
             BlobError::Reach => f.write_str("reach network has non-finite values or bad scaling"),
             BlobError::Template => f.write_str("face template is malformed"),
             BlobError::TrailingBytes => f.write_str("bytes left over after the last section"),
+            BlobError::SelfGate => f.write_str("self-gate parameters out of range"),
         }
     }
 }
@@ -420,6 +439,45 @@ impl PoseRegion {
             && self.threshold.is_finite()
             && self.threshold > 0.0
             && self.merge.is_valid(min_area)
+    }
+}
+
+/// The self gate: before a reach, the board turns its head by `+amplitude` then `-amplitude`
+/// (yaw, from where it is) and checks that the face's crop offset follows with the gain the
+/// robot's own mirror image has (`firmware::self_gate`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SelfGate {
+    /// Probe yaw offset, radians.
+    pub amplitude: f32,
+    /// Expected crop-offset x change per radian of head yaw (pixels/rad, signed).
+    pub gain: f32,
+    /// Largest relative error of the measured gain: `|measured / gain - 1|`.
+    pub gain_tol: f32,
+    /// Largest distance (pixels) of the resting face from the probe's line.
+    pub rest_tol: f32,
+    /// The robot's own latency from a head pose to a frame showing it on the board, ms.
+    pub latency_ms: u16,
+    /// A probe not decided within this is undecided (no reach), ms.
+    pub timeout_ms: u16,
+    /// Frames needed at each probe pose.
+    pub min_frames: u8,
+}
+
+impl SelfGate {
+    /// Every field finite and in range.
+    pub fn is_valid(&self) -> bool {
+        self.amplitude > 0.0
+            && self.amplitude <= MAX_GATE_AMPLITUDE
+            && self.gain.is_finite()
+            && self.gain.abs() >= 1.0
+            && self.gain.abs() <= 10_000.0
+            && self.gain_tol > 0.0
+            && self.gain_tol < 1.0
+            && self.rest_tol > 0.0
+            && self.rest_tol <= 64.0
+            && (1..=1000).contains(&self.latency_ms)
+            && (100..=MAX_GATE_TIMEOUT_MS).contains(&self.timeout_ms)
+            && (1..=MAX_GATE_FRAMES).contains(&self.min_frames)
     }
 }
 
@@ -684,6 +742,8 @@ pub struct Model<'a> {
     pub region: Option<PoseRegion>,
     /// The face template the host crops with (flag bit 0).
     pub template: Option<Template<'a>>,
+    /// The self gate (flag bit 3); `None`: confirmed marks are reached at once, as the paper.
+    pub self_gate: Option<SelfGate>,
     /// The CRC-32 from the header: the model's identity.
     pub crc32: u32,
 }
@@ -781,9 +841,10 @@ impl<'a> Model<'a> {
             return Err(BlobError::TooManyLayers);
         }
         let flags = r.u16()?;
-        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION) != 0
+        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION | FLAG_SELF_GATE) != 0
             || (flags & FLAG_SUBPIXEL != 0 && (version < 4 || flags & FLAG_TEMPLATE == 0))
             || (flags & FLAG_REGION != 0 && version < 4)
+            || (flags & FLAG_SELF_GATE != 0) != (version >= 5)
         {
             return Err(BlobError::BadHeader);
         }
@@ -889,6 +950,20 @@ impl<'a> Model<'a> {
         } else {
             None
         };
+        let self_gate = if flags & FLAG_SELF_GATE != 0 {
+            let (amplitude, gain, gain_tol, rest_tol) = (r.f32()?, r.f32()?, r.f32()?, r.f32()?);
+            let (latency_ms, timeout_ms, min_frames) = (r.u16()?, r.u16()?, r.u8()?);
+            if r.take(3)? != [0; 3] {
+                return Err(BlobError::BadHeader);
+            }
+            let g = SelfGate { amplitude, gain, gain_tol, rest_tol, latency_ms, timeout_ms, min_frames };
+            if !g.is_valid() {
+                return Err(BlobError::SelfGate);
+            }
+            Some(g)
+        } else {
+            None
+        };
         if r.pos != bytes.len() {
             return Err(BlobError::TrailingBytes);
         }
@@ -902,6 +977,7 @@ impl<'a> Model<'a> {
             reach,
             region,
             template,
+            self_gate,
             crc32: crc,
         })
     }
@@ -1243,6 +1319,56 @@ mod writer {
             Model::parse(&o)?;
             Ok(o)
         }
+    }
+
+    /// The blob with its self-gate section replaced by `gate` (`None` removes it). A blob that
+    /// keeps no gate is written at the version its other sections need, so removing the gate
+    /// gives back the bytes the writer made before it was added.
+    pub fn set_self_gate(bytes: &[u8], gate: Option<SelfGate>) -> Result<Vec<u8>, BlobError> {
+        let m = Model::parse(bytes)?;
+        let mut o = bytes.to_vec();
+        let flags = u16::from_le_bytes([o[22], o[23]]);
+        if m.self_gate.is_some() {
+            o.truncate(o.len() - SELF_GATE_LEN);
+        }
+        let mut flags = flags & !FLAG_SELF_GATE;
+        let version: u16 = match gate {
+            Some(g) => {
+                if !g.is_valid() {
+                    return Err(BlobError::SelfGate);
+                }
+                for f in [g.amplitude, g.gain, g.gain_tol, g.rest_tol] {
+                    o.extend_from_slice(&f.to_le_bytes());
+                }
+                o.extend_from_slice(&g.latency_ms.to_le_bytes());
+                o.extend_from_slice(&g.timeout_ms.to_le_bytes());
+                o.extend_from_slice(&[g.min_frames, 0, 0, 0]);
+                flags |= FLAG_SELF_GATE;
+                5
+            }
+            // The version the writer picks for the other sections.
+            None => {
+                let merge = u16::from_le_bytes([o[36], 0]) != 0;
+                let blocked = m.layers.iter().any(|l| !l.torch_order());
+                if flags & (FLAG_SUBPIXEL | FLAG_REGION) != 0 {
+                    4
+                } else if merge {
+                    3
+                } else if blocked {
+                    2
+                } else {
+                    1
+                }
+            }
+        };
+        o[4..6].copy_from_slice(&version.to_le_bytes());
+        o[22..24].copy_from_slice(&flags.to_le_bytes());
+        let total = o.len() as u32;
+        o[8..12].copy_from_slice(&total.to_le_bytes());
+        let crc = CRC32.checksum(&o[16..]);
+        o[12..16].copy_from_slice(&crc.to_le_bytes());
+        Model::parse(&o)?;
+        Ok(o)
     }
 
     impl ModelSpec {

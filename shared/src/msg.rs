@@ -42,6 +42,13 @@
 //! one with a corrupted byte (CRC-16 per chunk, CRC-32 over the image), and runs it once per
 //! frame id.
 //!
+//! The self gate (protocol 3): when the model has one, a confirmed mark does not start the
+//! reach at once. The board answers that frame's `Detection` with `confirmed: false`, turns
+//! its head for the probe (`Mode::SelfTest`; no detections while it runs), and sends one
+//! [`BoardToHost::SelfGate`] with the decision. On a pass the reach starts and the board sends
+//! a `Detection` with `confirmed: true`, no blob and the reach target, for the frame that
+//! decided; it is repeated while the arm is up, like any reach.
+//!
 //! Board to host, nothing is repeated but the reach: while the arm is up the board answers each
 //! whole frame with the [`Detection`] that started the reach (same frame id), so a host that
 //! lost it still learns of the reach; a host takes a confirmed detection once per frame id.
@@ -387,6 +394,52 @@ pub enum Mode {
     Return,
     /// A watchdog tripped: holding still until the link recovers.
     Halted,
+    /// A mark is confirmed; the head makes the self gate's probe before any reach.
+    SelfTest,
+}
+
+/// What the self gate decided about a confirmed mark.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum GateDecision {
+    /// The face followed the head: the reach starts.
+    Pass,
+    /// The face did not follow (another robot, a delayed picture): no reach.
+    Reject,
+    /// Could not tell: no reach. `Undecided` reasons are [`GateUndecided`].
+    Undecided(GateUndecided),
+}
+
+/// Why the self gate could not decide.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum GateUndecided {
+    /// The probe did not collect its frames in the model's timeout.
+    Timeout,
+    /// No face frames (face watchdog) or frames without a face in reach of the probe.
+    FaceLost,
+    /// The servos stopped reporting (servo watchdog, or a bus fault).
+    ServosSilent,
+    /// The head did not reach a probe pose (a joint limit, a stalled servo).
+    HeadStuck,
+}
+
+/// One decision of the self gate and its statistic (`firmware::self_gate`).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GateReport {
+    /// The frame id that decided (or the last one seen).
+    pub frame: u16,
+    pub decision: GateDecision,
+    /// Measured over expected crop-offset gain (1.0: the robot's own mirror image); NaN when
+    /// undecided before both probe poses were seen.
+    pub gain_ratio: f32,
+    /// Distance of the resting face from the probe's line, pixels (NaN as above).
+    pub rest_px: f32,
+    /// Mean salient pixels of the decoder's prediction error at rest and at the two probe
+    /// poses (NaN as above): how well the face matches the one predicted for each head pose.
+    pub salient: [f32; 3],
+    /// Frames used at the two probe poses.
+    pub frames: [u8; 2],
+    /// From the mark's confirmation to the decision, ms.
+    pub elapsed_ms: u16,
 }
 
 /// The winning blob, in full-frame pixels; boxes are inclusive.
@@ -501,6 +554,8 @@ pub enum BoardToHost {
     UploadAck { next: u32 },
     /// Answers [`HostToBoard::GetServoBus`].
     ServoBus(ServoBusReport),
+    /// A decision of the self gate (protocol 3), sent once per probe.
+    SelfGate(GateReport),
 }
 
 /// One joint's commanded position.

@@ -98,11 +98,19 @@ impl Renderer {
     /// outside it the frame is plain background without noise, and the mark's mask and counts
     /// cover the window only. For episodes that only look at the face crop.
     pub fn render_window(&self, pose: &BodyPose, mark: Option<&Mark>, var: &Variation, window: [u32; 4]) -> Rendered {
+        self.render_seen([pose.head_yaw, pose.head_pitch], pose, mark, var, window)
+    }
+
+    /// As [`Renderer::render_window`], with the camera at head angles `camera` (yaw, pitch) and
+    /// the body in view at `pose`: a second robot of the same look standing where the mirror
+    /// image would be (the mirror image of a left-right symmetric body is such a body), moving
+    /// on its own. With `camera` equal to `pose`'s head it is the mirror.
+    pub fn render_seen(&self, camera: [f64; 2], pose: &BodyPose, mark: Option<&Mark>, var: &Variation, window: [u32; 4]) -> Rendered {
         let (wx0, wy0) = (window[0], window[1]);
         let (wx1, wy1) = (window[0].saturating_add(window[2]), window[1].saturating_add(window[3]));
         let prims = body::ellipsoids(pose);
-        let boxes: Vec<[i32; 4]> = prims.iter().map(|e| screen_box(e, pose)).collect();
-        let cam = kin::camera_pose(pose.head_yaw, pose.head_pitch);
+        let boxes: Vec<[i32; 4]> = prims.iter().map(|e| screen_box(e, camera)).collect();
+        let cam = kin::camera_pose(camera[0], camera[1]);
         let rot = cam.rotation.to_rotation_matrix();
         let origin = Point3::from(cam.translation.vector);
         let inv_frames: Vec<_> = prims.iter().map(|e| e.frame.inverse()).collect();
@@ -250,10 +258,10 @@ pub fn to_grey(rgb: &RgbImage) -> GrayImage {
 }
 
 /// Pixel box that contains an ellipsoid's mirror image, from its bounding-box corners.
-fn screen_box(e: &Ellipsoid, pose: &BodyPose) -> [i32; 4] {
+fn screen_box(e: &Ellipsoid, camera: [f64; 2]) -> [i32; 4] {
     let mut b = [i32::MAX, i32::MAX, i32::MIN, i32::MIN];
     for c in e.corners() {
-        match body::project_torso(&c, pose.head_yaw, pose.head_pitch) {
+        match body::project_torso(&c, camera[0], camera[1]) {
             Some([u, v]) => {
                 b = [
                     b[0].min(u.floor() as i32 - 1),

@@ -1,6 +1,6 @@
 //! `msr mirror-test`: run mirror-test episodes: sim world, emulated links, firmware in-process or
 //! in QEMU. See [`crate::episode`] for what one trial is.
-use crate::episode::{self, Backend, EpisodeConfig, FaultLinks, ServoBus, Summary, Trial};
+use crate::episode::{self, Backend, EpisodeConfig, FaultLinks, Scene, ServoBus, Summary, Trial};
 use msr_sim::link::FaultConfig;
 use anyhow::{bail, Result};
 use msr_sim::Robot;
@@ -23,6 +23,14 @@ pub struct Args {
     /// The servo bus's protocol
     #[arg(long, value_enum, default_value_t = ServoBus::Framed)]
     pub servo_bus: ServoBus,
+    /// What stands in front of the robot: its mirror image, another robot of the same look
+    /// (marks on its face), or the mirror image through a video delay of 0.3-2 s
+    #[arg(long, value_enum, default_value_t = Scene::Mirror)]
+    pub scene: Scene,
+    /// The self gate: as the model blob has it, off (the paper's behaviour), or on (calibrated
+    /// now for --robot), to compare the same model with and without it
+    #[arg(long, value_enum, default_value_t = GateArg::Model)]
+    pub self_gate: GateArg,
     /// Write the bytes the board sent on the servo bus to this file (in-process; all trials,
     /// in trial order)
     #[arg(long)]
@@ -61,6 +69,27 @@ pub struct Args {
     pub json: bool,
 }
 
+/// Whose self gate the trials run with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum GateArg {
+    /// The model blob's (none if it has none).
+    Model,
+    /// None.
+    Off,
+    /// One calibrated now for the robot (replacing the blob's).
+    On,
+}
+
+/// The blob the trials run: `blob` with its self gate as `g` asks.
+pub fn gated_blob(blob: Vec<u8>, g: GateArg, robot: Robot) -> Result<Vec<u8>> {
+    use crate::train::self_gate::{attach, detach, GateCalibration};
+    Ok(match g {
+        GateArg::Model => blob,
+        GateArg::Off => detach(&blob)?,
+        GateArg::On => attach(&blob, robot, &GateCalibration::default())?.0,
+    })
+}
+
 pub fn config(a: &Args) -> Result<EpisodeConfig> {
     if !(0.0..=1.0).contains(&a.ber) {
         bail!("--ber must be in 0..=1, got {}", a.ber);
@@ -85,6 +114,7 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     let mut c = EpisodeConfig::new(a.robot).with_faults(&faults, a.faults_on);
     c.no_mark_share = a.no_mark_share;
     c.servo_bus = a.servo_bus;
+    c.scene = a.scene;
     c.log_bus = a.bus_log.is_some();
     if a.bus_log.is_some() && a.backend != Backend::Inproc {
         bail!("--bus-log needs --backend inproc");
@@ -99,16 +129,19 @@ pub fn run(a: Args) -> Result<()> {
     if a.trials == 0 {
         bail!("--trials must be at least 1");
     }
-    let blob = episode::read_model(&a.model)?;
     let cfg = config(&a)?;
+    let blob = gated_blob(episode::read_model(&a.model)?, a.self_gate, a.robot)?;
     let quiet = a.json;
     if !quiet {
+        let gate = msr_shared::blob::Model::parse(&blob).ok().and_then(|m| m.self_gate);
         eprintln!(
-            "mirror-test: {} {} trials of robot {} (seed {})",
+            "mirror-test: {} {} trials of robot {} (seed {}), scene {}, self gate {}",
             a.trials,
             a.backend.name(),
             a.robot,
-            a.seed
+            a.seed,
+            a.scene.name(),
+            gate.map_or("off".to_string(), |g| format!("on ({g:?})"))
         );
     }
     let progress = |t: &Trial| {
@@ -151,8 +184,15 @@ pub fn describe(t: &Trial) -> String {
         ),
         (Some(m), _, false) => format!("{m}: MISSED ({})", t.failure.as_deref().unwrap_or("?")),
     };
+    let gate: Vec<String> = t
+        .gate
+        .iter()
+        .map(|g| format!("{} {:.3} {:?}", g.decision, g.gain_ratio.unwrap_or(f32::NAN), g.salient.map(|v| v.map(|v| v.round()))))
+        .collect();
+    let gate = if gate.is_empty() { String::new() } else { format!(" gate: {}", gate.join(", ")) };
+    let delay = t.delay_ms.map_or(String::new(), |d| format!(" (delay {d:.0} ms)"));
     format!(
-        "trial {:>3}: {what} [{:.1} s sim, {:.2} s wall]",
+        "trial {:>3}: {what}{delay}{gate} [{:.1} s sim, {:.2} s wall]",
         t.index, t.sim_s, t.wall_s
     )
 }
@@ -165,13 +205,19 @@ pub fn readable(s: &Summary) -> String {
         String::new()
     };
     format!(
-        "{} {} ({} servo bus): {} trials, touched {}/{} marked ({} %), false reaches {} ({} trials without a mark{early}), \
+        "{} {} ({} servo bus, scene {}): {} trials, {} reaches, self gate {} pass / {} reject / {} undecided, \
+         touched {}/{} marked ({} %), false reaches {} ({} trials without a mark{early}), \
          median touch error {} mm, median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, \
          watchdog trips {}; face link: goodput {:.0} B/s, {} chunks sent again, {} frames superseded",
         s.backend,
         s.robot,
         s.servo_bus,
+        s.scene,
         s.trials,
+        s.reaches,
+        s.gate_passes,
+        s.gate_rejects,
+        s.gate_undecided,
         s.touched,
         s.marked_trials,
         f(s.touch_rate.map(|r| 100.0 * r)),

@@ -25,13 +25,18 @@ pub struct Args {
     /// Print the report as JSON
     #[arg(long)]
     pub json: bool,
+    /// Leave out the self gate: a confirmed mark is reached at once, as the paper (by default
+    /// the blob carries a gate calibrated on the dataset's robot, see `train::self_gate`)
+    #[arg(long)]
+    pub no_self_gate: bool,
 }
 
 impl Args {
     /// The library's configuration for these flags.
     pub fn config(&self) -> QuantizeConfig {
         let mut c = QuantizeConfig::new(self.train.clone(), self.reach.clone(), self.out.clone())
-            .with_weights(self.weights);
+            .with_weights(self.weights)
+            .with_self_gate(!self.no_self_gate);
         c.threshold = self.threshold;
         c.data = self.data.clone();
         c

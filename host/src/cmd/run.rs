@@ -377,6 +377,10 @@ pub fn describe(m: &BoardToHost) -> String {
         BoardToHost::ServoBus(r) => format!("servo bus: {r:?}"),
         BoardToHost::FrameAck(a) => format!("frame {} round {}: {:?}", a.frame, a.round, a.state),
         BoardToHost::UploadAck { next } => format!("upload: the board wants byte {next} next"),
+        BoardToHost::SelfGate(g) => format!(
+            "self gate at frame {}: {:?}, gain ratio {:.3}, rest {:.2} px, frames {:?}, {} ms",
+            g.frame, g.decision, g.gain_ratio, g.rest_px, g.frames, g.elapsed_ms
+        ),
     }
 }
 

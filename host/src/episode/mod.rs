@@ -21,6 +21,7 @@
 //! While the arm is up the board pauses detection, so the PC sends frames only every
 //! [`ARM_UP_FRAME_PERIOD_US`] then, enough to keep the face watchdog (500 ms) fed.
 pub mod qemu;
+pub mod scene;
 pub mod sim_board;
 use crate::data::crop;
 use anyhow::{anyhow, Context, Result};
@@ -30,7 +31,9 @@ use msr_firmware::Board;
 use msr_shared::blob::Model;
 use msr_shared::deliver::{FaceLink, LinkStats};
 use msr_shared::host_port::HostPort;
-use msr_shared::msg::{BoardToHost, Config, Detection, HostToBoard, ServoBusKind, Status};
+use msr_shared::msg::{BoardToHost, Config, Detection, GateDecision, GateReport, HostToBoard, ServoBusKind, Status};
+pub use scene::Scene;
+use scene::SceneState;
 use msr_sim::body::BodyPose;
 use msr_sim::link::{FaultConfig, LinkEnd};
 use msr_sim::render::{Renderer, Variation};
@@ -114,6 +117,8 @@ pub enum FaultLinks {
 #[derive(Clone, Debug)]
 pub struct EpisodeConfig {
     pub robot: Robot,
+    /// What stands in front of the robot.
+    pub scene: Scene,
     /// The servo bus's protocol; the PC tells the board at the start of each trial.
     pub servo_bus: ServoBus,
     /// Keep the bytes the board sends on the servo bus (each trial's [`Trial::bus_bytes`]).
@@ -144,6 +149,7 @@ impl EpisodeConfig {
     pub fn new(robot: Robot) -> EpisodeConfig {
         EpisodeConfig {
             robot,
+            scene: Scene::Mirror,
             servo_bus: ServoBus::Framed,
             log_bus: false,
             no_mark_share: 0.2,
@@ -214,10 +220,53 @@ impl EpisodeConfig {
     }
 }
 
+/// One decision of the board's self gate, as the PC saw it.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct GateRecord {
+    /// Simulated time of the report, ms.
+    pub at_ms: f64,
+    /// `pass`, `reject` or `undecided: <why>`.
+    pub decision: String,
+    /// `null` when undecided before both probe poses (NaN on the wire).
+    pub gain_ratio: Option<f32>,
+    pub rest_px: Option<f32>,
+    /// Mean salient pixels at rest and at the two probe poses.
+    pub salient: [Option<f32>; 3],
+    pub frames: [u8; 2],
+    pub elapsed_ms: u16,
+}
+
+impl GateRecord {
+    pub fn of(at_us: u64, g: &GateReport) -> GateRecord {
+        let finite = |v: f32| v.is_finite().then_some(v);
+        GateRecord {
+            at_ms: at_us as f64 / 1000.0,
+            decision: match g.decision {
+                GateDecision::Pass => "pass".into(),
+                GateDecision::Reject => "reject".into(),
+                GateDecision::Undecided(w) => format!("undecided: {w:?}"),
+            },
+            gain_ratio: finite(g.gain_ratio),
+            rest_px: finite(g.rest_px),
+            salient: g.salient.map(finite),
+            frames: g.frames,
+            elapsed_ms: g.elapsed_ms,
+        }
+    }
+}
+
 /// One trial's outcome (`Default`: nothing happened yet).
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct Trial {
     pub index: usize,
+    /// The scene (`mirror`, `other`, `delayed`).
+    pub scene: String,
+    /// Delayed scene: the video delay.
+    pub delay_ms: Option<f64>,
+    /// Other scene: whether the other robot babbled its head (else it held still).
+    pub other_babbles: Option<bool>,
+    /// The self gate's decisions, in order (empty without a gate in the model).
+    pub gate: Vec<GateRecord>,
     /// The mark (kind, colour) when one was put on the face.
     pub mark: Option<String>,
     /// The trial was drawn to get a mark but ended (a false reach) before the mark appeared: it
@@ -259,7 +308,15 @@ pub struct Summary {
     pub backend: String,
     pub robot: String,
     pub servo_bus: String,
+    /// The scene of the trials.
+    pub scene: String,
     pub trials: usize,
+    /// Trials in which a reach started, marked or not.
+    pub reaches: usize,
+    /// The self gate's decisions over all trials.
+    pub gate_passes: usize,
+    pub gate_rejects: usize,
+    pub gate_undecided: usize,
     pub marked_trials: usize,
     pub touched: usize,
     /// Touched / marked trials; `null` when no trial had a mark.
@@ -295,6 +352,10 @@ pub fn median(mut v: Vec<f64>) -> Option<f64> {
     })
 }
 
+fn gate_count(trials: &[Trial], f: fn(&str) -> bool) -> usize {
+    trials.iter().flat_map(|t| &t.gate).filter(|g| f(&g.decision)).count()
+}
+
 pub fn summarise(backend: Backend, robot: Robot, bus: ServoBus, trials: &[Trial]) -> Summary {
     let marked: Vec<&Trial> = trials.iter().filter(|t| t.mark.is_some()).collect();
     let touched = marked.iter().filter(|t| t.touched).count();
@@ -303,7 +364,12 @@ pub fn summarise(backend: Backend, robot: Robot, bus: ServoBus, trials: &[Trial]
         backend: backend.name().into(),
         robot: robot.name().into(),
         servo_bus: bus.name().into(),
+        scene: trials.first().map_or("mirror".into(), |t| t.scene.clone()),
         trials: trials.len(),
+        reaches: trials.iter().filter(|t| t.reached).count(),
+        gate_passes: gate_count(trials, |d| d == "pass"),
+        gate_rejects: gate_count(trials, |d| d == "reject"),
+        gate_undecided: gate_count(trials, |d| d.starts_with("undecided")),
         marked_trials: marked.len(),
         touched,
         touch_rate: (!marked.is_empty()).then(|| touched as f64 / marked.len() as f64),
@@ -360,6 +426,23 @@ impl Camera<'_> {
         let face = self.cropper.crop(&grey)?;
         Ok((grey, face))
     }
+
+    /// As [`Camera::shoot`] with the camera at head angles `camera` and the body in view at
+    /// `seen` (another robot, or a delayed picture).
+    pub fn shoot_seen(
+        &self,
+        camera: [f64; 2],
+        seen: &BodyPose,
+        mark: Option<&msr_sim::marks::Mark>,
+        rng: &mut ChaCha8Rng,
+    ) -> Result<(GrayImage, crop::Face)> {
+        let var = Variation::random(rng);
+        let full = [0, 0, msr_sim::body::WIDTH, msr_sim::body::HEIGHT];
+        let r = self.renderer.render_seen(camera, seen, mark, &var, full);
+        let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb));
+        let face = self.cropper.crop(&grey)?;
+        Ok((grey, face))
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -384,6 +467,7 @@ struct Scenario<'a> {
     /// The mark alone, on a stream of its own, so that a noisy link (more or fewer frames shot
     /// before the mark) does not change which mark a seed draws.
     mark_rng: ChaCha8Rng,
+    scene: SceneState,
     port: HostPort,
     /// Face frames out, with selective repeat.
     faces: FaceLink,
@@ -411,6 +495,7 @@ impl Scenario<'_> {
 
     fn step(&mut self, w: &mut World) -> Result<Flow> {
         let now = w.now_us;
+        self.scene.step(now, &w.body_pose());
         if now == 0 {
             // The bus first: a board starts framed (its Dynamixel master then starts up).
             if self.cfg.servo_bus != ServoBus::Framed {
@@ -441,6 +526,7 @@ impl Scenario<'_> {
                     self.detections.push((now, d));
                 }
                 BoardToHost::Status(s) => self.status = Some(s),
+                BoardToHost::SelfGate(g) => self.trial.gate.push(GateRecord::of(now, &g)),
                 _ => {}
             }
         }
@@ -449,9 +535,14 @@ impl Scenario<'_> {
         }
         // The mark appears: choose one that shows, at the pose the head has now.
         if self.mark_on(now) && self.mark.is_none() {
+            // On the other robot's face in the other scene.
+            let on = match self.scene.scene {
+                Scene::Other => self.scene.view(now, &w.body_pose()).seen,
+                _ => w.body_pose(),
+            };
             let (m, _) = msr_sim::dataset::render_marked(
                 self.camera.renderer,
-                &w.body_pose(),
+                &on,
                 &Variation::CLEAN,
                 &mut self.mark_rng,
             );
@@ -472,14 +563,21 @@ impl Scenario<'_> {
             Some(t) => now.saturating_sub(t) >= FACE_MAX_AGE_PERIODS * period,
         };
         if now >= self.next_frame_us && ready {
-            let (_, face) = self
-                .camera
-                .shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng)?;
+            let (face, with_mark) = if self.scene.scene == Scene::Mirror {
+                let (_, face) = self.camera.shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng)?;
+                (face, self.mark.is_some())
+            } else {
+                let v = self.scene.view(now, &w.body_pose());
+                // A delayed picture shows the mark once it had appeared by then.
+                let mark = self.mark.as_ref().filter(|_| v.as_of_us >= self.cfg.mark_at_us);
+                let (_, face) = self.camera.shoot_seen(v.camera, &v.seen, mark, &mut self.rng)?;
+                (face, mark.is_some())
+            };
             let c = face.crop;
             let size = [c.width as u16, c.height as u16];
             self.faces.start([c.x as u16, c.y as u16], size, face.grey, now);
             self.trial.frames_sent += 1;
-            if self.mark.is_some() {
+            if with_mark {
                 self.frames_with_mark += 1;
             }
             self.next_frame_us = now + period;
@@ -556,6 +654,11 @@ impl Scenario<'_> {
 
     fn judge(&mut self) {
         let Some(m) = &self.mark else { return };
+        if self.scene.scene == Scene::Other {
+            // The mark is on the other robot: whatever the hand touched, it was the wrong face.
+            self.trial.failure = Some("other: reached for its own face; the mark is on the other robot".into());
+            return;
+        }
         let (touched, worst) = msr_sim::kin::judge_touch(&self.held, &m.point_head());
         self.trial.touched = touched;
         self.trial.touch_error_mm = Some(worst * 1000.0);
@@ -688,11 +791,16 @@ pub fn run_trial_with<F: world::Firmware>(
     let marked = !rng.gen_bool(cfg.no_mark_share.clamp(0.0, 1.0));
     let mut mark_rng = ChaCha8Rng::seed_from_u64(seed);
     mark_rng.set_stream(1);
+    let mut scene_rng = ChaCha8Rng::seed_from_u64(seed);
+    scene_rng.set_stream(2);
+    let scene = SceneState::new(cfg.scene, scene_rng);
+    let (delay_us, babbles) = (scene.delay_us, scene.babbles);
     let mut sc = Scenario {
         cfg,
         camera,
         rng,
         mark_rng,
+        scene,
         port: HostPort::default(),
         faces: FaceLink::new(FACE_ACK_TIMEOUT_US),
         last_reach_frame: None,
@@ -703,7 +811,13 @@ pub fn run_trial_with<F: world::Firmware>(
         stage: Stage::Watching,
         target: None,
         held: Vec::new(),
-        trial: Trial { index, ..Default::default() },
+        trial: Trial {
+            index,
+            scene: cfg.scene.name().into(),
+            delay_ms: (cfg.scene == Scene::Delayed).then(|| delay_us as f64 / 1000.0),
+            other_babbles: (cfg.scene == Scene::Other).then_some(babbles),
+            ..Default::default()
+        },
         error: None,
         status: None,
         detections: Vec::new(),

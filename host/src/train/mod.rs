@@ -31,6 +31,7 @@ pub mod plot;
 pub mod policy;
 pub mod calibrate;
 pub mod reach;
+pub mod self_gate;
 #[cfg(test)]
 pub(crate) mod synthetic;
 

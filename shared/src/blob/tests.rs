@@ -223,7 +223,8 @@ fn header_checks() {
     };
     assert_eq!(edit(0, b"MSRX"), Err(BlobError::BadMagic));
     assert_eq!(edit(4, &[0, 0]), Err(BlobError::UnsupportedVersion(0)));
-    assert_eq!(edit(4, &[5, 0]), Err(BlobError::UnsupportedVersion(5)));
+    assert_eq!(edit(4, &[6, 0]), Err(BlobError::UnsupportedVersion(6)));
+    assert_eq!(edit(4, &[5, 0]), Err(BlobError::BadHeader), "version 5 carries a self gate");
     // Versions 2 to 4 read version 1's layout too.
     assert!(edit(4, &[2, 0]).is_ok());
     assert!(edit(4, &[3, 0]).is_ok());
@@ -365,6 +366,7 @@ fn error_codes_are_distinct() {
         BlobError::Reach,
         BlobError::Template,
         BlobError::TrailingBytes,
+        BlobError::SelfGate,
     ];
     let mut codes: Vec<u32> = all.iter().map(|e| e.code()).collect();
     codes.sort();
@@ -621,4 +623,88 @@ fn pose_region_contains_the_disc_around_its_centre() {
     assert!(!g.contains([0.0075, -0.0175]));
     assert!(!g.contains([0.0, 0.001]));
     assert!(!g.contains([f32::NAN, -0.01]));
+}
+
+fn gate() -> SelfGate {
+    SelfGate {
+        amplitude: 0.07,
+        gain: -271.5,
+        gain_tol: 0.06,
+        rest_tol: 1.5,
+        latency_ms: 100,
+        timeout_ms: 2000,
+        min_frames: 2,
+    }
+}
+
+#[test]
+fn self_gate_section_is_literal_last_and_removable() {
+    for spec in [mlp_spec(), { let mut s = mlp_spec(); s.region = Some(region()); s }, conv_spec()] {
+        let plain = spec.to_bytes().unwrap();
+        let gated = set_self_gate(&plain, Some(gate())).unwrap();
+        assert_eq!(&gated[4..6], &[5, 0]);
+        let flags = u16::from_le_bytes([plain[22], plain[23]]);
+        assert_eq!(u16::from_le_bytes([gated[22], gated[23]]), flags | 8);
+        assert_eq!(gated.len(), plain.len() + SELF_GATE_LEN);
+        // Everything but the header's version, length, CRC and flags is unchanged.
+        assert_eq!(&gated[24..plain.len()], &plain[24..]);
+        let mut lit = Vec::new();
+        for f in [0.07f32, -271.5, 0.06, 1.5] {
+            lit.extend_from_slice(&f.to_le_bytes());
+        }
+        lit.extend_from_slice(&[100, 0, 0xD0, 0x07, 2, 0, 0, 0]);
+        assert_eq!(&gated[plain.len()..], &lit[..]);
+        let m = Model::parse(&gated).unwrap();
+        assert_eq!(m.self_gate, Some(gate()));
+        assert_eq!(m.region, spec.region);
+        // Taking it off gives back the writer's bytes exactly; replacing it is idempotent.
+        assert_eq!(set_self_gate(&gated, None).unwrap(), plain);
+        assert_eq!(set_self_gate(&plain, None).unwrap(), plain);
+        assert_eq!(set_self_gate(&gated, Some(gate())).unwrap(), gated);
+    }
+}
+
+#[test]
+fn self_gate_values_are_checked() {
+    let plain = mlp_spec().to_bytes().unwrap();
+    let gated = set_self_gate(&plain, Some(gate())).unwrap();
+    let at = plain.len();
+    let edit = |at_: usize, v: &[u8]| {
+        let mut b = gated.clone();
+        b[at_..at_ + v.len()].copy_from_slice(v);
+        recrc(&mut b);
+        Model::parse(&b).map(|m| m.self_gate)
+    };
+    assert_eq!(edit(at, &0.1f32.to_le_bytes()), Ok(Some(SelfGate { amplitude: 0.1, ..gate() })));
+    for (off, bad) in [
+        (0, f32::NAN),
+        (0, 0.0),
+        (0, 0.11),
+        (4, f32::INFINITY),
+        (4, 0.5),
+        (8, 0.0),
+        (8, 1.0),
+        (12, -1.0),
+        (12, 65.0),
+    ] {
+        assert_eq!(edit(at + off, &bad.to_le_bytes()), Err(BlobError::SelfGate), "{off} {bad}");
+    }
+    assert_eq!(edit(at + 16, &[0, 0]), Err(BlobError::SelfGate), "latency 0");
+    assert_eq!(edit(at + 18, &[99, 0]), Err(BlobError::SelfGate), "timeout under 100 ms");
+    assert_eq!(edit(at + 18, &[0xB9, 0x0B]), Err(BlobError::SelfGate), "timeout 3001 ms");
+    assert_eq!(edit(at + 20, &[0]), Err(BlobError::SelfGate), "no frames");
+    assert_eq!(edit(at + 20, &[9]), Err(BlobError::SelfGate), "9 frames");
+    assert_eq!(edit(at + 21, &[1]), Err(BlobError::BadHeader), "reserved");
+    // The flag needs version 5, and version 5 the flag.
+    assert_eq!(edit(4, &[4, 0]), Err(BlobError::BadHeader));
+    // Cut short inside the section.
+    let mut short = gated[..at + 10].to_vec();
+    let n = short.len() as u32;
+    short[8..12].copy_from_slice(&n.to_le_bytes());
+    recrc(&mut short);
+    assert_eq!(Model::parse(&short), Err(BlobError::Truncated));
+    for cut in at..gated.len() {
+        assert!(Model::parse(&gated[..cut]).is_err());
+    }
+    assert_eq!(set_self_gate(&plain, Some(SelfGate { min_frames: 0, ..gate() })), Err(BlobError::SelfGate));
 }

@@ -1,0 +1,297 @@
+//! The self gate: is the face in view the robot's own mirror image?
+//!
+//! Contingency, as in developmental psychology: my image moves when and as I move. Before a
+//! confirmed mark may start a reach, the head turns by `+amplitude` in yaw, then `-amplitude`
+//! (from the resting yaw), and at each probe pose, once the servos report it settled and the
+//! robot's own latency has passed, the face crop's x offset (every frame header carries it)
+//! is averaged over `min_frames` frames. Then
+//!
+//! - `gain_ratio = ((x+ - x-) / (yaw+ - yaw-)) / gain`, against the gain of the robot's own
+//!   mirror image (calibrated from rendered frames and stored in the model blob): in a mirror
+//!   the face and the camera turn together, so the face shifts by the camera's turn alone;
+//!   anything else (another robot, a still picture) shifts by a different amount, and a
+//!   delayed picture shows the probe's poses late, so not at all or backwards;
+//! - `rest_px`: the resting face (frames before the probe) must lie on the probe's line.
+//!
+//! Pass when `|gain_ratio - 1| <= gain_tol`, `rest_px <= rest_tol` and the face's y offset
+//! stays within `rest_tol` of its rest at both poses (a yaw probe does not move the own image
+//! up or down; a robot babbling its head does), and the x offset holds within a pixel over the
+//! resting frames and over each pose's frames (the head holds still then; so does its image). A probe starts only after the head has rested
+//! [`REST_BEFORE_PROBE_US`] since the last one: a delayed picture of the last probe must not
+//! replay in step with the next. Anything that stops the
+//! test (no frames, silent servos, a head that does not get there, the timeout) is undecided,
+//! and undecided never reaches. Memory: a few floats, fixed.
+
+use msr_shared::blob::SelfGate;
+use msr_shared::msg::{GateDecision, GateReport, GateUndecided};
+
+/// Resting frames kept (the latest, before a probe).
+pub const REST_FRAMES: usize = 3;
+
+/// What the board does next.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Step {
+    /// Keep going.
+    Wait,
+    /// Move the head to `[yaw, pitch]`.
+    Head([f32; 2]),
+    /// Decided: report it; reach `target` only when it passed.
+    Done(GateReport, Option<[f32; 5]>),
+}
+
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+struct Acc {
+    x: f32,
+    /// Range of x over the frames (the face must hold still while the head does).
+    x_min: f32,
+    x_max: f32,
+    y: f32,
+    yaw: f32,
+    salient: f32,
+    n: u8,
+}
+
+impl Acc {
+    fn push(&mut self, x: f32, y: f32, yaw: f32, salient: u32) {
+        if self.n == 0 {
+            (self.x_min, self.x_max) = (x, x);
+        }
+        self.x_min = self.x_min.min(x);
+        self.x_max = self.x_max.max(x);
+        self.x += x;
+        self.y += y;
+        self.yaw += yaw;
+        self.salient += salient as f32;
+        self.n = self.n.saturating_add(1);
+    }
+    fn mean(&self) -> (f32, f32) {
+        let n = self.n.max(1) as f32;
+        (self.x / n, self.yaw / n)
+    }
+    fn y(&self) -> f32 {
+        self.y / self.n.max(1) as f32
+    }
+    fn salient(&self) -> f32 {
+        self.salient / self.n.max(1) as f32
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct Probe {
+    started_us: u64,
+    target: [f32; 5],
+    /// Resting crop x, yaw and salient pixels.
+    rest: (f32, f32, f32),
+    /// Resting crop y, and the range of the resting crop x.
+    rest_y: f32,
+    rest_spread: f32,
+    pitch: f32,
+    /// 0: the `+amplitude` pose, 1: the `-amplitude` pose.
+    stage: usize,
+    settled_since: Option<u64>,
+    acc: [Acc; 2],
+    last_frame: u16,
+}
+
+/// The gate of one model.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Gate {
+    p: SelfGate,
+    /// Latest resting frames: (crop x, yaw, salient pixels), newest last, and their crop y.
+    rest: [(f32, f32, f32); REST_FRAMES],
+    rest_y: [f32; REST_FRAMES],
+    /// When the last probe ended.
+    last_end_us: Option<u64>,
+    rest_n: usize,
+    probe: Option<Probe>,
+}
+
+impl Gate {
+    pub const fn new(p: SelfGate) -> Gate {
+        Gate { p, rest: [(0.0, 0.0, 0.0); REST_FRAMES], rest_y: [0.0; REST_FRAMES], last_end_us: None, rest_n: 0, probe: None }
+    }
+
+    pub fn params(&self) -> &SelfGate {
+        &self.p
+    }
+
+    pub fn probing(&self) -> bool {
+        self.probe.is_some()
+    }
+
+    /// A frame while observing (head at rest): kept as the resting face. `salient`: the
+    /// frame's salient pixels (reported with the decision, for calibration).
+    pub fn observe(&mut self, crop: [u16; 2], yaw: f32, salient: u32) {
+        self.rest.copy_within(1.., 0);
+        self.rest_y.copy_within(1.., 0);
+        self.rest[REST_FRAMES - 1] = (crop[0] as f32, yaw, salient as f32);
+        self.rest_y[REST_FRAMES - 1] = crop[1] as f32;
+        self.rest_n = (self.rest_n + 1).min(REST_FRAMES);
+    }
+
+    /// Forgets the resting frames (the head moved, the model changed).
+    pub fn clear(&mut self) {
+        self.rest_n = 0;
+        self.probe = None;
+    }
+
+    fn goal(&self, pr: &Probe) -> [f32; 2] {
+        let a = if pr.stage == 0 { self.p.amplitude } else { -self.p.amplitude };
+        [pr.rest.1 + a, pr.pitch]
+    }
+
+    /// A mark was confirmed at `now_us` with the head at `[yaw, pitch]`: the probe starts
+    /// (`Wait`: not yet, the head has not rested long enough since the last probe; confirm
+    /// again later). The reach `target` waits for the decision.
+    pub fn start(&mut self, now_us: u64, frame: u16, head: [f32; 2], target: [f32; 5]) -> Step {
+        if self.last_end_us.is_some_and(|t| now_us < t.saturating_add(REST_BEFORE_PROBE_US)) {
+            return Step::Wait;
+        }
+        if self.rest_n == 0 {
+            return self.undecided_at(now_us, now_us, frame, GateUndecided::FaceLost);
+        }
+        let rest = &self.rest[REST_FRAMES - self.rest_n..];
+        let n = rest.len() as f32;
+        let x = rest.iter().map(|r| r.0).sum::<f32>() / n;
+        let sal = rest.iter().map(|r| r.2).sum::<f32>() / n;
+        let rest_y = self.rest_y[REST_FRAMES - self.rest_n..].iter().sum::<f32>() / n;
+        let (lo, hi) = rest.iter().fold((f32::MAX, f32::MIN), |(l, h), r| (l.min(r.0), h.max(r.0)));
+        let pr = Probe {
+            started_us: now_us,
+            target,
+            rest: (x, head[0], sal),
+            rest_y,
+            rest_spread: hi - lo,
+            pitch: head[1],
+            stage: 0,
+            settled_since: None,
+            acc: [Acc::default(); 2],
+            last_frame: frame,
+        };
+        let g = self.goal(&pr);
+        self.probe = Some(pr);
+        self.rest_n = 0;
+        Step::Head(g)
+    }
+
+    /// The servos reported the head's yaw (every control period).
+    pub fn on_servo(&mut self, now_us: u64, yaw: f32) {
+        let Some(pr) = self.probe else { return };
+        let g = self.goal(&pr);
+        let near = (yaw - g[0]).abs() <= SETTLE_SHARE * self.p.amplitude;
+        if let Some(pr) = self.probe.as_mut() {
+            pr.settled_since = match (near, pr.settled_since) {
+                (true, Some(t)) => Some(t),
+                (true, None) => Some(now_us),
+                (false, _) => None,
+            };
+        }
+    }
+
+    /// A face frame arrived during the probe, with the head's reported yaw.
+    pub fn on_frame(&mut self, now_us: u64, frame: u16, crop: [u16; 2], yaw: f32, salient: u32) -> Step {
+        let latency = self.p.latency_ms as u64 * 1000;
+        let min = self.p.min_frames;
+        let Some(pr) = self.probe.as_mut() else { return Step::Wait };
+        pr.last_frame = frame;
+        let Some(since) = pr.settled_since else { return Step::Wait };
+        if now_us < since.saturating_add(latency) {
+            return Step::Wait;
+        }
+        pr.acc[pr.stage].push(crop[0] as f32, crop[1] as f32, yaw, salient);
+        if pr.acc[pr.stage].n < min {
+            return Step::Wait;
+        }
+        if pr.stage == 0 {
+            pr.stage = 1;
+            pr.settled_since = None;
+            let pr = *pr;
+            return Step::Head(self.goal(&pr));
+        }
+        let pr = *pr;
+        self.probe = None;
+        self.last_end_us = Some(now_us);
+        self.decide(now_us, &pr)
+    }
+
+    /// The timeout; call every period while probing.
+    pub fn poll(&mut self, now_us: u64) -> Step {
+        let Some(pr) = self.probe else { return Step::Wait };
+        if now_us.saturating_sub(pr.started_us) < self.p.timeout_ms as u64 * 1000 {
+            return Step::Wait;
+        }
+        // Never settled at the pose asked for: the head, not the picture, is at fault.
+        let why = if pr.settled_since.is_none() { GateUndecided::HeadStuck } else { GateUndecided::Timeout };
+        self.abort(now_us, why)
+    }
+
+    /// The probe cannot go on (a watchdog, a bus fault): undecided.
+    pub fn abort(&mut self, now_us: u64, why: GateUndecided) -> Step {
+        match self.probe.take() {
+            Some(pr) => {
+                self.last_end_us = Some(now_us);
+                self.undecided_at(pr.started_us, now_us, pr.last_frame, why)
+            }
+            None => Step::Wait,
+        }
+    }
+
+    fn undecided_at(&self, started_us: u64, now_us: u64, frame: u16, why: GateUndecided) -> Step {
+        Step::Done(
+            GateReport {
+                frame,
+                decision: GateDecision::Undecided(why),
+                gain_ratio: f32::NAN,
+                rest_px: f32::NAN,
+                salient: [f32::NAN; 3],
+                frames: [0; 2],
+                elapsed_ms: elapsed_ms(started_us, now_us),
+            },
+            None,
+        )
+    }
+
+    fn decide(&self, now_us: u64, pr: &Probe) -> Step {
+        let ((xp, yp), (xm, ym)) = (pr.acc[0].mean(), pr.acc[1].mean());
+        let dy = yp - ym;
+        let mut report = GateReport {
+            frame: pr.last_frame,
+            decision: GateDecision::Undecided(GateUndecided::HeadStuck),
+            gain_ratio: f32::NAN,
+            rest_px: f32::NAN,
+            salient: [pr.rest.2, pr.acc[0].salient(), pr.acc[1].salient()],
+            frames: [pr.acc[0].n, pr.acc[1].n],
+            elapsed_ms: elapsed_ms(pr.started_us, now_us),
+        };
+        // The reported poses must span most of the probe, or the ratio means nothing.
+        if !(dy.is_finite() && dy >= self.p.amplitude) {
+            return Step::Done(report, None);
+        }
+        let gain = (xp - xm) / dy;
+        let ratio = gain / self.p.gain;
+        let line = (xp + xm) / 2.0 + gain * (pr.rest.1 - (yp + ym) / 2.0);
+        let rest_px = (pr.rest.0 - line).abs();
+        report.gain_ratio = ratio;
+        report.rest_px = rest_px;
+        // Still at rest and at each pose (within rounding), and level during a yaw probe.
+        let steady = pr.rest_spread <= 1.0 && pr.acc.iter().all(|a| a.x_max - a.x_min <= 1.0);
+        let level = steady && pr.acc.iter().all(|a| (a.y() - pr.rest_y).abs() <= self.p.rest_tol);
+        let pass = (ratio - 1.0).abs() <= self.p.gain_tol && rest_px <= self.p.rest_tol && level;
+        report.decision = if pass { GateDecision::Pass } else { GateDecision::Reject };
+        Step::Done(report, pass.then_some(pr.target))
+    }
+}
+
+/// Least rest of the head between two probes: longer than the longest video delay the gate
+/// must refuse (2 s), so that a delayed picture shows the head still when the next probe starts.
+pub const REST_BEFORE_PROBE_US: u64 = 2_500_000;
+
+/// The head is at a probe pose when its reported yaw is this share of the amplitude from it.
+pub const SETTLE_SHARE: f32 = 0.15;
+
+fn elapsed_ms(from_us: u64, to_us: u64) -> u16 {
+    (to_us.saturating_sub(from_us) / 1000).min(u16::MAX as u64) as u16
+}
+
+#[cfg(test)]
+mod tests;

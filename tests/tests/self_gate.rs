@@ -1,0 +1,82 @@
+//! The self gate in-process, in the three scenes: the robot's own mirror image, another robot
+//! of the same look with the mark on its face, and the mirror image through a video delay.
+//! Few trials (CI has two cores); the 200-trial figures are in the README.
+mod common;
+
+use msr_host::episode::{self, Backend, EpisodeConfig, Scene, Summary, Trial};
+use msr_host::train::self_gate::{attach, detach, GateCalibration};
+use msr_sim::Robot;
+
+fn gated(robot: Robot) -> (Vec<u8>, Vec<u8>) {
+    let plain = common::trained_model(robot);
+    let (gated, _) = attach(&plain, robot, &GateCalibration::default()).unwrap();
+    (plain, gated)
+}
+
+fn run(blob: &[u8], scene: Scene, n: usize, seed: u64) -> (Summary, Vec<Trial>) {
+    let mut cfg = EpisodeConfig::new(Robot::Red);
+    cfg.no_mark_share = 0.0;
+    cfg.scene = scene;
+    cfg.parallel = 2;
+    let trials = episode::run_inproc(blob, &cfg, n, seed, &|t| {
+        eprintln!("{}", msr_host::cmd::mirror_test::describe(t))
+    })
+    .unwrap();
+    let s = episode::summarise(Backend::Inproc, Robot::Red, cfg.servo_bus, &trials);
+    eprintln!("{}", msr_host::cmd::mirror_test::readable(&s));
+    (s, trials)
+}
+
+#[test]
+fn switching_the_gate_off_gives_back_the_models_bytes() {
+    let (plain, gated) = gated(Robot::Red);
+    assert_ne!(plain, gated);
+    assert_eq!(detach(&gated).unwrap(), plain);
+    let g = msr_shared::blob::Model::parse(&gated).unwrap().self_gate.unwrap();
+    // The own image's crop moves against the yaw by about the camera's focal length per radian.
+    assert!((250.0..350.0).contains(&g.gain.abs()), "{g:?}");
+}
+
+#[test]
+fn the_own_mirror_image_passes_and_is_touched_as_without_the_gate() {
+    let (plain, gated) = gated(Robot::Red);
+    let (off, _) = run(&plain, Scene::Mirror, 4, 11);
+    let (on, trials) = run(&gated, Scene::Mirror, 4, 11);
+    assert_eq!(on.scene, "mirror");
+    assert_eq!(on.touched, off.touched, "{trials:#?}");
+    assert!(on.touched >= 3);
+    for t in trials.iter().filter(|t| t.reached) {
+        assert_eq!(t.gate.last().map(|g| g.decision.as_str()), Some("pass"), "{t:#?}");
+    }
+    let (a, b) = (off.latency_ms_median.unwrap(), on.latency_ms_median.unwrap());
+    assert!(b > a && b <= a + 1000.0, "latency {a} ms without the gate, {b} ms with it");
+}
+
+#[test]
+fn a_delayed_picture_is_never_reached_for() {
+    let (plain, gated) = gated(Robot::Red);
+    let (on, trials) = run(&gated, Scene::Delayed, 4, 5);
+    assert_eq!(on.reaches, 0, "{trials:#?}");
+    assert!(on.gate_rejects >= 1);
+    for t in &trials {
+        assert!((300.0..=2000.0).contains(&t.delay_ms.unwrap()));
+        assert!(t.gate.iter().all(|g| g.decision != "pass"), "{t:#?}");
+    }
+    // Without the gate the same picture's marks are reached for.
+    let (off, _) = run(&plain, Scene::Delayed, 4, 5);
+    assert!(off.reaches >= 1, "{off:?}");
+}
+
+#[test]
+fn another_robot_that_holds_still_is_not_reached_for() {
+    let (plain, gated) = gated(Robot::Red);
+    let (off, _) = run(&plain, Scene::Other, 6, 0);
+    let (on, trials) = run(&gated, Scene::Other, 6, 0);
+    assert_eq!(on.scene, "other");
+    assert!(off.reaches >= 1, "without the gate it reaches for the other's mark: {off:?}");
+    for t in trials.iter().filter(|t| t.other_babbles == Some(false)) {
+        assert!(!t.reached, "{t:#?}");
+        assert!(!t.touched);
+    }
+    assert!(trials.iter().any(|t| t.other_babbles == Some(false) && !t.gate.is_empty()));
+}
