@@ -8,7 +8,7 @@
 //!   8  total_len u32         12  crc32 u32 (CRC-32/ISO-HDLC of bytes 16..total_len)
 //!  16  face_h u16            18  face_w u16        20  n_layers u16    22  flags u16 (see below)
 //!  24  threshold f32         28  normalisation u8  29  sided u8        30  min_area u16
-//!  32  sigma_floor f32       36  merge_margin u8      37  reserved u8 (0) 38  merge_fragment u16
+//!  32  sigma_floor f32       36  merge_margin u8      37  pool u8 (flags bit 4; else 0) 38  merge_fragment u16
 //! n_layers x layer:
 //!   descriptor (LAYER_DESC_LEN = 32 bytes)
 //!     0 kind u8  1 activation u8  2 weight dtype u8  3 weight order u8 (0 PyTorch, 1 blocked)
@@ -51,6 +51,10 @@
 //! never crops: the template and the crop mode tell the host how to make the crops it sends.
 //! Bit 2 (version 4): a [`PoseRegion`], novelty settings of their own for head poses near one
 //! pose (the observe posture). The writer uses version 4 only for a blob with bit 1 or 2.
+//! Bit 4 (version 5): the error is pooled before its statistics and the threshold, `e = |mean
+//! of 255 (I - I_hat) over the (2 pool + 1)^2 window|` (clipped at the face's border), with
+//! `pool` (1..=[`MAX_POOL`]) in header byte 37; the blob's mu and sigma are of that error.
+//! The writer uses version 5 only for a blob that pools.
 //!
 //! Fragment merge (version 3; bytes 36..40 are zero before): `merge_margin` 0 is the paper's
 //! blob stage. Otherwise 8-connected components of at least `merge_fragment` pixels whose
@@ -66,8 +70,11 @@ use serde::{Deserialize, Serialize};
 
 pub const MAGIC: [u8; 4] = *b"MSRM";
 /// The newest version this build reads and writes (version 1 has no weight order byte,
-/// versions 1 and 2 no fragment merge, versions 1 to 3 no sub-pixel crop flag or pose region).
-pub const VERSION: u16 = 4;
+/// versions 1 and 2 no fragment merge, versions 1 to 3 no sub-pixel crop flag or pose region,
+/// versions 1 to 4 no error pooling).
+pub const VERSION: u16 = 5;
+/// Largest [`Novelty::pool`] radius: a 7 x 7 window.
+pub const MAX_POOL: u8 = 3;
 /// Largest [`Merge::margin`].
 pub const MAX_MERGE_MARGIN: u8 = 16;
 /// Inputs per block of the blocked weight order.
@@ -94,6 +101,8 @@ pub const REACH_FLOATS: usize = REACH_HIDDEN * REACH_IN
 const FLAG_TEMPLATE: u16 = 1;
 const FLAG_SUBPIXEL: u16 = 2;
 const FLAG_REGION: u16 = 4;
+/// Bit 3 is left to another version-5 field.
+const FLAG_POOL: u16 = 16;
 /// Largest [`PoseRegion::radius`], radians.
 pub const MAX_REGION_RADIUS: f32 = 0.5;
 
@@ -315,6 +324,9 @@ pub struct Novelty {
     /// The floor applied to sigma when the statistics were made (grey levels), for reference.
     pub sigma_floor: f32,
     pub merge: Merge,
+    /// Radius of the window the signed error is averaged over before its magnitude is taken
+    /// (flag bit 4); 0: per pixel, the paper's error.
+    pub pool: u8,
 }
 
 /// Merging of nearby components before the minimum-area test (a deviation from the paper, for
@@ -700,9 +712,10 @@ impl<'a> Model<'a> {
             return Err(BlobError::TooManyLayers);
         }
         let flags = r.u16()?;
-        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION) != 0
+        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION | FLAG_POOL) != 0
             || (flags & FLAG_SUBPIXEL != 0 && (version < 4 || flags & FLAG_TEMPLATE == 0))
             || (flags & FLAG_REGION != 0 && version < 4)
+            || (flags & FLAG_POOL != 0 && version < 5)
         {
             return Err(BlobError::BadHeader);
         }
@@ -726,10 +739,13 @@ impl<'a> Model<'a> {
             return Err(BlobError::Novelty);
         }
         let merge_margin = r.u8()?;
-        let reserved = r.u8()?;
+        let pool = r.u8()?;
         let merge = Merge { margin: merge_margin, fragment: r.u16()? };
-        if reserved != 0 || (version < 3 && merge != Merge::OFF) {
+        if (flags & FLAG_POOL == 0 && pool != 0) || (version < 3 && merge != Merge::OFF) {
             return Err(BlobError::BadHeader);
+        }
+        if flags & FLAG_POOL != 0 && !(1..=MAX_POOL).contains(&pool) {
+            return Err(BlobError::Novelty);
         }
         if !merge.is_valid(min_area) {
             return Err(BlobError::Novelty);
@@ -814,7 +830,7 @@ impl<'a> Model<'a> {
         Ok(Model {
             face_h,
             face_w,
-            novelty: Novelty { threshold, normalisation, sided, min_area, sigma_floor, merge },
+            novelty: Novelty { threshold, normalisation, sided, min_area, sigma_floor, merge, pool },
             layers,
             mu,
             sigma,
@@ -1024,7 +1040,12 @@ mod writer {
             if subpixel && self.template.is_none() {
                 return Err(BlobError::Template);
             }
-            let version: u16 = if subpixel || self.region.is_some() {
+            if self.novelty.pool > MAX_POOL {
+                return Err(BlobError::Novelty);
+            }
+            let version: u16 = if self.novelty.pool > 0 {
+                5
+            } else if subpixel || self.region.is_some() {
                 4
             } else if self.novelty.merge.is_on() {
                 3
@@ -1048,6 +1069,9 @@ mod writer {
             if self.region.is_some() {
                 flags |= FLAG_REGION;
             }
+            if self.novelty.pool > 0 {
+                flags |= FLAG_POOL;
+            }
             o.extend_from_slice(&flags.to_le_bytes());
             let n = &self.novelty;
             o.extend_from_slice(&n.threshold.to_le_bytes());
@@ -1062,7 +1086,7 @@ mod writer {
             o.extend_from_slice(&n.min_area.to_le_bytes());
             o.extend_from_slice(&n.sigma_floor.to_le_bytes());
             o.push(n.merge.margin);
-            o.push(0);
+            o.push(n.pool);
             o.extend_from_slice(&n.merge.fragment.to_le_bytes());
             debug_assert_eq!(o.len(), HEADER_LEN);
 

@@ -26,7 +26,7 @@ fn conv_model(robot: Robot) -> Vec<u8> {
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("../target"))
         .join("msr-tests");
-    let key = format!("{}-conv-f400-e20-subpixel-v2", robot.name());
+    let key = format!("{}-conv-f400-e20-subpixel-pool{}-v3", robot.name(), msr_host::train::calibrate::DEFAULT_POOL);
     let path = dir.join(format!("{key}.msrm"));
     if let Ok(b) = std::fs::read(&path) {
         if msr_shared::blob::Model::parse(&b).is_ok() {
@@ -44,6 +44,8 @@ fn conv_model(robot: Robot) -> Vec<u8> {
         data,
         model: ModelKind::Decoder,
         arch: msr_host::models::ArchKind::Conv,
+        conv_hidden: None,
+        conv_channels: None,
         crop: msr_host::data::crop::CropMode::Subpixel,
         out: models.clone(),
         epochs: 20,
@@ -58,6 +60,7 @@ fn conv_model(robot: Robot) -> Vec<u8> {
         threshold: msr_host::train::calibrate::DEFAULT_THRESHOLD,
         threshold_percentile: None,
         min_area: msr_host::train::calibrate::DEFAULT_MIN_AREA,
+        pool: msr_host::train::calibrate::DEFAULT_POOL,
         device: DeviceArg::Cpu,
         quiet: true,
     })

@@ -75,6 +75,8 @@ fn train_args(data: &Path, out: &Path, model: ModelKind, a: &Args) -> train::Arg
         data: data.to_path_buf(),
         model,
         arch: ArchKind::Conv,
+        conv_hidden: None,
+        conv_channels: None,
         crop: a.crop,
         out: out.to_path_buf(),
         epochs: a.epochs,
@@ -89,6 +91,7 @@ fn train_args(data: &Path, out: &Path, model: ModelKind, a: &Args) -> train::Arg
         threshold: crate::train::calibrate::DEFAULT_THRESHOLD,
         threshold_percentile: None,
         min_area: crate::train::calibrate::DEFAULT_MIN_AREA,
+        pool: crate::train::calibrate::DEFAULT_POOL,
         device: DeviceArg::Cpu,
         quiet: true,
     }

@@ -28,7 +28,7 @@ static LOCK: Mutex<()> = Mutex::new(());
 /// The blob of a small model trained on sim frames of `robot`.
 pub fn trained_model(robot: Robot) -> Vec<u8> {
     let _g = LOCK.lock().unwrap_or_else(|e| e.into_inner());
-    let key = format!("{}-f{TRAIN_FRAMES}-e{TRAIN_EPOCHS}-subpixel-v2", robot.name());
+    let key = format!("{}-f{TRAIN_FRAMES}-e{TRAIN_EPOCHS}-subpixel-pool{}-v3", robot.name(), msr_host::train::calibrate::DEFAULT_POOL);
     let dir = cache_dir();
     let path = dir.join(format!("{key}.msrm"));
     if let Ok(b) = std::fs::read(&path) {
@@ -47,6 +47,8 @@ pub fn trained_model(robot: Robot) -> Vec<u8> {
         data: data.clone(),
         model: ModelKind::Decoder,
         arch: msr_host::models::ArchKind::Mlp,
+        conv_hidden: None,
+        conv_channels: None,
         crop: msr_host::data::crop::CropMode::Subpixel,
         out: models.clone(),
         epochs: TRAIN_EPOCHS,
@@ -61,6 +63,7 @@ pub fn trained_model(robot: Robot) -> Vec<u8> {
         threshold: msr_host::train::calibrate::DEFAULT_THRESHOLD,
         threshold_percentile: None,
         min_area: msr_host::train::calibrate::DEFAULT_MIN_AREA,
+        pool: msr_host::train::calibrate::DEFAULT_POOL,
         device: DeviceArg::Cpu,
         quiet: true,
     })
