@@ -162,8 +162,9 @@ pub fn saliency(
 /// [`saliency`] on the pooled error (the blob's flag bit 4): `e = |mean of (I << 8) - pred over
 /// the (2 pool + 1)^2 window, clipped at the border|`, Q8.8, the mean truncated toward zero.
 /// `w` is the face's width; the rows are `frame.len() / w`. Running column sums (one row in,
-/// one out per row) and a running window sum along the row: a few additions per pixel and one
-/// division, whatever the radius, and no buffer but the column sums.
+/// one out per row) and a running window sum along the row: a few additions per pixel whatever
+/// the radius, no buffer but the column sums, and no division: `floor(|s| / n) > k` is tested
+/// as `|s| >= (k + 1) n`. Slices are taken with `get`, so nothing here can panic.
 #[allow(clippy::too_many_arguments)]
 pub fn pooled(
     frame: &[u8],
@@ -175,51 +176,95 @@ pub fn pooled(
     w: usize,
     pool: u8,
 ) -> u32 {
-    let r = pool as usize;
+    match bytemuck::try_cast_slice::<u8, u16>(mu.0) {
+        Ok(mu) => pooled_run(frame, pred, mu, tn, sided, mask, w, pool as usize),
+        Err(_) => 0,
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn pooled_run(
+    frame: &[u8],
+    pred: &[u16],
+    mu: &[u16],
+    tn: &[u16],
+    sided: Sided,
+    mask: &mut [u8],
+    w: usize,
+    r: usize,
+) -> u32 {
     if w == 0 || w > MAX_FACE_W {
         return 0;
     }
     let n = frame.len().min(pred.len()).min(tn.len()).min(mask.len()).min(mu.len());
     let h = n / w;
-    let res = |i: usize| ((frame[i] as i32) << 8) - pred[i] as i32;
-    let mut col = [0i32; MAX_FACE_W];
-    // Rows 0..=r-1 are in the column sums before row 0's turn adds row r.
-    for y in 0..r.min(h) {
-        for (x, c) in col[..w].iter_mut().enumerate() {
-            *c += res(y * w + x);
+    // Columns past `w` stay 0, so the window sum may read them.
+    let mut col = [0i32; MAX_FACE_W + 8];
+    let add_row = |col: &mut [i32], y: usize, add: bool| {
+        if let (Some(f), Some(p)) = (frame.get(y * w..y * w + w), pred.get(y * w..y * w + w)) {
+            let rs = col.iter_mut().zip(f).zip(p);
+            if add {
+                rs.for_each(|((c, &f), &p)| *c += ((f as i32) << 8) - p as i32);
+            } else {
+                rs.for_each(|((c, &f), &p)| *c -= ((f as i32) << 8) - p as i32);
+            }
         }
+    };
+    for y in 0..r.min(h) {
+        add_row(&mut col, y, true);
+    }
+    // Window widths along a row.
+    let mut cols = [0u8; MAX_FACE_W];
+    for (x, c) in cols.iter_mut().enumerate().take(w) {
+        *c = ((x + r).min(w - 1) + 1 - x.saturating_sub(r)) as u8;
     }
     let mut count = 0u32;
     for y in 0..h {
         if y + r < h {
-            for (x, c) in col[..w].iter_mut().enumerate() {
-                *c += res((y + r) * w + x);
-            }
+            add_row(&mut col, y + r, true);
         }
         if y > r {
-            for (x, c) in col[..w].iter_mut().enumerate() {
-                *c -= res((y - r - 1) * w + x);
-            }
+            add_row(&mut col, y - r - 1, false);
         }
-        let rows = (y + r).min(h - 1) + 1 - y.saturating_sub(r);
-        let mut sum: i32 = col[..r.min(w)].iter().sum();
-        for x in 0..w {
-            if x + r < w {
-                sum += col[x + r];
-            }
+        let rows = ((y + r).min(h - 1) + 1 - y.saturating_sub(r)) as u32;
+        let (Some(m_row), Some(mu_row), Some(tn_row)) = (
+            mask.get_mut(y * w..y * w + w),
+            mu.get(y * w..y * w + w),
+            tn.get(y * w..y * w + w),
+        ) else {
+            break;
+        };
+        let mut sum: i32 = col.iter().take(r).sum();
+        let px = m_row.iter_mut().zip(mu_row).zip(tn_row).zip(&cols);
+        // In u32: |sum| <= 49 x 65280 and (mu + t + 1) x 49 < 2^23.
+        let mut step = |x: usize| {
+            sum += col.get(x + r).copied().unwrap_or(0);
             if x > r {
-                sum -= col[x - r - 1];
+                sum -= col.get(x - r - 1).copied().unwrap_or(0);
             }
-            let cols = (x + r).min(w - 1) + 1 - x.saturating_sub(r);
-            let e = (sum / (rows * cols) as i32).abs();
-            let i = y * w + x;
-            let d = e - mu.get(i) as i32;
-            let s = match sided {
-                Sided::One => (d > tn[i] as i32) as u8,
-                Sided::Two => (d.abs() > tn[i] as i32) as u8,
-            };
-            mask[i] = s;
-            count += s as u32;
+            sum.unsigned_abs()
+        };
+        match sided {
+            Sided::One => {
+                for (x, (((out, &m), &t), &c)) in px.enumerate() {
+                    let (a, k) = (step(x), rows * c as u32);
+                    // floor(a / k) - mu > t  <=>  a >= (mu + t + 1) k
+                    let s = (a >= (m as u32 + t as u32 + 1) * k) as u8;
+                    *out = s;
+                    count += s as u32;
+                }
+            }
+            Sided::Two => {
+                for (x, (((out, &m), &t), &c)) in px.enumerate() {
+                    let (a, k) = (step(x), rows * c as u32);
+                    // |floor(a / k) - mu| > t: above mu + t, or below mu - t.
+                    let above = a >= (m as u32 + t as u32 + 1) * k;
+                    let below = m > t && a < (m as u32 - t as u32) * k;
+                    let s = (above || below) as u8;
+                    *out = s;
+                    count += s as u32;
+                }
+            }
         }
     }
     count

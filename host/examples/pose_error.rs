@@ -250,6 +250,18 @@ fn main() -> Result<()> {
             .filter(|(s, _)| s.mark.is_some())
             .map(|(_, r)| calibrate::detection_score(&calibrate::saliency(&abs_box(r), &st, &p), h, w, p.min_area))
             .collect();
+        // Hit rate and false alarms against the threshold (the global statistics).
+        let sals: Vec<Vec<f64>> = r_test.iter().map(|r| calibrate::saliency(&abs_box(r), &st, &p)).collect();
+        let mut line = String::from("  threshold: hit rate / false alarms:");
+        for t in [4.59, 5.0, 5.5, 6.0, 6.5, 7.0, 7.5, 8.0] {
+            let q = NoveltyParams { threshold: t, ..p };
+            let mut tt = Tally::default();
+            for (s, sal) in test.iter().zip(&sals) {
+                outcome(s, sal, w, h, &q, &mut tt);
+            }
+            line += &format!(" {t}: {:.3}/{}", tt.hit as f64 / (tt.hit + tt.none + tt.wrong) as f64, tt.alarms);
+        }
+        println!("{line}");
         scores.sort_by(f64::total_cmp);
         println!("  marked frames' detection scores: 5th percentile {:.2}, median {:.2}", scores[scores.len() / 20], scores[scores.len() / 2]);
         // Pooled, with the K nearest training poses' statistics.
