@@ -114,14 +114,11 @@ impl Workspace {
         if face.len() != crop.len() || mask.len() < crop.len() {
             return Err(DetectError::CropSize);
         }
-        Ok(saliency::saliency(
-            crop,
-            face,
-            model.mu,
-            self.thresholds.table(),
-            s.sided,
-            mask,
-        ))
+        let tn = self.thresholds.table();
+        Ok(match model.novelty.pool {
+            0 => saliency::saliency(crop, face, model.mu, tn, s.sided, mask),
+            pool => saliency::pooled(crop, face, model.mu, tn, s.sided, mask, model.face_w as usize, pool),
+        })
     }
 
     /// The mask of the last [`saliency`](Self::saliency) call (1 = salient).

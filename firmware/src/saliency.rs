@@ -9,7 +9,9 @@
 //! integers. `tn = round(t * n * 256)` saturates at 65535, which no error reaches.
 //! `n = 0` gives `tn = 0`: any error different from mu is salient, as a division by 0 would say.
 
-use msr_shared::blob::{Merge, Model, Normalisation, Novelty, PoseRegion, Sided, U16Table, MAX_FACE_PIXELS};
+use msr_shared::blob::{
+    Merge, Model, Normalisation, Novelty, PoseRegion, Sided, U16Table, MAX_FACE_PIXELS, MAX_FACE_W,
+};
 
 /// Novelty settings in force: the model's defaults, or what the host configured.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -164,6 +166,117 @@ pub fn saliency(
     }
 }
 
+/// [`saliency`] on the pooled error (the blob's flag bit 4): `e = |mean of (I << 8) - pred over
+/// the (2 pool + 1)^2 window, clipped at the border|`, Q8.8, the mean truncated toward zero.
+/// `w` is the face's width; the rows are `frame.len() / w`. Running column sums (one row in,
+/// one out per row) and a running window sum along the row: a few additions per pixel whatever
+/// the radius, no buffer but the column sums, and no division: `floor(|s| / n) > k` is tested
+/// as `|s| >= (k + 1) n`. Slices are taken with `get`, so nothing here can panic.
+#[allow(clippy::too_many_arguments)]
+pub fn pooled(
+    frame: &[u8],
+    pred: &[u16],
+    mu: U16Table,
+    tn: &[u16],
+    sided: Sided,
+    mask: &mut [u8],
+    w: usize,
+    pool: u8,
+) -> u32 {
+    match bytemuck::try_cast_slice::<u8, u16>(mu.0) {
+        Ok(mu) => pooled_run(frame, pred, mu, tn, sided, mask, w, pool as usize),
+        Err(_) => 0,
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn pooled_run(
+    frame: &[u8],
+    pred: &[u16],
+    mu: &[u16],
+    tn: &[u16],
+    sided: Sided,
+    mask: &mut [u8],
+    w: usize,
+    r: usize,
+) -> u32 {
+    if w == 0 || w > MAX_FACE_W {
+        return 0;
+    }
+    let n = frame.len().min(pred.len()).min(tn.len()).min(mask.len()).min(mu.len());
+    let h = n / w;
+    // Columns past `w` stay 0, so the window sum may read them.
+    let mut col = [0i32; MAX_FACE_W + 8];
+    let add_row = |col: &mut [i32], y: usize, add: bool| {
+        if let (Some(f), Some(p)) = (frame.get(y * w..y * w + w), pred.get(y * w..y * w + w)) {
+            let rs = col.iter_mut().zip(f).zip(p);
+            if add {
+                rs.for_each(|((c, &f), &p)| *c += ((f as i32) << 8) - p as i32);
+            } else {
+                rs.for_each(|((c, &f), &p)| *c -= ((f as i32) << 8) - p as i32);
+            }
+        }
+    };
+    for y in 0..r.min(h) {
+        add_row(&mut col, y, true);
+    }
+    // Window widths along a row.
+    let mut cols = [0u8; MAX_FACE_W];
+    for (x, c) in cols.iter_mut().enumerate().take(w) {
+        *c = ((x + r).min(w - 1) + 1 - x.saturating_sub(r)) as u8;
+    }
+    let mut count = 0u32;
+    for y in 0..h {
+        if y + r < h {
+            add_row(&mut col, y + r, true);
+        }
+        if y > r {
+            add_row(&mut col, y - r - 1, false);
+        }
+        let rows = ((y + r).min(h - 1) + 1 - y.saturating_sub(r)) as u32;
+        let (Some(m_row), Some(mu_row), Some(tn_row)) = (
+            mask.get_mut(y * w..y * w + w),
+            mu.get(y * w..y * w + w),
+            tn.get(y * w..y * w + w),
+        ) else {
+            break;
+        };
+        let mut sum: i32 = col.iter().take(r).sum();
+        let px = m_row.iter_mut().zip(mu_row).zip(tn_row).zip(&cols);
+        // In u32: |sum| <= 49 x 65280 and (mu + t + 1) x 49 < 2^23.
+        let mut step = |x: usize| {
+            sum += col.get(x + r).copied().unwrap_or(0);
+            if x > r {
+                sum -= col.get(x - r - 1).copied().unwrap_or(0);
+            }
+            sum.unsigned_abs()
+        };
+        match sided {
+            Sided::One => {
+                for (x, (((out, &m), &t), &c)) in px.enumerate() {
+                    let (a, k) = (step(x), rows * c as u32);
+                    // floor(a / k) - mu > t  <=>  a >= (mu + t + 1) k
+                    let s = (a >= (m as u32 + t as u32 + 1) * k) as u8;
+                    *out = s;
+                    count += s as u32;
+                }
+            }
+            Sided::Two => {
+                for (x, (((out, &m), &t), &c)) in px.enumerate() {
+                    let (a, k) = (step(x), rows * c as u32);
+                    // |floor(a / k) - mu| > t: above mu + t, or below mu - t.
+                    let above = a >= (m as u32 + t as u32 + 1) * k;
+                    let below = m > t && a < (m as u32 - t as u32) * k;
+                    let s = (above || below) as u8;
+                    *out = s;
+                    count += s as u32;
+                }
+            }
+        }
+    }
+    count
+}
+
 #[inline(always)]
 fn run(
     frame: &[u8],
@@ -211,6 +324,54 @@ mod tests {
             threshold_q88(u16::MAX, 1e30, Normalisation::Variance),
             u16::MAX
         );
+    }
+
+    /// The pooled mask against the window mean written out plainly, on a 7 x 9 face with
+    /// every radius, one- and two-sided.
+    #[test]
+    fn pooled_matches_the_plain_window_mean() {
+        let (w, h) = (9usize, 7usize);
+        let frame: [u8; 63] = core::array::from_fn(|i| ((i * 37) % 251) as u8);
+        let pred: [u16; 63] = core::array::from_fn(|i| (((i * 91) % 200) as u16) << 8 | (i as u16 * 13 % 256));
+        let mu: [u16; 63] = core::array::from_fn(|i| (i as u16 % 5) * 300);
+        let mu_bytes: Vec<u8> = mu.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let tn: [u16; 63] = core::array::from_fn(|i| (i as u16 % 7) * 500);
+        for pool in 0..=3u8 {
+            let r = pool as i64;
+            for sided in [Sided::One, Sided::Two] {
+                let mut mask = [7u8; 63];
+                let n = pooled(&frame, &pred, U16Table(&mu_bytes), &tn, sided, &mut mask, w, pool);
+                let mut want = [0u8; 63];
+                for y in 0..h as i64 {
+                    for x in 0..w as i64 {
+                        let (mut s, mut c) = (0i64, 0i64);
+                        for yy in (y - r).max(0)..=(y + r).min(h as i64 - 1) {
+                            for xx in (x - r).max(0)..=(x + r).min(w as i64 - 1) {
+                                let i = (yy * w as i64 + xx) as usize;
+                                s += ((frame[i] as i64) << 8) - pred[i] as i64;
+                                c += 1;
+                            }
+                        }
+                        let i = (y * w as i64 + x) as usize;
+                        let d = (s / c).abs() - mu[i] as i64;
+                        let d = if sided == Sided::Two { d.abs() } else { d };
+                        want[i] = (d > tn[i] as i64) as u8;
+                    }
+                }
+                assert_eq!(mask, want, "pool {pool} {sided:?}");
+                assert_eq!(n as usize, want.iter().filter(|&&m| m == 1).count());
+                if pool == 0 {
+                    // Radius 0 is the per-pixel saliency.
+                    let mut plain = [0u8; 63];
+                    saliency(&frame, &pred, U16Table(&mu_bytes), &tn, sided, &mut plain);
+                    assert_eq!(mask, plain);
+                }
+            }
+        }
+        // A width past the board's limit or of zero finds nothing and writes nothing.
+        let mut mask = [7u8; 63];
+        assert_eq!(pooled(&frame, &pred, U16Table(&mu_bytes), &tn, Sided::One, &mut mask, 0, 2), 0);
+        assert_eq!(mask, [7u8; 63]);
     }
 
     #[test]

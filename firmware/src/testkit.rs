@@ -110,6 +110,7 @@ fn spec(face_h: u16, face_w: u16, layers: Vec<LayerSpec>, rng: &mut Lcg) -> Mode
             min_area: 6,
             sigma_floor: 0.5,
             merge: msr_shared::blob::Merge::OFF,
+            pool: 0,
         },
         layers,
         mu: (0..n)

@@ -192,6 +192,7 @@ pub fn synthetic_with(kind: ArchKind, i8w: bool) -> Result<BenchModel> {
             min_area: 30,
             sigma_floor: 1.0,
             merge: msr_shared::blob::Merge::OFF,
+            pool: 0,
         },
         layers,
         mu,

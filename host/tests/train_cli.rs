@@ -81,7 +81,7 @@ fn train_writes_the_layout_and_quantize_matches_float() {
         .map(|s| (s.head, s.face_unit()))
         .unzip();
     let preds = m.predict_batch(&heads, &faces);
-    let again = msr_host::train::calibrate::error_stats(h, w, faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..]))).unwrap();
+    let again = msr_host::train::calibrate::error_stats(h, w, info_t.novelty.pool, faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..]))).unwrap();
     assert_eq!(again.frames, stats.frames);
     let worst = again.mu.iter().zip(&stats.mu).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
     assert!(worst < 1e-3, "mu from the loaded model differs by {worst} grey levels");

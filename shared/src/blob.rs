@@ -8,7 +8,7 @@
 //!   8  total_len u32         12  crc32 u32 (CRC-32/ISO-HDLC of bytes 16..total_len)
 //!  16  face_h u16            18  face_w u16        20  n_layers u16    22  flags u16 (see below)
 //!  24  threshold f32         28  normalisation u8  29  sided u8        30  min_area u16
-//!  32  sigma_floor f32       36  merge_margin u8      37  reserved u8 (0) 38  merge_fragment u16
+//!  32  sigma_floor f32       36  merge_margin u8      37  pool u8 (flags bit 4; else 0) 38  merge_fragment u16
 //! n_layers x layer:
 //!   descriptor (LAYER_DESC_LEN = 32 bytes)
 //!     0 kind u8  1 activation u8  2 weight dtype u8  3 weight order u8 (0 PyTorch, 1 blocked)
@@ -55,7 +55,12 @@
 //! pose (the observe posture). The writer uses version 4 only for a blob with bit 1 or 2.
 //! Bit 3 (version 5): a [`SelfGate`], the test that the face moves with the robot's own head
 //! before a reach; the section comes last, so [`set_self_gate`] adds or removes it without
-//! touching the rest, and a blob without it is byte for byte what version 4 wrote.
+//! touching the rest, and a blob without it is byte for byte what the writer makes.
+//! Bit 4 (version 5): the error is pooled before its statistics and the threshold, `e = |mean
+//! of 255 (I - I_hat) over the (2 pool + 1)^2 window|` (clipped at the face's border), with
+//! `pool` (1..=[`MAX_POOL`]) in header byte 37; the blob's mu and sigma are of that error.
+//! The writer uses version 5 only for a blob with bit 3 or 4, and a version-5 blob has one of
+//! them.
 //!
 //! Fragment merge (version 3; bytes 36..40 are zero before): `merge_margin` 0 is the paper's
 //! blob stage. Otherwise 8-connected components of at least `merge_fragment` pixels whose
@@ -73,8 +78,10 @@ use serde::{Deserialize, Serialize};
 pub const MAGIC: [u8; 4] = *b"MSRM";
 /// The newest version this build reads and writes (version 1 has no weight order byte,
 /// versions 1 and 2 no fragment merge, versions 1 to 3 no sub-pixel crop flag or pose region,
-/// versions 1 to 4 no self gate).
+/// versions 1 to 4 no self gate or error pooling).
 pub const VERSION: u16 = 5;
+/// Largest [`Novelty::pool`] radius: a 7 x 7 window.
+pub const MAX_POOL: u8 = 3;
 /// Largest [`Merge::margin`].
 pub const MAX_MERGE_MARGIN: u8 = 16;
 /// Inputs per block of the blocked weight order.
@@ -120,6 +127,7 @@ pub const MAX_GATE_AMPLITUDE: f32 = 0.1;
 pub const MAX_GATE_TIMEOUT_MS: u16 = 3000;
 /// Most [`SelfGate::min_frames`].
 pub const MAX_GATE_FRAMES: u8 = 8;
+const FLAG_POOL: u16 = 16;
 /// Largest [`PoseRegion::radius`], radians.
 pub const MAX_REGION_RADIUS: f32 = 0.5;
 
@@ -375,6 +383,9 @@ pub struct Novelty {
     pub sigma_floor: f32,
     /// Fragment merge before the `min_area` test; [`Merge::OFF`] for the paper's blob stage.
     pub merge: Merge,
+    /// Radius of the window the signed error is averaged over before its magnitude is taken
+    /// (flag bit 4); 0: per pixel, the paper's error.
+    pub pool: u8,
 }
 
 /// Merging of nearby components before the minimum-area test (a deviation from the paper, for
@@ -841,10 +852,10 @@ impl<'a> Model<'a> {
             return Err(BlobError::TooManyLayers);
         }
         let flags = r.u16()?;
-        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION | FLAG_SELF_GATE) != 0
+        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION | FLAG_SELF_GATE | FLAG_POOL) != 0
             || (flags & FLAG_SUBPIXEL != 0 && (version < 4 || flags & FLAG_TEMPLATE == 0))
             || (flags & FLAG_REGION != 0 && version < 4)
-            || (flags & FLAG_SELF_GATE != 0) != (version >= 5)
+            || (flags & (FLAG_SELF_GATE | FLAG_POOL) != 0) != (version >= 5)
         {
             return Err(BlobError::BadHeader);
         }
@@ -868,10 +879,13 @@ impl<'a> Model<'a> {
             return Err(BlobError::Novelty);
         }
         let merge_margin = r.u8()?;
-        let reserved = r.u8()?;
+        let pool = r.u8()?;
         let merge = Merge { margin: merge_margin, fragment: r.u16()? };
-        if reserved != 0 || (version < 3 && merge != Merge::OFF) {
+        if (flags & FLAG_POOL == 0 && pool != 0) || (version < 3 && merge != Merge::OFF) {
             return Err(BlobError::BadHeader);
+        }
+        if flags & FLAG_POOL != 0 && !(1..=MAX_POOL).contains(&pool) {
+            return Err(BlobError::Novelty);
         }
         if !merge.is_valid(min_area) {
             return Err(BlobError::Novelty);
@@ -970,7 +984,7 @@ impl<'a> Model<'a> {
         Ok(Model {
             face_h,
             face_w,
-            novelty: Novelty { threshold, normalisation, sided, min_area, sigma_floor, merge },
+            novelty: Novelty { threshold, normalisation, sided, min_area, sigma_floor, merge, pool },
             layers,
             mu,
             sigma,
@@ -1205,7 +1219,12 @@ mod writer {
             if subpixel && self.template.is_none() {
                 return Err(BlobError::Template);
             }
-            let version: u16 = if subpixel || self.region.is_some() {
+            if self.novelty.pool > MAX_POOL {
+                return Err(BlobError::Novelty);
+            }
+            let version: u16 = if self.novelty.pool > 0 {
+                5
+            } else if subpixel || self.region.is_some() {
                 4
             } else if self.novelty.merge.is_on() {
                 3
@@ -1229,6 +1248,9 @@ mod writer {
             if self.region.is_some() {
                 flags |= FLAG_REGION;
             }
+            if self.novelty.pool > 0 {
+                flags |= FLAG_POOL;
+            }
             o.extend_from_slice(&flags.to_le_bytes());
             let n = &self.novelty;
             o.extend_from_slice(&n.threshold.to_le_bytes());
@@ -1243,7 +1265,7 @@ mod writer {
             o.extend_from_slice(&n.min_area.to_le_bytes());
             o.extend_from_slice(&n.sigma_floor.to_le_bytes());
             o.push(n.merge.margin);
-            o.push(0);
+            o.push(n.pool);
             o.extend_from_slice(&n.merge.fragment.to_le_bytes());
             debug_assert_eq!(o.len(), HEADER_LEN);
 
@@ -1350,7 +1372,9 @@ mod writer {
             None => {
                 let merge = u16::from_le_bytes([o[36], 0]) != 0;
                 let blocked = m.layers.iter().any(|l| !l.torch_order());
-                if flags & (FLAG_SUBPIXEL | FLAG_REGION) != 0 {
+                if flags & FLAG_POOL != 0 {
+                    5
+                } else if flags & (FLAG_SUBPIXEL | FLAG_REGION) != 0 {
                     4
                 } else if merge {
                     3

@@ -14,6 +14,12 @@ pub struct Args {
     pub model: ModelKind,
     #[arg(long, value_enum, default_value_t = ArchKind::Conv)]
     pub arch: ArchKind,
+    /// Conv decoder only: dense units after the input (default 32)
+    #[arg(long)]
+    pub conv_hidden: Option<usize>,
+    /// Conv decoder only: feature maps at half size (default 4)
+    #[arg(long)]
+    pub conv_channels: Option<usize>,
     /// Face crop: subpixel (refined and resampled; see `crop`) or pixel (the published code)
     #[arg(long, default_value_t = CropMode::Subpixel)]
     pub crop: CropMode,
@@ -48,6 +54,10 @@ pub struct Args {
     /// Pick the threshold as this percentile of the detection scores of the unmarked test frames
     #[arg(long)]
     pub threshold_percentile: Option<f64>,
+    /// Average the signed error over a (2 N + 1)^2 window before its magnitude (0: per pixel,
+    /// the paper; see `detect::pipeline::pooled_error`)
+    #[arg(long, default_value_t = calibrate::DEFAULT_POOL)]
+    pub pool: u8,
     /// Smallest blob that counts as a detection, pixels
     #[arg(long, default_value_t = calibrate::DEFAULT_MIN_AREA)]
     pub min_area: u16,
@@ -75,10 +85,13 @@ impl Args {
             .with_two_sided(self.two_sided)
             .with_sigma_floor(self.sigma_floor)
             .with_threshold(self.threshold)
+            .with_pool(self.pool)
             .with_min_area(self.min_area)
             .with_device(self.device)
             .with_quiet(self.quiet);
         c.threshold_percentile = self.threshold_percentile;
+        c.conv_hidden = self.conv_hidden;
+        c.conv_channels = self.conv_channels;
         c
     }
 }
@@ -107,6 +120,7 @@ mod tests {
             "pixel", "--epochs", "3", "--batch", "7", "--lr", "0.1", "--lr-step", "2",
             "--lr-decay", "0.9", "--seed", "5", "--normalisation", "variance", "--two-sided",
             "--sigma-floor", "2", "--threshold-percentile", "99", "--min-area", "4", "--quiet",
+            "--pool", "1", "--conv-hidden", "16", "--conv-channels", "3",
         ])
         .unwrap();
         let c = args.config();
@@ -118,5 +132,6 @@ mod tests {
         assert_eq!(c.normalisation, NormArg::Variance);
         assert!(c.two_sided && c.quiet);
         assert_eq!(c.threshold_percentile, Some(99.0));
+        assert_eq!((c.pool, c.conv_hidden, c.conv_channels), (1, Some(16), Some(3)));
     }
 }

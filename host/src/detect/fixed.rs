@@ -50,7 +50,7 @@ pub fn detect_with(
     let q = |v: u16| v as f32 / 256.0;
     let mu: Vec<f32> = model.mu.iter().map(q).collect();
     let sigma: Vec<f32> = model.sigma.iter().map(q).collect();
-    let sal = saliency(face_error(&face.grey, &predicted), &mu, &sigma, 0.0, settings.normalisation, settings.sided);
+    let sal = saliency(face_error(&face.grey, &predicted, model.face_w as usize, model.novelty.pool), &mu, &sigma, 0.0, settings.normalisation, settings.sided);
     Ok(Detection {
         crop: c,
         predicted,

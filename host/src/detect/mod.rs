@@ -86,6 +86,7 @@ pub fn float_engine_of(model: &Model) -> FloatEngine {
         region: model.region,
         reach: Some(model.reach),
         face_w: model.face_w as usize,
+        pool: model.novelty.pool,
     }
 }
 

@@ -48,9 +48,38 @@ pub fn saliency<T: Float>(
 }
 
 /// The error of a face against its prediction, grey levels: `e = |I - 255 I_hat|` with `I` in
-/// grey levels and `I_hat` (the prediction) in 0..1.
-pub fn face_error<'a>(face: &'a [u8], predicted: &'a [f32]) -> impl Iterator<Item = f32> + 'a {
-    face.iter().zip(predicted).map(|(&i, &p)| (i as f32 - 255.0 * p).abs())
+/// grey levels and `I_hat` (the prediction) in 0..1, pooled over the model's window
+/// ([`pooled_error`]; `pool` 0: per pixel). `w` is the face's width.
+pub fn face_error(face: &[u8], predicted: &[f32], w: usize, pool: u8) -> Vec<f32> {
+    let signed: Vec<f32> = face.iter().zip(predicted).map(|(&i, &p)| i as f32 - 255.0 * p).collect();
+    pooled_error(&signed, w, pool)
+}
+
+/// `|mean of the signed error over the (2 pool + 1)^2 window|`, the window clipped at the
+/// border (the blob's flag bit 4; the firmware's `saliency::pooled`). Why: the decoder cannot
+/// follow fine texture (the skin robot's taxels) at every sub-pixel phase of the crop, and its
+/// error there is of either sign from pixel to pixel; a mark's is of one sign over its whole
+/// area, so the mean keeps the mark and cancels the texture. `pool` 0: `|e|` per pixel.
+pub fn pooled_error<T: Float>(signed: &[T], w: usize, pool: u8) -> Vec<T> {
+    let r = pool as usize;
+    if r == 0 || w == 0 {
+        return signed.iter().map(|v| v.abs()).collect();
+    }
+    let h = signed.len() / w;
+    let mut out = Vec::with_capacity(signed.len());
+    for y in 0..h {
+        let (y0, y1) = (y.saturating_sub(r), (y + r).min(h - 1));
+        for x in 0..w {
+            let (x0, x1) = (x.saturating_sub(r), (x + r).min(w - 1));
+            let mut sum = T::zero();
+            for row in signed[y0 * w..(y1 + 1) * w].chunks_exact(w) {
+                sum = row[x0..=x1].iter().fold(sum, |a, &v| a + v);
+            }
+            let n = T::from((y1 - y0 + 1) * (x1 - x0 + 1)).unwrap_or_else(T::one);
+            out.push((sum / n).abs());
+        }
+    }
+    out
 }
 
 /// Everything one run of the pipeline on one frame produced.
@@ -108,6 +137,8 @@ pub struct FloatEngine {
     pub region: Option<PoseRegion>,
     pub reach: Option<Reach>,
     pub face_w: usize,
+    /// The error's pooling radius ([`pooled_error`]).
+    pub pool: u8,
 }
 
 impl FloatEngine {
@@ -120,7 +151,7 @@ impl FloatEngine {
     /// One face seen with the head at `head`, given the model's prediction for it.
     pub fn detect(&self, crop: CropBox, face: &[u8], predicted: Vec<f32>, head: [f32; 2]) -> Detection {
         let s = &self.settings_at(head);
-        let saliency = saliency(face_error(face, &predicted), &self.mu, &self.sigma, 0.0, s.normalisation, s.sided);
+        let saliency = saliency(face_error(face, &predicted, self.face_w, self.pool), &self.mu, &self.sigma, 0.0, s.normalisation, s.sided);
         let mask: Vec<bool> = saliency.iter().map(|&v| v > s.threshold).collect();
         let h = mask.len() / self.face_w.max(1);
         // A face the labeller refuses (none the blob format allows) finds nothing.
@@ -154,7 +185,7 @@ mod tests {
         let (w, h) = (10, 6);
         let region = PoseRegion { centre: [0.0, 0.0], radius: 0.01, threshold: 1.5, merge: Merge { margin: 2, fragment: 2 } };
         let own = Settings { threshold: 4.0, normalisation: Normalisation::StdDev, sided: Sided::One, min_area: 4, merge: Merge::OFF };
-        let eng = FloatEngine { mu: vec![0.0; w * h], sigma: vec![1.0; w * h], settings: own, region: Some(region), reach: None, face_w: w };
+        let eng = FloatEngine { mu: vec![0.0; w * h], sigma: vec![1.0; w * h], settings: own, region: Some(region), reach: None, face_w: w, pool: 0 };
         assert_eq!(eng.settings_at([0.005, -0.005]), Settings { threshold: 1.5, merge: region.merge, ..own });
         assert_eq!(eng.settings_at([0.0, 0.02]), own);
         // A 2 x 2 patch 3 grey levels off the prediction: salient at 1.5, not at 4.0.
@@ -166,5 +197,24 @@ mod tests {
         let crop = CropBox { x: 0, y: 0, width: w as u32, height: h as u32 };
         assert_eq!(eng.detect(crop, &face, pred.clone(), [0.0, 0.0]).blob.map(|b| b.area), Some(4));
         assert_eq!(eng.detect(crop, &face, pred, [0.0, 0.02]).blob, None);
+    }
+
+    /// The pooled error against a sum written out by hand, at a corner, an edge and inside.
+    #[test]
+    fn pooled_error_is_the_clipped_window_mean() {
+        let (w, h) = (5usize, 4usize);
+        let e: Vec<f64> = (0..w * h).map(|i| if i % 2 == 0 { i as f64 } else { -(i as f64) }).collect();
+        let p = pooled_error(&e, w, 1);
+        // (0, 0): pixels 0, 1, 5, 6 -> 0 - 1 - 5 + 6 = 0.
+        assert_eq!(p[0], 0.0);
+        // (0, 2): pixels 1, 2, 3, 6, 7, 8 -> -1 + 2 - 3 + 6 - 7 + 8 = 5, over 6.
+        assert!((p[2] - 5.0 / 6.0).abs() < 1e-12);
+        // (2, 2): rows 1..=3, cols 1..=3: -6 + 7 - 8 + 11 - 12 + 13 - 16 + 17 - 18 = -12, over 9.
+        assert!((p[2 * w + 2] - 12.0 / 9.0).abs() < 1e-12);
+        assert_eq!(pooled_error(&e, w, 0), e.iter().map(|v| v.abs()).collect::<Vec<_>>());
+        // Texture of alternating sign cancels; a one-signed patch stays.
+        let tex: Vec<f64> = (0..64).map(|i| if (i + i / 8) % 2 == 0 { 20.0 } else { -20.0 }).collect();
+        assert!(pooled_error(&tex, 8, 1)[9 + 8] < 2.5, "{}", pooled_error(&tex, 8, 1)[17]);
+        assert_eq!(pooled_error(&vec![20.0; 64], 8, 2)[27], 20.0);
     }
 }

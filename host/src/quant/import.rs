@@ -427,6 +427,7 @@ impl Published {
                 min_area: self.min_area,
                 sigma_floor: SIGMA_FLOOR,
                 merge: msr_shared::blob::Merge::OFF,
+                pool: 0,
             },
             layers: quantize_dense_stack(&self.decoder.layers, (h, w))?,
             mu: self.mu.iter().map(|&v| q8_8(v)).collect(),

@@ -365,6 +365,7 @@ pub fn blob_of(layers: Vec<LayerSpec>, x: &Extras) -> Result<Vec<u8>> {
             min_area: p.min_area,
             sigma_floor: p.sigma_floor as f32,
             merge: p.merge,
+            pool: p.pool,
         },
         layers,
         mu: x.stats.mu.iter().map(|&v| q8_8(v)).collect(),
@@ -520,7 +521,7 @@ pub fn quantize(args: &QuantizeConfig) -> Result<Report> {
     let (mut agree, mut nf, mut nq, mut diffs) = (0usize, 0usize, 0usize, Vec::new());
     for ((s, f), p) in ds.samples.iter().zip(&faces).zip(&preds) {
         let novelty = x.novelty.at(s.head);
-        let sal = calibrate::saliency(&calibrate::error_map(f, p), &x.stats, &novelty);
+        let sal = calibrate::saliency(&calibrate::error_map(f, p, w, novelty.pool), &x.stats, &novelty);
         let fl = calibrate::detect(&sal, h, w, &novelty);
         let fx = crate::detect::fixed::detect_with(&mut ws, &blob_model, &s.face, s.head)?;
         let fx = fx.blob.map(|b| [b.centroid[0] - s.face.crop.x as f64, b.centroid[1] - s.face.crop.y as f64]);

@@ -35,6 +35,13 @@ pub const DEFAULT_THRESHOLD: f64 = 0.018 * 255.0;
 pub const DEFAULT_MIN_AREA: u16 = 30;
 /// Grey levels; see the module doc.
 pub const DEFAULT_SIGMA_FLOOR: f64 = 0.5;
+/// The error's pooling radius that `msr train` and `msr demo` use: 0, the paper's per-pixel
+/// error. `--pool 2` (a 5 x 5 window, which keeps a 15 x 15 mark and cancels the skin robot's
+/// taxel texture) finds the skin robot's marks at every head pose (hit rate 0.51-0.60 -> 0.97-0.995)
+/// but raises the false alarms (0.00-0.04 -> 0.02-0.10 over three seeds) and costs the board
+/// about 52 more instructions per pixel (73.5 after the decoder against a budget of 30), so it is
+/// not the default until a pose-dependent sigma removes those false alarms (issue 19).
+pub const DEFAULT_POOL: u8 = 0;
 
 /// Per-pixel error statistics, row-major `h x w`, grey levels.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,9 +55,11 @@ pub struct ErrorStats {
     pub frames: usize,
 }
 
-/// `e = |255 (I - I_hat)|` per pixel.
-pub fn error_map(observed: &[f32], predicted: &[f32]) -> Vec<f64> {
-    observed.iter().zip(predicted).map(|(&i, &p)| (255.0 * (i as f64 - p as f64)).abs()).collect()
+/// `e = |255 (I - I_hat)|` per pixel, or pooled over the model's window
+/// ([`crate::detect::pipeline::pooled_error`]); `w` is the face's width.
+pub fn error_map(observed: &[f32], predicted: &[f32], w: usize, pool: u8) -> Vec<f64> {
+    let signed: Vec<f64> = observed.iter().zip(predicted).map(|(&i, &p)| 255.0 * (i as f64 - p as f64)).collect();
+    pipeline::pooled_error(&signed, w, pool)
 }
 
 /// Accumulates error maps one at a time (Welford's update: stable, one pass, no frame kept).
@@ -94,12 +103,12 @@ impl StatsAccumulator {
     }
 }
 
-/// Statistics of `|255 (I - I_hat)|` over (observed, predicted) pairs.
-pub fn error_stats<'a>(h: usize, w: usize, pairs: impl IntoIterator<Item = (&'a [f32], &'a [f32])>) -> Result<ErrorStats> {
+/// Statistics of the error ([`error_map`] with `pool`) over (observed, predicted) pairs.
+pub fn error_stats<'a>(h: usize, w: usize, pool: u8, pairs: impl IntoIterator<Item = (&'a [f32], &'a [f32])>) -> Result<ErrorStats> {
     let mut acc = StatsAccumulator::new(h, w);
     for (obs, pred) in pairs {
         ensure!(obs.len() == pred.len(), "observed and predicted faces differ in size");
-        acc.add(&error_map(obs, pred))?;
+        acc.add(&error_map(obs, pred, w, pool))?;
     }
     acc.finish()
 }
@@ -119,6 +128,10 @@ pub struct NoveltyParams {
     /// calibrated policy sets them; none by default and in older files.
     #[serde(default)]
     pub region: Option<PoseRegion>,
+    /// Radius of the window the signed error is averaged over (the blob's `Novelty::pool`);
+    /// 0, per pixel (the paper), by default and in older files.
+    #[serde(default)]
+    pub pool: u8,
 }
 
 impl Default for NoveltyParams {
@@ -131,6 +144,7 @@ impl Default for NoveltyParams {
             min_area: DEFAULT_MIN_AREA,
             merge: Merge::OFF,
             region: None,
+            pool: 0,
         }
     }
 }
@@ -140,6 +154,7 @@ impl NoveltyParams {
         ensure!(self.threshold.is_finite() && self.threshold > 0.0, "threshold must be positive, got {}", self.threshold);
         ensure!(self.sigma_floor.is_finite() && self.sigma_floor >= 0.0, "sigma floor must be >= 0, got {}", self.sigma_floor);
         ensure!(self.min_area >= 1, "minimum blob area must be at least 1");
+        ensure!(self.pool <= msr_shared::blob::MAX_POOL, "error pool radius must be 0..={}, got {}", msr_shared::blob::MAX_POOL, self.pool);
         ensure!(
             self.merge.is_valid(self.min_area),
             "merge {:?}: the margin must be 0 (off, fragment 0) or 1..={}, with a fragment size of 1..=min_area",
@@ -241,12 +256,12 @@ mod tests {
         // One pixel, errors 255*|0.1|, 255*|0.3|, 255*|0.2| = 25.5, 76.5, 51: mean 51, std (N-1) 25.5.
         let obs = [[0.5f32], [0.5], [0.5]];
         let pred = [[0.4f32], [0.8], [0.3]];
-        let s = error_stats(1, 1, obs.iter().zip(&pred).map(|(o, p)| (&o[..], &p[..]))).unwrap();
+        let s = error_stats(1, 1, 0, obs.iter().zip(&pred).map(|(o, p)| (&o[..], &p[..]))).unwrap();
         assert!((s.mu[0] - 51.0).abs() < 1e-4, "{}", s.mu[0]);
         assert!((s.sigma[0] - 25.5).abs() < 1e-4, "{}", s.sigma[0]);
         assert_eq!(s.frames, 3);
         // Fewer than 2 frames is an error, not a NaN.
-        assert!(error_stats(1, 1, obs.iter().zip(&pred).take(1).map(|(o, p)| (&o[..], &p[..]))).is_err());
+        assert!(error_stats(1, 1, 0, obs.iter().zip(&pred).take(1).map(|(o, p)| (&o[..], &p[..]))).is_err());
     }
 
     #[test]

@@ -89,6 +89,10 @@ pub struct TrainConfig {
     pub model: ModelKind,
     #[config(default = "ArchKind::Conv")]
     pub arch: ArchKind,
+    /// Conv decoder only: dense units after the input (default 32).
+    pub conv_hidden: Option<usize>,
+    /// Conv decoder only: feature maps at half size (default 4).
+    pub conv_channels: Option<usize>,
     /// Face crop: sub-pixel (refined and resampled) or pixel (the published code).
     #[config(default = "CropMode::Subpixel")]
     pub crop: CropMode,
@@ -118,6 +122,10 @@ pub struct TrainConfig {
     pub threshold: f64,
     /// Pick the threshold as this percentile of the detection scores of the unmarked test frames.
     pub threshold_percentile: Option<f64>,
+    /// Average the signed error over a (2 N + 1)^2 window before its magnitude (0: per pixel,
+    /// the paper; see `detect::pipeline::pooled_error`).
+    #[config(default = "calibrate::DEFAULT_POOL")]
+    pub pool: u8,
     /// Smallest blob that counts as a detection, pixels.
     #[config(default = "calibrate::DEFAULT_MIN_AREA")]
     pub min_area: u16,
@@ -249,6 +257,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
         min_area: args.min_area,
         merge: msr_shared::blob::Merge::OFF,
         region: None,
+        pool: args.pool,
     };
     novelty.check()?;
     let hp = HyperParams {
@@ -276,7 +285,15 @@ pub fn run(args: TrainConfig) -> Result<()> {
             args.data.display()
         );
     }
-    let spec = DecoderSpec::new(args.arch, h, w);
+    let spec = match (args.arch, args.conv_hidden, args.conv_channels) {
+        (ArchKind::Conv, hid, ch) => {
+            let d = DecoderSpec::conv(h, w);
+            let c = d.conv.as_ref().map_or(4, |c| c.base[0]);
+            DecoderSpec::conv_with(h, w, hid.unwrap_or(d.dense[0]), ch.unwrap_or(c))
+        }
+        (ArchKind::Mlp, None, None) => DecoderSpec::mlp(h, w),
+        (ArchKind::Mlp, _, _) => bail!("--conv-hidden and --conv-channels are for --arch conv"),
+    };
     if !args.quiet {
         eprintln!(
             "training {} ({:?}, {} MACs) on {} frames, testing on {}, face {h}x{w}",
@@ -310,7 +327,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
 
     // Statistics over the training frames, with the final model.
     let preds = net.predict_batch(&train.heads, &train.faces);
-    let stats = calibrate::error_stats(h, w, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?;
+    let stats = calibrate::error_stats(h, w, novelty.pool, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?;
 
     let mut novelty = novelty;
     let policy = match args.threshold_percentile {
@@ -329,7 +346,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
                 .iter()
                 .zip(&preds)
                 .map(|(f, p)| {
-                    let sal = calibrate::saliency(&calibrate::error_map(f, p), &stats, &novelty);
+                    let sal = calibrate::saliency(&calibrate::error_map(f, p, w, novelty.pool), &stats, &novelty);
                     calibrate::detection_score(&sal, h, w, novelty.min_area)
                 })
                 .collect();

@@ -238,7 +238,7 @@ pub fn frames(
         .zip(&preds)
         .zip(faces)
         .map(|((u, pr), (_, mark_box))| Frame {
-            saliency: calibrate::saliency(&calibrate::error_map(u, pr), stats, p),
+            saliency: calibrate::saliency(&calibrate::error_map(u, pr, stats.w, p.pool), stats, p),
             mark_box,
         })
         .collect())

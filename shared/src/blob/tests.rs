@@ -59,6 +59,7 @@ fn mlp_spec() -> ModelSpec {
             min_area: 30,
             sigma_floor: 1.0,
             merge: Merge::OFF,
+            pool: 0,
         },
         layers: vec![
             dense(sh(2, 1, 1), sh(5, 1, 1), Activation::Tanh, false),
@@ -224,11 +225,12 @@ fn header_checks() {
     assert_eq!(edit(0, b"MSRX"), Err(BlobError::BadMagic));
     assert_eq!(edit(4, &[0, 0]), Err(BlobError::UnsupportedVersion(0)));
     assert_eq!(edit(4, &[6, 0]), Err(BlobError::UnsupportedVersion(6)));
-    assert_eq!(edit(4, &[5, 0]), Err(BlobError::BadHeader), "version 5 carries a self gate");
+    assert_eq!(edit(4, &[5, 0]), Err(BlobError::BadHeader), "version 5 carries a self gate or pooling");
     // Versions 2 to 4 read version 1's layout too.
     assert!(edit(4, &[2, 0]).is_ok());
     assert!(edit(4, &[3, 0]).is_ok());
     assert!(edit(4, &[4, 0]).is_ok());
+    assert!(edit(4, &[5, 0]).is_ok());
     assert_eq!(edit(6, &[41, 0]), Err(BlobError::BadHeader));
     assert_eq!(edit(16, &[0, 0]), Err(BlobError::FaceSize));
     assert_eq!(edit(16, &[65, 0]), Err(BlobError::FaceSize));
@@ -555,6 +557,45 @@ fn subpixel_crop_flag_needs_version_4_and_a_template() {
     // The writer refuses a sub-pixel crop without a template to crop with.
     spec.template = None;
     assert_eq!(spec.to_bytes(), Err(BlobError::Template));
+}
+
+#[test]
+fn error_pool_needs_version_5_flag_bit_4_and_a_radius_in_range() {
+    let mut spec = mlp_spec();
+    let plain = spec.to_bytes().unwrap();
+    assert_eq!(Model::parse(&plain).unwrap().novelty.pool, 0);
+    assert_eq!(plain[37], 0);
+    spec.novelty.pool = 2;
+    let bytes = spec.to_bytes().unwrap();
+    assert_eq!(&bytes[4..6], &[5, 0], "a pooling blob is version 5");
+    assert_eq!(&bytes[22..24], &[17, 0], "template and pool flags");
+    assert_eq!(bytes[37], 2);
+    assert_eq!(Model::parse(&bytes).unwrap().novelty.pool, 2);
+    // Only header bytes differ from the blob that does not pool.
+    let differ: Vec<usize> = (0..plain.len()).filter(|&i| plain[i] != bytes[i]).collect();
+    assert!(differ.iter().all(|&i| [4, 12, 13, 14, 15, 22, 37].contains(&i)), "{differ:?}");
+    let edit = |at: usize, v: &[u8]| {
+        let mut b = bytes.clone();
+        b[at..at + v.len()].copy_from_slice(v);
+        recrc(&mut b);
+        Model::parse(&b).map(|m| m.novelty.pool)
+    };
+    // Version 4 has no pool; a radius without the flag, 0 or over the limit with it, and bit
+    // 3 (not this build's) are refused.
+    assert_eq!(edit(4, &[4, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(22, &[1, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(37, &[0]), Err(BlobError::Novelty));
+    assert_eq!(edit(37, &[MAX_POOL + 1]), Err(BlobError::Novelty));
+    assert_eq!(edit(37, &[MAX_POOL]), Ok(MAX_POOL));
+    assert_eq!(edit(22, &[25, 0]), Err(BlobError::BadHeader));
+    // Version 5 need not pool.
+    let mut b = plain.clone();
+    b[4] = 5;
+    recrc(&mut b);
+    assert_eq!(Model::parse(&b).map(|m| m.novelty.pool), Ok(0));
+    // The writer refuses what the parser refuses.
+    spec.novelty.pool = MAX_POOL + 1;
+    assert_eq!(spec.to_bytes(), Err(BlobError::Novelty));
 }
 
 #[test]
