@@ -26,7 +26,7 @@ pub mod sim_board;
 use crate::data::crop;
 use anyhow::{anyhow, Context, Result};
 use image::{DynamicImage, GrayImage};
-use msr_firmware::model::ModelStore;
+
 use msr_firmware::Board;
 use msr_shared::blob::Model;
 use msr_shared::deliver::{FaceLink, LinkStats};
