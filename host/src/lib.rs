@@ -11,5 +11,6 @@ pub mod quant;
 pub mod detect;
 pub mod eval;
 pub mod episode;
+pub mod camera;
 pub mod bench;
 pub mod report;

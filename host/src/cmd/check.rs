@@ -213,6 +213,7 @@ pub fn check(c: &Command) -> Result<()> {
             real("--fps", a.fps, FPS_RANGE.0, FPS_RANGE.1, " frames per second")?;
             int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
             int("--count", a.count, 1, MAX_FRAMES, " frames")?;
+            int("--frame-timeout-ms", a.frame_timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
         }
         Command::Servos(a) => {
             int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
