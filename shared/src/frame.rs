@@ -27,8 +27,9 @@ use serde::{Deserialize, Serialize};
 
 /// Bumped whenever a message layout changes incompatibly. Version 2: face frames by selective
 /// repeat (`FrameHeader::chunk` and `crc32`, `FramePoll`, `FrameAck`), resumable uploads
-/// (`UploadAck`); version 1 sent each frame once and dropped it on any lost chunk.
-pub const PROTOCOL_VERSION: u8 = 2;
+/// (`UploadAck`); version 1 sent each frame once and dropped it on any lost chunk. Version 3:
+/// head poses on request (`MoveHead`, `HeadAt`, `HeadRefused`, `HeadNotSettled`).
+pub const PROTOCOL_VERSION: u8 = 3;
 /// Largest postcard payload in one frame.
 pub const MAX_PAYLOAD: usize = 256;
 /// Version byte and sequence number.
@@ -323,10 +324,10 @@ mod tests {
 
     #[test]
     fn literal_frame() {
-        // version 2, seq 0x0102, payload [0x00, 0x2A]; CRC-16/UMTS of 02 02 01 00 2A.
-        let crc = CRC16.checksum(&[2, 2, 1, 0, 0x2A]).to_le_bytes();
+        // version 3, seq 0x0102, payload [0x00, 0x2A]; CRC-16/UMTS of 03 02 01 00 2A.
+        let crc = CRC16.checksum(&[3, 2, 1, 0, 0x2A]).to_le_bytes();
         let bytes = wire(0x0102, &[0x00, 0x2A]);
-        let mut expect = vec![0x04, 0x02, 0x02, 0x01, 0x04, 0x2A];
+        let mut expect = vec![0x04, 0x03, 0x02, 0x01, 0x04, 0x2A];
         expect.extend_from_slice(&crc);
         expect.push(0x00);
         // COBS: the zero inside the payload splits the frame into two runs.

@@ -363,6 +363,11 @@ pub fn describe(m: &BoardToHost) -> String {
         BoardToHost::ModelAccepted { crc32 } => format!("model accepted, crc {crc32:08x}"),
         BoardToHost::Pong { nonce } => format!("pong {nonce}"),
         BoardToHost::ServoBus(r) => format!("servo bus: {r:?}"),
+        BoardToHost::HeadAt { head } => format!(
+            "head settled at yaw {:.3} deg, pitch {:.3} deg",
+            head[0].to_degrees(),
+            head[1].to_degrees()
+        ),
         BoardToHost::FrameAck(a) => format!("frame {} round {}: {:?}", a.frame, a.round, a.state),
         BoardToHost::UploadAck { next } => format!("upload: the board wants byte {next} next"),
     }
