@@ -12,5 +12,6 @@ pub mod detect;
 pub mod eval;
 pub mod episode;
 pub mod camera;
+pub mod record;
 pub mod bench;
 pub mod report;

@@ -26,6 +26,9 @@ pub trait FrameSource {
     /// The head now stands at (yaw, pitch), radians. Only a rendered camera cares: a real one
     /// sees the head move by itself.
     fn head_moved(&mut self, _head: [f64; 2]) {}
+    /// Drops frames read ahead and not yet taken, so that the next one is shot after this call
+    /// (a live source buffers).
+    fn discard_buffered(&mut self) {}
 }
 
 /// Where frames come from.
@@ -109,6 +112,10 @@ impl Frames {
 
     pub fn head_moved(&mut self, head: [f64; 2]) {
         self.inner.head_moved(head);
+    }
+
+    pub fn discard_buffered(&mut self) {
+        self.inner.discard_buffered();
     }
 }
 

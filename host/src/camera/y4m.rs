@@ -24,6 +24,8 @@ pub struct Y4mSource {
     what: String,
     delivered: u64,
     ended: bool,
+    /// An error met while discarding frames, reported by the next `next_frame`.
+    failed: Option<anyhow::Error>,
 }
 
 impl Y4mSource {
@@ -37,19 +39,18 @@ impl Y4mSource {
         if let Err(e) = spawned {
             let (tx, rx2) = sync_channel(1);
             let _ = tx.send(Err(anyhow!("cannot start the Y4M reader: {e}")));
-            return Y4mSource { rx: rx2, timeout, what: what.into(), delivered: 0, ended: false };
+            return Y4mSource { rx: rx2, timeout, what: what.into(), delivered: 0, ended: false, failed: None };
         }
-        Y4mSource { rx, timeout, what: what.into(), delivered: 0, ended: false }
-    }
-
-    /// Frames read ahead and not yet taken are dropped, so that the next one is fresh.
-    pub fn discard_buffered(&mut self) {
-        while let Ok(Ok(_)) = self.rx.try_recv() {}
+        Y4mSource { rx, timeout, what: what.into(), delivered: 0, ended: false, failed: None }
     }
 }
 
 impl FrameSource for Y4mSource {
     fn next_frame(&mut self) -> Result<Option<Frame>> {
+        if let Some(e) = self.failed.take() {
+            self.ended = true;
+            return Err(e);
+        }
         if self.ended {
             return Ok(None);
         }
@@ -72,6 +73,16 @@ impl FrameSource for Y4mSource {
                 self.timeout.as_secs_f64(),
                 self.delivered
             ),
+        }
+    }
+
+    /// Frames read ahead and not yet taken are dropped (an error stays to be reported).
+    fn discard_buffered(&mut self) {
+        while let Ok(r) = self.rx.try_recv() {
+            if let Err(e) = r {
+                self.failed = Some(e);
+                break;
+            }
         }
     }
 }
