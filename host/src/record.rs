@@ -273,7 +273,8 @@ pub fn record(cfg: &RecordConfig) -> Result<Recorded> {
         let file = format!("frames/{:06}.png", frames.len());
         let path = cfg.out.join(&file);
         fsio::write_with(&path, |p| frame.grey.save_with_format(p, image::ImageFormat::Png).map_err(Into::into))?;
-        writeln!(log, "frame,{file},{:.10},{:.10}", head[0], head[1])?;
+        // Full precision, so that a resumed recording keeps the angles exactly.
+        writeln!(log, "frame,{file},{},{}", head[0], head[1])?;
         log.flush()?;
         frames.push((file, head));
         rec.frames += 1;
@@ -291,7 +292,7 @@ pub fn record(cfg: &RecordConfig) -> Result<Recorded> {
 
 /// Asks for a head pose: `Some(reported angles)` once settled, `None` when the servos did not
 /// settle in time; an error when the board refused it or did not answer.
-fn move_head(s: &mut Session, head: [f64; 2], timeout: Duration) -> Result<Option<[f64; 2]>> {
+pub fn move_head(s: &mut Session, head: [f64; 2], timeout: Duration) -> Result<Option<[f64; 2]>> {
     s.send_message(&HostToBoard::MoveHead { yaw: head[0] as f32, pitch: head[1] as f32 })?;
     let (msgs, ok) = s.wait_for(timeout, |m| {
         matches!(
