@@ -142,3 +142,50 @@ fn msr_template_cuts_an_inclusive_box() {
         assert!(err.contains(what), "{b}: {err}");
     }
 }
+
+#[test]
+fn a_recording_from_the_firmware_image_in_qemu() {
+    if !msr_sim::qemu::qemu_available() || msr_sim::qemu::find_image(msr_sim::qemu::BOARD_IMAGE).is_err() {
+        eprintln!("SKIPPED: qemu-system-arm or the board image is missing (`cargo xtask test` sets both up)");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("rec");
+    let board = SimBoard::start_qemu(None).unwrap();
+    let mut cfg = RecordConfig::new(board.path(), sim_camera(2), 50, &out);
+    // QEMU's board runs in lockstep with the sim, slower than the wall clock.
+    cfg.head_timeout = std::time::Duration::from_secs(30);
+    let r = record::record(&cfg).unwrap();
+    assert_eq!((r.frames, r.skipped_no_face, r.skipped_not_settled), (50, 0, 0));
+    assert!(r.max_pose_error_deg < 0.2, "{r:?}");
+    assert_eq!(index(&out).frames.len(), 50);
+    let served = board.stop().unwrap();
+    assert_eq!(served.limit_violations, 0);
+    assert_eq!(served.status.host_link.crc_errors, 0);
+}
+
+#[test]
+fn msr_serve_prints_its_pty_and_stops_after_seconds() {
+    use std::io::BufRead;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_msr"))
+        .args(["serve", "--robot", "skin", "--seconds", "1.5"])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    std::io::BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    let path = line.trim().to_string();
+    assert!(path.starts_with("/dev/pts/"), "{line:?}");
+    // A host talks to it as to a board on USB.
+    let mut s = Session::open(&path, 921_600).unwrap();
+    let st = s.status(std::time::Duration::from_secs(2)).unwrap();
+    assert_eq!(st.model_crc, 0, "no model given");
+    drop(s);
+    let t0 = std::time::Instant::now();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(t0.elapsed() < std::time::Duration::from_secs(5));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("skin robot") && err.contains("served"), "{err}");
+}
