@@ -78,6 +78,7 @@ fn msr_run_streams_a_frame_folder_and_uploads_over_the_pty() {
         model: model_path.clone(),
         upload: true,
         frames: Some(frames.clone()),
+        camera: None,
         sim: None,
         count: 0,
         seed: 0,

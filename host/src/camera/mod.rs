@@ -2,6 +2,7 @@
 //! (standard input, so that any camera tool can feed `msr`), or a V4L2 camera. Every source is a
 //! [`FrameSource`]; [`open`] makes one from a [`SourceConfig`] and wraps it so that every frame
 //! comes out grey at the size the model's template was made for ([`Frames`]).
+pub mod v4l2;
 pub mod y4m;
 
 use crate::data::crop;
@@ -42,6 +43,8 @@ pub enum SourceConfig {
     Sim { robot: Robot, count: Option<usize>, seed: u64, mark_from: Option<usize> },
     /// A YUV4MPEG2 stream on standard input.
     Y4mStdin,
+    /// A V4L2 camera, e.g. `/dev/video0` (needs the `v4l` feature).
+    Camera(PathBuf),
 }
 
 impl SourceConfig {
@@ -63,6 +66,8 @@ pub struct SourceOptions {
     pub size: [u32; 2],
     /// Longest wait for the next frame of a live source (a stream, a camera).
     pub timeout: Duration,
+    /// Frame rate to ask a camera for (0: its own).
+    pub fps: f64,
 }
 
 impl Default for SourceOptions {
@@ -70,6 +75,7 @@ impl Default for SourceOptions {
         SourceOptions {
             size: [msr_sim::body::WIDTH, msr_sim::body::HEIGHT],
             timeout: Duration::from_secs(5),
+            fps: 0.0,
         }
     }
 }
@@ -84,8 +90,25 @@ pub fn open(cfg: &SourceConfig, opts: &SourceOptions) -> Result<Frames> {
         SourceConfig::Y4mStdin => {
             Box::new(y4m::Y4mSource::spawn(std::io::stdin(), "stdin", opts.timeout))
         }
+        SourceConfig::Camera(dev) => open_camera(dev, opts)?,
     };
     Ok(Frames { inner, size: opts.size, scaled: 0 })
+}
+
+#[cfg(feature = "v4l")]
+fn open_camera(dev: &Path, opts: &SourceOptions) -> Result<Box<dyn FrameSource>> {
+    Ok(Box::new(v4l2::V4lSource::open(dev, opts.size, opts.fps, opts.timeout)?))
+}
+
+#[cfg(not(feature = "v4l"))]
+fn open_camera(dev: &Path, opts: &SourceOptions) -> Result<Box<dyn FrameSource>> {
+    let [w, h] = opts.size;
+    bail!(
+        "this msr is built without V4L2 cameras (cargo build --release -p msr-host --features v4l; \
+         it needs libclang); or stream the camera through ffmpeg: ffmpeg -f v4l2 -i {} -f \
+         yuv4mpegpipe -pix_fmt gray -s {w}x{h} - | msr ... --frames -",
+        dev.display()
+    )
 }
 
 /// A source whose frames all come out at one size.

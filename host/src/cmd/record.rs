@@ -21,8 +21,11 @@ pub struct Args {
     pub sim: Option<Robot>,
     /// The camera: `-` for a Y4M stream on standard input (e.g. `ffmpeg -f v4l2 -i /dev/video0
     /// -f yuv4mpegpipe -pix_fmt gray -`)
-    #[arg(long, value_name = "-")]
+    #[arg(long, value_name = "-", conflicts_with = "camera")]
     pub frames: Option<PathBuf>,
+    /// The camera: a V4L2 device (e.g. /dev/video0; builds with the `v4l` feature)
+    #[arg(long, value_name = "DEV", conflicts_with = "sim")]
+    pub camera: Option<PathBuf>,
     /// Frames to keep
     #[arg(long)]
     pub count: usize,
@@ -56,11 +59,12 @@ pub struct Args {
 }
 
 pub fn config(a: &Args) -> Result<RecordConfig> {
-    let source = match (&a.frames, a.sim) {
-        (Some(p), _) if p.as_os_str() == "-" => SourceConfig::Y4mStdin,
-        (Some(p), _) => bail!("--frames takes `-` (a Y4M stream on standard input), got {}", p.display()),
-        (None, Some(robot)) => SourceConfig::Sim { robot, count: None, seed: a.seed, mark_from: None },
-        (None, None) => bail!("give a camera: --sim red|skin or --frames -"),
+    let source = match (&a.frames, &a.camera, a.sim) {
+        (Some(p), _, _) if p.as_os_str() == "-" => SourceConfig::Y4mStdin,
+        (Some(p), _, _) => bail!("--frames takes `-` (a Y4M stream on standard input), got {}", p.display()),
+        (None, Some(dev), _) => SourceConfig::Camera(dev.clone()),
+        (None, None, Some(robot)) => SourceConfig::Sim { robot, count: None, seed: a.seed, mark_from: None },
+        (None, None, None) => bail!("give a camera: --sim red|skin, --frames - or --camera DEV"),
     };
     let mut c = RecordConfig::new(&a.port, source, a.count, &a.out);
     c.baud = a.baud;

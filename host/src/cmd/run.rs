@@ -37,8 +37,12 @@ pub struct Args {
     /// Camera frames: a folder of PNGs (320x240), streamed in name order, or `-` for a Y4M
     /// stream on standard input (e.g. `ffmpeg ... -f yuv4mpegpipe -pix_fmt gray -`); frames of
     /// another size with the same aspect ratio are scaled
-    #[arg(long, conflicts_with = "sim", value_name = "DIR|-")]
+    #[arg(long, conflicts_with_all = ["sim", "camera"], value_name = "DIR|-")]
     pub frames: Option<PathBuf>,
+    /// A V4L2 camera (e.g. /dev/video0), grey or YUYV, at 320x240 and --fps (builds with the
+    /// `v4l` feature)
+    #[arg(long, conflicts_with = "sim", value_name = "DEV")]
+    pub camera: Option<PathBuf>,
     /// Render frames from the sim instead, of this robot (red or skin): at home, a random mark
     /// from the 4th frame on
     #[arg(long, value_name = "ROBOT")]
@@ -410,13 +414,15 @@ pub fn run(a: Args) -> Result<()> {
             a.fps
         );
     }
-    let source = match (&a.frames, a.sim) {
-        (Some(p), _) => SourceConfig::frames_arg(p),
-        (None, Some(robot)) => sim_source(robot, a.count, a.seed),
-        (None, None) => bail!("give --frames DIR|- or --sim red|skin"),
+    let source = match (&a.frames, &a.camera, a.sim) {
+        (Some(p), _, _) => SourceConfig::frames_arg(p),
+        (None, Some(dev), _) => SourceConfig::Camera(dev.clone()),
+        (None, None, Some(robot)) => sim_source(robot, a.count, a.seed),
+        (None, None, None) => bail!("give --frames DIR|-, --camera DEV or --sim red|skin"),
     };
     let opts = SourceOptions {
         timeout: Duration::from_millis(a.frame_timeout_ms),
+        fps: a.fps,
         ..SourceOptions::default()
     };
     let mut frames = camera::open(&source, &opts)?;
