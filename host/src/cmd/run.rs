@@ -34,13 +34,10 @@ pub struct Args {
     /// Upload the model to the board before streaming
     #[arg(long)]
     pub upload: bool,
-    /// Camera frames: a folder of PNGs (320x240), streamed in name order, or `-` for a Y4M
-    /// stream on standard input (e.g. `ffmpeg ... -f yuv4mpegpipe -pix_fmt gray -`); frames of
-    /// another size with the same aspect ratio are scaled
+    /// Camera frames: a folder of PNGs in name order, or `-`: a Y4M stream on standard input
     #[arg(long, conflicts_with_all = ["sim", "camera"], value_name = "DIR|-")]
     pub frames: Option<PathBuf>,
-    /// A V4L2 camera (e.g. /dev/video0), grey or YUYV, at 320x240 and --fps (builds with the
-    /// `v4l` feature)
+    /// A V4L2 camera, e.g. /dev/video0 (with the `v4l` feature)
     #[arg(long, conflicts_with = "sim", value_name = "DEV")]
     pub camera: Option<PathBuf>,
     /// Render frames from the sim instead, of this robot (red or skin): at home, a random mark
@@ -59,8 +56,8 @@ pub struct Args {
     /// answer is waited for one frame period at most)
     #[arg(long, default_value_t = 2000)]
     pub timeout_ms: u64,
-    /// Longest wait for the next frame of a stream (`--frames -`), milliseconds
-    #[arg(long, default_value_t = 5000)]
+    /// Longest wait for a frame of a stream or camera, milliseconds
+    #[arg(long, default_value_t = 5000, value_name = "MS")]
     pub frame_timeout_ms: u64,
     /// One JSON object per line
     #[arg(long)]
