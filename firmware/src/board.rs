@@ -10,7 +10,7 @@ use crate::link::{
     SERVO_TIMEOUT_US,
 };
 use crate::model::{self, ModelStore, Upload, UploadError};
-use crate::motion::{Motion, Phase, PERIOD_US};
+use crate::motion::{HeadError, Motion, Phase, PERIOD_US};
 use crate::pipeline::{self, Workspace};
 use crate::saliency::Settings;
 use crate::self_gate::{Gate, Step};
@@ -28,6 +28,21 @@ use msr_shared::msg::{
 pub const MAX_BYTES_PER_POLL: usize = 4096;
 /// Ask the servos for their state when none came for this long.
 pub const STATE_REQUEST_US: u64 = 20_000;
+/// The head has settled when both head servos report within this of the asked pose (two counts
+/// of a 12-bit encoder) for [`SETTLE_PERIODS`] control periods in a row.
+pub const SETTLE_RAD: f32 = 0.0031;
+pub const SETTLE_PERIODS: u8 = 3;
+/// How long past the move's planned duration the head may take to settle.
+pub const SETTLE_MARGIN_US: u64 = 1_000_000;
+
+/// A head pose asked for and not yet answered.
+#[derive(Clone, Copy, Debug, PartialEq)]
+struct HeadMove {
+    goal: [f32; 2],
+    since_us: u64,
+    deadline_us: u64,
+    settled_periods: u8,
+}
 
 /// The model in use, as far as the board needs to remember it between frames.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -70,6 +85,7 @@ struct Core<S: ModelStore> {
     last_reach: Option<Detection>,
     /// The time of the latest poll, for decisions made outside one.
     last_poll_us: u64,
+    head_move: Option<HeadMove>,
 }
 
 /// The firmware. `S` holds the model blobs (see [`ModelStore`]).
@@ -115,6 +131,7 @@ impl<S: ModelStore> Board<S> {
                 dxl_stopped: false,
                 last_reach: None,
                 last_poll_us: 0,
+                head_move: None,
             },
         }
     }
@@ -206,6 +223,7 @@ impl<S: ModelStore> Board<S> {
         let due = *core.next_tick_us.get_or_insert(now_us);
         if now_us >= due {
             core.tick(now_us, servo);
+            core.check_head(now_us, host);
             let next = due + PERIOD_US;
             core.next_tick_us = Some(if next <= now_us {
                 now_us + PERIOD_US
@@ -429,6 +447,65 @@ impl<S: ModelStore> Core<S> {
                 let r = self.servo_bus_report();
                 self.host_tx.send(host, &BoardToHost::ServoBus(r));
             }
+            HostToBoard::MoveHead { yaw, pitch } => self.move_head(now_us, [yaw, pitch], host),
+        }
+    }
+
+    fn move_head<H: Write>(&mut self, now_us: u64, head: [f32; 2], host: &mut H) {
+        // Head babbling sends no face frames: the request is the host's sign of life.
+        self.face_wd.feed(now_us);
+        let faulted = self.dxl.as_ref().is_some_and(|m| m.faulted());
+        let result = if self.servo_wd.tripped() || faulted {
+            Err(HeadError::NotStreaming)
+        } else {
+            self.motion.move_head(head)
+        };
+        match result {
+            Ok(periods) => {
+                let planned = periods as u64 * PERIOD_US;
+                self.head_move = Some(HeadMove {
+                    goal: head,
+                    since_us: now_us,
+                    deadline_us: now_us + planned + SETTLE_MARGIN_US,
+                    settled_periods: 0,
+                });
+            }
+            Err(e) => {
+                let detail = match e {
+                    HeadError::OutOfLimits => 0,
+                    HeadError::NotStreaming => 1,
+                    HeadError::Busy => 2,
+                };
+                self.error(host, ErrorCode::HeadRefused, detail);
+            }
+        }
+    }
+
+    /// After each control period: answers a head pose once the servos report it settled.
+    fn check_head<H: Write>(&mut self, now_us: u64, host: &mut H) {
+        let Some(mut m) = self.head_move else { return };
+        let commanded = self.motion.commanded();
+        let reached = commanded.is_some_and(|c| c[0] == m.goal[0] && c[1] == m.goal[1]);
+        let near = match (self.measured[0], self.measured[1]) {
+            (Some(y), Some(p)) if reached => {
+                (y - m.goal[0]).abs() <= SETTLE_RAD && (p - m.goal[1]).abs() <= SETTLE_RAD
+            }
+            _ => false,
+        };
+        m.settled_periods = if near { m.settled_periods.saturating_add(1) } else { 0 };
+        if m.settled_periods >= SETTLE_PERIODS {
+            self.head_move = None;
+            let head = [self.measured[0].unwrap_or(0.0), self.measured[1].unwrap_or(0.0)];
+            self.host_tx.send(host, &BoardToHost::HeadAt { head });
+        } else if now_us >= m.deadline_us || self.motion.head_goal() != m.goal {
+            // Out of time, or a reach took the head elsewhere.
+            self.head_move = None;
+            let waited_ms = (now_us.saturating_sub(m.since_us) / 1000) as u32;
+            self.error(host, ErrorCode::HeadNotSettled, waited_ms);
+        } else {
+            // A move the host asked for is finished, not cut short by the face watchdog.
+            self.face_wd.feed(now_us);
+            self.head_move = Some(m);
         }
     }
 

@@ -32,6 +32,17 @@ pub enum Phase {
     Probe,
 }
 
+/// Why a head pose was refused.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum HeadError {
+    /// An angle outside its joint's limits, or not finite.
+    OutOfLimits,
+    /// No servo positions yet (or the servo link was lost).
+    NotStreaming,
+    /// A reach is in progress.
+    Busy,
+}
+
 #[derive(Clone, Copy, Debug, PartialEq)]
 /// The reach behaviour: the phase, the goal and the posture commanded each period.
 pub struct Motion {
@@ -160,6 +171,32 @@ impl Motion {
         true
     }
 
+    /// Moves the head to `head` (HeadYaw, HeadPitch), the arm staying at its goal; only while
+    /// observing with streaming running, and only to angles inside the limits (refused, not
+    /// clamped: the host asked for a pose it means to record). Returns the longest move's
+    /// duration in control periods.
+    pub fn move_head(&mut self, head: [f32; 2]) -> Result<u32, HeadError> {
+        if REACH_JOINTS[0].validate(head[0]).is_err() || REACH_JOINTS[1].validate(head[1]).is_err() {
+            return Err(HeadError::OutOfLimits);
+        }
+        let Some(c) = self.commanded else { return Err(HeadError::NotStreaming) };
+        if self.phase != Phase::Observe {
+            return Err(HeadError::Busy);
+        }
+        self.goal[0] = head[0];
+        self.goal[1] = head[1];
+        let periods = (0..2)
+            .map(|i| ((head[i] - c[i]).abs() / self.max_step(i)) as u32 + 1)
+            .max()
+            .unwrap_or(1);
+        Ok(periods)
+    }
+
+    /// The head's part of the goal.
+    pub fn head_goal(&self) -> [f32; 2] {
+        [self.goal[0], self.goal[1]]
+    }
+
     /// Abandons a reach or hold and goes home.
     pub fn go_home(&mut self) {
         if self.phase != Phase::Observe {
@@ -248,6 +285,32 @@ mod tests {
             m.tick();
         }
         assert_eq!(m.commanded(), Some(HOME_POSTURE));
+    }
+
+    #[test]
+    fn the_head_moves_alone_at_the_speed_fraction_and_bad_poses_are_refused() {
+        let mut m = Motion::new();
+        assert_eq!(m.move_head([0.05, 0.0]), Err(HeadError::NotStreaming));
+        m.start_from(HOME_POSTURE);
+        assert_eq!(m.move_head([f32::NAN, 0.0]), Err(HeadError::OutOfLimits));
+        assert_eq!(m.move_head([0.0, 0.6]), Err(HeadError::OutOfLimits), "HeadPitch max 0.514872");
+        assert_eq!(m.move_head([-2.1, 0.0]), Err(HeadError::OutOfLimits));
+        // 0.0873 rad (5 deg) of HeadYaw at 0.1 * 8.26797 rad/s: 0.1056 s, 11 periods.
+        let periods = m.move_head([0.0873, -0.05]).unwrap();
+        assert_eq!(periods, 11);
+        let mut n = 0;
+        while m.commanded().unwrap()[..2] != [0.0873, -0.05] {
+            let before = m.commanded().unwrap();
+            let c = m.tick().unwrap();
+            assert!((c[0] - before[0]).abs() <= m.max_step(0) * 1.0001);
+            assert_eq!(c[2..], HOME_POSTURE[2..], "the arm stays");
+            n += 1;
+            assert!(n < 100);
+        }
+        assert_eq!(n, 11);
+        assert_eq!(m.phase(), Phase::Observe);
+        assert!(m.reach([0.1, 0.0, 0.5, 0.2, -1.0]));
+        assert_eq!(m.move_head([0.0, 0.0]), Err(HeadError::Busy));
     }
 
     #[test]

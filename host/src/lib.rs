@@ -11,6 +11,8 @@ pub mod quant;
 pub mod detect;
 pub mod eval;
 pub mod episode;
+pub mod camera;
+pub mod record;
 pub mod bench;
 pub mod report;
 pub mod demo;

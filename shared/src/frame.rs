@@ -28,7 +28,8 @@ use serde::{Deserialize, Serialize};
 /// Bumped whenever a message layout changes incompatibly. Version 2: face frames by selective
 /// repeat (`FrameHeader::chunk` and `crc32`, `FramePoll`, `FrameAck`), resumable uploads
 /// (`UploadAck`); version 1 sent each frame once and dropped it on any lost chunk. Version 3:
-/// the self gate (`Mode::SelfTest`, `BoardToHost::SelfGate`).
+/// the self gate (`Mode::SelfTest`, `BoardToHost::SelfGate`) and
+/// head poses on request (`MoveHead`, `HeadAt`, `HeadRefused`, `HeadNotSettled`).
 pub const PROTOCOL_VERSION: u8 = 3;
 /// Largest postcard payload in one frame.
 pub const MAX_PAYLOAD: usize = 256;

@@ -336,6 +336,13 @@ pub enum HostToBoard<'a> {
     SetServoMap([crate::dynamixel::map::JointMapEntry; crate::dynamixel::map::MAP_JOINTS]),
     /// Asks for [`BoardToHost::ServoBus`].
     GetServoBus,
+    /// Moves the head to (HeadYaw, HeadPitch), radians, at the configured speed fraction, the
+    /// arm staying where it is. Answered by [`BoardToHost::HeadAt`] once the servos report the
+    /// head settled there, or by [`ErrorCode::HeadRefused`] / [`ErrorCode::HeadNotSettled`].
+    /// Only while observing (not during a reach); an angle outside the joint's limits is refused,
+    /// not clamped. Counts as host activity for the face watchdog (head babbling sends no
+    /// frames).
+    MoveHead { yaw: f32, pitch: f32 },
 }
 
 /// The servo bus's protocol.
@@ -527,6 +534,12 @@ pub enum ErrorCode {
     ServoLost,
     /// A joint map was refused; `detail` is the index of the joint at fault.
     BadServoMap,
+    /// A [`HostToBoard::MoveHead`] was refused: `detail` 0 an angle outside the joint's limits
+    /// or not finite, 1 no servo positions yet (or the servo watchdog holds), 2 a reach in
+    /// progress.
+    HeadRefused,
+    /// The head did not settle at the asked pose in time; `detail` is the milliseconds waited.
+    HeadNotSettled,
 }
 
 /// Board to host.
@@ -556,6 +569,9 @@ pub enum BoardToHost {
     ServoBus(ServoBusReport),
     /// A decision of the self gate (protocol 3), sent once per probe.
     SelfGate(GateReport),
+    /// The head settled after [`HostToBoard::MoveHead`]: (HeadYaw, HeadPitch) as the servos
+    /// report them, radians.
+    HeadAt { head: [f32; 2] },
 }
 
 /// One joint's commanded position.

@@ -78,11 +78,13 @@ fn msr_run_streams_a_frame_folder_and_uploads_over_the_pty() {
         model: model_path.clone(),
         upload: true,
         frames: Some(frames.clone()),
+        camera: None,
         sim: None,
         count: 0,
         seed: 0,
         fps: 10.0,
         timeout_ms: 3000,
+        frame_timeout_ms: 5000,
         json: true,
     };
     msr_host::cmd::run::run(args).unwrap();

@@ -1,6 +1,7 @@
 //! `cargo xtask test`: everything the test suite needs, from a fresh machine.
 //!
-//! 1. checks (and installs when it can) the `thumbv7em-none-eabihf` target and `qemu-system-arm`;
+//! 1. checks (and installs when it can) the `thumbv7em-none-eabihf` target, `qemu-system-arm` and
+//!    `ffmpeg`;
 //! 2. builds `msr-shared` and `msr-firmware` for the bare-metal target without std;
 //! 3. builds the QEMU and NUCLEO-F429ZI firmware images;
 //! 4. runs every test of the workspace (the QEMU tests use the image from step 3).
@@ -28,7 +29,7 @@ fn main() -> ExitCode {
                 "usage: cargo xtask <command>\n\n\
                  commands:\n  \
                  test [ARGS]  set up, build the firmware images, run every test (ARGS go to cargo test)\n  \
-                 setup        install or check the thumbv7em target and qemu-system-arm\n  \
+                 setup        install or check the thumbv7em target, qemu-system-arm and ffmpeg\n  \
                  images       setup, then build the bare-metal firmware images"
             );
             return ExitCode::from(2);
@@ -86,22 +87,33 @@ fn setup() -> Result<(), String> {
         run(&root(), "rustup", &["target", "add", TARGET])?;
     }
 
-    step("checking qemu-system-arm (for the emulated Cortex-M4 tests)");
-    if let Some(v) = output("qemu-system-arm", &["--version"]) {
-        println!("{}", v.lines().next().unwrap_or("qemu-system-arm found"));
+    tool(
+        "qemu-system-arm",
+        &["--version"],
+        "qemu-system-arm",
+        "qemu-system-arm (for the emulated Cortex-M4 tests)",
+    )?;
+    tool("ffmpeg", &["-version"], "ffmpeg", "ffmpeg (for the camera-stream tests)")
+}
+
+/// Checks that `program` runs, or installs the Debian package `package` when this user can.
+fn tool(program: &str, version_args: &[&str], package: &str, what: &str) -> Result<(), String> {
+    step(&format!("checking {what}"));
+    if let Some(v) = output(program, version_args) {
+        println!("{}", v.lines().next().unwrap_or("found"));
         return Ok(());
     }
     let is_root = output("id", &["-u"]).is_some_and(|u| u.trim() == "0");
     if is_root && output("apt-get", &["--version"]).is_some() {
-        println!("qemu-system-arm is missing: installing the Debian package qemu-system-arm");
+        println!("{program} is missing: installing the Debian package {package}");
         run(&root(), "apt-get", &["update", "-q"])?;
-        run(&root(), "apt-get", &["install", "-y", "-q", "qemu-system-arm"])?;
+        run(&root(), "apt-get", &["install", "-y", "-q", package])?;
         Ok(())
     } else {
-        Err("qemu-system-arm is not installed and this user cannot install it; \
-             install the Debian/Ubuntu package `qemu-system-arm` (or your distribution's qemu-system-arm) \
-             and run again"
-            .into())
+        Err(format!(
+            "{program} is not installed and this user cannot install it; install the \
+             Debian/Ubuntu package `{package}` (or your distribution's {program}) and run again"
+        ))
     }
 }
 

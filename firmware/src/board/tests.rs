@@ -60,6 +60,8 @@ struct Rig {
     targets: Vec<(u64, [f32; 5])>,
     stiffness: bool,
     servos_on: bool,
+    /// The servos take no targets (a jammed joint).
+    jammed: bool,
     position: [f32; 5],
 }
 
@@ -77,6 +79,7 @@ impl Rig {
             targets: Vec::new(),
             stiffness: false,
             servos_on: true,
+            jammed: false,
             position: [0.1, -0.1, 1.0, 0.2, -0.5],
         }
     }
@@ -136,7 +139,7 @@ impl Rig {
                             }
                             assert_eq!(targets.len(), 5);
                             self.targets.push((self.now, t));
-                            if self.stiffness {
+                            if self.stiffness && !self.jammed {
                                 self.position = t;
                             }
                         }
@@ -251,6 +254,76 @@ fn face(head: [f32; 2], mark: bool) -> Vec<u8> {
         }
     }
     f
+}
+
+fn head_answers(rig: &Rig) -> Vec<BoardToHost> {
+    rig.replies
+        .iter()
+        .filter(|r| {
+            matches!(
+                r,
+                BoardToHost::HeadAt { .. }
+                    | BoardToHost::Error { code: ErrorCode::HeadRefused | ErrorCode::HeadNotSettled, .. }
+            )
+        })
+        .cloned()
+        .collect()
+}
+
+#[test]
+fn a_head_pose_is_answered_with_the_settled_angles_or_refused() {
+    let mut rig = Rig::new(Some(blob()));
+    rig.run(3000); // home
+    let arm = rig.position[2..].to_vec();
+    rig.host_send(&HostToBoard::MoveHead { yaw: 0.08, pitch: -0.05 });
+    let t0 = rig.now;
+    let mut answered = None;
+    for _ in 0..500 {
+        rig.run(1);
+        if !head_answers(&rig).is_empty() {
+            answered = Some(rig.now - t0);
+            break;
+        }
+    }
+    // 0.08 rad of HeadYaw at 0.1 * 8.26797 rad/s: 97 ms, then 3 settled periods.
+    let t = answered.expect("an answer");
+    assert!((100_000..=150_000).contains(&t), "{t} us");
+    assert_eq!(head_answers(&rig), vec![BoardToHost::HeadAt { head: [0.08, -0.05] }]);
+    assert_eq!(rig.position[2..], arm[..], "the arm stayed");
+    rig.check_targets(0.1);
+    assert_eq!(rig.board.status().face_watchdog_trips, 0, "babbling sends no frames");
+    // Refused: outside the limits (HeadPitch max 0.514872), not finite.
+    rig.replies.clear();
+    rig.host_send(&HostToBoard::MoveHead { yaw: 0.0, pitch: 0.6 });
+    rig.host_send(&HostToBoard::MoveHead { yaw: f32::NAN, pitch: 0.0 });
+    rig.run(50);
+    let refused = BoardToHost::Error { code: ErrorCode::HeadRefused, detail: 0 };
+    assert_eq!(head_answers(&rig), vec![refused.clone(), refused]);
+    assert_eq!(rig.position[..2], [0.08, -0.05], "the head did not move");
+    // A jammed head: no answer but a timeout after the move's time and a second.
+    rig.replies.clear();
+    rig.jammed = true;
+    rig.host_send(&HostToBoard::MoveHead { yaw: -0.08, pitch: 0.0 });
+    rig.run(1500);
+    match head_answers(&rig)[..] {
+        [BoardToHost::Error { code: ErrorCode::HeadNotSettled, detail }] => {
+            assert!((1190..=1220).contains(&detail), "{detail} ms")
+        }
+        ref other => panic!("{other:?}"),
+    }
+    // No servos: refused at once.
+    rig.replies.clear();
+    rig.jammed = false;
+    rig.servos_on = false;
+    rig.run(300);
+    rig.host_send(&HostToBoard::MoveHead { yaw: 0.0, pitch: 0.0 });
+    rig.run(20);
+    assert!(
+        head_answers(&rig).contains(&BoardToHost::Error { code: ErrorCode::HeadRefused, detail: 1 }),
+        "{:?}",
+        rig.replies
+    );
+    rig.check_targets(0.1);
 }
 
 #[test]

@@ -213,6 +213,7 @@ pub fn check(c: &Command) -> Result<()> {
             real("--fps", a.fps, FPS_RANGE.0, FPS_RANGE.1, " frames per second")?;
             int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
             int("--count", a.count, 1, MAX_FRAMES, " frames")?;
+            int("--frame-timeout-ms", a.frame_timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
         }
         Command::Servos(a) => {
             int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
@@ -222,6 +223,28 @@ pub fn check(c: &Command) -> Result<()> {
             if let Some(p) = &a.bus_log {
                 outputs(&[], &[("--bus-log", p)])?;
             }
+        }
+        Command::Serve(a) => {
+            if let Some(secs) = a.seconds {
+                real("--seconds", secs, 0.0, 1e6, " s")?;
+            }
+        }
+        Command::Record(a) => {
+            int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
+            int("--count", a.count, 1, MAX_FRAMES, " frames")?;
+            // The sim and the joint table bound the pose; the range is in degrees.
+            let max_deg = (msr_sim::body::MAX_DATASET_HEAD_ANGLE.to_degrees() * 100.0).floor() / 100.0;
+            real("--range-deg", a.range_deg, 0.0, max_deg, " deg")?;
+            real("--test-fraction", a.test_fraction, 0.0, 1.0, "")?;
+            int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
+            int("--frame-timeout-ms", a.frame_timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
+            if a.resume && a.force {
+                bail!("--resume and --force contradict each other: give one");
+            }
+        }
+        Command::Template(a) => {
+            super::template::parse_box(&a.r#box)?;
+            outputs(&[("--frame", &a.frame)], &[("--out", &a.out)])?;
         }
         Command::Demo(a) => {
             int("--frames", a.frames, 10, MAX_FRAMES, " frames")?;

@@ -13,6 +13,9 @@ pub mod import;
 pub mod detect;
 pub mod eval;
 pub mod bench;
+pub mod serve;
+pub mod record;
+pub mod template;
 
 use self::run as run_board;
 use anyhow::Result;
@@ -56,6 +59,12 @@ pub enum Command {
     Run(run_board::Args),
     /// The robot's emulated servos on a serial port or a new PTY (Dynamixel Protocol 2.0)
     Servos(servos::Args),
+    /// An emulated board (in-process or QEMU) with the sim's servos on a new PTY
+    Serve(serve::Args),
+    /// Record a training set on the robot: head babbling, frames with the reported head angles
+    Record(record::Args),
+    /// Cut a face template out of a camera frame
+    Template(template::Args),
     /// From nothing to a report: dataset, training, reach, quantization, evaluation, episodes
     Demo(demo::Args),
 }
@@ -147,6 +156,9 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::MirrorTest(a) => mirror_test::run(a),
         Command::Run(a) => run_board::run(a),
         Command::Servos(a) => servos::run(a),
+        Command::Serve(a) => serve::run(a),
+        Command::Record(a) => record::run(a),
+        Command::Template(a) => template::run(a),
         Command::Demo(a) => demo::run(a),
     }
 }

@@ -8,6 +8,7 @@
 //! the board's answer (a detection, an error, a status) and at the end the link's goodput,
 //! retransmissions and superseded frames. Writes are paced to the line rate: a PTY or a USB bridge without flow control would
 //! otherwise let a large upload overrun the board's receive buffers.
+use crate::camera::{self, SourceConfig, SourceOptions};
 use crate::data::crop;
 use msr_shared::host_port::HostPort;
 use anyhow::{anyhow, bail, Context, Result};
@@ -33,9 +34,12 @@ pub struct Args {
     /// Upload the model to the board before streaming
     #[arg(long)]
     pub upload: bool,
-    /// Folder of camera frames (PNG, 320x240), streamed in name order
-    #[arg(long, conflicts_with = "sim")]
+    /// Camera frames: a folder of PNGs in name order, or `-`: a Y4M stream on standard input
+    #[arg(long, conflicts_with_all = ["sim", "camera"], value_name = "DIR|-")]
     pub frames: Option<PathBuf>,
+    /// A V4L2 camera, e.g. /dev/video0 (with the `v4l` feature)
+    #[arg(long, conflicts_with = "sim", value_name = "DEV")]
+    pub camera: Option<PathBuf>,
     /// Render frames from the sim instead, of this robot (red or skin): at home, a random mark
     /// from the 4th frame on
     #[arg(long, value_name = "ROBOT")]
@@ -52,6 +56,9 @@ pub struct Args {
     /// answer is waited for one frame period at most)
     #[arg(long, default_value_t = 2000)]
     pub timeout_ms: u64,
+    /// Longest wait for a frame of a stream or camera, milliseconds
+    #[arg(long, default_value_t = 5000, value_name = "MS")]
+    pub frame_timeout_ms: u64,
     /// One JSON object per line
     #[arg(long)]
     pub json: bool,
@@ -302,44 +309,26 @@ impl Session {
 
 /// The frames of a folder, in name order.
 pub fn folder_frames(dir: &Path) -> Result<Vec<(String, GrayImage)>> {
-    let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
-        .with_context(|| format!("reading frame folder {}", dir.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
-        .collect();
-    files.sort();
-    if files.is_empty() {
-        bail!("no PNG frames in {}", dir.display());
-    }
-    files
-        .iter()
-        .map(|p| Ok((p.display().to_string(), crop::load_grey(p)?)))
-        .collect()
+    collect(&SourceConfig::Folder(dir.to_path_buf()))
 }
 
 /// Frames rendered by the sim at home: the first three without a mark, then one random mark.
 pub fn sim_frames(robot: Robot, count: usize, seed: u64) -> Vec<(String, GrayImage)> {
-    use rand::SeedableRng;
-    let renderer = msr_sim::render::Renderer::new(robot);
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    let pose = msr_sim::body::BodyPose::head(0.0, 0.0);
-    let (mark, _) = msr_sim::dataset::render_marked(
-        &renderer,
-        &pose,
-        &msr_sim::render::Variation::CLEAN,
-        &mut rng,
-    );
-    (0..count)
-        .map(|i| {
-            let m = (i >= 3).then_some(&mark);
-            let r = renderer.render(&pose, m, &msr_sim::render::Variation::random(&mut rng));
-            let name = format!(
-                "sim-{i:03}{}",
-                m.map_or(String::new(), |m| format!(" ({} {})", m.colour, m.kind))
-            );
-            (name, crop::to_grey(&image::DynamicImage::ImageRgb8(r.rgb)))
-        })
-        .collect()
+    collect(&sim_source(robot, count, seed)).expect("the sim source does not fail")
+}
+
+/// `msr run --sim`'s source: at home, a random mark from the 4th frame on.
+pub fn sim_source(robot: Robot, count: usize, seed: u64) -> SourceConfig {
+    SourceConfig::Sim { robot, count: Some(count), seed, mark_from: Some(3) }
+}
+
+fn collect(cfg: &SourceConfig) -> Result<Vec<(String, GrayImage)>> {
+    let mut src = camera::open(cfg, &SourceOptions::default())?;
+    let mut out = Vec::new();
+    while let Some(f) = src.next_frame()? {
+        out.push((f.name, f.grey));
+    }
+    Ok(out)
 }
 
 /// One readable line for a board message.
@@ -375,6 +364,11 @@ pub fn describe(m: &BoardToHost) -> String {
         BoardToHost::ModelAccepted { crc32 } => format!("model accepted, crc {crc32:08x}"),
         BoardToHost::Pong { nonce } => format!("pong {nonce}"),
         BoardToHost::ServoBus(r) => format!("servo bus: {r:?}"),
+        BoardToHost::HeadAt { head } => format!(
+            "head settled at yaw {:.3} deg, pitch {:.3} deg",
+            head[0].to_degrees(),
+            head[1].to_degrees()
+        ),
         BoardToHost::FrameAck(a) => format!("frame {} round {}: {:?}", a.frame, a.round, a.state),
         BoardToHost::UploadAck { next } => format!("upload: the board wants byte {next} next"),
         BoardToHost::SelfGate(g) => format!(
@@ -421,11 +415,18 @@ pub fn run(a: Args) -> Result<()> {
             a.fps
         );
     }
-    let frames = match (&a.frames, a.sim) {
-        (Some(dir), _) => folder_frames(dir)?,
-        (None, Some(robot)) => sim_frames(robot, a.count, a.seed),
-        (None, None) => bail!("give --frames DIR or --sim red|skin"),
+    let source = match (&a.frames, &a.camera, a.sim) {
+        (Some(p), _, _) => SourceConfig::frames_arg(p),
+        (None, Some(dev), _) => SourceConfig::Camera(dev.clone()),
+        (None, None, Some(robot)) => sim_source(robot, a.count, a.seed),
+        (None, None, None) => bail!("give --frames DIR|-, --camera DEV or --sim red|skin"),
     };
+    let opts = SourceOptions {
+        timeout: Duration::from_millis(a.frame_timeout_ms),
+        fps: a.fps,
+        ..SourceOptions::default()
+    };
+    let mut frames = camera::open(&source, &opts)?;
     let mut s = Session::open(&a.port, a.baud)?;
     if a.upload {
         // An upload takes about 11 bits a byte on the line; allow for it.
@@ -441,9 +442,9 @@ pub fn run(a: Args) -> Result<()> {
         let crc = s.upload(&blob, timeout + line)?;
         print(&BoardToHost::ModelAccepted { crc32: crc }, a.json)?;
     }
-    for (name, frame) in &frames {
+    while let Some(camera::Frame { name, grey: frame }) = frames.next_frame()? {
         let t0 = Instant::now();
-        let face = cropper.crop(frame).with_context(|| format!("frame {name}"))?;
+        let face = cropper.crop(&frame).with_context(|| format!("frame {name}"))?;
         let msgs = s.send_face(&face, period.min(timeout))?;
         if !a.json {
             println!("{name}: face at ({}, {})", face.crop.x, face.crop.y);

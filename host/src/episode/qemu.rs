@@ -97,6 +97,34 @@ fn status(ls: &mut Lockstep) -> Result<Status> {
     bail!("the QEMU board's status did not decode")
 }
 
+/// Starts the board image in QEMU, uploads `blob` (if given; checked by the board), and resets
+/// it into lockstep with 1 ms ticks, for `msr serve`.
+pub fn start_lockstep(blob: Option<&[u8]>) -> Result<Lockstep> {
+    if !qemu::qemu_available() {
+        bail!("{} is not installed (Debian: apt-get install qemu-system-arm)", qemu::qemu_binary());
+    }
+    let image = qemu::find_image(qemu::BOARD_IMAGE)?;
+    let (mut ls, _) = Lockstep::start(&image)?;
+    let want = match blob {
+        Some(b) => {
+            let model = msr_shared::blob::Model::parse(b).map_err(|e| anyhow!("model blob: {e}"))?;
+            upload(&mut ls, b)?;
+            model.crc32
+        }
+        None => 0,
+    };
+    let got = ls.reset(Some(TICK_US))?;
+    if blob.is_some() && got != want {
+        bail!("after its reset the QEMU board runs model {got:#010x}, not the uploaded {want:#010x}");
+    }
+    Ok(ls)
+}
+
+/// The board's counters, read out of band.
+pub fn lockstep_status(ls: &mut Lockstep) -> Result<Status> {
+    status(ls)
+}
+
 /// The board image running in QEMU with a model uploaded, ready for trials. Each
 /// [`QemuBoard::trial`] resets the board first, so trials are independent.
 pub struct QemuBoard {

@@ -1,8 +1,13 @@
-//! A simulated board on a pseudo-terminal: the in-process firmware with the sim's servos, its
-//! host link bridged to a PTY, in real time, so that `msr run --port PATH` (or any `serialport`
-//! code) talks to it exactly as it would to a board on a USB serial port.
-use crate::episode::inproc_board;
-use anyhow::{anyhow, Result};
+//! A simulated board on a pseudo-terminal (`msr serve`): the in-process firmware, or the
+//! firmware image in QEMU, with the sim's servos, its host link bridged to a PTY, in real time,
+//! so that `msr run --port PATH` (or any `serialport` code) talks to it exactly as it would to a
+//! board on a USB serial port.
+//!
+//! Under QEMU the board runs in lockstep with the sim's 1 ms ticks (see [`crate::episode::qemu`])
+//! and the world is paced to real time: where QEMU cannot keep up, the board's time runs slower
+//! than the wall clock, never faster.
+use crate::episode::{inproc_board, Backend};
+use anyhow::{anyhow, bail, Result};
 use msr_shared::msg::Status;
 use msr_sim::link::LinkEnd;
 use msr_sim::pty::{Pty, PtyBridge};
@@ -26,7 +31,91 @@ pub struct SimBoard {
     thread: Option<JoinHandle<Result<Served>>>,
 }
 
+/// What `msr serve` serves.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ServeConfig {
+    pub backend: Backend,
+    /// The model the board starts with (built in, or uploaded to QEMU before serving).
+    pub model: Option<Vec<u8>>,
+}
+
 impl SimBoard {
+    /// Starts the board `cfg` names behind a new PTY.
+    pub fn serve(cfg: ServeConfig) -> Result<SimBoard> {
+        match cfg.backend {
+            Backend::Inproc => SimBoard::start(cfg.model),
+            Backend::Qemu => SimBoard::start_qemu(cfg.model.as_deref()),
+        }
+    }
+
+    /// Starts the firmware image in QEMU (after uploading `blob`, if given) behind a new PTY.
+    pub fn start_qemu(blob: Option<&[u8]>) -> Result<SimBoard> {
+        let mut ls = crate::episode::qemu::start_lockstep(blob)?;
+        let pty = Pty::open()?;
+        let path = pty.path().to_string();
+        let stop = Arc::new(AtomicBool::new(false));
+        let stop2 = stop.clone();
+        let thread = std::thread::Builder::new().name("qemu-board".into()).spawn(
+            move || -> Result<Served> {
+                let mut bridge = PtyBridge::new(pty);
+                let mut io_error = None;
+                let cfg = WorldConfig { pace: Some(1.0), ..WorldConfig::default() };
+                let (mut ho, mut so) = (Vec::new(), Vec::new());
+                let (w, _) = {
+                    let mut fw = |_now: u64, he: &mut LinkEnd, se: &mut LinkEnd| {
+                        if io_error.is_some() {
+                            return;
+                        }
+                        let (hi, si) = (he.receive(), se.receive());
+                        ho.clear();
+                        so.clear();
+                        match ls.tick(&hi, &si, &mut ho, &mut so) {
+                            Ok(()) => {
+                                he.send(&ho);
+                                se.send(&so);
+                            }
+                            Err(e) => io_error = Some(e),
+                        }
+                    };
+                    let mut pty_error = None;
+                    let r = world::run(
+                        &cfg,
+                        &mut fw,
+                        |w: &mut World| {
+                            if let Err(e) = bridge.pump(&mut w.host) {
+                                pty_error = Some(e);
+                                return Flow::Stop;
+                            }
+                            if stop2.load(Ordering::SeqCst) {
+                                Flow::Stop
+                            } else {
+                                Flow::Continue
+                            }
+                        },
+                        u64::MAX / 2,
+                    )
+                    .map_err(|e| anyhow!("{e}"))?;
+                    if let Some(e) = pty_error {
+                        bail!("PTY: {e}");
+                    }
+                    r
+                };
+                if let Some(e) = io_error {
+                    return Err(e.context("the QEMU board"));
+                }
+                let status = crate::episode::qemu::lockstep_status(&mut ls)?;
+                let _ = ls.exit(std::time::Duration::from_secs(10));
+                Ok(Served {
+                    status,
+                    limit_violations: w.servos.counters().limit_violations,
+                    to_board_bytes: bridge.to_link,
+                    from_board_bytes: bridge.to_pty,
+                })
+            },
+        )?;
+        Ok(SimBoard { path, stop, thread: Some(thread) })
+    }
+
     /// Starts a board with `blob` built in (or none) behind a new PTY.
     pub fn start(blob: Option<Vec<u8>>) -> Result<SimBoard> {
         let pty = Pty::open()?;
@@ -89,6 +178,11 @@ impl SimBoard {
     /// The device path to open, e.g. `/dev/pts/5`.
     pub fn path(&self) -> &str {
         &self.path
+    }
+
+    /// The board stopped by itself (an error): [`SimBoard::stop`] says why.
+    pub fn finished(&self) -> bool {
+        self.thread.as_ref().is_none_or(|t| t.is_finished())
     }
 
     /// Stops the world and returns what the board did.

@@ -1,0 +1,285 @@
+//! Camera frames, from wherever they come: a folder of PNGs, the sim's renderer, a Y4M stream
+//! (standard input, so that any camera tool can feed `msr`), or a V4L2 camera. Every source is a
+//! [`FrameSource`]; [`open`] makes one from a [`SourceConfig`] and wraps it so that every frame
+//! comes out grey at the size the model's template was made for ([`Frames`]).
+pub mod v4l2;
+pub mod y4m;
+
+use crate::data::crop;
+use anyhow::{bail, Context, Result};
+use image::GrayImage;
+use msr_sim::Robot;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+/// One grey camera frame and a name to report it by.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    pub name: String,
+    pub grey: GrayImage,
+}
+
+/// A camera. `next_frame` gives `Ok(None)` at the end of a finite source (a folder, a stream
+/// that closed between frames) and an error when a frame cannot be had (a stream cut mid-frame,
+/// a camera that stopped delivering).
+pub trait FrameSource {
+    fn next_frame(&mut self) -> Result<Option<Frame>>;
+    /// The head now stands at (yaw, pitch), radians. Only a rendered camera cares: a real one
+    /// sees the head move by itself.
+    fn head_moved(&mut self, _head: [f64; 2]) {}
+    /// Drops frames read ahead and not yet taken, so that the next one is shot after this call
+    /// (a live source buffers).
+    fn discard_buffered(&mut self) {}
+}
+
+/// Where frames come from.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SourceConfig {
+    /// PNG files of a folder, in name order.
+    Folder(PathBuf),
+    /// The sim's renderer for `robot`: `count` frames (`None`: for ever) at the head pose last
+    /// given with [`FrameSource::head_moved`] (home at first), each with fresh camera noise; a
+    /// random mark from frame `mark_from` on (`None`: never).
+    Sim { robot: Robot, count: Option<usize>, seed: u64, mark_from: Option<usize> },
+    /// A YUV4MPEG2 stream on standard input.
+    Y4mStdin,
+    /// A V4L2 camera, e.g. `/dev/video0` (needs the `v4l` feature).
+    Camera(PathBuf),
+}
+
+impl SourceConfig {
+    /// `--frames PATH`: `-` is standard input (Y4M), anything else a folder.
+    pub fn frames_arg(p: &Path) -> SourceConfig {
+        if p.as_os_str() == "-" {
+            SourceConfig::Y4mStdin
+        } else {
+            SourceConfig::Folder(p.to_path_buf())
+        }
+    }
+}
+
+/// How frames are delivered.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SourceOptions {
+    /// Frame size the model's template was cut from; frames of another size with the same aspect
+    /// ratio are scaled to it.
+    pub size: [u32; 2],
+    /// Longest wait for the next frame of a live source (a stream, a camera).
+    pub timeout: Duration,
+    /// Frame rate to ask a camera for (0: its own).
+    pub fps: f64,
+}
+
+impl Default for SourceOptions {
+    fn default() -> SourceOptions {
+        SourceOptions {
+            size: [msr_sim::body::WIDTH, msr_sim::body::HEIGHT],
+            timeout: Duration::from_secs(5),
+            fps: 0.0,
+        }
+    }
+}
+
+/// Opens a source.
+pub fn open(cfg: &SourceConfig, opts: &SourceOptions) -> Result<Frames> {
+    let inner: Box<dyn FrameSource> = match cfg {
+        SourceConfig::Folder(dir) => Box::new(FolderSource::open(dir)?),
+        SourceConfig::Sim { robot, count, seed, mark_from } => {
+            Box::new(SimSource::new(*robot, *count, *seed, *mark_from))
+        }
+        SourceConfig::Y4mStdin => {
+            Box::new(y4m::Y4mSource::spawn(std::io::stdin(), "stdin", opts.timeout))
+        }
+        SourceConfig::Camera(dev) => open_camera(dev, opts)?,
+    };
+    Ok(Frames { inner, size: opts.size, scaled: 0 })
+}
+
+#[cfg(feature = "v4l")]
+fn open_camera(dev: &Path, opts: &SourceOptions) -> Result<Box<dyn FrameSource>> {
+    Ok(Box::new(v4l2::V4lSource::open(dev, opts.size, opts.fps, opts.timeout)?))
+}
+
+#[cfg(not(feature = "v4l"))]
+fn open_camera(dev: &Path, opts: &SourceOptions) -> Result<Box<dyn FrameSource>> {
+    let [w, h] = opts.size;
+    bail!(
+        "this msr is built without V4L2 cameras (cargo build --release -p msr-host --features v4l; \
+         it needs libclang); or stream the camera through ffmpeg: ffmpeg -f v4l2 -i {} -f \
+         yuv4mpegpipe -pix_fmt gray -s {w}x{h} - | msr ... --frames -",
+        dev.display()
+    )
+}
+
+/// A source whose frames all come out at one size.
+pub struct Frames {
+    inner: Box<dyn FrameSource>,
+    size: [u32; 2],
+    /// Frames that were scaled.
+    pub scaled: u64,
+}
+
+impl Frames {
+    pub fn new(inner: Box<dyn FrameSource>, size: [u32; 2]) -> Frames {
+        Frames { inner, size, scaled: 0 }
+    }
+
+    pub fn next_frame(&mut self) -> Result<Option<Frame>> {
+        let Some(mut f) = self.inner.next_frame()? else { return Ok(None) };
+        if f.grey.dimensions() != (self.size[0], self.size[1]) {
+            f.grey = fit(&f.grey, self.size).with_context(|| format!("frame {}", f.name))?;
+            self.scaled += 1;
+        }
+        Ok(Some(f))
+    }
+
+    pub fn head_moved(&mut self, head: [f64; 2]) {
+        self.inner.head_moved(head);
+    }
+
+    pub fn discard_buffered(&mut self) {
+        self.inner.discard_buffered();
+    }
+}
+
+/// `img` scaled to `size`. Another aspect ratio is refused: stretching would change the face's
+/// shape, and the template would no longer match it.
+pub fn fit(img: &GrayImage, size: [u32; 2]) -> Result<GrayImage> {
+    let (w, h) = img.dimensions();
+    let [tw, th] = size;
+    if w == 0 || h == 0 || tw == 0 || th == 0 {
+        bail!("an empty frame ({w}x{h}) or frame size ({tw}x{th})");
+    }
+    let ratio = (w as f64 / h as f64) / (tw as f64 / th as f64);
+    if (ratio - 1.0).abs() > 0.01 {
+        bail!(
+            "the frame is {w}x{h}, another aspect ratio than the model's {tw}x{th}: crop it to \
+             {tw}:{th} first (ffmpeg: -vf crop=...,scale={tw}:{th})"
+        );
+    }
+    Ok(image::imageops::resize(img, tw, th, image::imageops::FilterType::Triangle))
+}
+
+/// The PNG files of a folder, read one at a time in name order.
+pub struct FolderSource {
+    files: std::vec::IntoIter<PathBuf>,
+}
+
+impl FolderSource {
+    pub fn open(dir: &Path) -> Result<FolderSource> {
+        let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
+            .with_context(|| format!("reading frame folder {}", dir.display()))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")))
+            .collect();
+        files.sort();
+        if files.is_empty() {
+            bail!("no PNG frames in {}", dir.display());
+        }
+        Ok(FolderSource { files: files.into_iter() })
+    }
+}
+
+impl FrameSource for FolderSource {
+    fn next_frame(&mut self) -> Result<Option<Frame>> {
+        let Some(p) = self.files.next() else { return Ok(None) };
+        Ok(Some(Frame { name: p.display().to_string(), grey: crop::load_grey(&p)? }))
+    }
+}
+
+/// The sim's camera: the robot in the mirror at the current head pose.
+pub struct SimSource {
+    renderer: msr_sim::render::Renderer,
+    rng: rand_chacha::ChaCha8Rng,
+    pose: msr_sim::body::BodyPose,
+    mark: Option<msr_sim::marks::Mark>,
+    mark_from: usize,
+    count: Option<usize>,
+    next: usize,
+}
+
+impl SimSource {
+    pub fn new(robot: Robot, count: Option<usize>, seed: u64, mark_from: Option<usize>) -> SimSource {
+        use rand::SeedableRng;
+        let renderer = msr_sim::render::Renderer::new(robot);
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let pose = msr_sim::body::BodyPose::head(0.0, 0.0);
+        // The mark is drawn first (at home) whether or not it is shown, so that a seed gives the
+        // same frames with and without a mark.
+        let (mark, _) = msr_sim::dataset::render_marked(
+            &renderer,
+            &pose,
+            &msr_sim::render::Variation::CLEAN,
+            &mut rng,
+        );
+        SimSource {
+            renderer,
+            rng,
+            pose,
+            mark: mark_from.map(|_| mark),
+            mark_from: mark_from.unwrap_or(usize::MAX),
+            count,
+            next: 0,
+        }
+    }
+}
+
+impl FrameSource for SimSource {
+    fn next_frame(&mut self) -> Result<Option<Frame>> {
+        let i = self.next;
+        if self.count.is_some_and(|n| i >= n) {
+            return Ok(None);
+        }
+        self.next += 1;
+        let m = self.mark.as_ref().filter(|_| i >= self.mark_from);
+        let var = msr_sim::render::Variation::random(&mut self.rng);
+        let r = self.renderer.render(&self.pose, m, &var);
+        let name = format!(
+            "sim-{i:03}{}",
+            m.map_or(String::new(), |m| format!(" ({} {})", m.colour, m.kind))
+        );
+        Ok(Some(Frame { name, grey: crop::to_grey(&image::DynamicImage::ImageRgb8(r.rgb)) }))
+    }
+
+    fn head_moved(&mut self, head: [f64; 2]) {
+        self.pose.head_yaw = head[0];
+        self.pose.head_pitch = head[1];
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_frame_of_the_model_size_is_kept_and_others_are_scaled_or_refused() {
+        let img = GrayImage::from_fn(640, 480, |x, _| image::Luma([(x / 2) as u8]));
+        let out = fit(&img, [320, 240]).unwrap();
+        assert_eq!(out.dimensions(), (320, 240));
+        // A horizontal ramp halves: pixel 100 covers source pixels 200..202, grey 100.
+        assert!((out.get_pixel(100, 50).0[0] as i32 - 100).abs() <= 1);
+        let wide = GrayImage::new(640, 360);
+        let e = fit(&wide, [320, 240]).unwrap_err().to_string();
+        assert!(e.contains("640x360") && e.contains("aspect"), "{e}");
+    }
+
+    #[test]
+    fn the_sim_source_renders_the_pose_it_is_given() {
+        let mut a = SimSource::new(Robot::Red, Some(2), 3, None);
+        let mut b = SimSource::new(Robot::Red, Some(2), 3, None);
+        let fa = a.next_frame().unwrap().unwrap();
+        b.head_moved([0.05, 0.0]);
+        let fb = b.next_frame().unwrap().unwrap();
+        assert_eq!(fa.grey.dimensions(), (320, 240));
+        assert_ne!(fa.grey, fb.grey, "the head turned");
+        assert!(a.next_frame().unwrap().is_some());
+        assert!(a.next_frame().unwrap().is_none(), "count 2");
+    }
+
+    #[test]
+    fn a_folder_without_frames_is_a_clear_error() {
+        let d = tempfile::tempdir().unwrap();
+        let e = FolderSource::open(d.path()).err().unwrap().to_string();
+        assert!(e.contains("no PNG frames"), "{e}");
+    }
+}

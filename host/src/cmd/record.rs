@@ -1,0 +1,103 @@
+//! `msr record`: head babbling on the robot, into a dataset `msr train` reads (see
+//! [`crate::record`]).
+use crate::camera::SourceConfig;
+use crate::record::{self, RecordConfig};
+use anyhow::{bail, Result};
+use msr_sim::Robot;
+use std::path::PathBuf;
+use std::time::Duration;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// Serial port of the board (or the PTY `msr serve` printed)
+    #[arg(long)]
+    pub port: String,
+    /// Line rate, baud
+    #[arg(long, default_value_t = 921_600)]
+    pub baud: u32,
+    /// The camera is the sim's renderer of this robot (red or skin), at the head angles the
+    /// servos report
+    #[arg(long, value_name = "ROBOT", conflicts_with = "frames")]
+    pub sim: Option<Robot>,
+    /// The camera: `-` for a Y4M stream on standard input (e.g. `ffmpeg -f v4l2 -i /dev/video0
+    /// -f yuv4mpegpipe -pix_fmt gray -`)
+    #[arg(long, value_name = "-", conflicts_with = "camera")]
+    pub frames: Option<PathBuf>,
+    /// The camera: a V4L2 device (e.g. /dev/video0; builds with the `v4l` feature)
+    #[arg(long, value_name = "DEV", conflicts_with = "sim")]
+    pub camera: Option<PathBuf>,
+    /// Frames to keep
+    #[arg(long)]
+    pub count: usize,
+    /// Output folder (the dataset layout of `msr dataset`)
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Head angles drawn uniformly within +-this, degrees
+    #[arg(long, default_value_t = 5.0)]
+    pub range_deg: f64,
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Continue an unfinished recording in --out
+    #[arg(long)]
+    pub resume: bool,
+    /// Record over a finished recording in --out
+    #[arg(long)]
+    pub force: bool,
+    /// Face template (grey PNG, e.g. from `msr template`); default: --out's template.png, or
+    /// the sim robot's
+    #[arg(long)]
+    pub template: Option<PathBuf>,
+    /// Share of the frames in the test split
+    #[arg(long, default_value_t = 0.2)]
+    pub test_fraction: f64,
+    /// Longest wait for the board to answer a head pose, milliseconds
+    #[arg(long, default_value_t = 5000)]
+    pub timeout_ms: u64,
+    /// Longest wait for a camera frame, milliseconds
+    #[arg(long, default_value_t = 5000)]
+    pub frame_timeout_ms: u64,
+}
+
+pub fn config(a: &Args) -> Result<RecordConfig> {
+    let source = match (&a.frames, &a.camera, a.sim) {
+        (Some(p), _, _) if p.as_os_str() == "-" => SourceConfig::Y4mStdin,
+        (Some(p), _, _) => bail!("--frames takes `-` (a Y4M stream on standard input), got {}", p.display()),
+        (None, Some(dev), _) => SourceConfig::Camera(dev.clone()),
+        (None, None, Some(robot)) => SourceConfig::Sim { robot, count: None, seed: a.seed, mark_from: None },
+        (None, None, None) => bail!("give a camera: --sim red|skin, --frames - or --camera DEV"),
+    };
+    let mut c = RecordConfig::new(&a.port, source, a.count, &a.out);
+    c.baud = a.baud;
+    c.range_deg = a.range_deg;
+    c.seed = a.seed;
+    c.resume = a.resume;
+    c.force = a.force;
+    c.template = a.template.clone();
+    c.test_fraction = a.test_fraction;
+    c.head_timeout = Duration::from_millis(a.timeout_ms);
+    c.frame_timeout = Duration::from_millis(a.frame_timeout_ms);
+    c.progress = true;
+    Ok(c)
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let c = config(&a)?;
+    eprintln!(
+        "recording {} frames (head within +-{} deg) into {}",
+        c.count,
+        c.range_deg,
+        c.out.display()
+    );
+    let r = record::record(&c)?;
+    println!("{}", serde_json::to_string(&r)?);
+    eprintln!(
+        "recorded {} frames ({} from an earlier run); skipped {} without a face, {} poses not \
+         settled; largest pose error {:.3} deg",
+        r.frames + r.resumed,
+        r.resumed,
+        r.skipped_no_face,
+        r.skipped_not_settled,
+        r.max_pose_error_deg
+    );
+    Ok(())
+}

@@ -1,0 +1,60 @@
+//! `msr serve`: an emulated board on a new pseudo-terminal until interrupted (or `--seconds`),
+//! the in-process firmware or the firmware image in QEMU, with the sim's servos behind it.
+//! `msr run --port PATH` and `msr record --port PATH` talk to it as to a board on USB.
+use crate::episode::sim_board::{ServeConfig, SimBoard};
+use crate::episode::Backend;
+use anyhow::Result;
+use msr_sim::Robot;
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// What runs the firmware: this process, or the thumbv7em image in qemu-system-arm
+    #[arg(long, value_enum, default_value_t = Backend::Inproc)]
+    pub backend: Backend,
+    /// The robot whose servos these are (both robots have the same joints)
+    #[arg(long, default_value = "red")]
+    pub robot: Robot,
+    /// A model blob (.msrm) the board starts with; without one the board waits for an upload
+    /// (`msr run --upload`)
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Stop after this many seconds (default: until interrupted)
+    #[arg(long)]
+    pub seconds: Option<f64>,
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let model = match &a.model {
+        Some(p) => Some(crate::episode::read_model(p)?),
+        None => None,
+    };
+    let board = SimBoard::serve(ServeConfig { backend: a.backend, model })?;
+    // The path on stdout alone, for scripts; the rest on stderr.
+    println!("{}", board.path());
+    std::io::stdout().flush()?;
+    eprintln!(
+        "{} robot: emulated board ({}) on {}, host link protocol {}; servos emulated",
+        a.robot.name(),
+        a.backend.name(),
+        board.path(),
+        msr_shared::frame::PROTOCOL_VERSION
+    );
+    let t0 = Instant::now();
+    let limit = a.seconds.map(Duration::from_secs_f64);
+    while !board.finished() && limit.is_none_or(|l| t0.elapsed() < l) {
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let served = board.stop()?;
+    eprintln!(
+        "served {:.1} s: {} bytes in, {} bytes out, {} limit violations; board: {:?}",
+        t0.elapsed().as_secs_f64(),
+        served.to_board_bytes,
+        served.from_board_bytes,
+        served.limit_violations,
+        served.status.mode
+    );
+    Ok(())
+}

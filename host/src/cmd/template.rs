@@ -1,0 +1,48 @@
+//! `msr template`: cut a face template out of a camera frame (the box is inclusive, in
+//! full-frame pixels, as the datasets' mark boxes).
+use crate::data::crop;
+use crate::fsio;
+use anyhow::{bail, Result};
+use std::path::PathBuf;
+
+#[derive(clap::Args, Debug)]
+pub struct Args {
+    /// A camera frame (any image; taken as grey)
+    #[arg(long)]
+    pub frame: PathBuf,
+    /// The face's box: x0,y0,x1,y1, inclusive
+    #[arg(long, value_name = "x0,y0,x1,y1")]
+    pub r#box: String,
+    /// The template to write (PNG), e.g. DIR/template.png for `msr record --out DIR`
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+/// `x0,y0,x1,y1` (inclusive) as numbers, checked for order.
+pub fn parse_box(s: &str) -> Result<[u32; 4]> {
+    let v: Vec<u32> = s
+        .split(',')
+        .map(|p| p.trim().parse::<u32>())
+        .collect::<Result<_, _>>()
+        .map_err(|_| anyhow::anyhow!("--box must be x0,y0,x1,y1 in pixels, got {s:?}"))?;
+    let [x0, y0, x1, y1] = v[..] else {
+        bail!("--box must be four numbers x0,y0,x1,y1, got {s:?}")
+    };
+    if x1 < x0 || y1 < y0 {
+        bail!("--box {s}: x1 must not be left of x0, nor y1 above y0");
+    }
+    Ok([x0, y0, x1, y1])
+}
+
+pub fn run(a: Args) -> Result<()> {
+    let [x0, y0, x1, y1] = parse_box(&a.r#box)?;
+    let frame = crop::load_grey(&a.frame)?;
+    let (w, h) = frame.dimensions();
+    if x1 >= w || y1 >= h {
+        bail!("--box {} leaves the {w}x{h} frame {}", a.r#box, a.frame.display());
+    }
+    let t = image::imageops::crop_imm(&frame, x0, y0, x1 - x0 + 1, y1 - y0 + 1).to_image();
+    fsio::write_with(&a.out, |p| t.save_with_format(p, image::ImageFormat::Png).map_err(Into::into))?;
+    eprintln!("template {}x{} written to {}", t.width(), t.height(), a.out.display());
+    Ok(())
+}
