@@ -230,7 +230,6 @@ fn header_checks() {
     assert!(edit(4, &[2, 0]).is_ok());
     assert!(edit(4, &[3, 0]).is_ok());
     assert!(edit(4, &[4, 0]).is_ok());
-    assert!(edit(4, &[5, 0]).is_ok());
     assert_eq!(edit(6, &[41, 0]), Err(BlobError::BadHeader));
     assert_eq!(edit(16, &[0, 0]), Err(BlobError::FaceSize));
     assert_eq!(edit(16, &[65, 0]), Err(BlobError::FaceSize));
@@ -580,19 +579,20 @@ fn error_pool_needs_version_5_flag_bit_4_and_a_radius_in_range() {
         recrc(&mut b);
         Model::parse(&b).map(|m| m.novelty.pool)
     };
-    // Version 4 has no pool; a radius without the flag, 0 or over the limit with it, and bit
-    // 3 (not this build's) are refused.
+    // Version 4 has no pool; a radius without the flag, 0 or over the limit with it, an unknown
+    // bit (5), and bit 3 (the self gate) without its section are refused.
     assert_eq!(edit(4, &[4, 0]), Err(BlobError::BadHeader));
     assert_eq!(edit(22, &[1, 0]), Err(BlobError::BadHeader));
     assert_eq!(edit(37, &[0]), Err(BlobError::Novelty));
     assert_eq!(edit(37, &[MAX_POOL + 1]), Err(BlobError::Novelty));
     assert_eq!(edit(37, &[MAX_POOL]), Ok(MAX_POOL));
-    assert_eq!(edit(22, &[25, 0]), Err(BlobError::BadHeader));
-    // Version 5 need not pool.
+    assert_eq!(edit(22, &[49, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(22, &[25, 0]), Err(BlobError::Truncated));
+    // Version 5 carries a self gate or pooling: the plain blob as version 5 is refused.
     let mut b = plain.clone();
     b[4] = 5;
     recrc(&mut b);
-    assert_eq!(Model::parse(&b).map(|m| m.novelty.pool), Ok(0));
+    assert_eq!(Model::parse(&b).map(|m| m.novelty.pool), Err(BlobError::BadHeader));
     // The writer refuses what the parser refuses.
     spec.novelty.pool = MAX_POOL + 1;
     assert_eq!(spec.to_bytes(), Err(BlobError::Novelty));
