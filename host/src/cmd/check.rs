@@ -228,6 +228,9 @@ pub fn check(c: &Command) -> Result<()> {
             if let Some(secs) = a.seconds {
                 real("--seconds", secs, 0.0, 1e6, " s")?;
             }
+            real("--ber", a.ber, 0.0, 1.0, " (errors per bit)")?;
+            real("--burst-rate", a.burst_rate, 0.0, 1.0, " (bursts per byte)")?;
+            int("--burst-len", a.burst_len, 1, 65_536, " bytes")?;
         }
         Command::Record(a) => {
             int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
