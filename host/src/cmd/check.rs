@@ -254,6 +254,7 @@ pub fn check(c: &Command) -> Result<()> {
             int("--epochs", a.epochs, 1, 100_000, "")?;
             int("--trials", a.trials, 1, MAX_TRIALS, "")?;
             int("--qemu-trials", a.qemu_trials, 0, a.trials, " (at most --trials)")?;
+            int("--gate-trials", a.gate_trials, 0, MAX_TRIALS, "")?;
             if let Some(r) = &a.real {
                 fsio::check_out_dir(&[("--real", r)], "--out", &a.out)?;
             }
