@@ -11,7 +11,8 @@ use anyhow::{Context, Result};
 use msr_sim::Robot;
 use crate::data::crop::CropMode;
 use crate::episode::ServoBus;
-use crate::report::{DemoReport, MirrorTestReport, RealCheck, Training};
+use crate::episode::Scene;
+use crate::report::{DemoReport, MirrorTestReport, RealCheck, SceneReport, SelfGateReport, Training};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -47,6 +48,10 @@ pub struct DemoConfig {
     /// The servo bus of the episodes.
     #[config(default = "ServoBus::Dynamixel")]
     pub servo_bus: ServoBus,
+    /// Trials in each scene (mirror, another robot, a delayed picture) with a self gate
+    /// calibrated on the spot (0: none).
+    #[config(default = 6)]
+    pub gate_trials: usize,
 }
 
 struct Progress {
@@ -202,6 +207,23 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
     let trials = episode::run_inproc(&blob, &cfg, a.trials, a.seed, &quiet)?;
     let inproc = episode::summarise(Backend::Inproc, a.robot, a.servo_bus, &trials);
     p.done("episodes_inproc_s", &crate::cmd::mirror_test::readable(&inproc));
+    let self_gate = if a.gate_trials > 0 {
+        p.start(&format!(
+            "   the self gate: {} trials in each scene (the mirror, another robot, a delayed picture), the gate calibrated on the spot",
+            a.gate_trials
+        ));
+        let g = self_gate_episodes(&blob, &cfg, a)?;
+        let line = g
+            .scenes
+            .iter()
+            .map(|s| format!("{}: {} of {} trials reach", s.summary.scene, s.summary.reaches, s.summary.trials))
+            .collect::<Vec<_>>()
+            .join(", ");
+        p.done("self_gate_s", &line);
+        Some(g)
+    } else {
+        None
+    };
     let mut mirror = MirrorTestReport { inproc, trials, qemu: None, qemu_matching_inproc: None, qemu_error: None };
     if msr_sim::qemu::qemu_available() {
         p.start(&format!(
@@ -276,6 +298,7 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
         timings: p.timings,
         training: Training { decoder: dec_info, autoencoder: ae_info },
         reach_fit_rms_rad: rms,
+        self_gate,
         notes,
     };
     crate::fsio::write(&out.join("report.json"), serde_json::to_vec_pretty(&report)?)?;
@@ -324,6 +347,23 @@ fn novelty_note(a: &train::policy::Applied) -> String {
         said(&a.observe),
         if a.novelty.region.is_none() { " (the same: no pose region)" } else { "" }
     )
+}
+
+/// The demo's model with a self gate calibrated on the spot (`train::self_gate`), a few trials
+/// in each scene: the gate must pass its own mirror image and refuse the others.
+fn self_gate_episodes(blob: &[u8], cfg: &EpisodeConfig, a: &DemoConfig) -> Result<SelfGateReport> {
+    use crate::train::self_gate::{attach, GateCalibration};
+    let (gated, cal) = attach(blob, a.robot, &GateCalibration::default())?;
+    let mut scenes = Vec::new();
+    for scene in [Scene::Mirror, Scene::Other, Scene::Delayed] {
+        let mut c = cfg.clone();
+        c.scene = scene;
+        let trials = episode::run_inproc(&gated, &c, a.gate_trials, a.seed, &|_: &episode::Trial| {})?;
+        let gain_ratios = trials.iter().flat_map(|t| t.gate.iter().filter_map(|g| g.gain_ratio)).collect();
+        let summary = episode::summarise(Backend::Inproc, a.robot, a.servo_bus, &trials);
+        scenes.push(SceneReport { summary, gain_ratios });
+    }
+    Ok(SelfGateReport { gain_tol: cal.gate.gain_tol, rest_tol_px: cal.gate.rest_tol_px, scenes })
 }
 
 /// Wall time the QEMU episodes may take: the emulated UART moves 20 to 40 KB/s, so a trial takes

@@ -36,8 +36,28 @@ pub struct DemoReport {
     pub training: Training,
     /// The reach network's fit on its 70 sim pairs, per joint.
     pub reach_fit_rms_rad: [f64; 5],
+    /// The self gate in the three scenes (`None`: not run).
+    #[serde(default)]
+    pub self_gate: Option<SelfGateReport>,
     /// What the demo does differently from the paper's full protocol, and why.
     pub notes: Vec<String>,
+}
+
+/// The demo's model with a self gate calibrated on the spot, a few trials in each scene.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SelfGateReport {
+    /// The gate passes a gain ratio (measured over calibrated) within `1 -+ gain_tol`.
+    pub gain_tol: f32,
+    pub rest_tol_px: f32,
+    pub scenes: Vec<SceneReport>,
+}
+
+/// One scene's trials with the gate.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct SceneReport {
+    pub summary: Summary,
+    /// Every decision's gain ratio, the statistic the gate tests.
+    pub gain_ratios: Vec<f32>,
 }
 
 /// The two trained models' `{name}.json`.
@@ -262,6 +282,39 @@ fn kv(v: &Value) -> String {
     s
 }
 
+/// The self gate's scenes: a table, and the gain ratio of every decision per scene against the
+/// pass band (an inline SVG strip plot).
+fn self_gate_section(h: &mut String, g: &SelfGateReport) {
+    let _ = write!(h, "<h2>The self gate: is it me?</h2><p>Before a confirmed mark starts a reach, the board turns its head a few degrees each way and checks that the face in the frame follows with its own mirror image's gain. The demo's model with a gate calibrated on the spot, in three scenes: its own mirror image, another robot of the same look where the image would be (holding still or babbling its head), and its own image through a video delay of 0.3-2 s. Only the mirror may reach.</p>");
+    let rows: Vec<Value> = g.scenes.iter().map(|s| value(&s.summary)).collect();
+    h.push_str(&table(
+        &rows,
+        &["scene", "trials", "marked_trials", "touched", "reaches", "gate_passes", "gate_rejects", "gate_undecided", "latency_ms_median"],
+    ));
+    let all: Vec<f32> = g.scenes.iter().flat_map(|s| s.gain_ratios.iter().copied()).collect();
+    let (lo, hi) = all
+        .iter()
+        .fold((1.0 - 2.0 * g.gain_tol, 1.0 + 2.0 * g.gain_tol), |(l, u), &r| (l.min(r), u.max(r)));
+    let (lo, hi) = (lo - 0.02, hi + 0.02);
+    let (w, row, left) = (600.0f32, 28.0f32, 90.0f32);
+    let x = |r: f32| left + (r - lo) / (hi - lo) * (w - left - 10.0);
+    let height = row * g.scenes.len() as f32 + 30.0;
+    let _ = write!(h, "<svg width={w} height={height} style=\"font:12px sans-serif\"><rect x={:.1} y=0 width={:.1} height={:.1} fill=\"#dfd\"/>",
+        x(1.0 - g.gain_tol), x(1.0 + g.gain_tol) - x(1.0 - g.gain_tol), row * g.scenes.len() as f32);
+    for (i, s) in g.scenes.iter().enumerate() {
+        let y = row * i as f32 + row / 2.0;
+        let _ = write!(h, "<text x=4 y={:.1}>{}</text>", y + 4.0, esc(&s.summary.scene));
+        for &r in &s.gain_ratios {
+            let _ = write!(h, "<circle cx={:.1} cy={y:.1} r=3 fill=\"#c22\" fill-opacity=0.6/>", x(r));
+        }
+    }
+    let axis = row * g.scenes.len() as f32 + 14.0;
+    for t in [lo, 1.0 - g.gain_tol, 1.0, 1.0 + g.gain_tol, hi] {
+        let _ = write!(h, "<text x={:.1} y={axis:.1} text-anchor=middle>{t:.2}</text>", x(t));
+    }
+    let _ = write!(h, "</svg><p class=cap>Gain ratio (the face's shift per radian of head yaw over the calibrated one) of every decision, per scene; green: the band the gate passes (1 &plusmn; {:.3}).</p>", g.gain_tol);
+}
+
 fn value<T: Serialize>(x: &T) -> Value {
     serde_json::to_value(x).unwrap_or(Value::Null)
 }
@@ -429,6 +482,10 @@ pub fn write_html(out: &Path, report: &DemoReport, blob: &[u8], data: &Path) -> 
             let _ = write!(h, "<figure><img src=\"pictures/{file}\"><figcaption>trial {}: {} - {mm} mm<br>[{:.2}, {:.2}, {:.2}, {:.2}, {:.2}] rad</figcaption></figure>",
                 t.index, esc(t.mark.as_deref().unwrap_or("-")), q[0], q[1], q[2], q[3], q[4]);
         }
+    }
+
+    if let Some(g) = &report.self_gate {
+        self_gate_section(&mut h, g);
     }
 
     let _ = write!(

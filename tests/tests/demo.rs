@@ -18,6 +18,7 @@ fn demo_writes_model_report_and_page() {
             .with_epochs(4)
             .with_trials(3)
             .with_qemu_trials(1)
+            .with_gate_trials(2)
             .with_real(Some(real_dir())),
     )
     .unwrap();
@@ -34,6 +35,13 @@ fn demo_writes_model_report_and_page() {
     assert_eq!(r.mirror_test.trials.len(), 3);
     assert_eq!(r.mirror_test.inproc.limit_violations, 0);
     assert_eq!(r.mirror_test.inproc.servo_bus, "dynamixel");
+    // The self gate: its own mirror image may reach; a delayed picture of it never.
+    let g = r.self_gate.as_ref().expect("the self gate's scenes");
+    let scenes: Vec<&str> = g.scenes.iter().map(|s| s.summary.scene.as_str()).collect();
+    assert_eq!(scenes, ["mirror", "other", "delayed"]);
+    assert_eq!(g.scenes[2].summary.reaches, 0, "a delayed picture started a reach");
+    let decisions = |s: &msr_host::report::SceneReport| s.summary.gate_passes + s.summary.gate_rejects + s.summary.gate_undecided;
+    assert!(g.scenes.iter().all(|s| s.gain_ratios.len() <= decisions(s)));
     if real_dir().join("manifest.json").exists() {
         // The published model on the real frames, as the mission says it must do.
         let want = RealCheck { marked: 9, hits: 9, unmarked: 6, false_alarms: 0 };
@@ -47,6 +55,7 @@ fn demo_writes_model_report_and_page() {
     msr_host::demo::rewrite_html(&out).unwrap();
     let html = std::fs::read_to_string(out.join("index.html")).unwrap();
     assert!(html.contains("pictures/test0_saliency.png") && html.contains("Reach poses"));
+    assert!(html.contains("The self gate") && html.contains("<svg"));
     assert!(out.join("pictures/test0_saliency.png").exists());
     let _ = std::fs::remove_dir_all(&out);
 }

@@ -5,6 +5,7 @@ mod common;
 use msr_host::cmd::run::{self as run_board, Session};
 use msr_host::episode::sim_board::SimBoard;
 use msr_shared::msg::{BoardToHost, Mode};
+use msr_sim::link::FaultConfig;
 use msr_sim::Robot;
 use std::time::Duration;
 
@@ -115,6 +116,27 @@ fn a_bad_upload_over_the_pty_is_refused() {
     );
     drop(s);
     board.stop().unwrap();
+}
+
+#[test]
+fn an_upload_over_a_noisy_pty_resumes_until_it_is_through() {
+    // Bit errors and two dead spells on the host link while a 300 KB model goes up: after each
+    // loss the upload resumes from where the board stands, and the board runs exactly that blob.
+    let blob = msr_host::bench::synthetic(msr_host::models::ArchKind::Conv).unwrap().blob;
+    let faults = FaultConfig {
+        bit_error_rate: 2e-6,
+        disconnects: vec![(700_000, 60_000), (1_500_000, 60_000)],
+        ..FaultConfig::default()
+    };
+    let board = SimBoard::start_with(None, faults, 3).unwrap();
+    let mut s = Session::open(board.path(), 921_600).unwrap();
+    let want = msr_shared::blob::Model::parse(&blob).unwrap().crc32;
+    assert_eq!(s.upload(&blob, T).unwrap(), want);
+    assert!(s.upload_resent > 0, "no loss made the upload resume");
+    drop(s);
+    let served = board.stop().unwrap();
+    assert_eq!(served.status.model_crc, want);
+    assert!(served.status.host_link.resyncs() > 0, "the board saw no damaged frame");
 }
 
 #[test]

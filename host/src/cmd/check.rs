@@ -228,6 +228,9 @@ pub fn check(c: &Command) -> Result<()> {
             if let Some(secs) = a.seconds {
                 real("--seconds", secs, 0.0, 1e6, " s")?;
             }
+            real("--ber", a.ber, 0.0, 1.0, " (errors per bit)")?;
+            real("--burst-rate", a.burst_rate, 0.0, 1.0, " (bursts per byte)")?;
+            int("--burst-len", a.burst_len, 1, 65_536, " bytes")?;
         }
         Command::Record(a) => {
             int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
@@ -251,6 +254,7 @@ pub fn check(c: &Command) -> Result<()> {
             int("--epochs", a.epochs, 1, 100_000, "")?;
             int("--trials", a.trials, 1, MAX_TRIALS, "")?;
             int("--qemu-trials", a.qemu_trials, 0, a.trials, " (at most --trials)")?;
+            int("--gate-trials", a.gate_trials, 0, MAX_TRIALS, "")?;
             if let Some(r) = &a.real {
                 fsio::check_out_dir(&[("--real", r)], "--out", &a.out)?;
             }

@@ -36,6 +36,10 @@ pub struct Args {
     /// The servo bus of the episodes
     #[arg(long, value_enum, default_value_t = ServoBus::Dynamixel)]
     pub servo_bus: ServoBus,
+    /// Trials in each scene (mirror, another robot, a delayed picture) with a self gate
+    /// calibrated on the spot (0: none)
+    #[arg(long, default_value_t = 6)]
+    pub gate_trials: usize,
     /// Only rewrite index.html from an earlier run's report.json, model.msrm and dataset in --out
     #[arg(long)]
     pub html_only: bool,
@@ -52,7 +56,8 @@ impl Args {
             .with_trials(self.trials)
             .with_qemu_trials(self.qemu_trials)
             .with_seed(self.seed)
-            .with_servo_bus(self.servo_bus);
+            .with_servo_bus(self.servo_bus)
+            .with_gate_trials(self.gate_trials);
         c.real = self.real.clone();
         c
     }

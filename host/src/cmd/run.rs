@@ -83,7 +83,9 @@ pub struct Session {
 /// How long the PC waits for the board's ack of a face-frame round after its last byte went
 /// out: USB serial bridges batch reads for up to 16 ms.
 pub const ACK_TIMEOUT: Duration = Duration::from_millis(25);
-/// Tries (begin, chunks from where the board stands, commit) before an upload is given up.
+/// Tries in a row (begin, chunks from where the board stands, commit) that get the board no
+/// further before an upload is given up. A try that gets it further starts the count again, so
+/// a long upload on a noisy line goes through gap by gap.
 pub const UPLOAD_TRIES: usize = 8;
 
 impl Session {
@@ -191,7 +193,10 @@ impl Session {
         let begin = HostToBoard::ModelBegin { len: blob.len() as u32, crc32 };
         let mut resume: Option<usize> = None;
         let mut sent_to = 0usize;
-        for _ in 0..UPLOAD_TRIES {
+        // The furthest byte the board has said it holds, and the tries since it moved.
+        let (mut best, mut stalled) = (0usize, 0usize);
+        while stalled < UPLOAD_TRIES {
+            stalled += 1;
             let from = match resume.take() {
                 Some(n) => n,
                 None => {
@@ -209,6 +214,9 @@ impl Session {
                 }
             };
             let from = from.min(blob.len());
+            if from > best {
+                (best, stalled) = (from, 0);
+            }
             self.upload_resent += sent_to.saturating_sub(from) as u64;
             let mut bytes = Vec::new();
             for (i, data) in blob[from..].chunks(CHUNK).enumerate() {
@@ -246,7 +254,10 @@ impl Session {
                 _ => {}
             }
         }
-        bail!("the model upload did not complete in {UPLOAD_TRIES} tries of {timeout:?}")
+        bail!(
+            "the model upload got no further than byte {best} of {} in {UPLOAD_TRIES} tries in a row of {timeout:?}",
+            blob.len()
+        )
     }
 
     /// Sends one face crop and waits up to `timeout` for the board's answer to it (a detection

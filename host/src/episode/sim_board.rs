@@ -9,7 +9,7 @@
 use crate::episode::{inproc_board, Backend};
 use anyhow::{anyhow, bail, Result};
 use msr_shared::msg::Status;
-use msr_sim::link::LinkEnd;
+use msr_sim::link::{FaultConfig, LinkEnd};
 use msr_sim::pty::{Pty, PtyBridge};
 use msr_sim::world::{self, Flow, World, WorldConfig};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -37,14 +37,30 @@ pub struct ServeConfig {
     pub backend: Backend,
     /// The model the board starts with (built in, or uploaded to QEMU before serving).
     pub model: Option<Vec<u8>>,
+    /// Faults on the host link (both directions, between the PTY and the board; in-process
+    /// board only), seeded by `seed`: a noisy USB-serial line to test a host against.
+    pub host_faults: FaultConfig,
+    pub seed: u64,
+}
+
+impl ServeConfig {
+    /// A clean line to the board `backend` runs, with `model` (or none) in it.
+    pub fn new(backend: Backend, model: Option<Vec<u8>>) -> ServeConfig {
+        ServeConfig { backend, model, host_faults: FaultConfig::default(), seed: 0 }
+    }
 }
 
 impl SimBoard {
     /// Starts the board `cfg` names behind a new PTY.
     pub fn serve(cfg: ServeConfig) -> Result<SimBoard> {
         match cfg.backend {
-            Backend::Inproc => SimBoard::start(cfg.model),
-            Backend::Qemu => SimBoard::start_qemu(cfg.model.as_deref()),
+            Backend::Inproc => SimBoard::start_with(cfg.model, cfg.host_faults, cfg.seed),
+            Backend::Qemu => {
+                if cfg.host_faults != FaultConfig::default() {
+                    bail!("host-link faults are emulated for the in-process board only (--backend inproc)");
+                }
+                SimBoard::start_qemu(cfg.model.as_deref())
+            }
         }
     }
 
@@ -118,6 +134,12 @@ impl SimBoard {
 
     /// Starts a board with `blob` built in (or none) behind a new PTY.
     pub fn start(blob: Option<Vec<u8>>) -> Result<SimBoard> {
+        SimBoard::start_with(blob, FaultConfig::default(), 0)
+    }
+
+    /// [`SimBoard::start`] with `faults` on both directions of the host link, seeded by `seed`.
+    pub fn start_with(blob: Option<Vec<u8>>, faults: FaultConfig, seed: u64) -> Result<SimBoard> {
+        faults.check().map_err(|e| anyhow!("host-link faults: {e}"))?;
         let pty = Pty::open()?;
         let path = pty.path().to_string();
         let stop = Arc::new(AtomicBool::new(false));
@@ -133,10 +155,9 @@ impl SimBoard {
                 };
                 let mut bridge = PtyBridge::new(pty);
                 let mut io_error = None;
-                let cfg = WorldConfig {
-                    pace: Some(1.0),
-                    ..WorldConfig::default()
-                };
+                let mut cfg = WorldConfig { pace: Some(1.0), ..WorldConfig::default() }.seeded(seed);
+                cfg.host_link.a_to_b = faults.clone();
+                cfg.host_link.b_to_a = faults;
                 let (w, _) = {
                     let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| board.poll(now, h, s);
                     world::run(
