@@ -31,6 +31,7 @@ pub const STATE_REQUEST_US: u64 = 20_000;
 /// The head has settled when both head servos report within this of the asked pose (two counts
 /// of a 12-bit encoder) for [`SETTLE_PERIODS`] control periods in a row.
 pub const SETTLE_RAD: f32 = 0.0031;
+/// Control periods in a row within [`SETTLE_RAD`] before a head move counts as settled.
 pub const SETTLE_PERIODS: u8 = 3;
 /// How long past the move's planned duration the head may take to settle.
 pub const SETTLE_MARGIN_US: u64 = 1_000_000;

@@ -107,14 +107,17 @@ pub struct Gate {
 }
 
 impl Gate {
+    /// A gate with the blob's parameters, nothing seen yet.
     pub const fn new(p: SelfGate) -> Gate {
         Gate { p, rest: [(0.0, 0.0, 0.0); REST_FRAMES], rest_y: [0.0; REST_FRAMES], last_end_us: None, rest_n: 0, probe: None }
     }
 
+    /// The blob's parameters.
     pub fn params(&self) -> &SelfGate {
         &self.p
     }
 
+    /// A probe (the head's own motion) is under way: the board moves the head, not the host.
     pub fn probing(&self) -> bool {
         self.probe.is_some()
     }

@@ -341,7 +341,8 @@ pub enum HostToBoard<'a> {
     /// head settled there, or by [`ErrorCode::HeadRefused`] / [`ErrorCode::HeadNotSettled`].
     /// Only while observing (not during a reach); an angle outside the joint's limits is refused,
     /// not clamped. Counts as host activity for the face watchdog (head babbling sends no
-    /// frames).
+    /// frames). `yaw`, `pitch`: HeadYaw and HeadPitch, radians.
+    #[allow(missing_docs)]
     MoveHead { yaw: f32, pitch: f32 },
 }
 
@@ -434,6 +435,7 @@ pub enum GateUndecided {
 pub struct GateReport {
     /// The frame id that decided (or the last one seen).
     pub frame: u16,
+    /// Pass, reject, or undecided (and why).
     pub decision: GateDecision,
     /// Measured over expected crop-offset gain (1.0: the robot's own mirror image); NaN when
     /// undecided before both probe poses were seen.
@@ -571,6 +573,7 @@ pub enum BoardToHost {
     SelfGate(GateReport),
     /// The head settled after [`HostToBoard::MoveHead`]: (HeadYaw, HeadPitch) as the servos
     /// report them, radians.
+    #[allow(missing_docs)]
     HeadAt { head: [f32; 2] },
 }
 
