@@ -60,6 +60,14 @@ pub trait ModelStore {
     fn activate(&mut self);
 }
 
+/// Copies an upload chunk into a staging area: an offset that overflows is out of sequence, one
+/// past the area's end too large (the stores' one `write`).
+fn write_at(dst: &mut [u8], offset: usize, data: &[u8]) -> Result<(), UploadError> {
+    let end = offset.checked_add(data.len()).ok_or(UploadError::Sequence)?;
+    dst.get_mut(offset..end).ok_or(UploadError::TooLarge)?.copy_from_slice(data);
+    Ok(())
+}
+
 #[repr(C, align(8))]
 struct Slot<const N: usize>([u8; N]);
 
@@ -118,15 +126,7 @@ impl<const N: usize> ModelStore for RamStore<N> {
     }
     fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError> {
         let s = self.staging();
-        let end = offset
-            .checked_add(data.len())
-            .ok_or(UploadError::Sequence)?;
-        let dst = self.slots[s]
-            .0
-            .get_mut(offset..end)
-            .ok_or(UploadError::TooLarge)?;
-        dst.copy_from_slice(data);
-        Ok(())
+        write_at(&mut self.slots[s].0, offset, data)
     }
     fn staged(&self) -> &[u8] {
         let s = self.staging();
@@ -315,15 +315,7 @@ mod heap {
         }
         fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError> {
             let s = self.staging();
-            let end = offset
-                .checked_add(data.len())
-                .ok_or(UploadError::Sequence)?;
-            let bytes = bytemuck::cast_slice_mut::<u32, u8>(&mut self.slots[s]);
-            bytes
-                .get_mut(offset..end)
-                .ok_or(UploadError::TooLarge)?
-                .copy_from_slice(data);
-            Ok(())
+            super::write_at(bytemuck::cast_slice_mut::<u32, u8>(&mut self.slots[s]), offset, data)
         }
         fn staged(&self) -> &[u8] {
             let s = self.staging();
