@@ -13,6 +13,7 @@ pub mod eval;
 pub mod episode;
 pub mod camera;
 pub mod record;
+pub mod session;
 pub mod bench;
 pub mod report;
 pub mod demo;

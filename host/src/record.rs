@@ -9,7 +9,7 @@
 //! is whole. `dataset.json` and `head_angles.csv` are written last: a folder without them is an
 //! unfinished recording, which `--resume` continues and `msr train` refuses.
 use crate::camera::{self, Frames, SourceConfig, SourceOptions};
-use crate::cmd::run::Session;
+use crate::session::Session;
 use crate::data::crop::{self, CropMode, Cropper};
 use crate::fsio;
 use anyhow::{bail, Context, Result};

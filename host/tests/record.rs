@@ -2,7 +2,7 @@
 //! dataset layout `msr train` reads, resuming, refusing to overwrite, skipping frames without a
 //! face, and a head pose the board refuses.
 use msr_host::camera::SourceConfig;
-use msr_host::cmd::run::Session;
+use msr_host::session::Session;
 use msr_host::episode::sim_board::SimBoard;
 use msr_host::record::{self, RecordConfig};
 use msr_sim::layout::{DatasetIndex, Split};

@@ -2,7 +2,8 @@
 //! it opens a real board: `msr run --port PATH`.
 mod common;
 
-use msr_host::cmd::run::{self as run_board, Session};
+use msr_host::cmd::run as run_board;
+use msr_host::session::Session;
 use msr_host::episode::sim_board::SimBoard;
 use msr_shared::msg::{BoardToHost, Mode};
 use msr_sim::link::FaultConfig;

@@ -1,0 +1,267 @@
+//! A board on a serial port: the host side of the host link as `msr run` and `msr record` use it.
+//!
+//! Opens the port with `serialport`, paces writes to the line rate (a PTY or a USB bridge without
+//! flow control would otherwise let a large upload overrun the board's receive buffers), uploads a
+//! model blob (begin, chunks, commit; a lost chunk or an interrupted upload resumes where the
+//! board says it stopped), and sends face crops with selective repeat.
+use crate::data::crop;
+use anyhow::{bail, Context, Result};
+use msr_shared::deliver::{FaceLink, LinkStats};
+use msr_shared::host_port::HostPort;
+use msr_shared::msg::{BoardToHost, HostToBoard, Status, CHUNK};
+use std::io::{Read, Write};
+use std::time::{Duration, Instant};
+
+/// Longest a write may make no progress.
+pub const STALL: Duration = Duration::from_secs(2);
+
+/// A board on a serial port.
+pub struct Session {
+    port: Box<dyn serialport::SerialPort>,
+    host: HostPort,
+    byte_time: Duration,
+    pending: Vec<BoardToHost>,
+    faces: FaceLink,
+    /// The session's clock for the face link's timeouts.
+    t0: Instant,
+    /// Model bytes sent again on resuming uploads.
+    pub upload_resent: u64,
+}
+
+/// How long the PC waits for the board's ack of a face-frame round after its last byte went
+/// out: USB serial bridges batch reads for up to 16 ms.
+pub const ACK_TIMEOUT: Duration = Duration::from_millis(25);
+/// Tries in a row (begin, chunks from where the board stands, commit) that get the board no
+/// further before an upload is given up. A try that gets it further starts the count again, so
+/// a long upload on a noisy line goes through gap by gap.
+pub const UPLOAD_TRIES: usize = 8;
+
+impl Session {
+    pub fn open(path: &str, baud: u32) -> Result<Session> {
+        if baud == 0 {
+            bail!("baud rate must be positive");
+        }
+        let port = serialport::new(path, baud)
+            .timeout(Duration::from_millis(5))
+            .open()
+            .with_context(|| format!("opening serial port {path}"))?;
+        Ok(Session {
+            port,
+            host: HostPort::default(),
+            byte_time: Duration::from_secs_f64(10.0 / baud as f64),
+            pending: Vec::new(),
+            faces: FaceLink::new(ACK_TIMEOUT.as_micros() as u64),
+            t0: Instant::now(),
+            upload_resent: 0,
+        })
+    }
+
+    /// Sends bytes at no more than the line rate. A full output buffer (the board, or the PTY
+    /// peer, reading slowly) is waited out for up to [`STALL`].
+    pub fn send(&mut self, bytes: &[u8]) -> Result<()> {
+        for chunk in bytes.chunks(256) {
+            let t0 = Instant::now();
+            let mut rest = chunk;
+            let mut last_progress = Instant::now();
+            while !rest.is_empty() {
+                match self.port.write(rest) {
+                    Ok(n) if n > 0 => {
+                        rest = &rest[n..];
+                        last_progress = Instant::now();
+                    }
+                    Ok(_) => {}
+                    Err(e)
+                        if matches!(
+                            e.kind(),
+                            std::io::ErrorKind::TimedOut
+                                | std::io::ErrorKind::WouldBlock
+                                | std::io::ErrorKind::Interrupted
+                        ) => {}
+                    Err(e) => return Err(e).context("writing to the board"),
+                }
+                if last_progress.elapsed() > STALL {
+                    bail!("the board has taken no bytes for {STALL:?}");
+                }
+            }
+            let due = self.byte_time * chunk.len() as u32;
+            if let Some(rest) = due.checked_sub(t0.elapsed()) {
+                std::thread::sleep(rest);
+            }
+        }
+        let _ = self.port.flush();
+        Ok(())
+    }
+
+    pub fn send_message(&mut self, msg: &HostToBoard) -> Result<()> {
+        let bytes = self.host.encode(msg);
+        self.send(&bytes)
+    }
+
+    /// Reads what has arrived (waiting at most the port's short timeout).
+    pub fn poll(&mut self) -> Result<Vec<BoardToHost>> {
+        let mut buf = [0u8; 1024];
+        let n = match self.port.read(&mut buf) {
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::TimedOut => 0,
+            Err(e) => return Err(e).context("reading from the board"),
+        };
+        let mut out = std::mem::take(&mut self.pending);
+        out.extend(self.host.receive(&buf[..n]));
+        self.host.check_version()?;
+        Ok(out)
+    }
+
+    /// Collects messages until one satisfies `done` (returned last) or `timeout` passes.
+    pub fn wait_for(
+        &mut self,
+        timeout: Duration,
+        mut done: impl FnMut(&BoardToHost) -> bool,
+    ) -> Result<(Vec<BoardToHost>, bool)> {
+        let t0 = Instant::now();
+        let mut got = Vec::new();
+        while t0.elapsed() < timeout {
+            let msgs = self.poll()?;
+            for (i, m) in msgs.iter().enumerate() {
+                if done(m) {
+                    got.extend_from_slice(&msgs[..=i]);
+                    self.pending = msgs[i + 1..].to_vec();
+                    return Ok((got, true));
+                }
+            }
+            got.extend(msgs);
+        }
+        Ok((got, false))
+    }
+
+    /// Uploads a blob; `Ok(crc)` when the board accepted it, an error with the board's reason
+    /// otherwise (the board then keeps the model it had). `timeout` is per try: a try that gets
+    /// no answer starts again with `ModelBegin`, which the board answers with where to resume.
+    pub fn upload(&mut self, blob: &[u8], timeout: Duration) -> Result<u32> {
+        let crc32 = msr_shared::blob::CRC32.checksum(blob);
+        let begin = HostToBoard::ModelBegin { len: blob.len() as u32, crc32 };
+        let mut resume: Option<usize> = None;
+        let mut sent_to = 0usize;
+        // The furthest byte the board has said it holds, and the tries since it moved.
+        let (mut best, mut stalled) = (0usize, 0usize);
+        while stalled < UPLOAD_TRIES {
+            stalled += 1;
+            let from = match resume.take() {
+                Some(n) => n,
+                None => {
+                    self.send_message(&begin)?;
+                    let (msgs, _) = self.wait_for(timeout, |m| {
+                        matches!(m, BoardToHost::UploadAck { .. } | BoardToHost::Error { .. })
+                    })?;
+                    match msgs.last() {
+                        Some(BoardToHost::UploadAck { next }) => *next as usize,
+                        Some(BoardToHost::Error { code, detail }) => {
+                            bail!("the board refused the model: {code:?} (detail {detail})")
+                        }
+                        _ => continue,
+                    }
+                }
+            };
+            let from = from.min(blob.len());
+            if from > best {
+                (best, stalled) = (from, 0);
+            }
+            self.upload_resent += sent_to.saturating_sub(from) as u64;
+            let mut bytes = Vec::new();
+            for (i, data) in blob[from..].chunks(CHUNK).enumerate() {
+                let offset = (from + i * CHUNK) as u32;
+                bytes.extend(self.host.encode(&HostToBoard::ModelChunk { offset, data }));
+            }
+            bytes.extend(self.host.encode(&HostToBoard::ModelCommit));
+            self.send(&bytes)?;
+            sent_to = blob.len();
+            let (msgs, _) = self.wait_for(timeout, |m| {
+                matches!(
+                    m,
+                    BoardToHost::ModelAccepted { .. }
+                        | BoardToHost::Error { .. }
+                        | BoardToHost::UploadAck { .. }
+                )
+            })?;
+            match msgs.last() {
+                Some(BoardToHost::ModelAccepted { crc32 }) => return Ok(*crc32),
+                Some(BoardToHost::Error { code, detail }) => {
+                    bail!("the board refused the model: {code:?} (detail {detail})")
+                }
+                // A gap: go back to where the board stands (its answer to the commit, if a gap
+                // answer came first, says the same or later).
+                Some(BoardToHost::UploadAck { next }) => {
+                    let later = self.wait_for(Duration::from_millis(20), |m| {
+                        matches!(m, BoardToHost::UploadAck { .. } | BoardToHost::ModelAccepted { .. })
+                    })?;
+                    match later.0.last() {
+                        Some(BoardToHost::ModelAccepted { crc32 }) => return Ok(*crc32),
+                        Some(BoardToHost::UploadAck { next }) => resume = Some(*next as usize),
+                        _ => resume = Some(*next as usize),
+                    }
+                }
+                _ => {}
+            }
+        }
+        bail!(
+            "the model upload got no further than byte {best} of {} in {UPLOAD_TRIES} tries in a row of {timeout:?}",
+            blob.len()
+        )
+    }
+
+    /// Sends one face crop and waits up to `timeout` for the board's answer to it (a detection
+    /// or an error), sending again what the board says it missed. While the arm is up the board
+    /// answers frames with the reach in progress. A frame not through by `timeout` is
+    /// superseded by the next one. Protocol messages (acks) are not returned.
+    pub fn send_face(&mut self, face: &crop::Face, timeout: Duration) -> Result<Vec<BoardToHost>> {
+        let now = |t0: Instant| t0.elapsed().as_micros() as u64;
+        let c = face.crop;
+        let size = [c.width as u16, c.height as u16];
+        self.faces.start([c.x as u16, c.y as u16], size, face.grey.clone(), now(self.t0));
+        let deadline = Instant::now() + timeout;
+        let mut got = Vec::new();
+        loop {
+            self.faces.check(now(self.t0));
+            let mut bytes = Vec::new();
+            let host = &mut self.host;
+            self.faces.pump(|m| bytes.extend(host.encode(m)));
+            if !bytes.is_empty() {
+                self.send(&bytes)?; // paced: the line is idle when it returns
+            }
+            self.faces.sent(now(self.t0));
+            for m in self.poll()? {
+                self.faces.on_message(&m);
+                match m {
+                    BoardToHost::FrameAck(_) | BoardToHost::UploadAck { .. } => {}
+                    BoardToHost::Detection(_) | BoardToHost::Error { .. } => {
+                        got.push(m);
+                        return Ok(got);
+                    }
+                    m => got.push(m),
+                }
+            }
+            if Instant::now() >= deadline {
+                return Ok(got);
+            }
+        }
+    }
+
+    /// What the face link did so far, and the face bytes delivered per second of the session.
+    pub fn link_stats(&self) -> (LinkStats, f64) {
+        let s = self.faces.stats;
+        (s, s.face_bytes as f64 / self.t0.elapsed().as_secs_f64().max(1e-9))
+    }
+
+    pub fn status(&mut self, timeout: Duration) -> Result<Status> {
+        self.send_message(&HostToBoard::GetStatus)?;
+        let (msgs, ok) = self.wait_for(timeout, |m| matches!(m, BoardToHost::Status(_)))?;
+        match msgs.last() {
+            Some(BoardToHost::Status(s)) if ok => Ok(*s),
+            _ => bail!("no status from the board within {timeout:?}"),
+        }
+    }
+
+    /// The host side's own framing counters (CRC errors and resyncs on what the board sent).
+    pub fn counters(&self) -> msr_shared::frame::LinkCounters {
+        *self.host.counters()
+    }
+}
