@@ -225,15 +225,9 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
         None
     };
     let mut mirror = MirrorTestReport { inproc, trials, qemu: None, qemu_matching_inproc: None, qemu_error: None };
-    let image = msr_sim::qemu::find_image(msr_sim::qemu::BOARD_IMAGE);
-    if !msr_sim::qemu::qemu_available() {
-        eprintln!("   qemu-system-arm is not installed: no QEMU episodes (apt-get install qemu-system-arm)");
-        mirror.qemu_error = Some("qemu-system-arm is not installed".into());
-    } else if image.is_err() {
-        // A fresh clone: the image is built by the test command or `cargo xtask images`.
-        let why = "skipped: the QEMU image is not built; run `cargo xtask images`";
+    if let Some(why) = qemu_skipped(msr_sim::qemu::qemu_available(), &msr_sim::qemu::find_image(msr_sim::qemu::BOARD_IMAGE)) {
         eprintln!("   mirror-test episodes under QEMU {why}");
-        mirror.qemu_error = Some(why.into());
+        mirror.qemu_error = Some(why);
     } else {
         p.start(&format!(
             "   mirror-test episodes under QEMU (the first {} of the same trials, at most {} s)",
@@ -372,6 +366,18 @@ fn self_gate_episodes(blob: &[u8], cfg: &EpisodeConfig, a: &DemoConfig) -> Resul
     Ok(SelfGateReport { gain_tol: cal.gate.gain_tol, rest_tol_px: cal.gate.rest_tol_px, scenes })
 }
 
+/// Why the demo runs no QEMU episodes, if it does not: QEMU missing, or (on a fresh clone) the
+/// board image not built yet, which is no failure.
+fn qemu_skipped(qemu_available: bool, image: &Result<PathBuf>) -> Option<String> {
+    if !qemu_available {
+        Some("skipped: qemu-system-arm is not installed (apt-get install qemu-system-arm)".into())
+    } else if image.is_err() {
+        Some("skipped: the QEMU image is not built; run `cargo xtask images`".into())
+    } else {
+        None
+    }
+}
+
 /// Wall time the QEMU episodes may take: the emulated UART moves 20 to 40 KB/s, so a trial takes
 /// a few seconds (the frames); the model is preloaded, not uploaded.
 const QEMU_BUDGET: std::time::Duration = std::time::Duration::from_secs(75);
@@ -453,4 +459,18 @@ pub fn real_check(real_dir: &Path, out: &Path) -> Result<RealCheck> {
         }
     }
     Ok(RealCheck { marked, hits, unmarked, false_alarms })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn qemu_episodes_are_skipped_not_failed_without_qemu_or_image() {
+        let missing = msr_sim::qemu::find_image("no-such-image");
+        let why = qemu_skipped(true, &missing).unwrap();
+        assert_eq!(why, "skipped: the QEMU image is not built; run `cargo xtask images`");
+        assert!(qemu_skipped(false, &missing).unwrap().starts_with("skipped: qemu-system-arm is not installed"));
+        assert_eq!(qemu_skipped(true, &Ok(PathBuf::from("msr-qemu"))), None);
+    }
 }
