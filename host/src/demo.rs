@@ -225,7 +225,10 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
         None
     };
     let mut mirror = MirrorTestReport { inproc, trials, qemu: None, qemu_matching_inproc: None, qemu_error: None };
-    if msr_sim::qemu::qemu_available() {
+    if let Some(why) = qemu_skipped(msr_sim::qemu::qemu_available(), &msr_sim::qemu::find_image(msr_sim::qemu::BOARD_IMAGE)) {
+        eprintln!("   mirror-test episodes under QEMU {why}");
+        mirror.qemu_error = Some(why);
+    } else {
         p.start(&format!(
             "   mirror-test episodes under QEMU (the first {} of the same trials, at most {} s)",
             a.qemu_trials,
@@ -243,9 +246,6 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
                 mirror.qemu_error = Some(format!("{e:#}"));
             }
         }
-    } else {
-        eprintln!("   qemu-system-arm is not installed: no QEMU episodes (apt-get install qemu-system-arm)");
-        mirror.qemu_error = Some("qemu-system-arm is not installed".into());
     }
 
     // 7. Real frames.
@@ -366,8 +366,20 @@ fn self_gate_episodes(blob: &[u8], cfg: &EpisodeConfig, a: &DemoConfig) -> Resul
     Ok(SelfGateReport { gain_tol: cal.gate.gain_tol, rest_tol_px: cal.gate.rest_tol_px, scenes })
 }
 
+/// Why the demo runs no QEMU episodes, if it does not: QEMU missing, or (on a fresh clone) the
+/// board image not built yet, which is no failure.
+fn qemu_skipped(qemu_available: bool, image: &Result<PathBuf>) -> Option<String> {
+    if !qemu_available {
+        Some("skipped: qemu-system-arm is not installed (apt-get install qemu-system-arm)".into())
+    } else if image.is_err() {
+        Some("skipped: the QEMU image is not built; run `cargo xtask images`".into())
+    } else {
+        None
+    }
+}
+
 /// Wall time the QEMU episodes may take: the emulated UART moves 20 to 40 KB/s, so a trial takes
-/// a few seconds (the frames) and the model upload a few more.
+/// a few seconds (the frames); the model is preloaded, not uploaded.
 const QEMU_BUDGET: std::time::Duration = std::time::Duration::from_secs(75);
 
 /// The first `n` trials again with the firmware image in QEMU (same seeds as `inproc`), until
@@ -384,7 +396,7 @@ fn qemu_episodes(
     let model = msr_shared::blob::Model::parse(blob).map_err(|e| anyhow::anyhow!("model blob: {e}"))?;
     let cropper = crate::detect::cropper_of(&model)?;
     let renderer = msr_sim::render::Renderer::new(cfg.robot);
-    let mut board = crate::episode::qemu::QemuBoard::start(blob)?;
+    let mut board = crate::episode::qemu::QemuBoard::start_preloaded(blob)?;
     let upload_s = board.upload_s;
     let mut done = Vec::new();
     for i in 0..n {
@@ -405,7 +417,7 @@ fn qemu_episodes(
         })
         .count();
     let note = format!(
-        "{} of {n} trials in {:.0} s (model upload {upload_s:.1} s over the emulated UART), {matching} the same as in-process",
+        "{} of {n} trials in {:.0} s (the model preloaded into the board's memory, checked by the board as an upload: QEMU running it after {upload_s:.1} s), {matching} the same as in-process",
         done.len(),
         t0.elapsed().as_secs_f64()
     );
@@ -447,4 +459,18 @@ pub fn real_check(real_dir: &Path, out: &Path) -> Result<RealCheck> {
         }
     }
     Ok(RealCheck { marked, hits, unmarked, false_alarms })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn qemu_episodes_are_skipped_not_failed_without_qemu_or_image() {
+        let missing = msr_sim::qemu::find_image("no-such-image");
+        let why = qemu_skipped(true, &missing).unwrap();
+        assert_eq!(why, "skipped: the QEMU image is not built; run `cargo xtask images`");
+        assert!(qemu_skipped(false, &missing).unwrap().starts_with("skipped: qemu-system-arm is not installed"));
+        assert_eq!(qemu_skipped(true, &Ok(PathBuf::from("msr-qemu"))), None);
+    }
 }

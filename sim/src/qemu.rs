@@ -33,6 +33,25 @@ pub const TARGET: &str = "thumbv7em-none-eabihf";
 pub const BOARD_IMAGE: &str = "msr-qemu";
 /// The benchmark image: pipeline stages on a model and frames it is sent, counts printed.
 pub const BENCH_IMAGE: &str = "msr-qemu-bench";
+/// Where the board image takes a preloaded model from (`firmware/qemu/src/model_area.rs`,
+/// `PRELOAD_ADDR`): the board's PSRAM.
+pub const PRELOAD_ADDR: u32 = 0x2100_0000;
+/// The preload header's first word, `"MSRP"` (`PRELOAD_MAGIC` there).
+const PRELOAD_MAGIC: u32 = 0x4D53_5250;
+
+/// What QEMU's generic loader puts at [`PRELOAD_ADDR`] for `blob`: the 16-byte header the board
+/// image reads (magic, length, the blob's CRC-32 as `ModelBegin` carries it, a check word), then
+/// the blob.
+pub fn preload_bytes(blob: &[u8]) -> Vec<u8> {
+    let (len, crc) = (blob.len() as u32, msr_shared::blob::CRC32.checksum(blob));
+    let mut out = Vec::with_capacity(16 + blob.len());
+    for w in [PRELOAD_MAGIC, len, crc, PRELOAD_MAGIC ^ len ^ crc] {
+        out.extend(w.to_le_bytes());
+    }
+    out.extend_from_slice(blob);
+    out
+}
+
 /// How long QEMU gets to connect its UART sockets.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
 /// UART sockets: host link, servo bus, clock channel.
@@ -126,6 +145,12 @@ static RUN_ID: AtomicU32 = AtomicU32::new(0);
 impl Qemu {
     /// Starts `image` and waits until QEMU has connected both UARTs.
     pub fn start(image: &Path) -> Result<Qemu> {
+        Qemu::start_with(image, None)
+    }
+
+    /// Starts `image` with `preload` (see [`preload_bytes`]) loaded at [`PRELOAD_ADDR`] by
+    /// QEMU's generic loader, if given: the board image finds it there at start-up.
+    pub fn start_with(image: &Path, preload: Option<&[u8]>) -> Result<Qemu> {
         let dir = std::env::temp_dir().join(format!(
             "msr-qemu-{}-{}",
             std::process::id(),
@@ -154,6 +179,12 @@ impl Qemu {
                 .arg(format!("chardev:uart{i}"));
         }
         cmd.arg("-kernel").arg(image);
+        if let Some(bytes) = preload {
+            let path = dir.join("preload.bin");
+            std::fs::write(&path, bytes).with_context(|| format!("writing {}", path.display()))?;
+            cmd.arg("-device")
+                .arg(format!("loader,file={},addr={PRELOAD_ADDR:#x},force-raw=on", path.display()));
+        }
         cmd.stdin(Stdio::null()).stdout(Stdio::piped()).stderr(Stdio::piped());
         let mut child = cmd
             .spawn()
@@ -320,7 +351,12 @@ impl Lockstep {
     /// Starts `image` and waits for its start-up message; returns the CRC of the model it runs
     /// (0: none).
     pub fn start(image: &Path) -> Result<(Lockstep, u32)> {
-        let qemu = Qemu::start(image)?;
+        Lockstep::start_with(image, None)
+    }
+
+    /// As [`Lockstep::start`], with `preload` (see [`preload_bytes`]) in the board's PSRAM.
+    pub fn start_with(image: &Path, preload: Option<&[u8]>) -> Result<(Lockstep, u32)> {
+        let qemu = Qemu::start_with(image, preload)?;
         let mut ls = Lockstep {
             host: qemu.host.try_clone()?,
             servo: qemu.servo.try_clone()?,

@@ -35,6 +35,15 @@ fn demo_writes_model_report_and_page() {
     assert_eq!(r.mirror_test.trials.len(), 3);
     assert_eq!(r.mirror_test.inproc.limit_violations, 0);
     assert_eq!(r.mirror_test.inproc.servo_bus, "dynamixel");
+    // Under QEMU with the model preloaded when QEMU and its image are there; skipped, saying how
+    // to build the image, when it is not (a fresh clone).
+    let image = msr_sim::qemu::find_image(msr_sim::qemu::BOARD_IMAGE);
+    match (&r.mirror_test.qemu, &r.mirror_test.qemu_error) {
+        (Some(q), None) => assert_eq!((q.trials, r.mirror_test.qemu_matching_inproc), (1, Some(1))),
+        (None, Some(e)) if image.is_err() => assert!(e.contains("run `cargo xtask images`"), "{e}"),
+        (None, Some(e)) if !msr_sim::qemu::qemu_available() => assert!(e.starts_with("skipped:"), "{e}"),
+        other => panic!("QEMU episodes: {other:?}"),
+    }
     // The self gate: its own mirror image may reach; a delayed picture of it never.
     let g = r.self_gate.as_ref().expect("the self gate's scenes");
     let scenes: Vec<&str> = g.scenes.iter().map(|s| s.summary.scene.as_str()).collect();

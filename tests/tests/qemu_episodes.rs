@@ -101,3 +101,61 @@ fn qemu_episodes_touch_marks_and_match_in_process() {
     }
     assert!(output.contains("servo_watchdog_trips: 0"), "{output}");
 }
+
+/// The demo's way in: the model preloaded into the board's PSRAM by QEMU's generic loader, taken
+/// at start-up through the upload's checks. It runs as an uploaded one (the same trial as
+/// in-process), survives the resets between trials, and damaged bytes are refused by the board.
+#[test]
+fn qemu_preloaded_model_runs_and_a_damaged_one_is_refused() {
+    if !available() {
+        return;
+    }
+    let robot = Robot::Red;
+    let blob = conv_model(robot);
+    let model = msr_shared::blob::Model::parse(&blob).unwrap();
+    let cropper = msr_host::detect::cropper_of(&model).unwrap();
+    let renderer = Renderer::new(robot);
+    let mut cfg = EpisodeConfig::new(robot);
+    cfg.no_mark_share = 0.0;
+
+    let mut board = QemuBoard::start_preloaded(&blob).unwrap();
+    eprintln!("QEMU running the preloaded model ({} bytes) after {:.1} s", blob.len(), board.upload_s);
+    let mut qemu_trials = Vec::new();
+    for i in 0..2 {
+        let camera = Camera { renderer: &renderer, cropper: &cropper };
+        qemu_trials.push(board.trial(camera, &cfg, i, episode::trial_seed(7, i)).unwrap());
+    }
+    let output = board.finish().unwrap();
+    eprintln!("{output}");
+    assert!(output.contains(&format!("preloaded model accepted, crc {:#010x}", model.crc32)), "{output}");
+    // Each trial's reset finds the model in the slots and leaves the preload alone.
+    assert_eq!(output.matches("preloaded model left alone").count(), 2, "{output}");
+    for (i, q) in qemu_trials.iter().enumerate() {
+        let camera = Camera { renderer: &renderer, cropper: &cropper };
+        let t = episode::run_trial_inproc(&blob, camera, &cfg, i, episode::trial_seed(7, i)).unwrap();
+        assert_eq!(outcome(q), outcome(&t), "trial {i}: QEMU (preloaded) and in-process differ");
+    }
+
+    let image = qemu::find_image(qemu::BOARD_IMAGE).unwrap();
+    // One byte of the blob changed after its header was made: the CRC-32 check refuses it.
+    let mut flipped = qemu::preload_bytes(&blob);
+    flipped[16 + blob.len() / 2] ^= 0x10;
+    // A truncated blob under a header that matches it: the CRC passes, validation refuses it.
+    let truncated = qemu::preload_bytes(&blob[..blob.len() - 100]);
+    // A header whose check word does not match: not a preload at all.
+    let mut bad_header = qemu::preload_bytes(&blob);
+    bad_header[12] ^= 1;
+    for (bytes, said) in [
+        (&flipped, "preloaded model refused: Crc"),
+        (&truncated, "preloaded model refused: Invalid("),
+        (&bad_header, "msr-qemu: ready; built-in model 0 bytes; model in use crc 0x00000000"),
+    ] {
+        let (ls, crc) = qemu::Lockstep::start_with(&image, Some(bytes)).unwrap();
+        assert_eq!(crc, 0, "the board runs no model");
+        let exit = ls.exit(std::time::Duration::from_secs(10)).unwrap();
+        assert!(exit.output.contains(said), "expected {said:?} in:\n{}", exit.output);
+    }
+    // The host refuses a blob that does not parse before starting QEMU.
+    let e = QemuBoard::start_preloaded(&blob[..blob.len() - 100]).err().expect("refused");
+    assert!(format!("{e:#}").contains("model blob"), "{e:#}");
+}

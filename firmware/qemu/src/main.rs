@@ -14,7 +14,9 @@
 //!
 //! The model is the built-in one (`MSR_MODEL_BLOB` at build time), whatever the host uploads
 //! (`ModelBegin` / `ModelChunk` / `ModelCommit`) into the two flash slots, or the one a reset
-//! (`R` on UART2) left active in them.
+//! (`R` on UART2) left active in them. A model preloaded into PSRAM with QEMU's generic loader
+//! ([`model_area::take_preload`]) goes into the slots at a start that finds them empty, checked
+//! as an upload is.
 //!
 //! For tests, [`EXIT_SEQUENCE`] on UART0 (or `X` on UART2) ends the run: the image prints its
 //! status, stack peak and sizes on the semihosting console and exits with code 0. The sequence
@@ -244,6 +246,7 @@ fn main() -> ! {
     uart::enable_rx_irqs();
     // SAFETY: the only reference to BOARD, taken once in this single-threaded image.
     let board = unsafe { &mut *core::ptr::addr_of_mut!(BOARD) };
+    report_preload(model_area::take_preload());
     let crc = announce(board);
     let mut hello = [ctl::HELLO, 0, 0, 0, 0];
     hello[1..].copy_from_slice(&crc.to_le_bytes());
@@ -339,6 +342,18 @@ fn announce(board: &Board<FlashStore>) -> u32 {
         sizes.data_init
     );
     crc
+}
+
+/// Says what became of a preloaded model (nothing when there was none). Out of line, as
+/// [`announce`].
+#[inline(never)]
+fn report_preload(p: model_area::Preload) {
+    match p {
+        model_area::Preload::None => {}
+        model_area::Preload::Kept => hprintln!("msr-qemu: preloaded model left alone: the slots hold an active model"),
+        model_area::Preload::Taken(crc) => hprintln!("msr-qemu: preloaded model accepted, crc {:#010x}", crc),
+        model_area::Preload::Refused(e) => hprintln!("msr-qemu: preloaded model refused: {:?}", e),
+    }
 }
 
 #[inline(never)]

@@ -11,8 +11,14 @@
 //! (`SYSRESETREQ`, which QEMU performs without clearing memory) comes back with the uploaded
 //! model, so a host can restart the board between trials without uploading again. A fresh QEMU
 //! starts with zeroed memory: no record, the built-in model.
+//!
+//! Preloaded: a host that starts QEMU may put a model into the board's PSRAM with QEMU's generic
+//! loader ([`PRELOAD_ADDR`], see [`take_preload`]) instead of uploading it over the emulated UART
+//! (20-40 KB/s: half a minute for the demo's model). At a start with no uploaded model in the
+//! slots, the image takes it through the upload's own state machine, CRC and validation
+//! included, as if it had come over UART0, and refuses a bad one as an upload would.
 
-use msr_firmware::model::{ModelStore, UploadError};
+use msr_firmware::model::{ModelStore, Upload, UploadError};
 
 /// Bytes per slot: the published MLP decoder with i16 weights is 1.1 MB.
 pub const SLOT: usize = 1536 * 1024;
@@ -89,7 +95,8 @@ pub struct FlashStore {
 
 impl FlashStore {
     /// # Safety
-    /// At most one `FlashStore` may exist, and [`bench_area`] must not be used with it.
+    /// At most one `FlashStore` may be in use at a time (apart from [`take_preload`]'s own, used
+    /// before any other), and [`bench_area`] must not be used with it.
     pub const unsafe fn new() -> FlashStore {
         FlashStore { staging_len: 0 }
     }
@@ -142,5 +149,60 @@ impl ModelStore for FlashStore {
         let m = Meta { magic: META_MAGIC, slot, len, check: META_MAGIC ^ slot ^ len };
         // SAFETY: `&mut self` is exclusive; nothing borrows the record.
         unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(META), m) };
+    }
+}
+
+/// Where a host may preload a model: the mps2 boards' 16 MiB PSRAM, which this image does not
+/// use otherwise. A 16-byte header, then the blob:
+/// `magic "MSRP" | len | CRC-32 of the blob (as in ModelBegin) | magic ^ len ^ crc`, little endian.
+/// QEMU writes it again at every reset of the machine (the loader's data is kept like a ROM's).
+pub const PRELOAD_ADDR: usize = 0x2100_0000;
+/// `"MSRP"`, the header's first word.
+pub const PRELOAD_MAGIC: u32 = 0x4D53_5250;
+const PRELOAD_HEADER: usize = 16;
+
+/// What [`take_preload`] did.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Preload {
+    /// No preload header (or a damaged one) at [`PRELOAD_ADDR`].
+    None,
+    /// An uploaded model is active in the slots (a reset after an upload or an earlier preload):
+    /// the preload is left alone, as a board keeps its flash.
+    Kept,
+    /// Verified and active; its CRC-32.
+    Taken(u32),
+    /// Refused, as an upload of the same bytes would have been.
+    Refused(UploadError),
+}
+
+/// Takes a preloaded model into the slots when none is active there, through [`Upload`] (CRC and
+/// blob validation as for `ModelCommit`). Call once at start-up, before the board uses its store.
+pub fn take_preload() -> Preload {
+    let base = PRELOAD_ADDR as *const u32;
+    // SAFETY: PSRAM on mps2-an385/386/500/511, always mapped under QEMU; any bit pattern is a
+    // valid u32, and a fresh machine's zeroes fail the magic.
+    let [magic, len, crc, check] = core::array::from_fn(|i| unsafe { core::ptr::read_volatile(base.add(i)) });
+    if magic != PRELOAD_MAGIC || check != magic ^ len ^ crc {
+        return Preload::None;
+    }
+    if read_meta().active().is_some() {
+        return Preload::Kept;
+    }
+    // SAFETY: called at start-up, before the board's store is used; this store is dropped
+    // before that and holds nothing but the length announced by `begin` below.
+    let mut store = unsafe { FlashStore::new() };
+    let mut upload = Upload::new();
+    if let Err(e) = upload.begin(&mut store, len, crc) {
+        return Preload::Refused(e);
+    }
+    // `begin` refused anything longer than a slot, so the blob lies inside the 16 MiB PSRAM.
+    // SAFETY: `len <= SLOT` bytes of mapped PSRAM after the header, read-only while alive.
+    let blob = unsafe { core::slice::from_raw_parts((PRELOAD_ADDR + PRELOAD_HEADER) as *const u8, len as usize) };
+    if let Err(e) = upload.chunk(&mut store, 0, blob) {
+        return Preload::Refused(e);
+    }
+    match upload.commit(&mut store) {
+        Ok(crc) => Preload::Taken(crc),
+        Err(e) => Preload::Refused(e),
     }
 }
