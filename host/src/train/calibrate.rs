@@ -38,9 +38,10 @@ pub const DEFAULT_SIGMA_FLOOR: f64 = 0.5;
 /// The error's pooling radius that `msr train` and `msr demo` use: 0, the paper's per-pixel
 /// error. `--pool 2` (a 5 x 5 window, which keeps a 15 x 15 mark and cancels the skin robot's
 /// taxel texture) finds the skin robot's marks at every head pose (hit rate 0.51-0.60 -> 0.97-0.995)
-/// but raises the false alarms (0.00-0.04 -> 0.02-0.10 over three seeds) and costs the board
-/// about 52 more instructions per pixel (73.5 after the decoder against a budget of 30), so it is
-/// not the default until a pose-dependent sigma removes those false alarms (issue 19).
+/// but raises the false alarms (0.00-0.04 -> 0.02-0.10 over three seeds); with `--pose-bins 3`
+/// (statistics per head-pose cell) the false alarms are 0 on both robots' three seeds, but the
+/// board's post-decoder budget of 30 instructions per pixel is missed (56.5), so neither is the
+/// default yet (issue 19).
 pub const DEFAULT_POOL: u8 = 0;
 
 /// Per-pixel error statistics, row-major `h x w`, grey levels.
