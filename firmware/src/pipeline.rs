@@ -65,6 +65,9 @@ pub struct Workspace {
     pub thresholds: Thresholds,
     /// The connected-component labeller.
     pub labeller: FaceLabeller,
+    /// The head pose of the last [`decode`](Self::decode): its pose cell's statistics are
+    /// the saliency's ([`Model::stats_at`]).
+    head: [f32; 2],
 }
 
 impl Default for Workspace {
@@ -80,6 +83,7 @@ impl Workspace {
             decoder: Decoder::new(),
             thresholds: Thresholds::new(),
             labeller: FaceLabeller::new(),
+            head: [f32::NAN; 2],
         }
     }
 
@@ -91,6 +95,7 @@ impl Workspace {
 
     /// Stage 1: the predicted face (cached per head pose).
     pub fn decode(&mut self, model: &Model, head: [f32; 2]) -> Result<&[u16], DecodeError> {
+        self.head = head;
         self.decoder.predict(model, head)
     }
 
@@ -108,7 +113,8 @@ impl Workspace {
         if !s.is_valid() {
             return Err(DetectError::Settings);
         }
-        self.thresholds.prepare(model, s);
+        self.thresholds.prepare(model, s, self.head);
+        let (mu, _, _) = model.stats_at(self.head);
         let (face, mask) = self.decoder.face_and_scratch();
         let face = face.ok_or(DetectError::Decode(DecodeError::BadInput))?;
         if face.len() != crop.len() || mask.len() < crop.len() {
@@ -116,8 +122,8 @@ impl Workspace {
         }
         let tn = self.thresholds.table();
         Ok(match model.novelty.pool {
-            0 => saliency::saliency(crop, face, model.mu, tn, s.sided, mask),
-            pool => saliency::pooled(crop, face, model.mu, tn, s.sided, mask, model.face_w as usize, pool),
+            0 => saliency::saliency(crop, face, mu, tn, s.sided, mask),
+            pool => saliency::pooled(crop, face, mu, tn, s.sided, mask, model.face_w as usize, pool),
         })
     }
 

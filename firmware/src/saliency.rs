@@ -9,6 +9,7 @@
 //! integers. `tn = round(t * n * 256)` saturates at 65535, which no error reaches.
 //! `n = 0` gives `tn = 0`: any error different from mu is salient, as a division by 0 would say.
 
+use core::cell::Cell;
 use msr_shared::blob::{
     Merge, Model, Normalisation, Novelty, PoseRegion, Sided, U16Table, MAX_FACE_PIXELS, MAX_FACE_W,
 };
@@ -81,8 +82,8 @@ impl Settings {
 pub struct Thresholds {
     tn: [u16; MAX_FACE_PIXELS],
     len: usize,
-    /// (model CRC, threshold bits, normalisation) the table was made for.
-    key: Option<(u32, u32, Normalisation)>,
+    /// (model CRC, threshold bits, normalisation, statistics cell) the table was made for.
+    key: Option<(u32, u32, Normalisation, u8)>,
 }
 
 impl Default for Thresholds {
@@ -118,18 +119,17 @@ impl Thresholds {
         }
     }
 
-    /// Makes the table for `model` and `threshold`/`normalisation`, unless it is already made.
-    /// Returns true when it was recomputed.
-    pub fn prepare(&mut self, model: &Model, s: &Settings) -> bool {
-        let key = (model.crc32, s.threshold.to_bits(), s.normalisation);
-        let n = model
-            .face_pixels()
-            .min(MAX_FACE_PIXELS)
-            .min(model.sigma.len());
+    /// Makes the table for `model` and `threshold`/`normalisation` at head pose `head` (the
+    /// sigma of its pose cell, [`Model::stats_at`]), unless it is already made. Returns true
+    /// when it was recomputed: with pose statistics, once per change of cell.
+    pub fn prepare(&mut self, model: &Model, s: &Settings, head: [f32; 2]) -> bool {
+        let (_, sigma, cell) = model.stats_at(head);
+        let key = (model.crc32, s.threshold.to_bits(), s.normalisation, cell);
+        let n = model.face_pixels().min(MAX_FACE_PIXELS).min(sigma.len());
         if self.key == Some(key) && self.len == n {
             return false;
         }
-        for (t, sigma) in self.tn[..n].iter_mut().zip(model.sigma.iter()) {
+        for (t, sigma) in self.tn[..n].iter_mut().zip(sigma.iter()) {
             *t = threshold_q88(sigma, s.threshold, s.normalisation);
         }
         self.len = n;
@@ -168,10 +168,12 @@ pub fn saliency(
 
 /// [`saliency`] on the pooled error (the blob's flag bit 4): `e = |mean of (I << 8) - pred over
 /// the (2 pool + 1)^2 window, clipped at the border|`, Q8.8, the mean truncated toward zero.
-/// `w` is the face's width; the rows are `frame.len() / w`. Running column sums (one row in,
-/// one out per row) and a running window sum along the row: a few additions per pixel whatever
-/// the radius, no buffer but the column sums, and no division: `floor(|s| / n) > k` is tested
-/// as `|s| >= (k + 1) n`. Slices are taken with `get`, so nothing here can panic.
+/// `w` is the face's width; the rows are `frame.len() / w`. Running column sums, each updated
+/// (one row in, one out) just before the window reaches it, and a running window sum along the
+/// row: a few additions per pixel whatever the radius, one pass, no buffer but the column sums,
+/// and no division: `floor(|s| / n) > k` is tested as `|s| >= (k + 1) n`. A mu table that is
+/// not 2-byte aligned is read a row at a time into a buffer (blobs are 4-aligned, so only a
+/// caller's odd slice takes that path). Slices are taken with `get`, so nothing here can panic.
 #[allow(clippy::too_many_arguments)]
 pub fn pooled(
     frame: &[u8],
@@ -183,98 +185,138 @@ pub fn pooled(
     w: usize,
     pool: u8,
 ) -> u32 {
-    match bytemuck::try_cast_slice::<u8, u16>(mu.0) {
-        Ok(mu) => pooled_run(frame, pred, mu, tn, sided, mask, w, pool as usize),
-        Err(_) => 0,
-    }
-}
-
-#[allow(clippy::too_many_arguments)]
-fn pooled_run(
-    frame: &[u8],
-    pred: &[u16],
-    mu: &[u16],
-    tn: &[u16],
-    sided: Sided,
-    mask: &mut [u8],
-    w: usize,
-    r: usize,
-) -> u32 {
     if w == 0 || w > MAX_FACE_W {
         return 0;
     }
     let n = frame.len().min(pred.len()).min(tn.len()).min(mask.len()).min(mu.len());
-    let h = n / w;
-    // Columns past `w` stay 0, so the window sum may read them.
-    let mut col = [0i32; MAX_FACE_W + 8];
-    let add_row = |col: &mut [i32], y: usize, add: bool| {
-        if let (Some(f), Some(p)) = (frame.get(y * w..y * w + w), pred.get(y * w..y * w + w)) {
-            let rs = col.iter_mut().zip(f).zip(p);
-            if add {
-                rs.for_each(|((c, &f), &p)| *c += ((f as i32) << 8) - p as i32);
-            } else {
-                rs.for_each(|((c, &f), &p)| *c -= ((f as i32) << 8) - p as i32);
-            }
-        }
+    let (h, r) = (n / w, pool as usize);
+    let aligned = bytemuck::try_cast_slice::<u8, u16>(mu.0).ok();
+    let mut buf = [0u16; MAX_FACE_W];
+    // Rows past the face: a zero row adds nothing to a column.
+    let (zf, zp) = ([0u8; MAX_FACE_W], [0u16; MAX_FACE_W]);
+    let row = |y: usize| match (frame.get(y * w..y * w + w), pred.get(y * w..y * w + w)) {
+        (Some(f), Some(p)) if y < h => (f, p),
+        _ => (&zf[..w], &zp[..w]),
     };
+    let mut col_store = [0i32; MAX_FACE_W];
+    let col = Cell::from_mut(&mut col_store[..w]).as_slice_of_cells();
     for y in 0..r.min(h) {
-        add_row(&mut col, y, true);
+        let (f, p) = row(y);
+        for ((c, &f), &p) in col.iter().zip(f).zip(p) {
+            c.set(c.get() + err(f, p));
+        }
     }
-    // Window widths along a row.
-    let mut cols = [0u8; MAX_FACE_W];
-    for (x, c) in cols.iter_mut().enumerate().take(w) {
-        *c = ((x + r).min(w - 1) + 1 - x.saturating_sub(r)) as u8;
-    }
+    let span = 2 * r + 1;
     let mut count = 0u32;
     for y in 0..h {
-        if y + r < h {
-            add_row(&mut col, y + r, true);
-        }
-        if y > r {
-            add_row(&mut col, y - r - 1, false);
-        }
+        let (fi, pi) = row(y + r);
+        let (fo, po) = if y > r { row(y - r - 1) } else { (&zf[..w], &zp[..w]) };
         let rows = ((y + r).min(h - 1) + 1 - y.saturating_sub(r)) as u32;
-        let (Some(m_row), Some(mu_row), Some(tn_row)) = (
-            mask.get_mut(y * w..y * w + w),
-            mu.get(y * w..y * w + w),
-            tn.get(y * w..y * w + w),
-        ) else {
+        let mu_row: &[u16] = match aligned {
+            Some(m) => m.get(y * w..y * w + w).unwrap_or(&[]),
+            None => {
+                for (x, b) in buf[..w].iter_mut().enumerate() {
+                    *b = mu.get(y * w + x);
+                }
+                &buf[..w]
+            }
+        };
+        let (Some(m_row), Some(tn_row)) = (mask.get_mut(y * w..y * w + w), tn.get(y * w..y * w + w)) else {
             break;
         };
-        let mut sum: i32 = col.iter().take(r).sum();
-        let px = m_row.iter_mut().zip(mu_row).zip(tn_row).zip(&cols);
-        // In u32: |sum| <= 49 x 65280 and (mu + t + 1) x 49 < 2^23.
-        let mut step = |x: usize| {
-            sum += col.get(x + r).copied().unwrap_or(0);
-            if x > r {
-                sum -= col.get(x - r - 1).copied().unwrap_or(0);
+        if mu_row.len() != w {
+            break;
+        }
+        // Column j, brought to this row's window; its new sum.
+        let update = |j: usize| match (col.get(j), fi.get(j), pi.get(j), fo.get(j), po.get(j)) {
+            (Some(c), Some(&a), Some(&b), Some(&e), Some(&g)) => {
+                let v = c.get() + err(a, b) - err(e, g);
+                c.set(v);
+                v
             }
-            sum.unsigned_abs()
+            _ => 0,
         };
-        match sided {
-            Sided::One => {
-                for (x, (((out, &m), &t), &c)) in px.enumerate() {
-                    let (a, k) = (step(x), rows * c as u32);
-                    // floor(a / k) - mu > t  <=>  a >= (mu + t + 1) k
-                    let s = (a >= (m as u32 + t as u32 + 1) * k) as u8;
-                    *out = s;
-                    count += s as u32;
+        let mut sum: i32 = (0..r.min(w)).map(update).sum();
+        // The borders, one pixel at a time with the clipped window's size.
+        let edge = |x: usize, sum: &mut i32, count: &mut u32, m_row: &mut [u8]| {
+            if x + r < w {
+                *sum += update(x + r);
+            }
+            if x > r {
+                *sum -= col.get(x - r - 1).map_or(0, Cell::get);
+            }
+            let k = rows * ((x + r).min(w - 1) + 1 - x.saturating_sub(r)) as u32;
+            if let (Some(out), Some(&m), Some(&t)) = (m_row.get_mut(x), mu_row.get(x), tn_row.get(x)) {
+                *out = test(sum.unsigned_abs(), k, m, t, sided);
+                *count += *out as u32;
+            }
+        };
+        for x in 0..(r + 1).min(w) {
+            edge(x, &mut sum, &mut count, m_row);
+        }
+        // The inside: the whole window, k fixed; column x + r comes in, x - r - 1 goes out.
+        if w > span {
+            let k = rows * span as u32;
+            let (lo, hi) = (r + 1, w - r);
+            let (a, b) = (lo + r, hi + r);
+            let ins = mid(col, a, b).iter().zip(mid(col, 0, hi - lo));
+            let ins = ins.zip(mid(fi, a, b).iter().zip(mid(pi, a, b))).zip(mid(fo, a, b).iter().zip(mid(po, a, b)));
+            let thr = mid(mu_row, lo, hi).iter().zip(mid(tn_row, lo, hi));
+            let outs = m_row.get_mut(lo..hi).unwrap_or(&mut []);
+            match sided {
+                Sided::One => {
+                    for ((((c, o), (&a, &b)), (&e, &g)), ((&m, &t), out)) in ins.zip(thr.zip(outs)) {
+                        let v = c.get() + err(a, b) - err(e, g);
+                        c.set(v);
+                        sum += v - o.get();
+                        // floor(|s| / k) - mu > t  <=>  |s| >= (mu + t + 1) k
+                        let s = (sum.unsigned_abs() >= (m as u32 + t as u32 + 1) * k) as u8;
+                        *out = s;
+                        count += s as u32;
+                    }
+                }
+                Sided::Two => {
+                    for ((((c, o), (&a, &b)), (&e, &g)), ((&m, &t), out)) in ins.zip(thr.zip(outs)) {
+                        let v = c.get() + err(a, b) - err(e, g);
+                        c.set(v);
+                        sum += v - o.get();
+                        let s = test(sum.unsigned_abs(), k, m, t, Sided::Two);
+                        *out = s;
+                        count += s as u32;
+                    }
                 }
             }
-            Sided::Two => {
-                for (x, (((out, &m), &t), &c)) in px.enumerate() {
-                    let (a, k) = (step(x), rows * c as u32);
-                    // |floor(a / k) - mu| > t: above mu + t, or below mu - t.
-                    let above = a >= (m as u32 + t as u32 + 1) * k;
-                    let below = m > t && a < (m as u32 - t as u32) * k;
-                    let s = (above || below) as u8;
-                    *out = s;
-                    count += s as u32;
-                }
-            }
+        }
+        for x in (w - r.min(w)).max(r + 1)..w {
+            edge(x, &mut sum, &mut count, m_row);
         }
     }
     count
+}
+
+/// `s[a..b]`, or nothing.
+#[inline(always)]
+fn mid<T>(s: &[T], a: usize, b: usize) -> &[T] {
+    s.get(a..b).unwrap_or(&[])
+}
+
+/// The signed error of one pixel, Q8.8 grey levels.
+#[inline(always)]
+fn err(f: u8, p: u16) -> i32 {
+    ((f as i32) << 8) - p as i32
+}
+
+/// Whether `floor(a / k)` (the pooled error) is salient against `mu` and `t` (Q8.8), in u32:
+/// `a <= 49 x 65280` and `(mu + t + 1) x 49 < 2^23`.
+#[inline(always)]
+fn test(a: u32, k: u32, m: u16, t: u16, sided: Sided) -> u8 {
+    // floor(a / k) - mu > t  <=>  a >= (mu + t + 1) k
+    let above = a >= (m as u32 + t as u32 + 1) * k;
+    match sided {
+        Sided::One => above as u8,
+        // |floor(a / k) - mu| > t: above mu + t, or below mu - t.
+        Sided::Two => (above || (m > t && a < (m as u32 - t as u32) * k)) as u8,
+    }
 }
 
 #[inline(always)]
@@ -326,22 +368,35 @@ mod tests {
         );
     }
 
-    /// The pooled mask against the window mean written out plainly, on a 7 x 9 face with
-    /// every radius, one- and two-sided.
+    /// The pooled mask against the window mean written out plainly, on faces of 7 x 9 (every
+    /// radius: borders only, and a few inner pixels), 11 x 20 and 3 x 2 (narrower than the
+    /// window), one- and two-sided, with the mu table aligned and not.
     #[test]
     fn pooled_matches_the_plain_window_mean() {
-        let (w, h) = (9usize, 7usize);
-        let frame: [u8; 63] = core::array::from_fn(|i| ((i * 37) % 251) as u8);
-        let pred: [u16; 63] = core::array::from_fn(|i| (((i * 91) % 200) as u16) << 8 | (i as u16 * 13 % 256));
-        let mu: [u16; 63] = core::array::from_fn(|i| (i as u16 % 5) * 300);
+        for (w, h) in [(9usize, 7usize), (20, 11), (2, 3)] {
+            pooled_case(w, h);
+        }
+    }
+
+    fn pooled_case(w: usize, h: usize) {
+        let n = w * h;
+        let frame: Vec<u8> = (0..n).map(|i| ((i * 37) % 251) as u8).collect();
+        let pred: Vec<u16> = (0..n).map(|i| (((i * 91) % 200) as u16) << 8 | (i as u16 * 13 % 256)).collect();
+        let mu: Vec<u16> = (0..n).map(|i| (i as u16 % 5) * 300).collect();
         let mu_bytes: Vec<u8> = mu.iter().flat_map(|v| v.to_le_bytes()).collect();
-        let tn: [u16; 63] = core::array::from_fn(|i| (i as u16 % 7) * 500);
+        let mut shifted = vec![0u8];
+        shifted.extend_from_slice(&mu_bytes);
+        let tn: Vec<u16> = (0..n).map(|i| (i as u16 % 7) * 500).collect();
         for pool in 0..=3u8 {
             let r = pool as i64;
             for sided in [Sided::One, Sided::Two] {
-                let mut mask = [7u8; 63];
-                let n = pooled(&frame, &pred, U16Table(&mu_bytes), &tn, sided, &mut mask, w, pool);
-                let mut want = [0u8; 63];
+                let mut mask = vec![7u8; n];
+                let count = pooled(&frame, &pred, U16Table(&mu_bytes), &tn, sided, &mut mask, w, pool);
+                // An unaligned mu table gives the same mask.
+                let mut odd = vec![7u8; n];
+                pooled(&frame, &pred, U16Table(&shifted[1..]), &tn, sided, &mut odd, w, pool);
+                assert_eq!(odd, mask, "unaligned mu, pool {pool} {sided:?} {w}x{h}");
+                let mut want = vec![0u8; n];
                 for y in 0..h as i64 {
                     for x in 0..w as i64 {
                         let (mut s, mut c) = (0i64, 0i64);
@@ -358,20 +413,21 @@ mod tests {
                         want[i] = (d > tn[i] as i64) as u8;
                     }
                 }
-                assert_eq!(mask, want, "pool {pool} {sided:?}");
-                assert_eq!(n as usize, want.iter().filter(|&&m| m == 1).count());
+                assert_eq!(mask, want, "pool {pool} {sided:?} {w}x{h}");
+                assert_eq!(count as usize, want.iter().filter(|&&m| m == 1).count());
                 if pool == 0 {
                     // Radius 0 is the per-pixel saliency.
-                    let mut plain = [0u8; 63];
+                    let mut plain = vec![0u8; n];
                     saliency(&frame, &pred, U16Table(&mu_bytes), &tn, sided, &mut plain);
                     assert_eq!(mask, plain);
                 }
             }
         }
         // A width past the board's limit or of zero finds nothing and writes nothing.
-        let mut mask = [7u8; 63];
+        let mut mask = vec![7u8; n];
         assert_eq!(pooled(&frame, &pred, U16Table(&mu_bytes), &tn, Sided::One, &mut mask, 0, 2), 0);
-        assert_eq!(mask, [7u8; 63]);
+        assert_eq!(pooled(&frame, &pred, U16Table(&mu_bytes), &tn, Sided::One, &mut mask, MAX_FACE_W + 1, 2), 0);
+        assert_eq!(mask, vec![7u8; n]);
     }
 
     #[test]

@@ -123,6 +123,7 @@ fn spec(face_h: u16, face_w: u16, layers: Vec<LayerSpec>, rng: &mut Lcg) -> Mode
         region: None,
         template: None,
         crop: CropMode::Pixel,
+        pose: None,
     }
 }
 

@@ -201,6 +201,7 @@ pub fn synthetic_with(kind: ArchKind, i8w: bool) -> Result<BenchModel> {
         region: None,
         template: None,
         crop: CropMode::Pixel,
+        pose: None,
     };
     let blob = spec.to_bytes().map_err(|e| anyhow::anyhow!("synthetic {kind:?} blob: {e}"))?;
     let name = match kind {

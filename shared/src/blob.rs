@@ -23,6 +23,9 @@
 //! pose region (if flags bit 2): centre_yaw f32, centre_pitch f32, radius f32, threshold f32,
 //!   merge_margin u8, reserved u8 (0), merge_fragment u16
 //! template (if flags bit 0): h u16, w u16, h*w u8 grey (padded to 4)
+//! pose statistics (if flags bit 5): bins_yaw u8, bins_pitch u8, reserved u16 (0),
+//!   yaw_lo f32, yaw_hi f32, pitch_lo f32, pitch_hi f32, then per bin (bin = pitch index x
+//!   bins_yaw + yaw index) mu then sigma, face_h*face_w u16 each, Q8.8 (each padded to 4)
 //! self gate (if flags bit 3): amplitude f32, gain f32, gain_tol f32, rest_tol f32,
 //!   latency_ms u16, timeout_ms u16, min_frames u8, reserved u8 x3 (0)
 //! ```
@@ -59,8 +62,14 @@
 //! Bit 4 (version 5): the error is pooled before its statistics and the threshold, `e = |mean
 //! of 255 (I - I_hat) over the (2 pool + 1)^2 window|` (clipped at the face's border), with
 //! `pool` (1..=[`MAX_POOL`]) in header byte 37; the blob's mu and sigma are of that error.
-//! The writer uses version 5 only for a blob with bit 3 or 4, and a version-5 blob has one of
-//! them.
+//! Bit 5 (version 5): [`PoseStats`], the error statistics (mu and sigma) of each cell of a grid
+//! over the head pose (`[HeadYaw, HeadPitch]`); the board takes the tables of the cell the
+//! reported head pose falls in ([`PoseGrid::bin`]), and the header's tables only for a
+//! non-finite pose. Why: the decoder errs more at some poses (the corners of the training
+//! poses) than at others, and one sigma for all poses either misses marks at the good poses
+//! or fires at the bad ones (issue 19). The section comes before the self gate's.
+//! The writer uses version 5 only for a blob with bit 3, 4 or 5, and a version-5 blob has one
+//! of them.
 //!
 //! Fragment merge (version 3; bytes 36..40 are zero before): `merge_margin` 0 is the paper's
 //! blob stage. Otherwise 8-connected components of at least `merge_fragment` pixels whose
@@ -128,6 +137,13 @@ pub const MAX_GATE_TIMEOUT_MS: u16 = 3000;
 /// Most [`SelfGate::min_frames`].
 pub const MAX_GATE_FRAMES: u8 = 8;
 const FLAG_POOL: u16 = 16;
+const FLAG_POSE: u16 = 32;
+/// Most cells of a [`PoseGrid`] along one angle.
+pub const MAX_POSE_BINS: u8 = 4;
+/// Bytes of the pose-statistics section before its tables.
+pub const POSE_HEADER_LEN: usize = 20;
+/// Largest `|lo|`, `|hi|` of a [`PoseGrid`], radians (beyond every head joint's range).
+pub const MAX_POSE_ANGLE: f32 = 3.2;
 /// Largest [`PoseRegion::radius`], radians.
 pub const MAX_REGION_RADIUS: f32 = 0.5;
 
@@ -306,6 +322,8 @@ pub enum BlobError {
     TrailingBytes,
     /// Self-gate parameters out of range.
     SelfGate,
+    /// A pose-statistics grid out of range.
+    PoseStats,
 }
 
 impl BlobError {
@@ -330,6 +348,7 @@ impl BlobError {
             BlobError::Template => 16,
             BlobError::TrailingBytes => 17,
             BlobError::SelfGate => 18,
+            BlobError::PoseStats => 19,
         }
     }
 }
@@ -361,6 +380,7 @@ impl fmt::Display for BlobError {
             BlobError::Template => f.write_str("face template is malformed"),
             BlobError::TrailingBytes => f.write_str("bytes left over after the last section"),
             BlobError::SelfGate => f.write_str("self-gate parameters out of range"),
+            BlobError::PoseStats => f.write_str("pose-statistics grid out of range"),
         }
     }
 }
@@ -450,6 +470,84 @@ impl PoseRegion {
             && self.threshold.is_finite()
             && self.threshold > 0.0
             && self.merge.is_valid(min_area)
+    }
+}
+
+/// A grid over the head pose, `bins[0]` cells of yaw from `lo[0]` to `hi[0]` by `bins[1]` of
+/// pitch from `lo[1]` to `hi[1]` (radians); a pose outside it counts to the nearest cell.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PoseGrid {
+    /// Cells along yaw and pitch (each `1..=MAX_POSE_BINS`, at least 2 in all).
+    pub bins: [u8; 2],
+    /// Lower edges, `[yaw, pitch]`, radians.
+    pub lo: [f32; 2],
+    /// Upper edges, radians (`> lo`).
+    pub hi: [f32; 2],
+}
+
+impl PoseGrid {
+    /// Cells in all.
+    pub fn len(&self) -> usize {
+        self.bins[0] as usize * self.bins[1] as usize
+    }
+
+    /// Whether the grid has no cell (never for a valid one).
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The cell of `head` (`pitch index x bins[0] + yaw index`), clamped to the grid; `None`
+    /// for a non-finite angle. The one rule for the board and the host (f32 throughout).
+    pub fn bin(&self, head: [f32; 2]) -> Option<usize> {
+        let mut idx = [0usize; 2];
+        for a in 0..2 {
+            if !head[a].is_finite() {
+                return None;
+            }
+            let n = self.bins[a].max(1);
+            let f = (head[a] - self.lo[a]) / (self.hi[a] - self.lo[a]) * n as f32;
+            // `as` saturates (negative and NaN to 0); the min clamps the top.
+            idx[a] = (f as usize).min(n as usize - 1);
+        }
+        Some(idx[1] * self.bins[0] as usize + idx[0])
+    }
+
+    /// Cells `1..=MAX_POSE_BINS` per angle and at least 2 in all, finite edges within
+    /// `MAX_POSE_ANGLE`, `lo < hi`.
+    pub fn is_valid(&self) -> bool {
+        self.bins.iter().all(|&b| (1..=MAX_POSE_BINS).contains(&b))
+            && self.len() >= 2
+            && (0..2).all(|a| {
+                self.lo[a].is_finite()
+                    && self.hi[a].is_finite()
+                    && self.lo[a] < self.hi[a]
+                    && self.lo[a].abs() <= MAX_POSE_ANGLE
+                    && self.hi[a].abs() <= MAX_POSE_ANGLE
+            })
+    }
+}
+
+/// Error statistics per cell of a [`PoseGrid`] (flag bit 5), borrowed from the blob.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PoseStats<'a> {
+    /// The grid.
+    pub grid: PoseGrid,
+    /// Every cell's mu then sigma table in turn, each `stride` bytes.
+    tables: &'a [u8],
+    /// Bytes of one table with its padding.
+    stride: usize,
+    /// Bytes of one table's values (2 per pixel).
+    len: usize,
+}
+
+impl<'a> PoseStats<'a> {
+    /// Cell `bin`'s (mu, sigma) tables, Q8.8 grey levels; `None` past the grid.
+    pub fn tables(&self, bin: usize) -> Option<(U16Table<'a>, U16Table<'a>)> {
+        let at = |k: usize| {
+            let start = k.checked_mul(self.stride)?;
+            self.tables.get(start..start.checked_add(self.len)?).map(U16Table)
+        };
+        Some((at(2 * bin)?, at(2 * bin + 1)?))
     }
 }
 
@@ -755,6 +853,9 @@ pub struct Model<'a> {
     pub template: Option<Template<'a>>,
     /// The self gate (flag bit 3); `None`: confirmed marks are reached at once, as the paper.
     pub self_gate: Option<SelfGate>,
+    /// Error statistics per head-pose cell (flag bit 5); `None`: [`Model::mu`] and
+    /// [`Model::sigma`] at every pose.
+    pub pose: Option<PoseStats<'a>>,
     /// The CRC-32 from the header: the model's identity.
     pub crc32: u32,
 }
@@ -852,10 +953,10 @@ impl<'a> Model<'a> {
             return Err(BlobError::TooManyLayers);
         }
         let flags = r.u16()?;
-        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION | FLAG_SELF_GATE | FLAG_POOL) != 0
+        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION | FLAG_SELF_GATE | FLAG_POOL | FLAG_POSE) != 0
             || (flags & FLAG_SUBPIXEL != 0 && (version < 4 || flags & FLAG_TEMPLATE == 0))
             || (flags & FLAG_REGION != 0 && version < 4)
-            || (flags & (FLAG_SELF_GATE | FLAG_POOL) != 0) != (version >= 5)
+            || (flags & (FLAG_SELF_GATE | FLAG_POOL | FLAG_POSE) != 0) != (version >= 5)
         {
             return Err(BlobError::BadHeader);
         }
@@ -964,6 +1065,24 @@ impl<'a> Model<'a> {
         } else {
             None
         };
+        let pose = if flags & FLAG_POSE != 0 {
+            let bins = [r.u8()?, r.u8()?];
+            if r.u16()? != 0 {
+                return Err(BlobError::BadHeader);
+            }
+            let (yaw_lo, yaw_hi, pitch_lo, pitch_hi) = (r.f32()?, r.f32()?, r.f32()?, r.f32()?);
+            let grid = PoseGrid { bins, lo: [yaw_lo, pitch_lo], hi: [yaw_hi, pitch_hi] };
+            if !grid.is_valid() {
+                return Err(BlobError::PoseStats);
+            }
+            let len = 2 * pixels;
+            let stride = len + (4 - len % 4) % 4;
+            // At most 2 x 16 tables of MAX_FACE_PIXELS: no overflow.
+            let tables = r.take(2 * grid.len() * stride)?;
+            Some(PoseStats { grid, tables, stride, len })
+        } else {
+            None
+        };
         let self_gate = if flags & FLAG_SELF_GATE != 0 {
             let (amplitude, gain, gain_tol, rest_tol) = (r.f32()?, r.f32()?, r.f32()?, r.f32()?);
             let (latency_ms, timeout_ms, min_frames) = (r.u16()?, r.u16()?, r.u8()?);
@@ -992,6 +1111,7 @@ impl<'a> Model<'a> {
             region,
             template,
             self_gate,
+            pose,
             crc32: crc,
         })
     }
@@ -999,6 +1119,18 @@ impl<'a> Model<'a> {
     /// Pixels of a face crop, `face_h * face_w`.
     pub fn face_pixels(&self) -> usize {
         self.face_h as usize * self.face_w as usize
+    }
+
+    /// The (mu, sigma) tables for a face seen with the head at `head`, and which they are: 0
+    /// for the header's tables (no pose statistics, or a non-finite pose), `1 + cell` for a
+    /// cell's of [`Model::pose`].
+    pub fn stats_at(&self, head: [f32; 2]) -> (U16Table<'a>, U16Table<'a>, u8) {
+        if let Some(p) = &self.pose {
+            if let Some((bin, (mu, sigma))) = p.grid.bin(head).and_then(|b| Some((b, p.tables(b)?))) {
+                return (mu, sigma, 1 + bin as u8);
+            }
+        }
+        (self.mu, self.sigma, 0)
     }
 
     /// Multiply-accumulates of one decoder inference.
@@ -1202,6 +1334,8 @@ mod writer {
         pub template: Option<(u16, u16, Vec<u8>)>,
         /// How the host crops with the template; [`CropMode::Subpixel`] needs one.
         pub crop: CropMode,
+        /// Error statistics per head-pose cell: the grid and each cell's (mu, sigma), Q8.8.
+        pub pose: Option<(PoseGrid, Vec<(Vec<u16>, Vec<u16>)>)>,
     }
 
     fn pad(out: &mut Vec<u8>) {
@@ -1222,7 +1356,7 @@ mod writer {
             if self.novelty.pool > MAX_POOL {
                 return Err(BlobError::Novelty);
             }
-            let version: u16 = if self.novelty.pool > 0 {
+            let version: u16 = if self.novelty.pool > 0 || self.pose.is_some() {
                 5
             } else if subpixel || self.region.is_some() {
                 4
@@ -1250,6 +1384,9 @@ mod writer {
             }
             if self.novelty.pool > 0 {
                 flags |= FLAG_POOL;
+            }
+            if self.pose.is_some() {
+                flags |= FLAG_POSE;
             }
             o.extend_from_slice(&flags.to_le_bytes());
             let n = &self.novelty;
@@ -1334,6 +1471,24 @@ mod writer {
                 o.extend_from_slice(px);
                 pad(&mut o);
             }
+            if let Some((g, cells)) = &self.pose {
+                let pixels = self.face_h as usize * self.face_w as usize;
+                if cells.len() != g.len()
+                    || cells.iter().any(|(m, s)| m.len() != pixels || s.len() != pixels)
+                {
+                    return Err(BlobError::PoseStats);
+                }
+                o.extend_from_slice(&[g.bins[0], g.bins[1], 0, 0]);
+                for f in [g.lo[0], g.hi[0], g.lo[1], g.hi[1]] {
+                    o.extend_from_slice(&f.to_le_bytes());
+                }
+                for table in cells.iter().flat_map(|(m, s)| [m, s]) {
+                    for v in table.iter() {
+                        o.extend_from_slice(&v.to_le_bytes());
+                    }
+                    pad(&mut o);
+                }
+            }
             let total = o.len() as u32;
             o[8..12].copy_from_slice(&total.to_le_bytes());
             let crc = CRC32.checksum(&o[16..]);
@@ -1372,7 +1527,7 @@ mod writer {
             None => {
                 let merge = u16::from_le_bytes([o[36], 0]) != 0;
                 let blocked = m.layers.iter().any(|l| !l.torch_order());
-                if flags & FLAG_POOL != 0 {
+                if flags & (FLAG_POOL | FLAG_POSE) != 0 {
                     5
                 } else if flags & (FLAG_SUBPIXEL | FLAG_REGION) != 0 {
                     4

@@ -219,3 +219,30 @@ fn golden_vectors_are_deterministic_and_model_specific() {
     assert!(r2.detections >= 4, "{r2:?}");
     assert!(crate::golden::run(&mut ws, &m1, &mut crop[..10]).is_err());
 }
+
+/// With pose statistics the saliency takes the tables of the decoded head pose's cell: a crop
+/// 4 grey levels over the prediction everywhere is salient in a cell whose mu and sigma say
+/// 1 +- 0.5 grey, not in one that says 3 +- 2 (nor with the header's 12.9 +- 1 at a NaN pose,
+/// which the decoder refuses anyway), and the threshold table follows the cell.
+#[test]
+fn saliency_takes_the_pose_cells_statistics() {
+    use msr_shared::blob::PoseGrid;
+    let mut spec = conv_spec(5, false);
+    let n = spec.mu.len();
+    let cells = vec![(vec![256u16; n], vec![128u16; n]), (vec![3 * 256u16; n], vec![512u16; n])];
+    spec.pose = Some((PoseGrid { bins: [2, 1], lo: [-0.1, -0.1], hi: [0.1, 0.1] }, cells));
+    let bytes = spec.to_bytes().unwrap();
+    let m = Model::parse(&bytes).unwrap();
+    let s = Settings { threshold: 4.59, normalisation: Normalisation::StdDev, sided: Sided::One, min_area: 1, merge: Merge::OFF };
+    let mut ws = Box::new(Workspace::new());
+    for (head, want) in [([-0.05f32, 0.0], n as u32), ([0.05, 0.0], 0), ([-0.02, 0.09], n as u32)] {
+        let pred = ws.decode(&m, head).unwrap().to_vec();
+        // 4 grey levels over the prediction (rounded down to whole grey levels, 3.5..4.5).
+        let crop: Vec<u8> = pred.iter().map(|&p| ((p as u32 + 128) / 256 + 4).min(255) as u8).collect();
+        let got = ws.saliency(&m, &s, &crop).unwrap();
+        // Pixels clipped at 255 may fall short; none are here for this decoder.
+        assert_eq!(got, want, "head {head:?}");
+        let (_, sigma, cell) = m.stats_at(head);
+        assert_eq!(ws.thresholds.table()[0], crate::saliency::threshold_q88(sigma.get(0), 4.59, Normalisation::StdDev), "cell {cell}");
+    }
+}

@@ -58,6 +58,10 @@ pub struct Args {
     /// the paper; see `detect::pipeline::pooled_error`)
     #[arg(long, default_value_t = calibrate::DEFAULT_POOL)]
     pub pool: u8,
+    /// Error statistics (mu, sigma) per cell of an N x N grid over the training head poses,
+    /// 2..=4; the board takes the cell of the reported head pose (0: one set for all poses)
+    #[arg(long, default_value_t = 0)]
+    pub pose_bins: u8,
     /// Smallest blob that counts as a detection, pixels
     #[arg(long, default_value_t = calibrate::DEFAULT_MIN_AREA)]
     pub min_area: u16,
@@ -86,6 +90,7 @@ impl Args {
             .with_sigma_floor(self.sigma_floor)
             .with_threshold(self.threshold)
             .with_pool(self.pool)
+            .with_pose_bins(self.pose_bins)
             .with_min_area(self.min_area)
             .with_device(self.device)
             .with_quiet(self.quiet);

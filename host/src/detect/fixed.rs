@@ -48,8 +48,9 @@ pub fn detect_with(
     // Continuous saliency of the board's prediction against the blob's Q8.8 statistics, for
     // pictures and AUROC; the mask itself is the firmware's.
     let q = |v: u16| v as f32 / 256.0;
-    let mu: Vec<f32> = model.mu.iter().map(q).collect();
-    let sigma: Vec<f32> = model.sigma.iter().map(q).collect();
+    let (mu, sigma, _) = model.stats_at(head);
+    let mu: Vec<f32> = mu.iter().map(q).collect();
+    let sigma: Vec<f32> = sigma.iter().map(q).collect();
     let sal = saliency(face_error(&face.grey, &predicted, model.face_w as usize, model.novelty.pool), &mu, &sigma, 0.0, settings.normalisation, settings.sided);
     Ok(Detection {
         crop: c,

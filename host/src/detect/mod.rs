@@ -87,6 +87,14 @@ pub fn float_engine_of(model: &Model) -> FloatEngine {
         reach: Some(model.reach),
         face_w: model.face_w as usize,
         pool: model.novelty.pool,
+        pose: model.pose.map(|p| {
+            let cells: Vec<_> = (0..p.grid.len()).filter_map(|k| p.tables(k)).collect();
+            crate::detect::pipeline::PoseTables {
+                grid: p.grid,
+                mu: cells.iter().map(|(m, _)| m.iter().map(q).collect()).collect(),
+                sigma: cells.iter().map(|(_, s)| s.iter().map(q).collect()).collect(),
+            }
+        }),
     }
 }
 

@@ -3,7 +3,7 @@
 //! (`crate::detect::fixed`). Both give a [`Detection`] so that `detect` and `eval` treat them alike.
 use crate::data::crop::CropBox;
 pub use crate::detect::blobs::Blob;
-use msr_shared::blob::{Normalisation, PoseRegion, Reach, Sided, REACH_HIDDEN, REACH_OUT};
+use msr_shared::blob::{Normalisation, PoseGrid, PoseRegion, Reach, Sided, REACH_HIDDEN, REACH_OUT};
 use num_traits::Float;
 
 /// Novelty settings of one evaluation row or one detection: the firmware's own type, and its
@@ -139,9 +139,29 @@ pub struct FloatEngine {
     pub face_w: usize,
     /// The error's pooling radius ([`pooled_error`]).
     pub pool: u8,
+    /// Statistics per head-pose cell (the blob's `PoseStats`), used in place of `mu` and
+    /// `sigma` where the head pose is finite.
+    pub pose: Option<PoseTables>,
+}
+
+/// mu and sigma (grey levels, floor applied) per cell of a head-pose grid.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PoseTables {
+    pub grid: PoseGrid,
+    pub mu: Vec<Vec<f32>>,
+    pub sigma: Vec<Vec<f32>>,
 }
 
 impl FloatEngine {
+    /// The (mu, sigma) for a face seen with the head at `head`: the board's rule
+    /// (`Model::stats_at`).
+    pub fn stats_at(&self, head: [f32; 2]) -> (&[f32], &[f32]) {
+        match self.pose.as_ref().and_then(|p| Some((p, p.grid.bin(head)?))) {
+            Some((p, k)) => (&p.mu[k], &p.sigma[k]),
+            None => (&self.mu, &self.sigma),
+        }
+    }
+
     /// The settings for a frame seen with the head at `head`: the firmware's rule, with the
     /// engine's own settings (scale 1).
     pub fn settings_at(&self, head: [f32; 2]) -> Settings {
@@ -151,7 +171,8 @@ impl FloatEngine {
     /// One face seen with the head at `head`, given the model's prediction for it.
     pub fn detect(&self, crop: CropBox, face: &[u8], predicted: Vec<f32>, head: [f32; 2]) -> Detection {
         let s = &self.settings_at(head);
-        let saliency = saliency(face_error(face, &predicted, self.face_w, self.pool), &self.mu, &self.sigma, 0.0, s.normalisation, s.sided);
+        let (mu, sigma) = self.stats_at(head);
+        let saliency = saliency(face_error(face, &predicted, self.face_w, self.pool), mu, sigma, 0.0, s.normalisation, s.sided);
         let mask: Vec<bool> = saliency.iter().map(|&v| v > s.threshold).collect();
         let h = mask.len() / self.face_w.max(1);
         // A face the labeller refuses (none the blob format allows) finds nothing.
@@ -185,7 +206,7 @@ mod tests {
         let (w, h) = (10, 6);
         let region = PoseRegion { centre: [0.0, 0.0], radius: 0.01, threshold: 1.5, merge: Merge { margin: 2, fragment: 2 } };
         let own = Settings { threshold: 4.0, normalisation: Normalisation::StdDev, sided: Sided::One, min_area: 4, merge: Merge::OFF };
-        let eng = FloatEngine { mu: vec![0.0; w * h], sigma: vec![1.0; w * h], settings: own, region: Some(region), reach: None, face_w: w, pool: 0 };
+        let eng = FloatEngine { mu: vec![0.0; w * h], sigma: vec![1.0; w * h], settings: own, region: Some(region), reach: None, face_w: w, pool: 0, pose: None };
         assert_eq!(eng.settings_at([0.005, -0.005]), Settings { threshold: 1.5, merge: region.merge, ..own });
         assert_eq!(eng.settings_at([0.0, 0.02]), own);
         // A 2 x 2 patch 3 grey levels off the prediction: salient at 1.5, not at 4.0.

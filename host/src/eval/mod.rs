@@ -163,6 +163,10 @@ pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> 
             };
             eng.settings = float.settings;
             eng.region = float.region;
+            eng.pose = float.pose.clone();
+            if let (Some(p), false) = (&mut eng.pose, weighting == "sigma") {
+                p.sigma.iter_mut().for_each(|s| s.iter_mut().for_each(|v| *v = 1.0));
+            }
             let d: Vec<Detection> = test
                 .iter()
                 .zip(&predicted)
@@ -254,6 +258,14 @@ fn with_unit_sigma(bytes: &[u8], model: &Model) -> Result<Vec<u8>> {
     let mut out = bytes.to_vec();
     for c in out[start..start + len].chunks_exact_mut(2) {
         c.copy_from_slice(&256u16.to_le_bytes());
+    }
+    // And every pose cell's sigma table.
+    for (_, sigma) in model.pose.iter().flat_map(|p| (0..p.grid.len()).filter_map(|k| p.tables(k))) {
+        let start = sigma.0.as_ptr() as usize - bytes.as_ptr() as usize;
+        ensure!(start + sigma.0.len() <= bytes.len(), "sigma table outside the blob");
+        for c in out[start..start + sigma.0.len()].chunks_exact_mut(2) {
+            c.copy_from_slice(&256u16.to_le_bytes());
+        }
     }
     let crc = CRC32.checksum(&out[16..]);
     out[12..16].copy_from_slice(&crc.to_le_bytes());
@@ -363,6 +375,8 @@ struct FloatModel {
     sigma: Vec<f32>,
     settings: Settings,
     region: Option<msr_shared::blob::PoseRegion>,
+    /// Statistics per head-pose cell, floored like `sigma`.
+    pose: Option<crate::detect::pipeline::PoseTables>,
     source: String,
 }
 
@@ -399,6 +413,11 @@ fn trained_model(
         sigma: stats.sigma.iter().map(|&v| v.max(floor) as f32).collect(),
         settings: info.novelty.settings(),
         region: info.novelty.region,
+        pose: stats.pose.as_ref().map(|p| crate::detect::pipeline::PoseTables {
+            grid: p.grid,
+            mu: p.mu.iter().map(|m| m.iter().map(|&v| v as f32).collect()).collect(),
+            sigma: p.sigma.iter().map(|s| s.iter().map(|&v| v.max(floor) as f32).collect()).collect(),
+        }),
         source: format!(
             "{} (trained, float)",
             dir.join(format!("{name}.mpk")).display()
@@ -423,6 +442,7 @@ fn published_float_decoder(manifest: &Path) -> Result<FloatModel> {
             merge: msr_shared::blob::Merge::OFF,
         },
         region: None,
+        pose: None,
         source: format!("{} (published float decoder)", manifest.display()),
         predictor: Box::new(p.decoder),
     })
@@ -438,6 +458,7 @@ fn blob_float_decoder(model: &Model) -> Result<FloatModel, String> {
         sigma: eng.sigma,
         settings: eng.settings,
         region: eng.region,
+        pose: eng.pose,
         source: "blob decoder dequantized to float (no trained decoder next to the blob)".into(),
     })
 }

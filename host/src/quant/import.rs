@@ -438,6 +438,7 @@ impl Published {
             template: Some((h as u16, w as u16, self.template.as_raw().clone())),
             // The published statistics were measured on whole-pixel crops.
             crop: CropMode::Pixel,
+            pose: None,
         })
     }
 }

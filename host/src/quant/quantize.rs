@@ -374,6 +374,12 @@ pub fn blob_of(layers: Vec<LayerSpec>, x: &Extras) -> Result<Vec<u8>> {
         region: p.region,
         template: x.template.clone(),
         crop: x.crop,
+        pose: x.stats.pose.as_ref().map(|ps| {
+            let cells = ps.mu.iter().zip(&ps.sigma).map(|(m, sg)| {
+                (m.iter().map(|&v| q8_8(v)).collect(), sg.iter().map(|&v| q8_8(v.max(p.sigma_floor)).max(1)).collect())
+            });
+            (ps.grid, cells.collect())
+        }),
     };
     spec.to_bytes().map_err(|e| anyhow::anyhow!("the quantized model does not make a valid blob: {e}"))
 }
@@ -521,7 +527,7 @@ pub fn quantize(args: &QuantizeConfig) -> Result<Report> {
     let (mut agree, mut nf, mut nq, mut diffs) = (0usize, 0usize, 0usize, Vec::new());
     for ((s, f), p) in ds.samples.iter().zip(&faces).zip(&preds) {
         let novelty = x.novelty.at(s.head);
-        let sal = calibrate::saliency(&calibrate::error_map(f, p, w, novelty.pool), &x.stats, &novelty);
+        let sal = calibrate::saliency_at(&calibrate::error_map(f, p, w, novelty.pool), &x.stats, &novelty, s.head);
         let fl = calibrate::detect(&sal, h, w, &novelty);
         let fx = crate::detect::fixed::detect_with(&mut ws, &blob_model, &s.face, s.head)?;
         let fx = fx.blob.map(|b| [b.centroid[0] - s.face.crop.x as f64, b.centroid[1] - s.face.crop.y as f64]);
@@ -581,7 +587,7 @@ mod tests {
         Extras {
             face: (h, w),
             novelty: NoveltyParams { normalisation: Normalisation::StdDev, sided: Sided::One, ..Default::default() },
-            stats: ErrorStats { h, w, mu: vec![3.0; h * w], sigma: vec![2.0; h * w], frames: 10 },
+            stats: ErrorStats { h, w, mu: vec![3.0; h * w], sigma: vec![2.0; h * w], frames: 10, pose: None },
             reach,
             template: None,
             crop: CropMode::Pixel,

@@ -126,6 +126,10 @@ pub struct TrainConfig {
     /// the paper; see `detect::pipeline::pooled_error`).
     #[config(default = "calibrate::DEFAULT_POOL")]
     pub pool: u8,
+    /// Error statistics per cell of an N x N grid over the training head poses (0: one set for
+    /// all poses, the paper; see `calibrate::error_stats_by_pose`).
+    #[config(default = 0)]
+    pub pose_bins: u8,
     /// Smallest blob that counts as a detection, pixels.
     #[config(default = "calibrate::DEFAULT_MIN_AREA")]
     pub min_area: u16,
@@ -192,6 +196,10 @@ pub struct Files {
     pub sigma: String,
     pub loss_png: String,
     pub template: String,
+    /// Per-pose-cell statistics (`novelty.pose_grid`): `2 K` tables of `h x w` stacked, cell
+    /// `k`'s mu then sigma; absent without a grid and in older files.
+    #[serde(default)]
+    pub pose_stats: Option<String>,
 }
 
 impl Files {
@@ -202,6 +210,7 @@ impl Files {
             sigma: format!("{name}_sigma.npy"),
             loss_png: format!("{name}_loss.png"),
             template: "template.png".into(),
+            pose_stats: None,
         }
     }
 }
@@ -258,8 +267,15 @@ pub fn run(args: TrainConfig) -> Result<()> {
         merge: msr_shared::blob::Merge::OFF,
         region: None,
         pool: args.pool,
+        pose_grid: None,
     };
     novelty.check()?;
+    ensure!(
+        args.pose_bins == 0 || (2..=msr_shared::blob::MAX_POSE_BINS).contains(&args.pose_bins),
+        "--pose-bins must be 0 (off) or 2..={}, got {}",
+        msr_shared::blob::MAX_POSE_BINS,
+        args.pose_bins
+    );
     let hp = HyperParams {
         epochs: args.epochs,
         batch: args.batch,
@@ -327,9 +343,17 @@ pub fn run(args: TrainConfig) -> Result<()> {
 
     // Statistics over the training frames, with the final model.
     let preds = net.predict_batch(&train.heads, &train.faces);
-    let stats = calibrate::error_stats(h, w, novelty.pool, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?;
-
+    let mut stats = calibrate::error_stats(h, w, novelty.pool, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?;
     let mut novelty = novelty;
+    if args.pose_bins > 0 {
+        // The grid spans the training poses, so every cell holds about as many frames.
+        let max_head = train.heads.iter().flatten().fold(0f32, |m, a| m.max(a.abs()));
+        let grid = calibrate::pose_grid(args.pose_bins, max_head)?;
+        let samples = train.heads.iter().zip(&train.faces).zip(&preds).map(|((&hd, f), p)| (hd, &f[..], &p[..]));
+        stats.pose = Some(calibrate::error_stats_by_pose(h, w, novelty.pool, grid, samples)?);
+        novelty.pose_grid = Some(grid);
+    }
+
     let policy = match args.threshold_percentile {
         None => ThresholdPolicy { kind: "fixed".into(), percentile: None, frames: None, n_frames: 0 },
         Some(p) => {
@@ -345,8 +369,9 @@ pub fn run(args: TrainConfig) -> Result<()> {
             let scores: Vec<f64> = faces
                 .iter()
                 .zip(&preds)
-                .map(|(f, p)| {
-                    let sal = calibrate::saliency(&calibrate::error_map(f, p, w, novelty.pool), &stats, &novelty);
+                .zip(&heads)
+                .map(|((f, p), &head)| {
+                    let sal = calibrate::saliency_at(&calibrate::error_map(f, p, w, novelty.pool), &stats, &novelty, head);
                     calibrate::detection_score(&sal, h, w, novelty.min_area)
                 })
                 .collect();
@@ -363,9 +388,15 @@ pub fn run(args: TrainConfig) -> Result<()> {
         }
     };
 
-    let files = Files::of(out.name);
+    let mut files = Files::of(out.name);
     calibrate::write_npy(&args.out.join(&files.mu), h, w, &stats.mu)?;
     calibrate::write_npy(&args.out.join(&files.sigma), h, w, &stats.sigma)?;
+    if let Some(p) = &stats.pose {
+        let name = format!("{}_pose_stats.npy", out.name);
+        let all: Vec<f64> = p.mu.iter().zip(&p.sigma).flat_map(|(m, s)| m.iter().chain(s)).copied().collect();
+        calibrate::write_npy(&args.out.join(&name), 2 * p.grid.len() * h, w, &all)?;
+        files.pose_stats = Some(name);
+    }
     crate::fsio::write_with(&args.out.join(&files.template), |tmp| Ok(ds.template.save(tmp)?))?;
     plot::loss_png(&hist, &format!("{} ({:?})", out.name, args.arch), &args.out.join(&files.loss_png))?;
     let info = ModelInfo {
@@ -545,7 +576,28 @@ pub fn load_stats(dir: &Path, info: &ModelInfo) -> Result<ErrorStats> {
         info.face_h,
         info.face_w
     );
-    Ok(ErrorStats { h, w, mu, sigma, frames: info.stats_frames })
+    let pose = match (&info.novelty.pose_grid, &info.files.pose_stats) {
+        (None, None) => None,
+        (Some(grid), Some(file)) => {
+            let (ph, pw, all) = calibrate::read_npy(&dir.join(file))?;
+            let k = grid.len();
+            ensure!(
+                grid.is_valid() && (ph, pw) == (2 * k * h, w),
+                "{file} is {ph}x{pw}, the pose grid {:?} needs {}x{w}",
+                grid.bins,
+                2 * k * h
+            );
+            let mut tables = all.chunks_exact(h * w).map(|t| t.to_vec());
+            let (mut mu_k, mut sigma_k) = (Vec::new(), Vec::new());
+            while let (Some(m), Some(s)) = (tables.next(), tables.next()) {
+                mu_k.push(m);
+                sigma_k.push(s);
+            }
+            Some(calibrate::PoseErrorStats { grid: *grid, mu: mu_k, sigma: sigma_k, frames: Vec::new() })
+        }
+        _ => bail!("{}: a pose grid needs its statistics file and the other way round", info.files.mu),
+    };
+    Ok(ErrorStats { h, w, mu, sigma, frames: info.stats_frames, pose })
 }
 
 #[cfg(test)]

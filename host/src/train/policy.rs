@@ -237,8 +237,9 @@ pub fn frames(
         .iter()
         .zip(&preds)
         .zip(faces)
-        .map(|((u, pr), (_, mark_box))| Frame {
-            saliency: calibrate::saliency(&calibrate::error_map(u, pr, stats.w, p.pool), stats, p),
+        .zip(&heads)
+        .map(|(((u, pr), (_, mark_box)), &head)| Frame {
+            saliency: calibrate::saliency_at(&calibrate::error_map(u, pr, stats.w, p.pool), stats, p, head),
             mark_box,
         })
         .collect())

@@ -71,6 +71,7 @@ fn mlp_spec() -> ModelSpec {
         region: None,
         template: Some((2, 3, vec![1, 2, 3, 4, 5, 6])),
         crop: CropMode::Pixel,
+        pose: None,
     }
 }
 
@@ -368,6 +369,7 @@ fn error_codes_are_distinct() {
         BlobError::Template,
         BlobError::TrailingBytes,
         BlobError::SelfGate,
+        BlobError::PoseStats,
     ];
     let mut codes: Vec<u32> = all.iter().map(|e| e.code()).collect();
     codes.sort();
@@ -580,13 +582,13 @@ fn error_pool_needs_version_5_flag_bit_4_and_a_radius_in_range() {
         Model::parse(&b).map(|m| m.novelty.pool)
     };
     // Version 4 has no pool; a radius without the flag, 0 or over the limit with it, an unknown
-    // bit (5), and bit 3 (the self gate) without its section are refused.
+    // bit (6), and bit 3 (the self gate) without its section are refused.
     assert_eq!(edit(4, &[4, 0]), Err(BlobError::BadHeader));
     assert_eq!(edit(22, &[1, 0]), Err(BlobError::BadHeader));
     assert_eq!(edit(37, &[0]), Err(BlobError::Novelty));
     assert_eq!(edit(37, &[MAX_POOL + 1]), Err(BlobError::Novelty));
     assert_eq!(edit(37, &[MAX_POOL]), Ok(MAX_POOL));
-    assert_eq!(edit(22, &[49, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(22, &[81, 0]), Err(BlobError::BadHeader));
     assert_eq!(edit(22, &[25, 0]), Err(BlobError::Truncated));
     // Version 5 carries a self gate or pooling: the plain blob as version 5 is refused.
     let mut b = plain.clone();
@@ -748,4 +750,122 @@ fn self_gate_values_are_checked() {
         assert!(Model::parse(&gated[..cut]).is_err());
     }
     assert_eq!(set_self_gate(&plain, Some(SelfGate { min_frames: 0, ..gate() })), Err(BlobError::SelfGate));
+}
+
+fn grid() -> PoseGrid {
+    PoseGrid { bins: [2, 3], lo: [-0.1, -0.09], hi: [0.1, 0.09] }
+}
+
+/// mlp_spec (3 x 4 face) with pose statistics on `grid()`: cell k's mu is 100 k + pixel,
+/// its sigma 1000 + 100 k + pixel.
+fn pose_spec() -> ModelSpec {
+    let mut s = mlp_spec();
+    let cells = (0..6u16)
+        .map(|k| ((0..12).map(|i| 100 * k + i).collect(), (0..12).map(|i| 1000 + 100 * k + i).collect()))
+        .collect();
+    s.pose = Some((grid(), cells));
+    s
+}
+
+#[test]
+fn pose_grid_cells_clamp_and_refuse_non_finite_poses() {
+    let g = grid();
+    assert_eq!(g.len(), 6);
+    // Yaw cells split at 0, pitch cells at -0.03 and 0.03; pitch-major.
+    assert_eq!(g.bin([-0.05, -0.05]), Some(0));
+    assert_eq!(g.bin([0.05, -0.05]), Some(1));
+    assert_eq!(g.bin([-0.05, 0.0]), Some(2));
+    assert_eq!(g.bin([0.0, 0.0]), Some(3));
+    assert_eq!(g.bin([0.05, 0.08]), Some(5));
+    // Outside the grid: the nearest cell.
+    assert_eq!(g.bin([-3.0, -3.0]), Some(0));
+    assert_eq!(g.bin([3.0, 3.0]), Some(5));
+    assert_eq!(g.bin([0.1, 0.09]), Some(5));
+    assert_eq!(g.bin([f32::NAN, 0.0]), None);
+    assert_eq!(g.bin([0.0, f32::INFINITY]), None);
+    assert!(g.is_valid());
+    for bad in [
+        PoseGrid { bins: [1, 1], ..g },
+        PoseGrid { bins: [0, 3], ..g },
+        PoseGrid { bins: [MAX_POSE_BINS + 1, 2], ..g },
+        PoseGrid { lo: [0.1, -0.09], ..g },
+        PoseGrid { hi: [0.1, f32::NAN], ..g },
+        PoseGrid { lo: [-3.3, -0.09], ..g },
+    ] {
+        assert!(!bad.is_valid(), "{bad:?}");
+    }
+}
+
+#[test]
+fn pose_stats_round_trip_as_a_literal_section_before_the_self_gate() {
+    let plain = mlp_spec().to_bytes().unwrap();
+    let spec = pose_spec();
+    let bytes = spec.to_bytes().unwrap();
+    assert_eq!(&bytes[4..6], &[5, 0], "pose statistics are version 5");
+    assert_eq!(&bytes[22..24], &[33, 0], "template and pose flags");
+    // The plain blob, then the section: 20 bytes of grid, 12 tables of 12 u16 (24 bytes each).
+    assert_eq!(bytes.len(), plain.len() + 20 + 12 * 24);
+    assert_eq!(&bytes[24..plain.len()], &plain[24..]);
+    let at = plain.len();
+    assert_eq!(&bytes[at..at + 4], &[2, 3, 0, 0]);
+    assert_eq!(&bytes[at + 4..at + 8], &(-0.1f32).to_le_bytes());
+    assert_eq!(&bytes[at + 16..at + 20], &0.09f32.to_le_bytes());
+    // Cell 1's sigma (the fourth table), pixel 2: 1102.
+    assert_eq!(&bytes[at + 20 + 3 * 24 + 4..at + 20 + 3 * 24 + 6], &1102u16.to_le_bytes());
+    let m = Model::parse(&bytes).unwrap();
+    let p = m.pose.unwrap();
+    assert_eq!(p.grid, grid());
+    for k in 0..6 {
+        let (mu, sigma) = p.tables(k).unwrap();
+        assert_eq!(mu.iter().collect::<Vec<_>>(), spec.pose.as_ref().unwrap().1[k].0);
+        assert_eq!(sigma.get(11), 1000 + 100 * k as u16 + 11);
+    }
+    assert!(p.tables(6).is_none());
+    // stats_at: the cell's tables, the header's for a non-finite pose.
+    let (mu, sigma, cell) = m.stats_at([0.05, 0.08]);
+    assert_eq!((mu.get(0), sigma.get(0), cell), (500, 1500, 6));
+    let (mu, _, cell) = m.stats_at([f32::NAN, 0.0]);
+    assert_eq!((mu.get(11), cell), (3300, 0));
+    assert_eq!(Model::parse(&plain).unwrap().stats_at([0.0, 0.0]).2, 0);
+    // A self gate goes after it, and comes off again.
+    let gated = set_self_gate(&bytes, Some(gate())).unwrap();
+    assert_eq!(&gated[24..bytes.len()], &bytes[24..]);
+    assert_eq!(Model::parse(&gated).unwrap().pose, Model::parse(&bytes).unwrap().pose);
+    assert_eq!(set_self_gate(&gated, None).unwrap(), bytes);
+}
+
+#[test]
+fn pose_stats_are_checked_and_every_truncation_refused() {
+    let bytes = pose_spec().to_bytes().unwrap();
+    let at = mlp_spec().to_bytes().unwrap().len();
+    let edit = |at_: usize, v: &[u8]| {
+        let mut b = bytes.clone();
+        b[at_..at_ + v.len()].copy_from_slice(v);
+        recrc(&mut b);
+        Model::parse(&b).map(|m| m.pose.map(|p| p.grid))
+    };
+    assert_eq!(edit(at, &[3, 2]), Ok(Some(PoseGrid { bins: [3, 2], ..grid() })));
+    assert_eq!(edit(at, &[1, 1]), Err(BlobError::PoseStats));
+    assert_eq!(edit(at, &[5, 1]), Err(BlobError::PoseStats));
+    assert_eq!(edit(at, &[4, 3]), Err(BlobError::Truncated), "more cells than tables");
+    assert_eq!(edit(at, &[1, 3]), Err(BlobError::TrailingBytes), "fewer cells than tables");
+    assert_eq!(edit(at + 2, &[1]), Err(BlobError::BadHeader), "reserved");
+    assert_eq!(edit(at + 4, &0.2f32.to_le_bytes()), Err(BlobError::PoseStats), "lo above hi");
+    assert_eq!(edit(at + 8, &f32::NAN.to_le_bytes()), Err(BlobError::PoseStats));
+    // The flag needs version 5; without the flag the section is trailing bytes.
+    assert_eq!(edit(4, &[4, 0]), Err(BlobError::BadHeader));
+    assert_eq!(edit(22, &[1, 0]), Err(BlobError::BadHeader), "version 5 without a bit of its own");
+    for cut in 0..bytes.len() {
+        assert!(Model::parse(&bytes[..cut]).is_err(), "accepted {cut} of {}", bytes.len());
+    }
+    // The writer refuses what the parser refuses: a cell count or table size off the grid.
+    let mut spec = pose_spec();
+    spec.pose.as_mut().unwrap().1.pop();
+    assert_eq!(spec.to_bytes(), Err(BlobError::PoseStats));
+    let mut spec = pose_spec();
+    spec.pose.as_mut().unwrap().1[2].1.push(7);
+    assert_eq!(spec.to_bytes(), Err(BlobError::PoseStats));
+    let mut spec = pose_spec();
+    spec.pose.as_mut().unwrap().0.bins = [1, 1];
+    assert!(spec.to_bytes().is_err());
 }
