@@ -612,7 +612,7 @@ impl<S: ModelStore> Core<S> {
                     };
                     let salient = salient.map_or(u32::MAX, |d| d.salient_pixels);
                     match self.gate.as_mut() {
-                        Some(g) => g.on_frame(now_us, h.frame, [h.crop_x, h.crop_y], yaw, salient),
+                        Some(g) => g.on_frame(now_us, h.frame, h.position(), yaw, salient),
                         None => Step::Wait,
                     }
                 }
@@ -655,7 +655,7 @@ impl<S: ModelStore> Core<S> {
             self.detections = self.detections.saturating_add(1);
         }
         if let Some(g) = self.gate.as_mut() {
-            g.observe([h.crop_x, h.crop_y], yaw, det.salient_pixels);
+            g.observe(h.position(), yaw, det.salient_pixels);
         }
         let mut confirmed = false;
         if self.confirm.push(det.blob.is_some())

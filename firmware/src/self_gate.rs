@@ -3,20 +3,25 @@
 //! Contingency, as in developmental psychology: my image moves when and as I move. Before a
 //! confirmed mark may start a reach, the head turns by `+amplitude` in yaw, then `-amplitude`
 //! (from the resting yaw), and at each probe pose, once the servos report it settled and the
-//! robot's own latency has passed, the face crop's x offset (every frame header carries it)
-//! is averaged over `min_frames` frames. Then
+//! robot's own latency has passed, the face crop's x position (every frame header carries it,
+//! to 1/64 pixel) is averaged over `min_frames` frames. Then
 //!
-//! - `gain_ratio = ((x+ - x-) / (yaw+ - yaw-)) / gain`, against the gain of the robot's own
+//! - `gain_ratio = ((x+ - x-) / (2 amplitude)) / gain`, against the gain of the robot's own
 //!   mirror image (calibrated from rendered frames and stored in the model blob): in a mirror
 //!   the face and the camera turn together, so the face shifts by the camera's turn alone;
 //!   anything else (another robot, a still picture) shifts by a different amount, and a
 //!   delayed picture shows the probe's poses late, so not at all or backwards;
-//! - `rest_px`: the resting face (frames before the probe) must lie on the probe's line.
+//! - `rest_px`: the resting face (frames before the probe) must lie on the probe's line, midway
+//!   between the poses;
 //!
-//! Pass when `|gain_ratio - 1| <= gain_tol`, `rest_px <= rest_tol` and the face's y offset
-//! stays within `rest_tol` of its rest at both poses (a yaw probe does not move the own image
-//! up or down; a robot babbling its head does), and the x offset holds within a pixel over the
-//! resting frames and over each pose's frames (the head holds still then; so does its image). A probe starts only after the head has rested
+//! - `hold_px`: the largest range of x over the resting frames and over each pose's frames
+//!   (the head holds still then; so does its image, and a robot babbling its head does not);
+//! - `level_px`: how far the face's y moved at a pose from its rest (a yaw probe does not move
+//!   the own image up or down; a babbling robot's pitch does).
+//!
+//! Pass when `|gain_ratio - 1| <= gain_tol` and `rest_px`, `hold_px` and `level_px` are all
+//! within `rest_tol`: the own image lies on its line at every frame of the probe, to the
+//! precision calibration measured. A probe starts only after the head has rested
 //! [`REST_BEFORE_PROBE_US`] since the last one: a delayed picture of the last probe must not
 //! replay in step with the next. Anything that stops the
 //! test (no frames, silent servos, a head that does not get there, the timeout) is undecided,
@@ -80,9 +85,9 @@ impl Acc {
 struct Probe {
     started_us: u64,
     target: [f32; 5],
-    /// Resting crop x, yaw and salient pixels.
+    /// Resting face x, yaw and salient pixels.
     rest: (f32, f32, f32),
-    /// Resting crop y, and the range of the resting crop x.
+    /// Resting face y, and the range of the resting face x.
     rest_y: f32,
     rest_spread: f32,
     pitch: f32,
@@ -97,7 +102,7 @@ struct Probe {
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Gate {
     p: SelfGate,
-    /// Latest resting frames: (crop x, yaw, salient pixels), newest last, and their crop y.
+    /// Latest resting frames: (face x, yaw, salient pixels), newest last, and their face y.
     rest: [(f32, f32, f32); REST_FRAMES],
     rest_y: [f32; REST_FRAMES],
     /// When the last probe ended.
@@ -122,13 +127,14 @@ impl Gate {
         self.probe.is_some()
     }
 
-    /// A frame while observing (head at rest): kept as the resting face. `salient`: the
-    /// frame's salient pixels (reported with the decision, for calibration).
-    pub fn observe(&mut self, crop: [u16; 2], yaw: f32, salient: u32) {
+    /// A frame while observing (head at rest): kept as the resting face. `pos`: the face
+    /// crop's position in the frame, pixels (`FrameHeader::position`); `salient`: the frame's
+    /// salient pixels (reported with the decision, for calibration).
+    pub fn observe(&mut self, pos: [f32; 2], yaw: f32, salient: u32) {
         self.rest.copy_within(1.., 0);
         self.rest_y.copy_within(1.., 0);
-        self.rest[REST_FRAMES - 1] = (crop[0] as f32, yaw, salient as f32);
-        self.rest_y[REST_FRAMES - 1] = crop[1] as f32;
+        self.rest[REST_FRAMES - 1] = (pos[0], yaw, salient as f32);
+        self.rest_y[REST_FRAMES - 1] = pos[1];
         self.rest_n = (self.rest_n + 1).min(REST_FRAMES);
     }
 
@@ -192,7 +198,7 @@ impl Gate {
     }
 
     /// A face frame arrived during the probe, with the head's reported yaw.
-    pub fn on_frame(&mut self, now_us: u64, frame: u16, crop: [u16; 2], yaw: f32, salient: u32) -> Step {
+    pub fn on_frame(&mut self, now_us: u64, frame: u16, pos: [f32; 2], yaw: f32, salient: u32) -> Step {
         let latency = self.p.latency_ms as u64 * 1000;
         let min = self.p.min_frames;
         let Some(pr) = self.probe.as_mut() else { return Step::Wait };
@@ -201,7 +207,7 @@ impl Gate {
         if now_us < since.saturating_add(latency) {
             return Step::Wait;
         }
-        pr.acc[pr.stage].push(crop[0] as f32, crop[1] as f32, yaw, salient);
+        pr.acc[pr.stage].push(pos[0], pos[1], yaw, salient);
         if pr.acc[pr.stage].n < min {
             return Step::Wait;
         }
@@ -246,6 +252,8 @@ impl Gate {
                 decision: GateDecision::Undecided(why),
                 gain_ratio: f32::NAN,
                 rest_px: f32::NAN,
+                hold_px: f32::NAN,
+                level_px: f32::NAN,
                 salient: [f32::NAN; 3],
                 frames: [0; 2],
                 elapsed_ms: elapsed_ms(started_us, now_us),
@@ -262,24 +270,37 @@ impl Gate {
             decision: GateDecision::Undecided(GateUndecided::HeadStuck),
             gain_ratio: f32::NAN,
             rest_px: f32::NAN,
+            hold_px: f32::NAN,
+            level_px: f32::NAN,
             salient: [pr.rest.2, pr.acc[0].salient(), pr.acc[1].salient()],
             frames: [pr.acc[0].n, pr.acc[1].n],
             elapsed_ms: elapsed_ms(pr.started_us, now_us),
         };
-        // The reported poses must span most of the probe, or the ratio means nothing.
-        if !(dy.is_finite() && dy >= self.p.amplitude) {
+        // The head must be at the poses it was sent to, as far as the servos can tell, or the
+        // probe's geometry is not the commanded one: undecided.
+        let a = self.p.amplitude;
+        let there = (yp - (pr.rest.1 + a)).abs() <= POSE_TOL_RAD && (ym - (pr.rest.1 - a)).abs() <= POSE_TOL_RAD;
+        if !(dy.is_finite() && there) {
             return Step::Done(report, None);
         }
-        let gain = (xp - xm) / dy;
+        // The commanded span, not the reported one: the servo settles on its target, while its
+        // encoder rounds each reported yaw by up to half a step (1 % of the gain over the span),
+        // the largest error the gain would have.
+        let gain = (xp - xm) / (2.0 * a);
         let ratio = gain / self.p.gain;
-        let line = (xp + xm) / 2.0 + gain * (pr.rest.1 - (yp + ym) / 2.0);
+        // The poses' midpoint is the resting yaw.
+        let line = (xp + xm) / 2.0;
         let rest_px = (pr.rest.0 - line).abs();
+        // Still at rest and at each pose, and level during a yaw probe.
+        let hold_px = pr.acc.iter().fold(pr.rest_spread, |m, a| m.max(a.x_max - a.x_min));
+        let level_px = pr.acc.iter().fold(0.0f32, |m, a| m.max((a.y() - pr.rest_y).abs()));
         report.gain_ratio = ratio;
         report.rest_px = rest_px;
-        // Still at rest and at each pose (within rounding), and level during a yaw probe.
-        let steady = pr.rest_spread <= 1.0 && pr.acc.iter().all(|a| a.x_max - a.x_min <= 1.0);
-        let level = steady && pr.acc.iter().all(|a| (a.y() - pr.rest_y).abs() <= self.p.rest_tol);
-        let pass = (ratio - 1.0).abs() <= self.p.gain_tol && rest_px <= self.p.rest_tol && level;
+        report.hold_px = hold_px;
+        report.level_px = level_px;
+        let tol = self.p.rest_tol;
+        // Written so that a NaN anywhere fails.
+        let pass = (ratio - 1.0).abs() <= self.p.gain_tol && rest_px <= tol && hold_px <= tol && level_px <= tol;
         report.decision = if pass { GateDecision::Pass } else { GateDecision::Reject };
         Step::Done(report, pass.then_some(pr.target))
     }
@@ -288,6 +309,10 @@ impl Gate {
 /// Least rest of the head between two probes: longer than the longest video delay the gate
 /// must refuse (2 s), so that a delayed picture shows the head still when the next probe starts.
 pub const REST_BEFORE_PROBE_US: u64 = 2_500_000;
+
+/// At the decision, the mean reported yaw at each pose must be this close to the pose
+/// (radians; about three steps of a 12-bit servo encoder).
+pub const POSE_TOL_RAD: f32 = 0.005;
 
 /// The head is at a probe pose when its reported yaw is this share of the amplitude from it.
 pub const SETTLE_SHARE: f32 = 0.15;

@@ -315,7 +315,7 @@ pub fn move_head(s: &mut Session, head: [f64; 2], timeout: Duration) -> Result<O
                 _ => "unknown reason",
             }
         ),
-        _ => bail!("the board did not answer a head pose within {timeout:?} (does it speak host link protocol 3?)"),
+        _ => bail!("the board did not answer a head pose within {timeout:?} (does it speak host link protocol 4?)"),
     }
 }
 

@@ -216,7 +216,8 @@ impl Session {
         let now = |t0: Instant| t0.elapsed().as_micros() as u64;
         let c = face.crop;
         let size = [c.width as u16, c.height as u16];
-        self.faces.start([c.x as u16, c.y as u16], size, face.grey.clone(), now(self.t0));
+        let at = msr_shared::msg::CropAt::subpixel([c.x as u16, c.y as u16], face.shift);
+        self.faces.start(at, size, face.grey.clone(), now(self.t0));
         let deadline = Instant::now() + timeout;
         let mut got = Vec::new();
         loop {

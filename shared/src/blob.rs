@@ -562,7 +562,9 @@ pub struct SelfGate {
     pub gain: f32,
     /// Largest relative error of the measured gain: `|measured / gain - 1|`.
     pub gain_tol: f32,
-    /// Largest distance (pixels) of the resting face from the probe's line.
+    /// Largest distance (pixels) of the face from where the own image would be: the resting
+    /// face from the probe's line, the face's x range while the head holds, its vertical move
+    /// at a pose.
     pub rest_tol: f32,
     /// The robot's own latency from a head pose to a frame showing it on the board, ms.
     pub latency_ms: u16,

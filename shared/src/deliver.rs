@@ -6,7 +6,7 @@
 //! So the same code drives the sim, QEMU and a serial port, and tests can drive it by hand.
 
 use crate::blob::CRC32;
-use crate::msg::{ChunkSet, FrameAck, FrameHeader, FrameState, HostToBoard, CHUNK, MAX_FRAME_CHUNKS, MIN_CHUNK};
+use crate::msg::{ChunkSet, CropAt, FrameAck, FrameHeader, FrameState, HostToBoard, CHUNK, MAX_FRAME_CHUNKS, MIN_CHUNK};
 
 /// Wire bytes a face chunk costs beyond its data: message tag, frame id and offset varints and
 /// length (5), frame header and CRC (5), COBS and delimiter (2), with a margin of one.
@@ -14,13 +14,15 @@ pub const CHUNK_OVERHEAD: usize = 13;
 
 /// The header of a face image: chunk size `chunk` (clamped to what the protocol allows for this
 /// size) and the image's CRC-32.
-pub fn face_header(frame: u16, crop: [u16; 2], size: [u16; 2], chunk: u16, pixels: &[u8]) -> FrameHeader {
+pub fn face_header(frame: u16, crop: impl Into<CropAt>, size: [u16; 2], chunk: u16, pixels: &[u8]) -> FrameHeader {
     let n = size[0] as usize * size[1] as usize;
     let least = n.div_ceil(MAX_FRAME_CHUNKS).max(MIN_CHUNK);
+    let crop = crop.into();
     FrameHeader {
         frame,
-        crop_x: crop[0],
-        crop_y: crop[1],
+        crop_x: crop.px[0],
+        crop_y: crop.px[1],
+        crop_sub: crop.sub,
         width: size[0],
         height: size[1],
         chunk: (chunk as usize).clamp(least, CHUNK) as u16,
@@ -333,7 +335,7 @@ impl FaceLink {
     }
 
     /// Starts a frame (superseding one in flight); returns its id.
-    pub fn start(&mut self, crop: [u16; 2], size: [u16; 2], pixels: Vec<u8>, now_us: u64) -> u16 {
+    pub fn start(&mut self, crop: impl Into<CropAt>, size: [u16; 2], pixels: Vec<u8>, now_us: u64) -> u16 {
         if let Some(c) = self.current.take() {
             self.stats.superseded += 1;
             self.count(&c.sender);

@@ -29,8 +29,10 @@ use serde::{Deserialize, Serialize};
 /// repeat (`FrameHeader::chunk` and `crc32`, `FramePoll`, `FrameAck`), resumable uploads
 /// (`UploadAck`); version 1 sent each frame once and dropped it on any lost chunk. Version 3:
 /// the self gate (`Mode::SelfTest`, `BoardToHost::SelfGate`) and
-/// head poses on request (`MoveHead`, `HeadAt`, `HeadRefused`, `HeadNotSettled`).
-pub const PROTOCOL_VERSION: u8 = 3;
+/// head poses on request (`MoveHead`, `HeadAt`, `HeadRefused`, `HeadNotSettled`). Version 4:
+/// the crop position's sub-pixel part (`FrameHeader::crop_sub`) and the self gate's hold and
+/// level statistics (`GateReport::hold_px`, `level_px`).
+pub const PROTOCOL_VERSION: u8 = 4;
 /// Largest postcard payload in one frame.
 pub const MAX_PAYLOAD: usize = 256;
 /// Version byte and sequence number.
@@ -334,10 +336,10 @@ mod tests {
 
     #[test]
     fn literal_frame() {
-        // version 3, seq 0x0102, payload [0x00, 0x2A]; CRC-16/UMTS of 03 02 01 00 2A.
-        let crc = CRC16.checksum(&[3, 2, 1, 0, 0x2A]).to_le_bytes();
+        // version 4, seq 0x0102, payload [0x00, 0x2A]; CRC-16/UMTS of 04 02 01 00 2A.
+        let crc = CRC16.checksum(&[4, 2, 1, 0, 0x2A]).to_le_bytes();
         let bytes = wire(0x0102, &[0x00, 0x2A]);
-        let mut expect = vec![0x04, 0x03, 0x02, 0x01, 0x04, 0x2A];
+        let mut expect = vec![0x04, 0x04, 0x02, 0x01, 0x04, 0x2A];
         expect.extend_from_slice(&crc);
         expect.push(0x00);
         // COBS: the zero inside the payload splits the frame into two runs.

@@ -42,7 +42,7 @@
 //! one with a corrupted byte (CRC-16 per chunk, CRC-32 over the image), and runs it once per
 //! frame id.
 //!
-//! The self gate (protocol 3): when the model has one, a confirmed mark does not start the
+//! The self gate (protocol 3, its statistics and the sub-pixel crop position 4): when the model has one, a confirmed mark does not start the
 //! reach at once. The board answers that frame's `Detection` with `confirmed: false`, turns
 //! its head for the probe (`Mode::SelfTest`; no detections while it runs), and sends one
 //! [`BoardToHost::SelfGate`] with the decision. On a pass the reach starts and the board sends
@@ -93,6 +93,45 @@ pub const STALE_WINDOW: u16 = 64;
 /// Most joints in one servo-bus message: head and both arms.
 pub const MAX_BUS_JOINTS: usize = 14;
 
+/// Steps of [`FrameHeader::crop_sub`] per pixel.
+pub const SUB_PER_PX: i8 = 64;
+/// Largest [`FrameHeader::crop_sub`] either way: half a pixel.
+pub const SUB_MAX: i8 = SUB_PER_PX / 2;
+
+/// The sub-pixel part of a crop position `shift` pixels off the whole-pixel one, in
+/// [`FrameHeader::crop_sub`]'s steps (rounded, clamped to half a pixel; 0 when not finite).
+pub fn crop_sub(shift: f32) -> i8 {
+    if !shift.is_finite() {
+        return 0;
+    }
+    let v = (shift * SUB_PER_PX as f32).clamp(-(SUB_MAX as f32), SUB_MAX as f32);
+    // Round half away from zero (`f32::round` is not in `core`).
+    (v + if v >= 0.0 { 0.5 } else { -0.5 }) as i8
+}
+
+/// Where a face crop was cut in the full frame: whole pixels and the sub-pixel rest, as the
+/// frame header carries them. A `[u16; 2]` is a whole-pixel crop.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct CropAt {
+    /// `crop_x`, `crop_y`.
+    pub px: [u16; 2],
+    /// `crop_sub`.
+    pub sub: [i8; 2],
+}
+
+impl CropAt {
+    /// A crop at whole pixels `px`, cut `shift` pixels off them (within half a pixel).
+    pub fn subpixel(px: [u16; 2], shift: [f32; 2]) -> CropAt {
+        CropAt { px, sub: shift.map(crop_sub) }
+    }
+}
+
+impl From<[u16; 2]> for CropAt {
+    fn from(px: [u16; 2]) -> CropAt {
+        CropAt { px, sub: [0; 2] }
+    }
+}
+
 /// Announces a face image; its pixels follow in [`HostToBoard::FrameChunk`]s.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FrameHeader {
@@ -104,6 +143,10 @@ pub struct FrameHeader {
     pub crop_x: u16,
     /// See `crop_x`.
     pub crop_y: u16,
+    /// The rest of the crop position, `[x, y]` in 1/[`SUB_PER_PX`] pixel, within
+    /// +-[`SUB_MAX`] (half a pixel): the face was cut at `crop_x + crop_sub[0] / SUB_PER_PX`.
+    /// Zero for a whole-pixel crop. The self gate follows the face to a fraction of a pixel.
+    pub crop_sub: [i8; 2],
     /// Crop size; must equal the model's face size.
     pub width: u16,
     /// Crop height in pixels; must equal the model's face height.
@@ -128,11 +171,21 @@ impl FrameHeader {
         self.pixels().div_ceil(self.chunk as usize)
     }
 
-    /// Chunk size in range, at most [`MAX_FRAME_CHUNKS`] chunks, a non-empty image.
+    /// Chunk size in range, at most [`MAX_FRAME_CHUNKS`] chunks, a non-empty image, the
+    /// sub-pixel part within half a pixel.
     pub fn is_valid(&self) -> bool {
         (MIN_CHUNK..=CHUNK).contains(&(self.chunk as usize))
             && self.pixels() > 0
             && self.chunks() <= MAX_FRAME_CHUNKS
+            && self.crop_sub.iter().all(|s| s.unsigned_abs() <= SUB_MAX as u8)
+    }
+
+    /// Where the face crop sits in the full frame, `[x, y]` pixels, sub-pixel part included.
+    pub fn position(&self) -> [f32; 2] {
+        [
+            self.crop_x as f32 + self.crop_sub[0] as f32 / SUB_PER_PX as f32,
+            self.crop_y as f32 + self.crop_sub[1] as f32 / SUB_PER_PX as f32,
+        ]
     }
 
     /// Where chunk `i` lies in the image.
@@ -442,6 +495,12 @@ pub struct GateReport {
     pub gain_ratio: f32,
     /// Distance of the resting face from the probe's line, pixels (NaN as above).
     pub rest_px: f32,
+    /// Largest range of the face's x position over the resting frames and over each probe
+    /// pose's frames, pixels (NaN as above): the head holds still then, so does its image.
+    pub hold_px: f32,
+    /// Largest vertical move of the face at a probe pose from its rest, pixels (NaN as above):
+    /// a yaw probe does not move the own image up or down.
+    pub level_px: f32,
     /// Mean salient pixels of the decoder's prediction error at rest and at the two probe
     /// poses (NaN as above): how well the face matches the one predicted for each head pose.
     pub salient: [f32; 3],
@@ -569,7 +628,7 @@ pub enum BoardToHost {
     UploadAck { next: u32 },
     /// Answers [`HostToBoard::GetServoBus`].
     ServoBus(ServoBusReport),
-    /// A decision of the self gate (protocol 3), sent once per probe.
+    /// A decision of the self gate (protocol 3; hold and level 4), sent once per probe.
     SelfGate(GateReport),
     /// The head settled after [`HostToBoard::MoveHead`]: (HeadYaw, HeadPitch) as the servos
     /// report them, radians.
@@ -734,6 +793,7 @@ mod tests {
             frame: u16::MAX,
             crop_x: u16::MAX,
             crop_y: u16::MAX,
+            crop_sub: [i8::MIN; 2],
             width: u16::MAX,
             height: u16::MAX,
             chunk: u16::MAX,
@@ -787,8 +847,51 @@ mod tests {
     }
 
     #[test]
+    fn frame_start_literal_with_the_sub_pixel_crop() {
+        // Variant 1 (FrameStart): frame 3, crop (140, 95) as varints, crop_sub (-5, 32) as two
+        // raw bytes (postcard writes an i8 as one two's-complement byte), 75 x 58, chunk 224,
+        // CRC-32 1.
+        let h = FrameHeader { frame: 3, crop_x: 140, crop_y: 95, crop_sub: [-5, 32], width: 75, height: 58, chunk: 224, crc32: 1 };
+        let bytes = [0x01, 0x03, 0x8C, 0x01, 0x5F, 0xFB, 0x20, 0x4B, 0x3A, 0xE0, 0x01, 0x01];
+        assert_eq!(postcard::to_slice(&HostToBoard::FrameStart(h), &mut [0u8; 32]).unwrap(), &bytes);
+        assert_eq!(postcard::from_bytes::<HostToBoard>(&bytes).unwrap(), HostToBoard::FrameStart(h));
+        assert!(h.is_valid());
+        assert_eq!(h.position(), [140.0 - 5.0 / 64.0, 95.5]);
+        // Past half a pixel either way: it parses, and is refused as invalid.
+        for (i, b) in [(5, 0x21u8), (5, 0xDF), (6, 0x80), (6, 0x7F)] {
+            let mut bad = bytes;
+            bad[i] = b;
+            let Ok(HostToBoard::FrameStart(g)) = postcard::from_bytes::<HostToBoard>(&bad) else { panic!("{bad:?}") };
+            assert!(!g.is_valid(), "{:?}", g.crop_sub);
+        }
+        let mut edge = bytes;
+        (edge[5], edge[6]) = (0xE0, 0x20);
+        let Ok(HostToBoard::FrameStart(g)) = postcard::from_bytes::<HostToBoard>(&edge) else { panic!() };
+        assert!(g.is_valid(), "exactly half a pixel either way");
+        // A version-3 header (no crop_sub) is cut short: its bytes do not parse as one.
+        let old = [0x01, 0x03, 0x8C, 0x01, 0x5F, 0x4B, 0x3A, 0xE0, 0x01, 0x01];
+        assert!(postcard::from_bytes::<HostToBoard>(&old).is_err());
+    }
+
+    #[test]
+    fn crop_sub_rounds_and_clamps() {
+        assert_eq!(crop_sub(0.0), 0);
+        assert_eq!(crop_sub(0.25), 16);
+        assert_eq!(crop_sub(-0.25), -16);
+        assert_eq!(crop_sub(1.0 / 128.0), 1, "half a step rounds away from zero");
+        assert_eq!(crop_sub(-1.0 / 128.0), -1);
+        assert_eq!(crop_sub(0.5), SUB_MAX);
+        assert_eq!(crop_sub(0.9), SUB_MAX);
+        assert_eq!(crop_sub(-7.0), -SUB_MAX);
+        assert_eq!(crop_sub(f32::NAN), 0);
+        assert_eq!(crop_sub(f32::INFINITY), 0);
+        assert_eq!(CropAt::subpixel([3, 4], [0.5, -0.125]), CropAt { px: [3, 4], sub: [32, -8] });
+        assert_eq!(CropAt::from([3, 4]).sub, [0, 0]);
+    }
+
+    #[test]
     fn chunk_geometry() {
-        let h = FrameHeader { frame: 1, crop_x: 0, crop_y: 0, width: 58, height: 75, chunk: 224, crc32: 0 };
+        let h = FrameHeader { frame: 1, crop_x: 0, crop_y: 0, crop_sub: [0; 2], width: 58, height: 75, chunk: 224, crc32: 0 };
         assert_eq!(h.pixels(), 4350);
         assert_eq!(h.chunks(), 20);
         assert_eq!(h.chunk_range(19), 4256..4350);

@@ -159,3 +159,65 @@ fn qemu_preloaded_model_runs_and_a_damaged_one_is_refused() {
     let e = QemuBoard::start_preloaded(&blob[..blob.len() - 100]).err().expect("refused");
     assert!(format!("{e:#}").contains("model blob"), "{e:#}");
 }
+
+/// The first trials (of seed 7) in `scene` whose scene draw satisfies `pick`, as (index, seed).
+fn trials_where(scene: episode::Scene, n: usize, pick: impl Fn(&episode::scene::SceneState) -> bool) -> Vec<(usize, u64)> {
+    use rand::SeedableRng;
+    (0..200)
+        .map(|i| (i, episode::trial_seed(7, i)))
+        .filter(|&(_, seed)| {
+            // The scene's own stream, as `episode` draws it.
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            rng.set_stream(2);
+            pick(&episode::scene::SceneState::new(scene, rng))
+        })
+        .take(n)
+        .collect()
+}
+
+#[test]
+fn qemu_self_gate_refuses_another_robot_and_a_delayed_picture() {
+    use episode::Scene;
+    if !available() {
+        return;
+    }
+    let robot = Robot::Red;
+    let (blob, _) = msr_host::train::self_gate::attach(&conv_model(robot), robot, &Default::default()).unwrap();
+    let model = msr_shared::blob::Model::parse(&blob).unwrap();
+    let cropper = msr_host::detect::cropper_of(&model).unwrap();
+    let renderer = Renderer::new(robot);
+    let scene = |s: Scene| {
+        let mut c = EpisodeConfig::new(robot);
+        c.no_mark_share = 0.0;
+        c.scene = s;
+        // One probe and its refusal fit in 2.5 s after the mark.
+        c.watch_us = 2_500_000;
+        c
+    };
+    let (other, delayed) = (scene(Scene::Other), scene(Scene::Delayed));
+    // A babbling robot, one holding still, and delays of 0.5 s and more.
+    let mut plan: Vec<(&EpisodeConfig, usize, u64)> = Vec::new();
+    plan.extend(trials_where(Scene::Other, 1, |s| s.babbles).into_iter().map(|(i, s)| (&other, i, s)));
+    plan.extend(trials_where(Scene::Other, 1, |s| !s.babbles).into_iter().map(|(i, s)| (&other, i, s)));
+    plan.extend(trials_where(Scene::Delayed, 1, |s| s.delay_us >= 500_000).into_iter().map(|(i, s)| (&delayed, i, s)));
+    assert_eq!(plan.len(), 3);
+
+    let mut board = QemuBoard::start(&blob).unwrap();
+    let mut qemu_trials = Vec::new();
+    for &(cfg, i, seed) in &plan {
+        let camera = Camera { renderer: &renderer, cropper: &cropper };
+        let t = board.trial(camera, cfg, i, seed).unwrap();
+        eprintln!("qemu:    {}", msr_host::cmd::mirror_test::describe(&t));
+        qemu_trials.push(t);
+    }
+    board.finish().unwrap();
+    for (&(cfg, i, seed), q) in plan.iter().zip(&qemu_trials) {
+        // The gate decided on the real image as in-process, to the bit.
+        let camera = Camera { renderer: &renderer, cropper: &cropper };
+        let t = episode::run_trial_inproc(&blob, camera, cfg, i, seed).unwrap();
+        assert_eq!(outcome(q), outcome(&t), "trial {i}: QEMU and in-process differ");
+        assert!(!q.reached && !q.false_reach, "{q:#?}");
+        // The mark was seen and the gate asked (and refused), not a mark missed.
+        assert!(!q.gate.is_empty() && q.gate.iter().all(|g| g.decision == "reject"), "{q:#?}");
+    }
+}

@@ -17,26 +17,26 @@ fn params() -> SelfGate {
 }
 
 /// Rest at x 120, then the probe: servo reports at the given times, frames with offsets.
-fn run(xp: [u16; 2], xm: [u16; 2]) -> Step {
+fn run(xp: [f32; 2], xm: [f32; 2]) -> Step {
     let mut g = Gate::new(params());
     for _ in 0..3 {
-        g.observe([120, 50], 0.0, 0);
+        g.observe([120.0, 50.0], 0.0, 0);
     }
     assert_eq!(g.start(0, 7, [0.0, 0.0], TARGET), Step::Head([0.07, 0.0]));
     g.on_servo(30 * MS, 0.02); // moving
     g.on_servo(60 * MS, 0.07); // settled
     g.on_servo(70 * MS, 0.069);
     // Inside the latency after settling: not used.
-    assert_eq!(g.on_frame(100 * MS, 8, [200, 50], 0.07, 0), Step::Wait);
-    assert_eq!(g.on_frame(170 * MS, 9, [xp[0], 50], 0.07, 0), Step::Wait);
-    assert_eq!(g.on_frame(270 * MS, 10, [xp[1], 50], 0.07, 0), Step::Head([-0.07, 0.0]));
+    assert_eq!(g.on_frame(100 * MS, 8, [200.0, 50.0], 0.07, 0), Step::Wait);
+    assert_eq!(g.on_frame(170 * MS, 9, [xp[0], 50.0], 0.07, 0), Step::Wait);
+    assert_eq!(g.on_frame(270 * MS, 10, [xp[1], 50.0], 0.07, 0), Step::Head([-0.07, 0.0]));
     // The minus pose: the old settling no longer counts.
-    assert_eq!(g.on_frame(300 * MS, 11, [0, 50], 0.0, 0), Step::Wait);
+    assert_eq!(g.on_frame(300 * MS, 11, [0.0, 50.0], 0.0, 0), Step::Wait);
     g.on_servo(400 * MS, -0.07);
-    assert_eq!(g.on_frame(450 * MS, 12, [0, 50], -0.07, 0), Step::Wait);
-    assert_eq!(g.on_frame(499 * MS, 13, [0, 50], -0.07, 0), Step::Wait, "latency not yet passed");
-    assert_eq!(g.on_frame(550 * MS, 14, [xm[0], 50], -0.07, 0), Step::Wait);
-    g.on_frame(650 * MS, 15, [xm[1], 50], -0.07, 0)
+    assert_eq!(g.on_frame(450 * MS, 12, [0.0, 50.0], -0.07, 0), Step::Wait);
+    assert_eq!(g.on_frame(499 * MS, 13, [0.0, 50.0], -0.07, 0), Step::Wait, "latency not yet passed");
+    assert_eq!(g.on_frame(550 * MS, 14, [xm[0], 50.0], -0.07, 0), Step::Wait);
+    g.on_frame(650 * MS, 15, [xm[1], 50.0], -0.07, 0)
 }
 
 fn done(s: Step) -> (GateReport, Option<[f32; 5]>) {
@@ -49,7 +49,7 @@ fn done(s: Step) -> (GateReport, Option<[f32; 5]>) {
 #[test]
 fn own_mirror_image_passes() {
     // 0.07 rad x 271 px/rad = 19 px each way, the face moving against the yaw.
-    let (r, t) = done(run([101, 101], [139, 139]));
+    let (r, t) = done(run([101.0, 101.0], [139.0, 139.0]));
     assert_eq!(r.decision, GateDecision::Pass);
     assert_eq!(t, Some(TARGET));
     assert!((r.gain_ratio - 1.0016).abs() < 1e-3, "{}", r.gain_ratio);
@@ -61,7 +61,7 @@ fn own_mirror_image_passes() {
 #[test]
 fn a_face_that_moves_more_is_rejected() {
     // Another robot at the mirror image's distance: the camera's turn plus its parallax.
-    let (r, t) = done(run([99, 98], [142, 142]));
+    let (r, t) = done(run([99.0, 98.0], [142.0, 142.0]));
     assert_eq!(r.decision, GateDecision::Reject);
     assert_eq!(t, None);
     assert!((r.gain_ratio - 1.147).abs() < 0.01, "{}", r.gain_ratio);
@@ -70,7 +70,7 @@ fn a_face_that_moves_more_is_rejected() {
 #[test]
 fn a_face_that_does_not_move_is_rejected() {
     // A picture delayed past the probe: the face stays where it rested.
-    let (r, t) = done(run([120, 120], [120, 120]));
+    let (r, t) = done(run([120.0, 120.0], [120.0, 120.0]));
     assert_eq!(r.decision, GateDecision::Reject);
     assert_eq!(t, None);
     assert_eq!(r.gain_ratio, 0.0);
@@ -79,7 +79,7 @@ fn a_face_that_does_not_move_is_rejected() {
 #[test]
 fn a_face_that_moves_late_the_wrong_way_is_rejected() {
     // Delayed: the minus pose's frames show the plus pose.
-    let (r, _) = done(run([120, 120], [101, 101]));
+    let (r, _) = done(run([120.0, 120.0], [101.0, 101.0]));
     assert_eq!(r.decision, GateDecision::Reject);
     assert!(r.gain_ratio < 0.0);
 }
@@ -87,7 +87,7 @@ fn a_face_that_moves_late_the_wrong_way_is_rejected() {
 #[test]
 fn a_rest_off_the_probe_line_is_rejected() {
     // The right gain, but the face rested 4 px away: it moved on its own meanwhile.
-    let (r, _) = done(run([105, 105], [143, 143]));
+    let (r, _) = done(run([105.0, 105.0], [143.0, 143.0]));
     assert_eq!(r.decision, GateDecision::Reject);
     assert!((r.gain_ratio - 1.0016).abs() < 1e-3);
     assert!((r.rest_px - 4.0).abs() < 1e-4, "{}", r.rest_px);
@@ -96,10 +96,10 @@ fn a_rest_off_the_probe_line_is_rejected() {
 #[test]
 fn a_head_that_never_settles_is_undecided() {
     let mut g = Gate::new(params());
-    g.observe([120, 50], 0.0, 0);
+    g.observe([120.0, 50.0], 0.0, 0);
     g.start(0, 1, [0.0, 0.0], TARGET);
     g.on_servo(10 * MS, 0.01);
-    assert_eq!(g.on_frame(500 * MS, 2, [100, 50], 0.01, 0), Step::Wait);
+    assert_eq!(g.on_frame(500 * MS, 2, [100.0, 50.0], 0.01, 0), Step::Wait);
     assert_eq!(g.poll(1999 * MS), Step::Wait);
     let (r, t) = done(g.poll(2000 * MS));
     assert_eq!(r.decision, GateDecision::Undecided(GateUndecided::HeadStuck));
@@ -111,7 +111,7 @@ fn a_head_that_never_settles_is_undecided() {
 #[test]
 fn no_frames_after_settling_times_out() {
     let mut g = Gate::new(params());
-    g.observe([120, 50], 0.0, 0);
+    g.observe([120.0, 50.0], 0.0, 0);
     g.start(5 * MS, 1, [0.0, 0.0], TARGET);
     g.on_servo(60 * MS, 0.07);
     let (r, t) = done(g.poll(2005 * MS));
@@ -122,7 +122,7 @@ fn no_frames_after_settling_times_out() {
 #[test]
 fn silent_servos_and_a_lost_face_are_undecided() {
     let mut g = Gate::new(params());
-    g.observe([120, 50], 0.0, 0);
+    g.observe([120.0, 50.0], 0.0, 0);
     g.start(0, 1, [0.0, 0.0], TARGET);
     let (r, t) = done(g.abort(300 * MS, GateUndecided::ServosSilent));
     assert_eq!((r.decision, t), (GateDecision::Undecided(GateUndecided::ServosSilent), None));
@@ -137,40 +137,40 @@ fn a_yaw_span_short_of_the_amplitude_is_undecided() {
     // The servos call each pose settled (within 15 %), but the frames' reported yaws span less
     // than one amplitude: a joint at its limit, say.
     let mut g = Gate::new(params());
-    g.observe([120, 50], 0.0, 0);
+    g.observe([120.0, 50.0], 0.0, 0);
     g.start(0, 1, [0.0, 0.0], TARGET);
     g.on_servo(50 * MS, 0.07);
-    g.on_frame(200 * MS, 2, [110, 50], 0.03, 0);
-    g.on_frame(300 * MS, 3, [110, 50], 0.03, 0);
+    g.on_frame(200 * MS, 2, [110.0, 50.0], 0.03, 0);
+    g.on_frame(300 * MS, 3, [110.0, 50.0], 0.03, 0);
     g.on_servo(350 * MS, -0.07);
-    g.on_frame(500 * MS, 4, [130, 50], -0.03, 0);
-    let (r, t) = done(g.on_frame(600 * MS, 5, [130, 50], -0.03, 0));
+    g.on_frame(500 * MS, 4, [130.0, 50.0], -0.03, 0);
+    let (r, t) = done(g.on_frame(600 * MS, 5, [130.0, 50.0], -0.03, 0));
     assert_eq!((r.decision, t), (GateDecision::Undecided(GateUndecided::HeadStuck), None));
 }
 
 #[test]
 fn a_face_that_moves_while_the_head_holds_is_rejected() {
     // The right gain on average, but the two frames at the plus pose are 2 px apart.
-    let (r, t) = done(run([100, 102], [139, 139]));
+    let (r, t) = done(run([100.0, 102.0], [139.0, 139.0]));
     assert_eq!((r.decision, t), (GateDecision::Reject, None));
     assert!((r.gain_ratio - 1.0016).abs() < 1e-3);
     // Within rounding: a pass.
-    assert_eq!(done(run([101, 100], [139, 138])).0.decision, GateDecision::Pass);
+    assert_eq!(done(run([101.0, 100.0], [139.0, 138.0])).0.decision, GateDecision::Pass);
 }
 
 #[test]
 fn a_face_that_moves_up_or_down_is_rejected() {
     let mut g = Gate::new(params());
     for _ in 0..3 {
-        g.observe([120, 50], 0.0, 0);
+        g.observe([120.0, 50.0], 0.0, 0);
     }
     g.start(0, 1, [0.0, 0.0], TARGET);
     g.on_servo(50 * MS, 0.07);
-    g.on_frame(200 * MS, 2, [101, 53], 0.07, 0);
-    g.on_frame(300 * MS, 3, [101, 53], 0.07, 0);
+    g.on_frame(200 * MS, 2, [101.0, 53.0], 0.07, 0);
+    g.on_frame(300 * MS, 3, [101.0, 53.0], 0.07, 0);
     g.on_servo(350 * MS, -0.07);
-    g.on_frame(500 * MS, 4, [139, 50], -0.07, 0);
-    let (r, t) = done(g.on_frame(600 * MS, 5, [139, 50], -0.07, 0));
+    g.on_frame(500 * MS, 4, [139.0, 50.0], -0.07, 0);
+    let (r, t) = done(g.on_frame(600 * MS, 5, [139.0, 50.0], -0.07, 0));
     assert_eq!((r.decision, t), (GateDecision::Reject, None));
     assert!((r.gain_ratio - 1.0016).abs() < 1e-3);
 }
@@ -178,11 +178,65 @@ fn a_face_that_moves_up_or_down_is_rejected() {
 #[test]
 fn the_next_probe_waits_for_the_head_to_rest() {
     let mut g = Gate::new(params());
-    g.observe([120, 50], 0.0, 0);
+    g.observe([120.0, 50.0], 0.0, 0);
     g.start(0, 1, [0.0, 0.0], TARGET);
     done(g.abort(400 * MS, GateUndecided::FaceLost));
-    g.observe([120, 50], 0.0, 0);
+    g.observe([120.0, 50.0], 0.0, 0);
     assert_eq!(g.start(2_899 * MS, 2, [0.0, 0.0], TARGET), Step::Wait);
     assert!(!g.probing());
     assert_eq!(g.start(2_900 * MS, 3, [0.0, 0.0], TARGET), Step::Head([0.07, 0.0]));
+}
+
+/// As [`run`] with a tight, sub-pixel tolerance: rest at x 120.25, the plus pose's and the
+/// minus pose's frames at the given positions.
+fn run_fine(rest: [f32; 3], xp: [f32; 2], xm: [f32; 2], y: [f32; 2]) -> Step {
+    let mut g = Gate::new(SelfGate { gain_tol: 0.01, rest_tol: 0.2, ..params() });
+    for x in rest {
+        g.observe([x, 50.0], 0.0, 0);
+    }
+    g.start(0, 1, [0.0, 0.0], TARGET);
+    g.on_servo(50 * MS, 0.07);
+    g.on_frame(200 * MS, 2, [xp[0], y[0]], 0.07, 0);
+    g.on_frame(300 * MS, 3, [xp[1], y[0]], 0.07, 0);
+    g.on_servo(350 * MS, -0.07);
+    g.on_frame(500 * MS, 4, [xm[0], y[1]], -0.07, 0);
+    g.on_frame(600 * MS, 5, [xm[1], y[1]], -0.07, 0)
+}
+
+#[test]
+fn sub_pixel_positions_pass_the_own_image_and_catch_a_fraction_of_a_pixel() {
+    // 271 px/rad x 0.07 rad = 18.97 px: the own image at 101.28 and 139.22 (rest 120.25).
+    let own = run_fine([120.25, 120.25, 120.2656], [101.28, 101.2969], [139.22, 139.2031], [50.0, 50.0]);
+    let (r, t) = done(own);
+    assert_eq!((r.decision, t), (GateDecision::Pass, Some(TARGET)));
+    assert!((r.gain_ratio - 1.0).abs() < 0.002, "{}", r.gain_ratio);
+    assert!(r.rest_px < 0.05 && r.hold_px < 0.03 && r.level_px == 0.0, "{r:?}");
+    // Another robot: 3 % more shift, 0.6 px over the probe (a whole-pixel crop rounds it away).
+    let (r, _) = done(run_fine([120.25; 3], [100.99, 100.99], [139.51, 139.51], [50.0, 50.0]));
+    assert_eq!(r.decision, GateDecision::Reject);
+    assert!((r.gain_ratio - 1.0154).abs() < 0.002, "{}", r.gain_ratio);
+    // A face that drifts 0.3 px between the two frames at a pose: it moves on its own.
+    let (r, _) = done(run_fine([120.25; 3], [101.13, 101.43], [139.22, 139.22], [50.0, 50.0]));
+    assert_eq!(r.decision, GateDecision::Reject);
+    assert!((r.hold_px - 0.3).abs() < 1e-3, "{}", r.hold_px);
+    // ... or while resting.
+    let (r, _) = done(run_fine([120.0, 120.25, 120.3], [101.28; 2], [139.22; 2], [50.0, 50.0]));
+    assert_eq!(r.decision, GateDecision::Reject);
+    assert!((r.hold_px - 0.3).abs() < 1e-3, "{}", r.hold_px);
+    // A quarter pixel up at the minus pose: a babbling pitch.
+    let (r, _) = done(run_fine([120.25; 3], [101.28; 2], [139.22; 2], [50.0, 49.75]));
+    assert_eq!(r.decision, GateDecision::Reject);
+    assert!((r.level_px - 0.25).abs() < 1e-4, "{}", r.level_px);
+    // The right gain, the rest 0.3 px off the line between the poses.
+    let (r, _) = done(run_fine([120.55; 3], [101.28; 2], [139.22; 2], [50.0, 50.0]));
+    assert_eq!(r.decision, GateDecision::Reject);
+    assert!((r.rest_px - 0.3).abs() < 1e-3, "{}", r.rest_px);
+}
+
+#[test]
+fn a_non_finite_statistic_never_passes() {
+    let nan = run_fine([120.25; 3], [f32::NAN, 101.28], [139.22; 2], [50.0, 50.0]);
+    let (r, t) = done(nan);
+    assert_ne!(r.decision, GateDecision::Pass);
+    assert_eq!(t, None);
 }

@@ -86,7 +86,11 @@ pub fn gated_blob(blob: Vec<u8>, g: GateArg, robot: Robot) -> Result<Vec<u8>> {
     Ok(match g {
         GateArg::Model => blob,
         GateArg::Off => detach(&blob)?,
-        GateArg::On => attach(&blob, robot, &GateCalibration::default())?.0,
+        GateArg::On => {
+            let (gated, report) = attach(&blob, robot, &GateCalibration::default())?;
+            eprintln!("self gate calibrated now: {}", serde_json::to_string(&report)?);
+            gated
+        }
     })
 }
 

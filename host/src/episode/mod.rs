@@ -230,6 +230,12 @@ pub struct GateRecord {
     /// `null` when undecided before both probe poses (NaN on the wire).
     pub gain_ratio: Option<f32>,
     pub rest_px: Option<f32>,
+    /// Largest range of the face's x while the head held (rest, each pose), pixels.
+    #[serde(default)]
+    pub hold_px: Option<f32>,
+    /// Largest vertical move of the face at a pose from its rest, pixels.
+    #[serde(default)]
+    pub level_px: Option<f32>,
     /// Mean salient pixels at rest and at the two probe poses.
     pub salient: [Option<f32>; 3],
     pub frames: [u8; 2],
@@ -248,6 +254,8 @@ impl GateRecord {
             },
             gain_ratio: finite(g.gain_ratio),
             rest_px: finite(g.rest_px),
+            hold_px: finite(g.hold_px),
+            level_px: finite(g.level_px),
             salient: g.salient.map(finite),
             frames: g.frames,
             elapsed_ms: g.elapsed_ms,
@@ -575,7 +583,9 @@ impl Scenario<'_> {
             };
             let c = face.crop;
             let size = [c.width as u16, c.height as u16];
-            self.faces.start([c.x as u16, c.y as u16], size, face.grey, now);
+            // The sub-pixel part too: the self gate follows the face to a fraction of a pixel.
+            let at = msr_shared::msg::CropAt::subpixel([c.x as u16, c.y as u16], face.shift);
+            self.faces.start(at, size, face.grey, now);
             self.trial.frames_sent += 1;
             if with_mark {
                 self.frames_with_mark += 1;

@@ -8,7 +8,10 @@ use msr_shared::blob::{set_self_gate, Model, SelfGate};
 use msr_sim::body::BodyPose;
 use msr_sim::render::{Renderer, Variation};
 use msr_sim::Robot;
-use rand::SeedableRng;
+use msr_sim::dataset::render_marked;
+use msr_sim::marks::Mark;
+use msr_sim::servo::quantise;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 
@@ -16,9 +19,9 @@ use serde::Serialize;
 #[derive(Clone, Debug)]
 pub struct GateCalibration {
     /// The probe's yaw offset each way, radians (4 degrees: inside the training poses, and a
-    /// span wide enough that a pixel of rounding is a small part of it).
+    /// span wide enough that a pixel is a small part of the face's shift).
     pub amplitude: f32,
-    /// Noise draws of each pose.
+    /// Probes simulated (each: a random mark, two resting frames, two at each pose, fresh noise).
     pub draws: usize,
     pub seed: u64,
     /// From a head pose to a frame of it on the board: the frame's transfer (75 x 58 at
@@ -26,26 +29,26 @@ pub struct GateCalibration {
     pub latency_ms: u16,
     pub timeout_ms: u16,
     pub min_frames: u8,
-    /// Least rest tolerance, pixels: the header's whole-pixel offsets round by up to 0.5 at
-    /// each pose.
-    pub rest_floor_px: f32,
-    /// Largest gain tolerance: another robot where the mirror image would be shifts its face
-    /// crop by 3-6 % more than the own image in the sim (measured; the camera's own sideways
-    /// travel is not matched by a face that turns with it).
-    pub gain_tol_max: f32,
+    /// The tolerances are this many times the largest deviation the own image showed over the
+    /// draws (each statistic is already a maximum over frames, and the encoder's rounding of the
+    /// rest, a large part, is bounded: a half more covers what the draws missed).
+    pub margin: f64,
+    /// Where the head rests before a probe, radians either way of home (drawn per probe): the
+    /// encoder's rounding of the resting yaw and of the two poses then falls anywhere.
+    pub rest_yaw: f64,
 }
 
 impl Default for GateCalibration {
     fn default() -> Self {
         GateCalibration {
             amplitude: 0.07,
-            draws: 6,
+            draws: 24,
             seed: 0,
             latency_ms: 100,
             timeout_ms: 2000,
             min_frames: 2,
-            rest_floor_px: 1.5,
-            gain_tol_max: 0.03,
+            margin: 1.5,
+            rest_yaw: 0.02,
         }
     }
 }
@@ -54,9 +57,12 @@ impl Default for GateCalibration {
 #[derive(Clone, Debug, Serialize)]
 pub struct GateCalibReport {
     pub gate: SelfGateJson,
-    /// Per draw: measured gain (px/rad) and rest distance (px).
+    /// Per draw: measured gain (px/rad), and the rest distance, hold range and level move
+    /// (px) the board computes.
     pub gains: Vec<f64>,
     pub rest_px: Vec<f64>,
+    pub hold_px: Vec<f64>,
+    pub level_px: Vec<f64>,
 }
 
 /// [`SelfGate`] for reports.
@@ -85,32 +91,76 @@ impl From<&SelfGate> for SelfGateJson {
     }
 }
 
-/// Measures the gate's gain and tolerances for `robot`'s mirror image cropped by `cropper`.
+/// One simulated probe: per frame the face position the frame header gives the board
+/// (whole pixels and the sub-pixel part in its steps).
+struct Probe {
+    /// `[rest, plus, minus]`, two frames each: (x, y).
+    frames: [[(f64, f64); 2]; 3],
+}
+
+impl Probe {
+    fn mean(&self, i: usize) -> (f64, f64) {
+        let f = &self.frames[i];
+        ((f[0].0 + f[1].0) / 2.0, (f[0].1 + f[1].1) / 2.0)
+    }
+    /// Over the commanded span, as the board measures it.
+    fn gain(&self, amplitude: f64) -> f64 {
+        (self.mean(1).0 - self.mean(2).0) / (2.0 * amplitude)
+    }
+    /// The board's rest distance, hold range and level move (`msr_firmware::self_gate`).
+    fn stats(&self) -> (f64, f64, f64) {
+        let ((x0, y0), (xp, yp), (xm, ym)) = (self.mean(0), self.mean(1), self.mean(2));
+        let hold = self.frames.iter().map(|f| (f[0].0 - f[1].0).abs()).fold(0.0, f64::max);
+        let level = (yp - y0).abs().max((ym - y0).abs());
+        ((x0 - (xp + xm) / 2.0).abs(), hold, level)
+    }
+}
+
+/// Measures the gate's gain and tolerances for `robot`'s mirror image cropped by `cropper`:
+/// probes simulated as the board runs them (the head resting near home, the poses at the
+/// rest the encoder reports, rounded, plus and minus the amplitude, the face position as the
+/// frame header carries it), on noisy rendered frames with a mark on the face (the gate runs
+/// on a confirmed mark).
 pub fn calibrate(robot: Robot, cropper: &Cropper, c: &GateCalibration) -> Result<(SelfGate, GateCalibReport)> {
     ensure!(c.draws >= 2, "self-gate calibration needs at least 2 draws");
     let renderer = Renderer::new(robot);
     let mut rng = ChaCha8Rng::seed_from_u64(c.seed);
     let a = c.amplitude as f64;
-    let mut x_at = |yaw: f64| -> Result<f64> {
-        let r = renderer.render(&BodyPose::head(yaw, 0.0), None, &Variation::random(&mut rng));
+    let sub = msr_shared::msg::SUB_PER_PX as f64;
+    let frame_at = |yaw: f64, mark: &Mark, rng: &mut ChaCha8Rng| -> Result<(f64, f64)> {
+        let r = renderer.render(&BodyPose::head(yaw, 0.0), Some(mark), &Variation::random(rng));
         let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb));
-        Ok(cropper.crop(&grey)?.crop.x as f64)
+        let face = cropper.crop(&grey)?;
+        let s = face.shift.map(msr_shared::msg::crop_sub);
+        let x = face.crop.x as f64 + s[0] as f64 / sub;
+        let y = face.crop.y as f64 + s[1] as f64 / sub;
+        Ok((x, y))
     };
-    let (mut gains, mut rests) = (Vec::new(), Vec::new());
+    let mut probes = Vec::new();
     for _ in 0..c.draws {
-        let (x0, xp, xm) = (x_at(0.0)?, x_at(a)?, x_at(-a)?);
-        gains.push((xp - xm) / (2.0 * a));
-        rests.push((x0 - (xp + xm) / 2.0).abs());
+        let rest = rng.gen_range(-c.rest_yaw..=c.rest_yaw);
+        // The board aims the poses from the yaw the encoder told it, and the servo gets there:
+        // the resting face is off the poses' midpoint by the encoder's rounding.
+        let told = quantise(rest);
+        // The gate runs on a confirmed mark: a mark on the face moves the template's best match
+        // a little, and differently as the face turns.
+        let (mark, _) = render_marked(&renderer, &BodyPose::head(rest, 0.0), &Variation::CLEAN, &mut rng);
+        let mut frames = [[(0.0, 0.0); 2]; 3];
+        for (f, yaw) in frames.iter_mut().zip([rest, told + a, told - a]) {
+            *f = [frame_at(yaw, &mark, &mut rng)?, frame_at(yaw, &mark, &mut rng)?];
+        }
+        probes.push(Probe { frames });
     }
+    let gains: Vec<f64> = probes.iter().map(|p| p.gain(a)).collect();
     let gain = gains.iter().sum::<f64>() / gains.len() as f64;
     ensure!(gain.abs() >= 10.0, "the face crop does not follow the head (gain {gain:.1} px/rad)");
-    // Spread of the draws, and at least one whole pixel of rounding over the probe's span
-    // (the probe's poses are the same every time, so the whole-pixel offsets round alike; a
-    // wider floor would let another robot through, see `gain_tol_max`).
+    let stats: Vec<(f64, f64, f64)> = probes.iter().map(Probe::stats).collect();
     let dev = gains.iter().map(|g| (g / gain - 1.0).abs()).fold(0.0, f64::max);
-    let floor = 1.0 / (2.0 * a * gain.abs());
-    let gain_tol = (3.0 * dev).max(floor).min(c.gain_tol_max as f64) as f32;
-    let rest_tol = (3.0 * rests.iter().copied().fold(0.0, f64::max)).max(c.rest_floor_px as f64) as f32;
+    let px = stats.iter().map(|s| s.0.max(s.1).max(s.2)).fold(0.0, f64::max);
+    // Floors: two steps of the header's sub-pixel position, over the probe's span for the gain.
+    let step = 2.0 / sub;
+    let gain_tol = (c.margin * dev).max(step / (2.0 * a * gain.abs())) as f32;
+    let rest_tol = (c.margin * px).max(step) as f32;
     let gate = SelfGate {
         amplitude: c.amplitude,
         gain: gain as f32,
@@ -121,7 +171,14 @@ pub fn calibrate(robot: Robot, cropper: &Cropper, c: &GateCalibration) -> Result
         min_frames: c.min_frames,
     };
     ensure!(gate.is_valid(), "self-gate calibration gave values out of range: {gate:?}");
-    Ok((gate, GateCalibReport { gate: (&gate).into(), gains, rest_px: rests }))
+    let report = GateCalibReport {
+        gate: (&gate).into(),
+        gains,
+        rest_px: stats.iter().map(|s| s.0).collect(),
+        hold_px: stats.iter().map(|s| s.1).collect(),
+        level_px: stats.iter().map(|s| s.2).collect(),
+    };
+    Ok((gate, report))
 }
 
 /// `blob` with a self gate calibrated for `robot` (replacing any it had).
