@@ -190,17 +190,18 @@ fn qemu_self_gate_refuses_another_robot_and_a_delayed_picture() {
         let mut c = EpisodeConfig::new(robot);
         c.no_mark_share = 0.0;
         c.scene = s;
-        // One probe and its refusal fit in 2.5 s after the mark.
-        c.watch_us = 2_500_000;
+        // The mark, its confirmation (after the delay), one probe and its refusal fit in 2 s.
+        c.watch_us = 2_000_000;
         c
     };
     let (other, delayed) = (scene(Scene::Other), scene(Scene::Delayed));
-    // A babbling robot, one holding still, and delays of 0.5 s and more.
+    // A babbling robot and a delay of 0.5 to 0.7 s (two trials: about 15 s of wall time each
+    // on an idle CI machine; a robot holding still and longer delays are in tests/self_gate.rs).
     let mut plan: Vec<(&EpisodeConfig, usize, u64)> = Vec::new();
     plan.extend(trials_where(Scene::Other, 1, |s| s.babbles).into_iter().map(|(i, s)| (&other, i, s)));
-    plan.extend(trials_where(Scene::Other, 1, |s| !s.babbles).into_iter().map(|(i, s)| (&other, i, s)));
-    plan.extend(trials_where(Scene::Delayed, 1, |s| s.delay_us >= 500_000).into_iter().map(|(i, s)| (&delayed, i, s)));
-    assert_eq!(plan.len(), 3);
+    let short = |s: &episode::scene::SceneState| (500_000..=700_000).contains(&s.delay_us);
+    plan.extend(trials_where(Scene::Delayed, 1, short).into_iter().map(|(i, s)| (&delayed, i, s)));
+    assert_eq!(plan.len(), 2);
 
     let mut board = QemuBoard::start(&blob).unwrap();
     let mut qemu_trials = Vec::new();
