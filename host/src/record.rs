@@ -291,33 +291,48 @@ pub fn record(cfg: &RecordConfig) -> Result<Recorded> {
 }
 
 /// Asks for a head pose: `Some(reported angles)` once settled, `None` when the servos did not
-/// settle in time; an error when the board refused it or did not answer.
+/// settle in time; an error when the board refused it or did not answer. A board that has no
+/// servo positions yet (just started: its bus has not answered a first read) is asked again
+/// until `timeout` has passed.
 pub fn move_head(s: &mut Session, head: [f64; 2], timeout: Duration) -> Result<Option<[f64; 2]>> {
-    s.send_message(&HostToBoard::MoveHead { yaw: head[0] as f32, pitch: head[1] as f32 })?;
-    let (msgs, ok) = s.wait_for(timeout, |m| {
-        matches!(
-            m,
-            BoardToHost::HeadAt { .. }
-                | BoardToHost::Error { code: ErrorCode::HeadRefused | ErrorCode::HeadNotSettled, .. }
-        )
-    })?;
-    match msgs.last() {
-        Some(BoardToHost::HeadAt { head }) if ok => Ok(Some([head[0] as f64, head[1] as f64])),
-        Some(BoardToHost::Error { code: ErrorCode::HeadNotSettled, .. }) if ok => Ok(None),
-        Some(BoardToHost::Error { code: ErrorCode::HeadRefused, detail }) if ok => bail!(
-            "the board refused head pose ({:.3}, {:.3}) deg: {}",
-            head[0].to_degrees(),
-            head[1].to_degrees(),
-            match detail {
-                0 => "outside the joint limits",
-                1 => "no servo positions (is the servo bus up?)",
-                2 => "a reach is in progress",
-                _ => "unknown reason",
+    let deadline = std::time::Instant::now() + timeout;
+    loop {
+        s.send_message(&HostToBoard::MoveHead { yaw: head[0] as f32, pitch: head[1] as f32 })?;
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        let (msgs, ok) = s.wait_for(left, |m| {
+            matches!(
+                m,
+                BoardToHost::HeadAt { .. }
+                    | BoardToHost::Error { code: ErrorCode::HeadRefused | ErrorCode::HeadNotSettled, .. }
+            )
+        })?;
+        return match msgs.last() {
+            Some(BoardToHost::HeadAt { head }) if ok => Ok(Some([head[0] as f64, head[1] as f64])),
+            Some(BoardToHost::Error { code: ErrorCode::HeadNotSettled, .. }) if ok => Ok(None),
+            Some(BoardToHost::Error { code: ErrorCode::HeadRefused, detail: 1 })
+                if ok && std::time::Instant::now() + NO_SERVOS_RETRY < deadline =>
+            {
+                std::thread::sleep(NO_SERVOS_RETRY);
+                continue;
             }
-        ),
-        _ => bail!("the board did not answer a head pose within {timeout:?} (does it speak host link protocol 4?)"),
+            Some(BoardToHost::Error { code: ErrorCode::HeadRefused, detail }) if ok => bail!(
+                "the board refused head pose ({:.3}, {:.3}) deg: {}",
+                head[0].to_degrees(),
+                head[1].to_degrees(),
+                match detail {
+                    0 => "outside the joint limits",
+                    1 => "no servo positions (is the servo bus up?)",
+                    2 => "a reach is in progress",
+                    _ => "unknown reason",
+                }
+            ),
+            _ => bail!("the board did not answer a head pose within {timeout:?} (does it speak host link protocol 4?)"),
+        };
     }
 }
+
+/// How long to wait before asking a board without servo positions again.
+const NO_SERVOS_RETRY: Duration = Duration::from_millis(50);
 
 /// The next frame taken after the head settled at `head`.
 fn grab(src: &mut Frames, head: [f64; 2]) -> Result<camera::Frame> {
