@@ -7,8 +7,10 @@ use msr_shared::blob::{Model, CRC32};
 fuzz_target!(|data: &[u8]| {
     let mut bytes = data.to_vec();
     if bytes.len() >= 16 && bytes[0] & 1 == 1 {
-        // Magic, version 1, header length 40, true length, true CRC.
-        bytes[0..8].copy_from_slice(&[b'M', b'S', b'R', b'M', 1, 0, 40, 0]);
+        // Magic, version 1 (or 5, whose sections come after the statistics), header length
+        // 40, true length, true CRC.
+        let version = if bytes[0] & 2 == 2 { 5 } else { 1 };
+        bytes[0..8].copy_from_slice(&[b'M', b'S', b'R', b'M', version, 0, 40, 0]);
         let n = bytes.len() as u32;
         bytes[8..12].copy_from_slice(&n.to_le_bytes());
         let crc = CRC32.checksum(&bytes[16..]);
@@ -26,5 +28,13 @@ fuzz_target!(|data: &[u8]| {
         }
         assert_eq!(m.mu.len(), m.face_pixels());
         assert_eq!(m.sigma.len(), m.face_pixels());
+        // Every pose cell (flag bit 5) has both tables, of the face's size.
+        if let Some(p) = &m.pose {
+            for k in 0..p.grid.len() {
+                let (mu, sigma) = p.tables(k).expect("a parsed grid's cell has its tables");
+                assert_eq!((mu.len(), sigma.len()), (m.face_pixels(), m.face_pixels()));
+            }
+            let _ = m.stats_at([0.01, -0.02]);
+        }
     }
 });
