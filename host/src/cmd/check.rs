@@ -34,6 +34,12 @@ fn num(v: f64) -> String {
     }
 }
 
+fn line_noise(n: &super::line_noise::LineNoise) -> Result<()> {
+    real("--ber", n.ber, 0.0, 1.0, " (errors per bit)")?;
+    real("--burst-rate", n.burst_rate, 0.0, 1.0, " (bursts per byte)")?;
+    int("--burst-len", n.burst_len, 1, 65_536, " bytes")
+}
+
 fn real(flag: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
     if !(v.is_finite() && v >= lo && v <= hi) {
         bail!("{flag} must be a number in {}..={}{unit}, got {}", num(lo), num(hi), num(v));
@@ -191,9 +197,7 @@ pub fn check(c: &Command) -> Result<()> {
         }
         Command::MirrorTest(a) => {
             int("--trials", a.trials, 1, MAX_TRIALS, "")?;
-            real("--ber", a.ber, 0.0, 1.0, " (errors per bit)")?;
-            real("--burst-rate", a.burst_rate, 0.0, 1.0, " (bursts per byte)")?;
-            int("--burst-len", a.burst_len, 1, 65_536, " bytes")?;
+            line_noise(&a.noise)?;
             real("--no-mark-share", a.no_mark_share, 0.0, 1.0, "")?;
             if let Some(ms) = a.disconnect_ms {
                 int("--disconnect-ms", ms, 0, 60_000, " ms")?;
@@ -228,9 +232,7 @@ pub fn check(c: &Command) -> Result<()> {
             if let Some(secs) = a.seconds {
                 real("--seconds", secs, 0.0, 1e6, " s")?;
             }
-            real("--ber", a.ber, 0.0, 1.0, " (errors per bit)")?;
-            real("--burst-rate", a.burst_rate, 0.0, 1.0, " (bursts per byte)")?;
-            int("--burst-len", a.burst_len, 1, 65_536, " bytes")?;
+            line_noise(&a.noise)?;
         }
         Command::Record(a) => {
             int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;

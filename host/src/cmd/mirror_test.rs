@@ -35,16 +35,9 @@ pub struct Args {
     /// in trial order)
     #[arg(long)]
     pub bus_log: Option<PathBuf>,
-    /// Bit-error rate on both directions of the links `--faults-on` names
-    #[arg(long, default_value_t = 0.0)]
-    pub ber: f64,
-    /// Bursts (the sim's burst model): probability per byte that a burst of `--burst-len`
-    /// random bytes starts
-    #[arg(long, default_value_t = 0.0)]
-    pub burst_rate: f64,
-    /// Bytes a burst replaces
-    #[arg(long, default_value_t = 16)]
-    pub burst_len: u32,
+    /// Faults on the links `--faults-on` names
+    #[command(flatten)]
+    pub noise: super::line_noise::LineNoise,
     /// Which links the faults (--ber, bursts, --disconnect-ms) hit
     #[arg(long, value_enum, default_value_t = FaultLinks::Both)]
     pub faults_on: FaultLinks,
@@ -95,25 +88,16 @@ pub fn gated_blob(blob: Vec<u8>, g: GateArg, robot: Robot) -> Result<Vec<u8>> {
 }
 
 pub fn config(a: &Args) -> Result<EpisodeConfig> {
-    if !(0.0..=1.0).contains(&a.ber) {
-        bail!("--ber must be in 0..=1, got {}", a.ber);
-    }
     if !(0.0..=1.0).contains(&a.no_mark_share) {
         bail!("--no-mark-share must be in 0..=1, got {}", a.no_mark_share);
     }
-    if !(0.0..=1.0).contains(&a.burst_rate) {
-        bail!("--burst-rate must be in 0..=1, got {}", a.burst_rate);
-    }
     let faults = FaultConfig {
-        bit_error_rate: a.ber,
-        burst_rate: a.burst_rate,
-        burst_len: a.burst_len,
         disconnects: a
             .disconnect_ms
             .map(|ms| (a.disconnect_at_ms * 1000, ms * 1000))
             .into_iter()
             .collect(),
-        ..Default::default()
+        ..a.noise.faults()
     };
     let mut c = EpisodeConfig::new(a.robot).with_faults(&faults, a.faults_on);
     c.no_mark_share = a.no_mark_share;

@@ -16,6 +16,7 @@ pub mod bench;
 pub mod serve;
 pub mod record;
 pub mod template;
+pub mod line_noise;
 
 use self::run as run_board;
 use anyhow::Result;

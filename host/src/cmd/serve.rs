@@ -4,7 +4,6 @@
 use crate::episode::sim_board::{ServeConfig, SimBoard};
 use crate::episode::Backend;
 use anyhow::Result;
-use msr_sim::link::FaultConfig;
 use msr_sim::Robot;
 use std::io::Write;
 use std::path::PathBuf;
@@ -25,15 +24,9 @@ pub struct Args {
     /// Stop after this many seconds (default: until interrupted)
     #[arg(long)]
     pub seconds: Option<f64>,
-    /// Bit-error rate on both directions of the host link (in-process board): a noisy line
-    #[arg(long, default_value_t = 0.0)]
-    pub ber: f64,
-    /// Bursts on the host link: probability per byte that `--burst-len` random bytes start
-    #[arg(long, default_value_t = 0.0)]
-    pub burst_rate: f64,
-    /// Bytes a burst replaces
-    #[arg(long, default_value_t = 16)]
-    pub burst_len: u32,
+    /// Faults on the host link (in-process board)
+    #[command(flatten)]
+    pub noise: super::line_noise::LineNoise,
     /// Seed of the host link's faults
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -45,12 +38,7 @@ pub fn run(a: Args) -> Result<()> {
         None => None,
     };
     let mut cfg = ServeConfig::new(a.backend, model);
-    cfg.host_faults = FaultConfig {
-        bit_error_rate: a.ber,
-        burst_rate: a.burst_rate,
-        burst_len: a.burst_len,
-        ..FaultConfig::default()
-    };
+    cfg.host_faults = a.noise.faults();
     cfg.seed = a.seed;
     let board = SimBoard::serve(cfg)?;
     // The path on stdout alone, for scripts; the rest on stderr.
