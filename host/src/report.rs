@@ -49,6 +49,11 @@ pub struct SelfGateReport {
     /// The gate passes a gain ratio (measured over calibrated) within `1 -+ gain_tol`.
     pub gain_tol: f32,
     pub rest_tol_px: f32,
+    /// The hold's and the level's own tolerances (0 in reports from before they had them).
+    #[serde(default)]
+    pub hold_tol_px: f32,
+    #[serde(default)]
+    pub level_tol_px: f32,
     pub scenes: Vec<SceneReport>,
 }
 

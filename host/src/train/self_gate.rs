@@ -42,7 +42,7 @@ impl Default for GateCalibration {
     fn default() -> Self {
         GateCalibration {
             amplitude: 0.07,
-            draws: 24,
+            draws: 48,
             seed: 0,
             latency_ms: 100,
             timeout_ms: 2000,
@@ -72,6 +72,8 @@ pub struct SelfGateJson {
     pub gain_px_per_rad: f32,
     pub gain_tol: f32,
     pub rest_tol_px: f32,
+    pub hold_tol_px: f32,
+    pub level_tol_px: f32,
     pub latency_ms: u16,
     pub timeout_ms: u16,
     pub min_frames: u8,
@@ -84,6 +86,8 @@ impl From<&SelfGate> for SelfGateJson {
             gain_px_per_rad: g.gain,
             gain_tol: g.gain_tol,
             rest_tol_px: g.rest_tol,
+            hold_tol_px: g.hold_tol,
+            level_tol_px: g.level_tol,
             latency_ms: g.latency_ms,
             timeout_ms: g.timeout_ms,
             min_frames: g.min_frames,
@@ -156,16 +160,22 @@ pub fn calibrate(robot: Robot, cropper: &Cropper, c: &GateCalibration) -> Result
     ensure!(gain.abs() >= 10.0, "the face crop does not follow the head (gain {gain:.1} px/rad)");
     let stats: Vec<(f64, f64, f64)> = probes.iter().map(Probe::stats).collect();
     let dev = gains.iter().map(|g| (g / gain - 1.0).abs()).fold(0.0, f64::max);
-    let px = stats.iter().map(|s| s.0.max(s.1).max(s.2)).fold(0.0, f64::max);
     // Floors: two steps of the header's sub-pixel position, over the probe's span for the gain.
     let step = 2.0 / sub;
     let gain_tol = (c.margin * dev).max(step / (2.0 * a * gain.abs())) as f32;
-    let rest_tol = (c.margin * px).max(step) as f32;
+    // Each statistic its own tolerance: the rest distance carries the encoder's rounding of
+    // the resting yaw (up to half a pixel), the hold and the level only template-match noise
+    // (a quarter and a tenth of that); one tolerance sized by the rest let babbling robots
+    // through on the hold or the level (3 of 111, red, issue 17).
+    let tol = |f: fn(&(f64, f64, f64)) -> f64| (c.margin * stats.iter().map(f).fold(0.0, f64::max)).max(step) as f32;
+    let (rest_tol, hold_tol, level_tol) = (tol(|s| s.0), tol(|s| s.1), tol(|s| s.2));
     let gate = SelfGate {
         amplitude: c.amplitude,
         gain: gain as f32,
         gain_tol,
         rest_tol,
+        hold_tol,
+        level_tol,
         latency_ms: c.latency_ms,
         timeout_ms: c.timeout_ms,
         min_frames: c.min_frames,
