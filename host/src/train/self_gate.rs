@@ -168,9 +168,9 @@ pub fn calibrate(robot: Robot, cropper: &Cropper, c: &GateCalibration) -> Result
     let step = 2.0 / sub;
     let gain_tol = (c.margin * dev).max(step / (2.0 * a * gain.abs())) as f32;
     // Each statistic its own tolerance: the rest distance carries the encoder's rounding of
-    // the resting yaw (up to half a pixel), the hold and the level only template-match noise
-    // (a quarter and a tenth of that); one tolerance sized by the rest let babbling robots
-    // through on the hold or the level (3 of 111, red, issue 17).
+    // the resting yaw (up to half a pixel), the hold and the level only the template match's
+    // noise (at most about half of that over the draws); one tolerance sized by the rest let
+    // babbling robots through on the hold or the level (3 of 111, red, issue 17).
     let tol = |f: fn(&(f64, f64, f64)) -> f64| (c.margin * stats.iter().map(f).fold(0.0, f64::max)).max(step) as f32;
     let (rest_tol, hold_tol, level_tol) = (tol(|s| s.0), tol(|s| s.1), tol(|s| s.2));
     let gate = SelfGate {
