@@ -19,9 +19,10 @@
 //! - `level_px`: how far the face's y moved at a pose from its rest (a yaw probe does not move
 //!   the own image up or down; a babbling robot's pitch does).
 //!
-//! Pass when `|gain_ratio - 1| <= gain_tol` and `rest_px`, `hold_px` and `level_px` are all
-//! within `rest_tol`: the own image lies on its line at every frame of the probe, to the
-//! precision calibration measured. A probe starts only after the head has rested
+//! Pass when `|gain_ratio - 1| <= gain_tol`, `rest_px <= rest_tol`, `hold_px <= hold_tol` and
+//! `level_px <= level_tol`: the own image lies on its line at every frame of the probe, to the
+//! precision calibration measured for each statistic (a layout-0 blob has one tolerance for
+//! all three). A probe starts only after the head has rested
 //! [`REST_BEFORE_PROBE_US`] since the last one: a delayed picture of the last probe must not
 //! replay in step with the next. Anything that stops the
 //! test (no frames, silent servos, a head that does not get there, the timeout) is undecided,
@@ -298,9 +299,12 @@ impl Gate {
         report.rest_px = rest_px;
         report.hold_px = hold_px;
         report.level_px = level_px;
-        let tol = self.p.rest_tol;
+        let p = &self.p;
         // Written so that a NaN anywhere fails.
-        let pass = (ratio - 1.0).abs() <= self.p.gain_tol && rest_px <= tol && hold_px <= tol && level_px <= tol;
+        let pass = (ratio - 1.0).abs() <= p.gain_tol
+            && rest_px <= p.rest_tol
+            && hold_px <= p.hold_tol
+            && level_px <= p.level_tol;
         report.decision = if pass { GateDecision::Pass } else { GateDecision::Reject };
         Step::Done(report, pass.then_some(pr.target))
     }

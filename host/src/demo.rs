@@ -372,7 +372,14 @@ fn self_gate_episodes(blob: &[u8], cfg: &EpisodeConfig, a: &DemoConfig) -> Resul
         let summary = episode::summarise(Backend::Inproc, a.robot, a.servo_bus, &trials);
         scenes.push(SceneReport { summary, gain_ratios });
     }
-    Ok(SelfGateReport { gain_tol: cal.gate.gain_tol, rest_tol_px: cal.gate.rest_tol_px, scenes })
+    let g = &cal.gate;
+    Ok(SelfGateReport {
+        gain_tol: g.gain_tol,
+        rest_tol_px: g.rest_tol_px,
+        hold_tol_px: g.hold_tol_px,
+        level_tol_px: g.level_tol_px,
+        scenes,
+    })
 }
 
 /// Why the demo runs no QEMU episodes, if it does not: QEMU missing, or (on a fresh clone) the

@@ -362,7 +362,7 @@ fn finish(cfg: &RecordConfig, frames: &[(String, [f64; 2])]) -> Result<()> {
         .zip(split)
         .map(|((file, h), split)| {
             angles.push_str(&format!("{:.10},{:.10}\n", h[0], h[1]));
-            FrameRecord { file: file.clone(), head_yaw: h[0], head_pitch: h[1], split, mark: None }
+            FrameRecord { file: file.clone(), head_yaw: h[0], head_pitch: h[1], split, mark: None, seen_head: None }
         })
         .collect();
     let index = DatasetIndex {

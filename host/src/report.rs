@@ -49,6 +49,11 @@ pub struct SelfGateReport {
     /// The gate passes a gain ratio (measured over calibrated) within `1 -+ gain_tol`.
     pub gain_tol: f32,
     pub rest_tol_px: f32,
+    /// The hold's and the level's own tolerances (0 in reports from before they had them).
+    #[serde(default)]
+    pub hold_tol_px: f32,
+    #[serde(default)]
+    pub level_tol_px: f32,
     pub scenes: Vec<SceneReport>,
 }
 
@@ -313,6 +318,9 @@ fn self_gate_section(h: &mut String, g: &SelfGateReport) {
         let _ = write!(h, "<text x={:.1} y={axis:.1} text-anchor=middle>{t:.2}</text>", x(t));
     }
     let _ = write!(h, "</svg><p class=cap>Gain ratio (the face's shift per radian of head yaw over the calibrated one) of every decision, per scene; green: the band the gate passes (1 &plusmn; {:.3}).</p>", g.gain_tol);
+    if g.hold_tol_px > 0.0 {
+        let _ = write!(h, "<p>Besides the gain, a pass needs the resting face within {:.2} px of the line between the probe's poses, the face's x within {:.2} px while the head holds still, and its y within {:.2} px of its rest at each pose (each calibrated from the own image's spread).</p>", g.rest_tol_px, g.hold_tol_px, g.level_tol_px);
+    }
 }
 
 fn value<T: Serialize>(x: &T) -> Value {

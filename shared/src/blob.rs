@@ -27,7 +27,8 @@
 //!   yaw_lo f32, yaw_hi f32, pitch_lo f32, pitch_hi f32, then per bin (bin = pitch index x
 //!   bins_yaw + yaw index) mu then sigma, face_h*face_w u16 each, Q8.8 (each padded to 4)
 //! self gate (if flags bit 3): amplitude f32, gain f32, gain_tol f32, rest_tol f32,
-//!   latency_ms u16, timeout_ms u16, min_frames u8, reserved u8 x3 (0)
+//!   latency_ms u16, timeout_ms u16, min_frames u8, layout u8, reserved u8 x2 (0),
+//!   then for layout 1: hold_tol f32, level_tol f32
 //! ```
 //!
 //! Fixed point: a layer's input is i16 with `in_shift` fraction bits, its weights (i8 or i16) have
@@ -58,7 +59,11 @@
 //! pose (the observe posture). The writer uses version 4 only for a blob with bit 1 or 2.
 //! Bit 3 (version 5): a [`SelfGate`], the test that the face moves with the robot's own head
 //! before a reach; the section comes last, so [`set_self_gate`] adds or removes it without
-//! touching the rest, and a blob without it is byte for byte what the writer makes.
+//! touching the rest, and a blob without it is byte for byte what the writer makes. Its
+//! `layout` byte (0 before): 0, one tolerance (`rest_tol`) bounds the rest, hold and level
+//! statistics; 1 (what the writer makes), `hold_tol` and `level_tol` of their own follow (each
+//! statistic has its own spread in the own image, and one tolerance sized by the largest let a
+//! babbling robot through on the others). Any other layout is refused.
 //! Bit 4 (version 5): the error is pooled before its statistics and the threshold, `e = |mean
 //! of 255 (I - I_hat) over the (2 pool + 1)^2 window|` (clipped at the face's border), with
 //! `pool` (1..=[`MAX_POOL`]) in header byte 37; the blob's mu and sigma are of that error.
@@ -128,8 +133,10 @@ const FLAG_TEMPLATE: u16 = 1;
 const FLAG_SUBPIXEL: u16 = 2;
 const FLAG_REGION: u16 = 4;
 const FLAG_SELF_GATE: u16 = 8;
-/// Bytes of the self-gate section.
-pub const SELF_GATE_LEN: usize = 24;
+/// Bytes of the self-gate section as the writer makes it (layout 1).
+pub const SELF_GATE_LEN: usize = 32;
+/// Bytes of a layout-0 self-gate section (one tolerance for the rest, hold and level).
+pub const SELF_GATE_LEN_V0: usize = 24;
 /// Largest [`SelfGate::amplitude`], radians (about 5.7 degrees: within the training poses).
 pub const MAX_GATE_AMPLITUDE: f32 = 0.1;
 /// Longest [`SelfGate::timeout_ms`].
@@ -562,10 +569,12 @@ pub struct SelfGate {
     pub gain: f32,
     /// Largest relative error of the measured gain: `|measured / gain - 1|`.
     pub gain_tol: f32,
-    /// Largest distance (pixels) of the face from where the own image would be: the resting
-    /// face from the probe's line, the face's x range while the head holds, its vertical move
-    /// at a pose.
+    /// Largest distance (pixels) of the resting face from the probe's line.
     pub rest_tol: f32,
+    /// Largest x range (pixels) of the face while the head holds (at rest, at each pose).
+    pub hold_tol: f32,
+    /// Largest vertical move (pixels) of the face at a probe pose from its rest.
+    pub level_tol: f32,
     /// The robot's own latency from a head pose to a frame showing it on the board, ms.
     pub latency_ms: u16,
     /// A probe not decided within this is undecided (no reach), ms.
@@ -584,8 +593,7 @@ impl SelfGate {
             && self.gain.abs() <= 10_000.0
             && self.gain_tol > 0.0
             && self.gain_tol < 1.0
-            && self.rest_tol > 0.0
-            && self.rest_tol <= 64.0
+            && [self.rest_tol, self.hold_tol, self.level_tol].iter().all(|t| *t > 0.0 && *t <= 64.0)
             && (1..=1000).contains(&self.latency_ms)
             && (100..=MAX_GATE_TIMEOUT_MS).contains(&self.timeout_ms)
             && (1..=MAX_GATE_FRAMES).contains(&self.min_frames)
@@ -860,6 +868,8 @@ pub struct Model<'a> {
     pub pose: Option<PoseStats<'a>>,
     /// The CRC-32 from the header: the model's identity.
     pub crc32: u32,
+    /// Where the self-gate section starts (its length depends on its layout).
+    gate_at: usize,
 }
 
 /// Bounds-checked little-endian reads; every failure is [`BlobError::Truncated`].
@@ -1085,13 +1095,20 @@ impl<'a> Model<'a> {
         } else {
             None
         };
+        let gate_at = r.pos;
         let self_gate = if flags & FLAG_SELF_GATE != 0 {
             let (amplitude, gain, gain_tol, rest_tol) = (r.f32()?, r.f32()?, r.f32()?, r.f32()?);
             let (latency_ms, timeout_ms, min_frames) = (r.u16()?, r.u16()?, r.u8()?);
-            if r.take(3)? != [0; 3] {
+            let layout = r.u8()?;
+            if r.take(2)? != [0; 2] {
                 return Err(BlobError::BadHeader);
             }
-            let g = SelfGate { amplitude, gain, gain_tol, rest_tol, latency_ms, timeout_ms, min_frames };
+            let (hold_tol, level_tol) = match layout {
+                0 => (rest_tol, rest_tol),
+                1 => (r.f32()?, r.f32()?),
+                _ => return Err(BlobError::BadHeader),
+            };
+            let g = SelfGate { amplitude, gain, gain_tol, rest_tol, hold_tol, level_tol, latency_ms, timeout_ms, min_frames };
             if !g.is_valid() {
                 return Err(BlobError::SelfGate);
             }
@@ -1115,6 +1132,7 @@ impl<'a> Model<'a> {
             self_gate,
             pose,
             crc32: crc,
+            gate_at,
         })
     }
 
@@ -1508,7 +1526,7 @@ mod writer {
         let mut o = bytes.to_vec();
         let flags = u16::from_le_bytes([o[22], o[23]]);
         if m.self_gate.is_some() {
-            o.truncate(o.len() - SELF_GATE_LEN);
+            o.truncate(m.gate_at);
         }
         let mut flags = flags & !FLAG_SELF_GATE;
         let version: u16 = match gate {
@@ -1521,7 +1539,10 @@ mod writer {
                 }
                 o.extend_from_slice(&g.latency_ms.to_le_bytes());
                 o.extend_from_slice(&g.timeout_ms.to_le_bytes());
-                o.extend_from_slice(&[g.min_frames, 0, 0, 0]);
+                o.extend_from_slice(&[g.min_frames, 1, 0, 0]);
+                for f in [g.hold_tol, g.level_tol] {
+                    o.extend_from_slice(&f.to_le_bytes());
+                }
                 flags |= FLAG_SELF_GATE;
                 5
             }

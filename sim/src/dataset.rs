@@ -20,6 +20,21 @@ use std::path::Path;
 /// (a red mark on the red cap would be invisible in grey, to the method and to a person).
 pub const MIN_MARK_CONTRAST: f32 = 20.0;
 
+/// What stands in front of the camera.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DatasetScene {
+    /// The robot's own mirror image: the paper's dataset.
+    #[default]
+    Mirror,
+    /// Another robot of the same look where the mirror image would be, its head at a pose of
+    /// its own (drawn from the same range as ours, independently), marks on its face: the face
+    /// does not follow the recorded head angles. Not for training; for measuring what a
+    /// decoder of the own image makes of another's face (the self gate's premise, issue 17).
+    /// Each frame's draws for our head, the split and the mark are the mirror dataset's of the
+    /// same seed.
+    Other,
+}
+
 #[derive(Clone, Debug, PartialEq)]
 pub struct DatasetConfig {
     pub robot: Robot,
@@ -34,6 +49,7 @@ pub struct DatasetConfig {
     /// Share of test frames left without a mark. The paper marks every test image; a few
     /// unmarked ones are what false-alarm rates and image-level AUROC are measured on.
     pub unmarked_test_fraction: f64,
+    pub scene: DatasetScene,
 }
 
 impl DatasetConfig {
@@ -47,6 +63,7 @@ impl DatasetConfig {
             test_fraction: 0.2,
             reach_pairs: 100,
             unmarked_test_fraction: 0.2,
+            scene: DatasetScene::Mirror,
         }
     }
 
@@ -79,6 +96,8 @@ struct Plan {
     split: Split,
     marked: bool,
     rng_seed: u64,
+    /// The other robot's head (yaw, pitch), in the other scene.
+    seen: Option<[f64; 2]>,
 }
 
 /// Writes the dataset into `out` (created if missing; existing files of the layout are
@@ -118,7 +137,12 @@ pub fn write_dataset_with(
             // From the frame's own seed, so that the main draws do not depend on this share.
             let keep_clean = ChaCha8Rng::seed_from_u64(rng_seed ^ 0x5EED_C1EA).gen::<f64>()
                 < cfg.unmarked_test_fraction;
-            Plan { yaw, pitch, var, split, marked: split == Split::Test && !keep_clean, rng_seed }
+            // Also from the frame's own seed: the other scene keeps the mirror dataset's draws.
+            let seen = (cfg.scene == DatasetScene::Other).then(|| {
+                let mut r = ChaCha8Rng::seed_from_u64(rng_seed ^ 0x07E4_0B07);
+                if a > 0.0 { [r.gen_range(-a..=a), r.gen_range(-a..=a)] } else { [0.0; 2] }
+            });
+            Plan { yaw, pitch, var, split, marked: split == Split::Test && !keep_clean, rng_seed, seen }
         })
         .collect();
 
@@ -126,16 +150,24 @@ pub fn write_dataset_with(
     let mut angles = String::new();
     for (i, p) in plans.iter().enumerate() {
         let file = format!("frames/{i:06}.png");
-        let pose = BodyPose::head(p.yaw, p.pitch);
+        let camera = [p.yaw, p.pitch];
+        // The body in view: ours in the mirror, or the other robot's.
+        let [sy, sp] = p.seen.unwrap_or(camera);
+        let pose = BodyPose::head(sy, sp);
+        let full = [0, 0, body::WIDTH, body::HEIGHT];
         let mut mark_record = None;
         let rendered = if p.marked {
             let mut mrng = ChaCha8Rng::seed_from_u64(p.rng_seed);
+            // The mark is chosen on the face in view as its own mirror shows it (as episodes
+            // do), then seen from our camera.
             let (mark, r) = render_marked(&renderer, &pose, &p.var, &mut mrng);
+            let r = if p.seen.is_some() { renderer.render_seen(camera, &pose, Some(&mark), &p.var, full) } else { r };
             let px = r.mark.as_ref().expect("a marked render has mark pixels");
             let mask = format!("masks/{i:06}.png");
             written += write_png(&out.join(&mask), px.mask.as_raw(), body::WIDTH, body::HEIGHT, image::ExtendedColorType::L8)?;
             let ph = mark.point_head();
-            let pt = kin::head_to_torso(&ph, p.yaw, p.pitch);
+            // In the torso frame of the body that carries it.
+            let pt = kin::head_to_torso(&ph, sy, sp);
             mark_record = Some(MarkRecord {
                 shape: mark.kind.to_string(),
                 colour: mark.colour.to_string(),
@@ -148,11 +180,18 @@ pub fn write_dataset_with(
             });
             r
         } else {
-            renderer.render(&pose, None, &p.var)
+            renderer.render_seen(camera, &pose, None, &p.var, full)
         };
         written += write_png(&out.join(&file), rendered.rgb.as_raw(), body::WIDTH, body::HEIGHT, image::ExtendedColorType::Rgb8)?;
         angles.push_str(&format!("{:.10},{:.10}\n", p.yaw, p.pitch));
-        frames.push(FrameRecord { file, head_yaw: p.yaw, head_pitch: p.pitch, split: p.split, mark: mark_record });
+        frames.push(FrameRecord {
+            file,
+            head_yaw: p.yaw,
+            head_pitch: p.pitch,
+            split: p.split,
+            mark: mark_record,
+            seen_head: p.seen,
+        });
         progress(i + 1, written);
     }
     std::fs::write(out.join(layout::ANGLES_FILE), angles)?;

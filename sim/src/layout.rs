@@ -45,7 +45,8 @@ pub struct MarkRecord {
     pub mask: String,
     /// The mark's centre on the head surface, in the head frame (metres).
     pub point_head_m: [f64; 3],
-    /// The same point in the torso frame at this frame's head angles (metres).
+    /// The same point in the torso frame at this frame's head angles (metres); in the other
+    /// scene, the other robot's torso frame at its head angles (`seen_head`).
     pub point_torso_m: [f64; 3],
 }
 
@@ -58,6 +59,10 @@ pub struct FrameRecord {
     pub head_pitch: f64,
     pub split: Split,
     pub mark: Option<MarkRecord>,
+    /// Another robot's head (yaw, pitch) when the frame shows another robot, not the mirror
+    /// image (`msr dataset --scene other`); absent for the own mirror image.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub seen_head: Option<[f64; 2]>,
 }
 
 /// `dataset.json`.

@@ -10,6 +10,8 @@ fn params() -> SelfGate {
         gain: -271.0,
         gain_tol: 0.06,
         rest_tol: 1.5,
+        hold_tol: 1.5,
+        level_tol: 1.5,
         latency_ms: 100,
         timeout_ms: 2000,
         min_frames: 2,
@@ -190,7 +192,11 @@ fn the_next_probe_waits_for_the_head_to_rest() {
 /// As [`run`] with a tight, sub-pixel tolerance: rest at x 120.25, the plus pose's and the
 /// minus pose's frames at the given positions.
 fn run_fine(rest: [f32; 3], xp: [f32; 2], xm: [f32; 2], y: [f32; 2]) -> Step {
-    let mut g = Gate::new(SelfGate { gain_tol: 0.01, rest_tol: 0.2, ..params() });
+    run_with(SelfGate { gain_tol: 0.01, rest_tol: 0.2, hold_tol: 0.2, level_tol: 0.2, ..params() }, rest, xp, xm, y)
+}
+
+fn run_with(p: SelfGate, rest: [f32; 3], xp: [f32; 2], xm: [f32; 2], y: [f32; 2]) -> Step {
+    let mut g = Gate::new(p);
     for x in rest {
         g.observe([x, 50.0], 0.0, 0);
     }
@@ -239,4 +245,29 @@ fn a_non_finite_statistic_never_passes() {
     let (r, t) = done(nan);
     assert_ne!(r.decision, GateDecision::Pass);
     assert_eq!(t, None);
+}
+
+#[test]
+fn each_statistic_has_its_own_tolerance() {
+    // Calibration found the rest loose (0.6 px), the hold and the level tight.
+    let p = SelfGate { gain_tol: 0.01, rest_tol: 0.6, hold_tol: 0.2, level_tol: 0.1, ..params() };
+    let own = |rest, xp, xm, y| done(run_with(p, rest, xp, xm, y));
+    // The rest 0.3 px off the line: within its own tolerance now.
+    let (r, t) = own([120.55; 3], [101.28; 2], [139.22; 2], [50.0, 50.0]);
+    assert_eq!((r.decision, t), (GateDecision::Pass, Some(TARGET)), "{r:?}");
+    // An eighth of a pixel down at a pose: under the rest's tolerance, over the level's.
+    let (r, t) = own([120.25; 3], [101.28; 2], [139.22; 2], [50.125, 50.0]);
+    assert_eq!((r.decision, t), (GateDecision::Reject, None));
+    assert!((r.level_px - 0.125).abs() < 1e-4, "{}", r.level_px);
+    // Exactly at the level's tolerance passes.
+    let (r, _) = own([120.25; 3], [101.28; 2], [139.22; 2], [50.0, 50.09375]);
+    assert_eq!(r.decision, GateDecision::Pass, "{r:?}");
+    // 0.25 px of drift at a pose: under the rest's tolerance, over the hold's.
+    let (r, t) = own([120.25; 3], [101.15, 101.40], [139.22; 2], [50.0, 50.0]);
+    assert_eq!((r.decision, t), (GateDecision::Reject, None));
+    assert!((r.hold_px - 0.25).abs() < 1e-3, "{}", r.hold_px);
+    // A layout-0 blob's single tolerance is the same gate as three equal ones.
+    let one = SelfGate { rest_tol: 0.2, hold_tol: 0.2, level_tol: 0.2, ..p };
+    let (r, _) = done(run_with(one, [120.55; 3], [101.28; 2], [139.22; 2], [50.0, 50.0]));
+    assert_eq!(r.decision, GateDecision::Reject);
 }

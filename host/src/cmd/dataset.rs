@@ -1,6 +1,7 @@
 //! `msr dataset`: render a mirror dataset (frames, head angles, splits, marks) for one robot.
-use anyhow::Result;
-use msr_sim::dataset::{write_dataset_with, DatasetConfig};
+use crate::episode::Scene;
+use anyhow::{bail, Result};
+use msr_sim::dataset::{write_dataset_with, DatasetConfig, DatasetScene};
 use msr_sim::Robot;
 use std::path::PathBuf;
 
@@ -30,9 +31,23 @@ pub struct Args {
     /// Reach training pairs made by the IK (reach_centroids.csv, reach_joints.csv)
     #[arg(long, default_value_t = 100)]
     pub reach_pairs: usize,
+    /// What the camera sees: mirror (the own mirror image), other (another robot of the same
+    /// look, its head at a pose of its own, marks on its face; not for training). delayed is
+    /// refused: a delay needs a time series, and the frames are independent draws (use `msr
+    /// mirror-test --scene delayed`)
+    #[arg(long, value_enum, default_value_t = Scene::Mirror)]
+    pub scene: Scene,
 }
 
 pub fn run(args: Args) -> Result<()> {
+    let scene = match args.scene {
+        Scene::Mirror => DatasetScene::Mirror,
+        Scene::Other => DatasetScene::Other,
+        Scene::Delayed => bail!(
+            "--scene delayed: a video delay shows an earlier pose, which needs a time series; the \
+             dataset's frames are independent draws. Use `msr mirror-test --scene delayed`"
+        ),
+    };
     let cfg = DatasetConfig {
         robot: args.robot,
         count: args.count,
@@ -41,6 +56,7 @@ pub fn run(args: Args) -> Result<()> {
         test_fraction: args.test_fraction,
         reach_pairs: args.reach_pairs,
         unmarked_test_fraction: args.unmarked_test_fraction,
+        scene,
     };
     // The size first: a large --count runs for hours and fills a disk.
     let est = args.count as f64 * FRAME_BYTES_ESTIMATE;
@@ -111,6 +127,22 @@ mod tests {
         assert_eq!(index.split(msr_sim::layout::Split::Test).count(), 2);
         let pairs = std::fs::read_to_string(out.join(msr_sim::layout::REACH_JOINTS_FILE)).unwrap();
         assert_eq!(pairs.lines().count(), 3);
+    }
+
+    #[test]
+    fn the_other_scene_records_the_other_robots_head_and_delayed_is_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("ds");
+        let o = out.to_str().unwrap();
+        let args: Args = parse_args(&["msr", "--count", "5", "--reach-pairs", "0", "--scene", "other", "--out", o]).unwrap();
+        run(args).unwrap();
+        let index: msr_sim::layout::DatasetIndex =
+            serde_json::from_slice(&std::fs::read(out.join(msr_sim::layout::INDEX_FILE)).unwrap()).unwrap();
+        assert!(index.frames.iter().all(|f| f.seen_head.is_some()));
+        let args: Args = parse_args(&["msr", "--count", "5", "--scene", "delayed", "--out", o]).unwrap();
+        let e = run(args).unwrap_err().to_string();
+        assert!(e.contains("--scene delayed") && e.contains("mirror-test"), "{e}");
+        assert!(parse_args::<Args>(&["msr", "--scene", "mirrors", "--out", o]).is_err());
     }
 
     #[test]

@@ -2,7 +2,7 @@
 //! validators behind it are reached. No panic; whatever parses has consistent tables.
 #![no_main]
 use libfuzzer_sys::fuzz_target;
-use msr_shared::blob::{Model, CRC32};
+use msr_shared::blob::{set_self_gate, Model, CRC32};
 
 fuzz_target!(|data: &[u8]| {
     let mut bytes = data.to_vec();
@@ -35,6 +35,15 @@ fuzz_target!(|data: &[u8]| {
                 assert_eq!((mu.len(), sigma.len()), (m.face_pixels(), m.face_pixels()));
             }
             let _ = m.stats_at([0.01, -0.02]);
+        }
+        // A self gate (either section layout) is valid, and taking it off and putting it back
+        // gives a blob that parses to the same gate.
+        if let Some(g) = m.self_gate {
+            assert!(g.is_valid());
+            let plain = set_self_gate(&bytes, None).expect("a parsed blob loses its gate");
+            assert_eq!(Model::parse(&plain).map(|p| p.self_gate), Ok(None));
+            let again = set_self_gate(&plain, Some(g)).expect("a parsed gate is written back");
+            assert_eq!(Model::parse(&again).map(|p| p.self_gate), Ok(Some(g)));
         }
     }
 });

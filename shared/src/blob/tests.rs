@@ -674,6 +674,8 @@ fn gate() -> SelfGate {
         gain: -271.5,
         gain_tol: 0.06,
         rest_tol: 1.5,
+        hold_tol: 0.5,
+        level_tol: 0.25,
         latency_ms: 100,
         timeout_ms: 2000,
         min_frames: 2,
@@ -695,7 +697,9 @@ fn self_gate_section_is_literal_last_and_removable() {
         for f in [0.07f32, -271.5, 0.06, 1.5] {
             lit.extend_from_slice(&f.to_le_bytes());
         }
-        lit.extend_from_slice(&[100, 0, 0xD0, 0x07, 2, 0, 0, 0]);
+        // Layout 1: the hold and level tolerances follow.
+        lit.extend_from_slice(&[100, 0, 0xD0, 0x07, 2, 1, 0, 0]);
+        lit.extend_from_slice(&[0, 0, 0, 0x3F, 0, 0, 0x80, 0x3E]);
         assert_eq!(&gated[plain.len()..], &lit[..]);
         let m = Model::parse(&gated).unwrap();
         assert_eq!(m.self_gate, Some(gate()));
@@ -729,6 +733,10 @@ fn self_gate_values_are_checked() {
         (8, 1.0),
         (12, -1.0),
         (12, 65.0),
+        (24, 0.0),
+        (24, f32::NAN),
+        (28, -0.25),
+        (28, 65.0),
     ] {
         assert_eq!(edit(at + off, &bad.to_le_bytes()), Err(BlobError::SelfGate), "{off} {bad}");
     }
@@ -737,7 +745,11 @@ fn self_gate_values_are_checked() {
     assert_eq!(edit(at + 18, &[0xB9, 0x0B]), Err(BlobError::SelfGate), "timeout 3001 ms");
     assert_eq!(edit(at + 20, &[0]), Err(BlobError::SelfGate), "no frames");
     assert_eq!(edit(at + 20, &[9]), Err(BlobError::SelfGate), "9 frames");
-    assert_eq!(edit(at + 21, &[1]), Err(BlobError::BadHeader), "reserved");
+    assert_eq!(edit(at + 21, &[2]), Err(BlobError::BadHeader), "layout 2");
+    assert_eq!(edit(at + 22, &[1]), Err(BlobError::BadHeader), "reserved");
+    assert_eq!(edit(at + 23, &[1]), Err(BlobError::BadHeader), "reserved");
+    // Layout 0 says the section ends at 24 bytes: 8 bytes too many.
+    assert_eq!(edit(at + 21, &[0]), Err(BlobError::TrailingBytes), "layout 0, 32 bytes");
     // The flag needs version 5, and version 5 the flag.
     assert_eq!(edit(4, &[4, 0]), Err(BlobError::BadHeader));
     // Cut short inside the section.
@@ -868,4 +880,47 @@ fn pose_stats_are_checked_and_every_truncation_refused() {
     let mut spec = pose_spec();
     spec.pose.as_mut().unwrap().0.bins = [1, 1];
     assert!(spec.to_bytes().is_err());
+}
+
+/// `plain` with a layout-0 self-gate section (24 bytes, one tolerance), as blobs were written
+/// before the hold and level tolerances: amplitude 0.07, gain -271.5, gain_tol 0.06,
+/// rest_tol 1.5, latency 100 ms, timeout 2000 ms, 2 frames.
+fn layout0(plain: &[u8]) -> Vec<u8> {
+    let mut b = plain.to_vec();
+    for f in [0.07f32, -271.5, 0.06, 1.5] {
+        b.extend_from_slice(&f.to_le_bytes());
+    }
+    b.extend_from_slice(&[100, 0, 0xD0, 0x07, 2, 0, 0, 0]);
+    b[4..6].copy_from_slice(&[5, 0]);
+    let flags = u16::from_le_bytes([b[22], b[23]]) | 8;
+    b[22..24].copy_from_slice(&flags.to_le_bytes());
+    let n = b.len() as u32;
+    b[8..12].copy_from_slice(&n.to_le_bytes());
+    recrc(&mut b);
+    b
+}
+
+#[test]
+fn a_layout_0_self_gate_has_one_tolerance_and_is_replaced_whole() {
+    for spec in [mlp_spec(), conv_spec()] {
+        let plain = spec.to_bytes().unwrap();
+        let old = layout0(&plain);
+        assert_eq!(old.len(), plain.len() + SELF_GATE_LEN_V0);
+        let m = Model::parse(&old).unwrap();
+        let one = SelfGate { hold_tol: 1.5, level_tol: 1.5, ..gate() };
+        assert_eq!(m.self_gate, Some(one));
+        // Removing or replacing it takes its 24 bytes, not the writer's 32.
+        assert_eq!(set_self_gate(&old, None).unwrap(), plain);
+        let new = set_self_gate(&old, Some(gate())).unwrap();
+        assert_eq!(new, set_self_gate(&plain, Some(gate())).unwrap());
+        assert_eq!(new.len(), plain.len() + SELF_GATE_LEN);
+        // Layout 1 with only 24 bytes: the tolerances it promises are missing.
+        let mut short = old.clone();
+        short[plain.len() + 21] = 1;
+        recrc(&mut short);
+        assert_eq!(Model::parse(&short), Err(BlobError::Truncated));
+        for cut in plain.len()..old.len() {
+            assert!(Model::parse(&old[..cut]).is_err());
+        }
+    }
 }

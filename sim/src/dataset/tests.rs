@@ -147,3 +147,39 @@ fn unmarked_test_share_is_honoured_and_leaves_the_draws_alone() {
     // Poses and splits do not depend on the share.
     assert!(a0 == a1 && a1 == a2);
 }
+
+#[test]
+fn the_other_scene_keeps_the_mirror_draws_and_shows_a_face_that_does_not_follow() {
+    let (m, o) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let cfg = DatasetConfig { count: 30, test_fraction: 0.5, reach_pairs: 0, ..small(Robot::Red, 7) };
+    let mirror = write_dataset(&cfg, m.path()).unwrap();
+    let other = write_dataset(&DatasetConfig { scene: DatasetScene::Other, ..cfg.clone() }, o.path()).unwrap();
+    // The mirror dataset's JSON has no `seen_head`, as before the other scene.
+    let json = std::fs::read_to_string(m.path().join(layout::INDEX_FILE)).unwrap();
+    assert!(!json.contains("seen_head"));
+    let a = 5f64.to_radians();
+    let mut marked = 0;
+    for (fm, fo) in mirror.frames.iter().zip(&other.frames) {
+        // Our head, the split and which frames are marked (with which mark): the same draws.
+        assert_eq!((fm.head_yaw, fm.head_pitch, fm.split), (fo.head_yaw, fo.head_pitch, fo.split));
+        assert_eq!(fm.mark.as_ref().map(|k| (&k.shape, &k.colour)), fo.mark.as_ref().map(|k| (&k.shape, &k.colour)));
+        assert_eq!(fm.seen_head, None);
+        let [sy, sp] = fo.seen_head.expect("the other scene records the other's head");
+        assert!(sy.abs() <= a && sp.abs() <= a);
+        assert!((sy - fo.head_yaw).abs() + (sp - fo.head_pitch).abs() > 1e-6, "its own pose, not ours");
+        let (im, io) = (std::fs::read(m.path().join(&fm.file)).unwrap(), std::fs::read(o.path().join(&fo.file)).unwrap());
+        assert_ne!(im, io);
+        if let Some(k) = &fo.mark {
+            marked += 1;
+            // The mark shows on the other's face, and its mask is the frame's.
+            assert!(k.pixels > 0, "{k:?}");
+            let mask = image::open(o.path().join(&k.mask)).unwrap().to_luma8();
+            assert_eq!(mask.pixels().filter(|p| p.0[0] > 0).count() as u32, k.pixels);
+        }
+    }
+    assert!(marked >= 5, "{marked}");
+    // Same seed, same bytes.
+    let again = tempfile::tempdir().unwrap();
+    write_dataset(&DatasetConfig { scene: DatasetScene::Other, ..cfg }, again.path()).unwrap();
+    assert_eq!(files(o.path()), files(again.path()));
+}
