@@ -99,14 +99,11 @@ pub fn threshold_q88(sigma_q88: u16, threshold: f32, normalisation: Normalisatio
         Normalisation::StdDev => s,
         Normalisation::Variance => s * s,
     };
-    let v = threshold * n * 256.0;
-    if v.is_nan() || v < 0.0 {
-        0
-    } else if v >= 65534.5 {
-        u16::MAX
-    } else {
-        (v + 0.5) as u16
-    }
+    // `as` saturates (NaN and anything below 0 give 0, 65535 and above give 65535): that is
+    // the rounding and the saturation wanted, in one conversion and no branches (a new pose
+    // cell remakes the whole table). The same value for every input as the explicit checks,
+    // `table_matches_the_explicit_checks` tries all sigmas.
+    (threshold * n * 256.0 + 0.5) as u16
 }
 
 impl Thresholds {
@@ -129,8 +126,18 @@ impl Thresholds {
         if self.key == Some(key) && self.len == n {
             return false;
         }
-        for (t, sigma) in self.tn[..n].iter_mut().zip(sigma.iter()) {
-            *t = threshold_q88(sigma, s.threshold, s.normalisation);
+        // Blobs are 4-byte aligned, so sigma is normally a u16 slice; else read bytes.
+        match bytemuck::try_cast_slice::<u8, u16>(sigma.0) {
+            Ok(sigma) => {
+                for (t, &sigma) in self.tn[..n].iter_mut().zip(sigma) {
+                    *t = threshold_q88(sigma, s.threshold, s.normalisation);
+                }
+            }
+            Err(_) => {
+                for (t, sigma) in self.tn[..n].iter_mut().zip(sigma.iter()) {
+                    *t = threshold_q88(sigma, s.threshold, s.normalisation);
+                }
+            }
         }
         self.len = n;
         self.key = Some(key);
@@ -390,6 +397,35 @@ mod tests {
             threshold_q88(u16::MAX, 1e30, Normalisation::Variance),
             u16::MAX
         );
+    }
+
+    /// The branch-free rounding gives what the checks written out give, for every sigma and
+    /// thresholds from tiny to overflowing.
+    #[test]
+    fn table_matches_the_explicit_checks() {
+        fn explicit(sigma_q88: u16, threshold: f32, normalisation: Normalisation) -> u16 {
+            let s = sigma_q88 as f32 / 256.0;
+            let n = match normalisation {
+                Normalisation::StdDev => s,
+                Normalisation::Variance => s * s,
+            };
+            let v = threshold * n * 256.0;
+            if v.is_nan() || v < 0.0 {
+                0
+            } else if v >= 65534.5 {
+                u16::MAX
+            } else {
+                (v + 0.5) as u16
+            }
+        }
+        let thresholds = [4.59f32, 1.0, 0.5, 2.7, 3.3, 6.0, 9.9, 1e-3, 1e-30, f32::MIN_POSITIVE, 1e-45, 255.9, 1e5, 1e30, f32::MAX];
+        for t in thresholds {
+            for norm in [Normalisation::StdDev, Normalisation::Variance] {
+                for sigma in 0..=u16::MAX {
+                    assert_eq!(threshold_q88(sigma, t, norm), explicit(sigma, t, norm), "sigma {sigma} t {t} {norm:?}");
+                }
+            }
+        }
     }
 
     /// The pooled mask against the window mean written out plainly, on faces of 7 x 9 (every
