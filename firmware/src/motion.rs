@@ -212,7 +212,10 @@ impl Motion {
         let mut arrived = true;
         for i in 0..N {
             let step = self.max_step(i);
-            let d = (self.goal[i] - c[i]).clamp(-step, step);
+            // `f32::clamp`'s check (`min <= max`, panicking with both floats formatted) would
+            // link float printing into the board image; `step` is never negative.
+            let g = self.goal[i] - c[i];
+            let d = if g < -step { -step } else if g > step { step } else { g };
             c[i] = if (self.goal[i] - c[i]).abs() <= step {
                 self.goal[i]
             } else {

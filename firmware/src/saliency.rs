@@ -9,9 +9,9 @@
 //! integers. `tn = round(t * n * 256)` saturates at 65535, which no error reaches.
 //! `n = 0` gives `tn = 0`: any error different from mu is salient, as a division by 0 would say.
 
-use core::cell::Cell;
 use msr_shared::blob::{
     Merge, Model, Normalisation, Novelty, PoseRegion, Sided, U16Table, MAX_FACE_PIXELS, MAX_FACE_W,
+    MAX_POOL,
 };
 
 /// Novelty settings in force: the model's defaults, or what the host configured.
@@ -99,14 +99,11 @@ pub fn threshold_q88(sigma_q88: u16, threshold: f32, normalisation: Normalisatio
         Normalisation::StdDev => s,
         Normalisation::Variance => s * s,
     };
-    let v = threshold * n * 256.0;
-    if v.is_nan() || v < 0.0 {
-        0
-    } else if v >= 65534.5 {
-        u16::MAX
-    } else {
-        (v + 0.5) as u16
-    }
+    // `as` saturates (NaN and anything below 0 give 0, 65535 and above give 65535): that is
+    // the rounding and the saturation wanted, in one conversion and no branches (a new pose
+    // cell remakes the whole table). The same value for every input as the explicit checks,
+    // `table_matches_the_explicit_checks` tries all sigmas.
+    (threshold * n * 256.0 + 0.5) as u16
 }
 
 impl Thresholds {
@@ -129,8 +126,18 @@ impl Thresholds {
         if self.key == Some(key) && self.len == n {
             return false;
         }
-        for (t, sigma) in self.tn[..n].iter_mut().zip(sigma.iter()) {
-            *t = threshold_q88(sigma, s.threshold, s.normalisation);
+        // Blobs are 4-byte aligned, so sigma is normally a u16 slice; else read bytes.
+        match bytemuck::try_cast_slice::<u8, u16>(sigma.0) {
+            Ok(sigma) => {
+                for (t, &sigma) in self.tn[..n].iter_mut().zip(sigma) {
+                    *t = threshold_q88(sigma, s.threshold, s.normalisation);
+                }
+            }
+            Err(_) => {
+                for (t, sigma) in self.tn[..n].iter_mut().zip(sigma.iter()) {
+                    *t = threshold_q88(sigma, s.threshold, s.normalisation);
+                }
+            }
         }
         self.len = n;
         self.key = Some(key);
@@ -168,12 +175,14 @@ pub fn saliency(
 
 /// [`saliency`] on the pooled error (the blob's flag bit 4): `e = |mean of (I << 8) - pred over
 /// the (2 pool + 1)^2 window, clipped at the border|`, Q8.8, the mean truncated toward zero.
-/// `w` is the face's width; the rows are `frame.len() / w`. Running column sums, each updated
-/// (one row in, one out) just before the window reaches it, and a running window sum along the
-/// row: a few additions per pixel whatever the radius, one pass, no buffer but the column sums,
-/// and no division: `floor(|s| / n) > k` is tested as `|s| >= (k + 1) n`. A mu table that is
-/// not 2-byte aligned is read a row at a time into a buffer (blobs are 4-aligned, so only a
-/// caller's odd slice takes that path). Slices are taken with `get`, so nothing here can panic.
+/// `w` is the face's width; the rows are `frame.len() / w`. Row by row, in two passes that each
+/// keep few values live (one pass doing both spilled registers on the Cortex-M4): [`vertical`]
+/// brings the running column sums to the row's window (one row in, one out), then
+/// [`horizontal`] slides the window sum along the row and tests each pixel. No division:
+/// `floor(|s| / n) > k` is tested as `|s| >= (k + 1) n`. A mu table that is not 2-byte aligned
+/// is read a row at a time into a buffer (blobs are 4-aligned, so only a caller's odd slice
+/// takes that path). A radius above [`MAX_POOL`] (which no blob carries) or a width of 0 or
+/// past [`MAX_FACE_W`] finds nothing. Slices are taken with `get`, so nothing here can panic.
 #[allow(clippy::too_many_arguments)]
 pub fn pooled(
     frame: &[u8],
@@ -185,32 +194,29 @@ pub fn pooled(
     w: usize,
     pool: u8,
 ) -> u32 {
-    if w == 0 || w > MAX_FACE_W {
+    if w == 0 || w > MAX_FACE_W || pool > MAX_POOL {
         return 0;
     }
     let n = frame.len().min(pred.len()).min(tn.len()).min(mask.len()).min(mu.len());
     let (h, r) = (n / w, pool as usize);
     let aligned = bytemuck::try_cast_slice::<u8, u16>(mu.0).ok();
     let mut buf = [0u16; MAX_FACE_W];
-    // Rows past the face: a zero row adds nothing to a column.
-    let (zf, zp) = ([0u8; MAX_FACE_W], [0u16; MAX_FACE_W]);
     let row = |y: usize| match (frame.get(y * w..y * w + w), pred.get(y * w..y * w + w)) {
-        (Some(f), Some(p)) if y < h => (f, p),
-        _ => (&zf[..w], &zp[..w]),
+        (Some(f), Some(p)) if y < h => Some((f, p)),
+        _ => None,
     };
-    let mut col_store = [0i32; MAX_FACE_W];
-    let col = Cell::from_mut(&mut col_store[..w]).as_slice_of_cells();
+    // Column sums, with PAD zero columns either side: the window slides over them unclipped.
+    let mut cols = [0i32; MAX_FACE_W + 2 * PAD];
+    let Some(c) = cols.get_mut(PAD..PAD + w) else { return 0 };
     for y in 0..r.min(h) {
-        let (f, p) = row(y);
-        for ((c, &f), &p) in col.iter().zip(f).zip(p) {
-            c.set(c.get() + err(f, p));
-        }
+        vertical(c, row(y), None);
     }
-    let span = 2 * r + 1;
     let mut count = 0u32;
     for y in 0..h {
-        let (fi, pi) = row(y + r);
-        let (fo, po) = if y > r { row(y - r - 1) } else { (&zf[..w], &zp[..w]) };
+        let gone = if y > r { row(y - r - 1) } else { None };
+        if let Some(c) = cols.get_mut(PAD..PAD + w) {
+            vertical(c, row(y + r), gone);
+        }
         let rows = ((y + r).min(h - 1) + 1 - y.saturating_sub(r)) as u32;
         let mu_row: &[u16] = match aligned {
             Some(m) => m.get(y * w..y * w + w).unwrap_or(&[]),
@@ -227,69 +233,94 @@ pub fn pooled(
         if mu_row.len() != w {
             break;
         }
-        // Column j, brought to this row's window; its new sum.
-        let update = |j: usize| match (col.get(j), fi.get(j), pi.get(j), fo.get(j), po.get(j)) {
-            (Some(c), Some(&a), Some(&b), Some(&e), Some(&g)) => {
-                let v = c.get() + err(a, b) - err(e, g);
-                c.set(v);
-                v
+        count += horizontal(&cols, mu_row, tn_row, m_row, r, rows, sided);
+    }
+    count
+}
+
+/// Zero columns on either side of the column sums in [`pooled`]: one more than the largest
+/// radius, so that the column leaving the window at `x = 0` is one of them.
+const PAD: usize = MAX_POOL as usize + 1;
+
+/// Adds the error of row `add` to the column sums and takes that of row `sub` off. Out of
+/// line, so that it keeps its own registers.
+#[inline(never)]
+fn vertical(c: &mut [i32], add: Option<(&[u8], &[u16])>, sub: Option<(&[u8], &[u16])>) {
+    match (add, sub) {
+        (Some((a, b)), Some((e, g))) => {
+            for ((((c, &a), &b), &e), &g) in c.iter_mut().zip(a).zip(b).zip(e).zip(g) {
+                *c += err(a, b) - err(e, g);
             }
-            _ => 0,
-        };
-        let mut sum: i32 = (0..r.min(w)).map(update).sum();
-        // The borders, one pixel at a time with the clipped window's size.
-        let edge = |x: usize, sum: &mut i32, count: &mut u32, m_row: &mut [u8]| {
-            if x + r < w {
-                *sum += update(x + r);
-            }
-            if x > r {
-                *sum -= col.get(x - r - 1).map_or(0, Cell::get);
-            }
-            let k = rows * ((x + r).min(w - 1) + 1 - x.saturating_sub(r)) as u32;
-            if let (Some(out), Some(&m), Some(&t)) = (m_row.get_mut(x), mu_row.get(x), tn_row.get(x)) {
-                *out = test(sum.unsigned_abs(), k, m, t, sided);
-                *count += *out as u32;
-            }
-        };
-        for x in 0..(r + 1).min(w) {
-            edge(x, &mut sum, &mut count, m_row);
         }
-        // The inside: the whole window, k fixed; column x + r comes in, x - r - 1 goes out.
-        if w > span {
-            let k = rows * span as u32;
-            let (lo, hi) = (r + 1, w - r);
-            let (a, b) = (lo + r, hi + r);
-            let ins = mid(col, a, b).iter().zip(mid(col, 0, hi - lo));
-            let ins = ins.zip(mid(fi, a, b).iter().zip(mid(pi, a, b))).zip(mid(fo, a, b).iter().zip(mid(po, a, b)));
-            let thr = mid(mu_row, lo, hi).iter().zip(mid(tn_row, lo, hi));
-            let outs = m_row.get_mut(lo..hi).unwrap_or(&mut []);
-            match sided {
-                Sided::One => {
-                    for ((((c, o), (&a, &b)), (&e, &g)), ((&m, &t), out)) in ins.zip(thr.zip(outs)) {
-                        let v = c.get() + err(a, b) - err(e, g);
-                        c.set(v);
-                        sum += v - o.get();
-                        // floor(|s| / k) - mu > t  <=>  |s| >= (mu + t + 1) k
-                        let s = (sum.unsigned_abs() >= (m as u32 + t as u32 + 1) * k) as u8;
-                        *out = s;
-                        count += s as u32;
-                    }
+        (Some((a, b)), None) => {
+            for ((c, &a), &b) in c.iter_mut().zip(a).zip(b) {
+                *c += err(a, b);
+            }
+        }
+        (None, Some((e, g))) => {
+            for ((c, &e), &g) in c.iter_mut().zip(e).zip(g) {
+                *c -= err(e, g);
+            }
+        }
+        (None, None) => {}
+    }
+}
+
+/// One row of the mask from the column sums `cols` (the face's `w` columns between [`PAD`]
+/// zero columns either side; `w` = `out.len()`): the window sum slides along the row, a column
+/// in and one out, and each pixel is tested against its window's size (`rows` times the
+/// columns inside the face). Returns the salient pixels.
+#[inline(never)]
+fn horizontal(cols: &[i32], mu: &[u16], tn: &[u16], out: &mut [u8], r: usize, rows: u32, sided: Sided) -> u32 {
+    let w = out.len();
+    let col = |j: usize| cols.get(j).copied().unwrap_or(0);
+    // The window of x = -1: padded columns PAD - 1 - r ..= PAD - 1 + r.
+    let mut sum: i32 = mid(cols, PAD - 1 - r, PAD + r).iter().sum();
+    let mut count = 0u32;
+    // The borders, one pixel at a time with the clipped window's size.
+    let edge = |x: usize, sum: &mut i32, count: &mut u32, out: &mut [u8]| {
+        *sum += col(PAD + x + r) - col(PAD + x - r - 1);
+        let k = rows * ((x + r).min(w - 1) + 1 - x.saturating_sub(r)) as u32;
+        if let (Some(o), Some(&m), Some(&t)) = (out.get_mut(x), mu.get(x), tn.get(x)) {
+            *o = test(sum.unsigned_abs(), k, m, t, sided);
+            *count += *o as u32;
+        }
+    };
+    let lo = r.min(w);
+    for x in 0..lo {
+        edge(x, &mut sum, &mut count, out);
+    }
+    let hi = w.saturating_sub(r).max(lo);
+    // The inside: the whole window, k fixed; column x + r comes in, x - r - 1 goes out.
+    if hi > lo {
+        let k = rows * (2 * r + 1) as u32;
+        let ins = mid(cols, PAD + lo + r, PAD + hi + r).iter().zip(mid(cols, PAD + lo - r - 1, PAD + hi - r - 1));
+        let thr = mid(mu, lo, hi).iter().zip(mid(tn, lo, hi));
+        let outs = out.get_mut(lo..hi).unwrap_or(&mut []);
+        let mut inner = 0u32;
+        match sided {
+            Sided::One => {
+                // floor(|s| / k) - mu > t  <=>  |s| >= (mu + t + 1) k
+                for (((&a, &b), (&m, &t)), o) in ins.zip(thr).zip(outs) {
+                    sum += a - b;
+                    let s = (sum.unsigned_abs() >= (m as u32 + t as u32) * k + k) as u8;
+                    *o = s;
+                    inner += s as u32;
                 }
-                Sided::Two => {
-                    for ((((c, o), (&a, &b)), (&e, &g)), ((&m, &t), out)) in ins.zip(thr.zip(outs)) {
-                        let v = c.get() + err(a, b) - err(e, g);
-                        c.set(v);
-                        sum += v - o.get();
-                        let s = test(sum.unsigned_abs(), k, m, t, Sided::Two);
-                        *out = s;
-                        count += s as u32;
-                    }
+            }
+            Sided::Two => {
+                for (((&a, &b), (&m, &t)), o) in ins.zip(thr).zip(outs) {
+                    sum += a - b;
+                    let s = test(sum.unsigned_abs(), k, m, t, Sided::Two);
+                    *o = s;
+                    inner += s as u32;
                 }
             }
         }
-        for x in (w - r.min(w)).max(r + 1)..w {
-            edge(x, &mut sum, &mut count, m_row);
-        }
+        count += inner;
+    }
+    for x in hi..w {
+        edge(x, &mut sum, &mut count, out);
     }
     count
 }
@@ -366,6 +397,35 @@ mod tests {
             threshold_q88(u16::MAX, 1e30, Normalisation::Variance),
             u16::MAX
         );
+    }
+
+    /// The branch-free rounding gives what the checks written out give, for every sigma and
+    /// thresholds from tiny to overflowing.
+    #[test]
+    fn table_matches_the_explicit_checks() {
+        fn explicit(sigma_q88: u16, threshold: f32, normalisation: Normalisation) -> u16 {
+            let s = sigma_q88 as f32 / 256.0;
+            let n = match normalisation {
+                Normalisation::StdDev => s,
+                Normalisation::Variance => s * s,
+            };
+            let v = threshold * n * 256.0;
+            if v.is_nan() || v < 0.0 {
+                0
+            } else if v >= 65534.5 {
+                u16::MAX
+            } else {
+                (v + 0.5) as u16
+            }
+        }
+        let thresholds = [4.59f32, 1.0, 0.5, 2.7, 3.3, 6.0, 9.9, 1e-3, 1e-30, f32::MIN_POSITIVE, 1e-45, 255.9, 1e5, 1e30, f32::MAX];
+        for t in thresholds {
+            for norm in [Normalisation::StdDev, Normalisation::Variance] {
+                for sigma in 0..=u16::MAX {
+                    assert_eq!(threshold_q88(sigma, t, norm), explicit(sigma, t, norm), "sigma {sigma} t {t} {norm:?}");
+                }
+            }
+        }
     }
 
     /// The pooled mask against the window mean written out plainly, on faces of 7 x 9 (every

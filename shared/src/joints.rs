@@ -147,7 +147,15 @@ impl Joint {
         if angle.is_nan() {
             return Err(JointError::NotFinite(self));
         }
-        Ok(angle.clamp(l.min, l.max))
+        // Not `f32::clamp`: its `min <= max` check formats both floats when it fails, which
+        // links float printing into the size-budgeted board image. The limits are ordered.
+        Ok(if angle < l.min {
+            l.min
+        } else if angle > l.max {
+            l.max
+        } else {
+            angle
+        })
     }
 }
 

@@ -28,14 +28,14 @@
 use cortex_m_rt::{entry, exception};
 use cortex_m_semihosting::hprintln;
 use msr_firmware::board::Board;
-use msr_firmware::model::ModelStore;
+use msr_firmware::model::{ModelStore, UploadError};
 use msr_qemu::clock::{Clock, RELOAD_1MS};
 use msr_qemu::exit::exit;
 use msr_qemu::memory;
 use msr_qemu::model_area::{self, FlashStore};
 use msr_qemu::uart::{self, Uart, UART0, UART1, UART2};
-use msr_shared::frame::{encode_message, MAX_WIRE_FRAME};
-use msr_shared::msg::BoardToHost;
+use msr_shared::frame::{encode_message, LinkCounters, MAX_WIRE_FRAME};
+use msr_shared::msg::{BoardToHost, Mode};
 
 /// Three delimiters, an ASCII word, a delimiter.
 pub const EXIT_SEQUENCE: &[u8; 12] = b"\0\0\0MSR-EXIT\0";
@@ -352,21 +352,80 @@ fn report_preload(p: model_area::Preload) {
         model_area::Preload::None => {}
         model_area::Preload::Kept => hprintln!("msr-qemu: preloaded model left alone: the slots hold an active model"),
         model_area::Preload::Taken(crc) => hprintln!("msr-qemu: preloaded model accepted, crc {:#010x}", crc),
-        model_area::Preload::Refused(e) => hprintln!("msr-qemu: preloaded model refused: {:?}", e),
+        model_area::Preload::Refused(e) => match e {
+            UploadError::Invalid(b) => hprintln!("msr-qemu: preloaded model refused: Invalid(blob error code {})", b.code()),
+            UploadError::Incomplete { next } => hprintln!("msr-qemu: preloaded model refused: Incomplete {{ next: {} }}", next),
+            UploadError::TooLarge => hprintln!("msr-qemu: preloaded model refused: TooLarge"),
+            UploadError::Sequence => hprintln!("msr-qemu: preloaded model refused: Sequence"),
+            UploadError::Store => hprintln!("msr-qemu: preloaded model refused: Store"),
+            UploadError::Crc => hprintln!("msr-qemu: preloaded model refused: Crc"),
+        },
     }
+}
+
+/// The mode's name, as `Debug` spells it.
+fn mode_name(m: Mode) -> &'static str {
+    match m {
+        Mode::NoModel => "NoModel",
+        Mode::Observe => "Observe",
+        Mode::Reach => "Reach",
+        Mode::Hold => "Hold",
+        Mode::Return => "Return",
+        Mode::Halted => "Halted",
+        Mode::SelfTest => "SelfTest",
+    }
+}
+
+/// A link's counters as `name: value` pairs.
+fn print_link(name: &str, c: &LinkCounters) {
+    hprintln!(
+        "msr-qemu: {} frames: {}, crc_errors: {}, cobs_errors: {}, oversized: {}, malformed: {}, seq_gaps: {}",
+        name,
+        c.frames,
+        c.crc_errors,
+        c.cobs_errors,
+        c.oversized,
+        c.malformed,
+        c.seq_gaps
+    );
 }
 
 #[inline(never)]
 fn finish(board: &Board<FlashStore>, why: &str) -> ! {
     let s = board.status();
     hprintln!("msr-qemu: {}", why);
-    hprintln!("msr-qemu: status {:?}", s);
+    // Integers and fixed words only, field by field: a derived `Debug` would link the struct
+    // builders and padding of `core::fmt` into this size-budgeted image.
+    hprintln!(
+        "msr-qemu: status mode: {}, model_crc: {:#010x}, frames: {}, detections: {}, reaches: {}",
+        mode_name(s.mode),
+        s.model_crc,
+        s.frames,
+        s.detections,
+        s.reaches
+    );
+    print_link("host_link", &s.host_link);
+    print_link("servo_link", &s.servo_link);
+    hprintln!(
+        "msr-qemu: face_watchdog_trips: {}, servo_watchdog_trips: {}, clamped_targets: {}, frames_superseded: {}, chunks_ignored: {}, frame_crc_errors: {}",
+        s.face_watchdog_trips,
+        s.servo_watchdog_trips,
+        s.clamped_targets,
+        s.frames_superseded,
+        s.chunks_ignored,
+        s.frame_crc_errors
+    );
     hprintln!("msr-qemu: stack peak {} bytes", memory::stack_peak());
     exit(0)
 }
 
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
-    hprintln!("msr-qemu: PANIC {}", info);
+    // The location only: printing the message would link every formatter a panic site can name
+    // (float printing alone is ~15 KB, from `f32::clamp`'s message) into a size-budgeted image.
+    match info.location() {
+        Some(l) => hprintln!("msr-qemu: PANIC at {}:{}", l.file(), l.line()),
+        None => hprintln!("msr-qemu: PANIC"),
+    }
     exit(101)
 }
