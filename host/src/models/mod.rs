@@ -4,13 +4,13 @@
 //! A decoder is described by a [`DecoderSpec`] (stored in the model's JSON), so a saved record can
 //! be rebuilt and every layer maps one-to-one onto a blob layer kind: Dense, ConvTranspose2d, Crop.
 //! Activations: tanh inside, sigmoid on the last layer (as the paper and the published code).
+pub mod act;
 pub mod predictor;
 use anyhow::{bail, ensure, Result};
 use burn::module::Param;
 use burn::nn::conv::{ConvTranspose2d, ConvTranspose2dConfig};
 use burn::nn::{Linear, LinearConfig};
 use burn::prelude::*;
-use burn::tensor::activation::sigmoid;
 use msr_shared::blob::{Activation, LayerKind, Shape, MAX_ACTIVATION_LEN};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -271,7 +271,7 @@ impl Decoder {
         let mut x = heads;
         for (i, l) in self.dense.iter().enumerate() {
             x = l.forward(x);
-            x = if i + 1 == n_dense && self.deconv.is_empty() { sigmoid(x) } else { x.tanh() };
+            x = if i + 1 == n_dense && self.deconv.is_empty() { act::sigmoid(x) } else { act::tanh(x) };
         }
         let Some(c) = &self.spec.conv else {
             return x;
@@ -280,7 +280,7 @@ impl Decoder {
         let n = self.deconv.len();
         for (i, l) in self.deconv.iter().enumerate() {
             y = l.forward(y);
-            y = if i + 1 == n { sigmoid(y) } else { y.tanh() };
+            y = if i + 1 == n { act::sigmoid(y) } else { act::tanh(y) };
         }
         let (h, w) = (self.spec.face_h, self.spec.face_w);
         let [t, l] = c.crop;
@@ -358,7 +358,7 @@ impl Autoencoder {
         for (i, l) in self.encoder.iter().enumerate() {
             x = l.forward(x);
             if i + 1 < n {
-                x = x.tanh();
+                x = act::tanh(x);
             }
         }
         x

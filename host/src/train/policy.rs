@@ -253,6 +253,8 @@ fn render_and_crop(
     seed: u64,
     poses: Poses,
 ) -> Result<Vec<([f32; 2], crate::data::crop::Face, Option<[f64; 4]>)>> {
+    #[cfg(test)]
+    tests::RENDERED.lock().unwrap_or_else(|e| e.into_inner()).push(seed);
     let renderer = Renderer::new(robot);
     let salt = match poses {
         Poses::Observe => 0x0B5E_C0A1_1B2A_7E00,
@@ -345,6 +347,48 @@ fn best_of(c: &[Scored]) -> Option<&Scored> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The seeds [`render_and_crop`] rendered with, in order.
+    pub(super) static RENDERED: std::sync::Mutex<Vec<u64>> = std::sync::Mutex::new(Vec::new());
+
+    /// `msr demo` calibrates the decoder and then the autoencoder on the same frames: the
+    /// second model takes the frames the first one's calibration rendered and cropped, and
+    /// judges them with its own predictions.
+    #[test]
+    fn calibration_frames_are_rendered_and_cropped_once_for_both_models() {
+        struct Flat(f32, usize, usize);
+        impl FacePredictor for Flat {
+            fn face_size(&self) -> (usize, usize) {
+                (self.1, self.2)
+            }
+            fn predict(&self, _: [f32; 2], _: &[f32]) -> Vec<f32> {
+                vec![self.0; self.1 * self.2]
+            }
+        }
+        let robot = Robot::Red;
+        let frame = Renderer::new(robot).render(&BodyPose::head(0.0, 0.0), None, &Variation::CLEAN);
+        let grey = crate::data::crop::to_grey(&image::DynamicImage::ImageRgb8(frame.rgb));
+        let (h, w) = (58, 75);
+        let template = image::imageops::crop_imm(&grey, 122, 90, w as u32, h as u32).to_image();
+        let cropper = crate::data::crop::Cropper::new(template, crate::data::crop::CropMode::Pixel);
+        let stats = ErrorStats { h, w, mu: vec![0.0; h * w], sigma: vec![0.05; h * w], frames: 2, pose: None };
+        let p = NoveltyParams::default();
+        // A seed no other test renders with.
+        let seed = 0x18_0DD_5EED;
+        let run = |model: &Flat| super::frames(robot, &cropper, model, &stats, &p, (2, 1), seed, Poses::Observe).unwrap();
+        let (decoder, autoencoder) = (run(&Flat(0.2, h, w)), run(&Flat(0.7, h, w)));
+        let renders = RENDERED.lock().unwrap_or_else(|e| e.into_inner()).iter().filter(|s| **s == seed).count();
+        assert_eq!(renders, 1, "the calibration frames were rendered {renders} times for two models");
+        assert_eq!(decoder.len(), 3);
+        let boxes = |f: &[Frame]| f.iter().map(|f| f.mark_box).collect::<Vec<_>>();
+        assert_eq!(boxes(&decoder), boxes(&autoencoder));
+        assert!(decoder[2].mark_box.is_some() && decoder[0].mark_box.is_none());
+        assert_ne!(decoder[0].saliency, autoencoder[0].saliency, "each model's own predictions");
+        // Another seed is rendered anew.
+        super::frames(robot, &cropper, &Flat(0.2, h, w), &stats, &p, (2, 1), seed + 1, Poses::Observe).unwrap();
+        let renders = RENDERED.lock().unwrap_or_else(|e| e.into_inner()).iter().filter(|s| **s == seed + 1).count();
+        assert_eq!(renders, 1);
+    }
 
     fn scored(threshold: f64, merge: Merge, hits: usize, normal: usize) -> Scored {
         Scored { threshold, merge, hits, normal_detections: normal }

@@ -46,6 +46,19 @@ mod tests {
     use crate::models::{Decoder, DecoderSpec};
     use burn::prelude::*;
 
+    /// CPU time of this process, all threads (what Python's `time.process_time` reads).
+    #[cfg(all(target_os = "linux", target_env = "gnu"))] // libc is a dependency there only
+    fn cpu_seconds() -> f64 {
+        let mut t = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+        // SAFETY: clock_gettime writes one timespec through a valid pointer.
+        unsafe { libc::clock_gettime(libc::CLOCK_PROCESS_CPUTIME_ID, &mut t) };
+        t.tv_sec as f64 + t.tv_nsec as f64 * 1e-9
+    }
+    #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+    fn cpu_seconds() -> f64 {
+        f64::NAN
+    }
+
     /// Timing probe: `cargo test -p msr-host --lib timing_probe -- --ignored --nocapture`.
     #[test]
     #[ignore]
@@ -58,8 +71,16 @@ mod tests {
         let spec = if arch == "mlp" { DecoderSpec::mlp(58, 75) } else { DecoderSpec::conv(58, 75) };
         let model = Decoder::new(&spec, 0, &device).unwrap();
         let hp = HyperParams { epochs, ..Default::default() };
+        let cpu0 = cpu_seconds();
         let (_, h) = fit(model, &train, &test, &hp, &device, "probe", false).unwrap();
-        println!("{arch}: {epochs} epochs in {:.1} s, train {:?} test {:?}", h.seconds, h.train_loss.last(), h.test_loss.last());
+        let cpu = cpu_seconds() - cpu0;
+        // CPU seconds too: on a loaded machine the wall time says more about the other jobs.
+        println!(
+            "{arch}: {epochs} epochs in {:.1} s ({cpu:.1} s CPU), train {:?} test {:?}",
+            h.seconds,
+            h.train_loss.last(),
+            h.test_loss.last()
+        );
         for (i, (a, b)) in h.train_loss.iter().zip(&h.test_loss).enumerate() {
             println!("{i} {a:.5} {b:.5}");
         }
