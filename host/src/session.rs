@@ -221,28 +221,52 @@ impl Session {
         let deadline = Instant::now() + timeout;
         let mut got = Vec::new();
         loop {
-            self.faces.check(now(self.t0));
-            let mut bytes = Vec::new();
-            let host = &mut self.host;
-            self.faces.pump(|m| bytes.extend(host.encode(m)));
-            if !bytes.is_empty() {
-                self.send(&bytes)?; // paced: the line is idle when it returns
-            }
-            self.faces.sent(now(self.t0));
-            for m in self.poll()? {
-                self.faces.on_message(&m);
-                match m {
-                    BoardToHost::FrameAck(_) | BoardToHost::UploadAck { .. } => {}
-                    BoardToHost::Detection(_) | BoardToHost::Error { .. } => {
-                        got.push(m);
-                        return Ok(got);
-                    }
-                    m => got.push(m),
-                }
-            }
-            if Instant::now() >= deadline {
+            // The whole batch is kept: what came after the answer in it is not dropped.
+            let batch = self.step_faces()?;
+            let answered = batch.iter().any(|m| matches!(m, BoardToHost::Detection(_) | BoardToHost::Error { .. }));
+            got.extend(batch);
+            if answered || Instant::now() >= deadline {
                 return Ok(got);
             }
+        }
+    }
+
+    /// One turn of the face link: the ack timeout, what is due on the line, what came back
+    /// (acks taken by the link, the rest returned).
+    fn step_faces(&mut self) -> Result<Vec<BoardToHost>> {
+        let now = |t0: Instant| t0.elapsed().as_micros() as u64;
+        self.faces.check(now(self.t0));
+        let mut bytes = Vec::new();
+        let host = &mut self.host;
+        self.faces.pump(|m| bytes.extend(host.encode(m)));
+        if !bytes.is_empty() {
+            self.send(&bytes)?; // paced: the line is idle when it returns
+        }
+        self.faces.sent(now(self.t0));
+        let mut got = self.poll()?;
+        got.retain(|m| {
+            self.faces.on_message(m);
+            !matches!(m, BoardToHost::FrameAck(_) | BoardToHost::UploadAck { .. })
+        });
+        Ok(got)
+    }
+
+    /// Ends a run of faces: the face in flight goes on until it gets through or fails (or
+    /// `timeout` passes), then the board is asked for its status. Returns what the board sent
+    /// before the status (a detection that came after its frame's period, say) and the status,
+    /// so that nothing the board answered is lost.
+    pub fn close(&mut self, timeout: Duration) -> Result<(Vec<BoardToHost>, Status)> {
+        let deadline = Instant::now() + timeout;
+        let mut got = Vec::new();
+        while self.faces.in_flight_since().is_some() && Instant::now() < deadline {
+            got.extend(self.step_faces()?);
+        }
+        self.send_message(&HostToBoard::GetStatus)?;
+        let (msgs, ok) = self.wait_for(timeout, |m| matches!(m, BoardToHost::Status(_)))?;
+        got.extend(msgs.into_iter().filter(|m| !matches!(m, BoardToHost::FrameAck(_) | BoardToHost::UploadAck { .. })));
+        match got.pop() {
+            Some(BoardToHost::Status(s)) if ok => Ok((got, s)),
+            _ => bail!("no status from the board within {timeout:?}"),
         }
     }
 

@@ -194,21 +194,39 @@ pub fn run(a: Args) -> Result<()> {
         let crc = s.upload(&blob, timeout + line)?;
         print(&BoardToHost::ModelAccepted { crc32: crc }, a.json)?;
     }
-    while let Some(camera::Frame { name, grey: frame }) = frames.next_frame()? {
-        let t0 = Instant::now();
-        let face = cropper.crop(&frame).with_context(|| format!("frame {name}"))?;
-        let msgs = s.send_face(&face, period.min(timeout))?;
-        if !a.json {
-            println!("{name}: face at ({}, {})", face.crop.x, face.crop.y);
+    let mut stream = || -> Result<()> {
+        while let Some(camera::Frame { name, grey: frame }) = frames.next_frame()? {
+            let t0 = Instant::now();
+            let face = cropper.crop(&frame).with_context(|| format!("frame {name}"))?;
+            let msgs = s.send_face(&face, period.min(timeout))?;
+            if !a.json {
+                println!("{name}: face at ({}, {})", face.crop.x, face.crop.y);
+            }
+            for m in &msgs {
+                print(m, a.json)?;
+            }
+            if let Some(rest) = period.checked_sub(t0.elapsed()) {
+                std::thread::sleep(rest);
+            }
         }
-        for m in &msgs {
-            print(m, a.json)?;
+        Ok(())
+    };
+    let streamed = stream();
+    // The answers to faces already sent still count when the source failed (a cut stream):
+    // they are printed before its error.
+    let (late, st) = match (s.close(timeout), streamed) {
+        (Ok(c), Ok(())) => c,
+        (Ok((late, _)), Err(e)) => {
+            for m in &late {
+                print(m, a.json)?;
+            }
+            return Err(e);
         }
-        if let Some(rest) = period.checked_sub(t0.elapsed()) {
-            std::thread::sleep(rest);
-        }
+        (Err(_), Err(e)) | (Err(e), Ok(())) => return Err(e),
+    };
+    for m in &late {
+        print(m, a.json)?;
     }
-    let st = s.status(timeout)?;
     print(&BoardToHost::Status(st), a.json)?;
     let (link, goodput) = s.link_stats();
     if a.json {
