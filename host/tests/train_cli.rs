@@ -137,6 +137,10 @@ fn train_writes_the_layout_and_quantize_matches_float() {
         &["train", "--data", p(&data2), "--epochs", "1", "--quiet", "--threshold-percentile", "99", "--out", p(&tmp.path().join("o2"))],
         "unmarked",
     );
+    // Frames of another robot (`--scene other`) are not the robot's own face in the mirror.
+    let data3 = tmp.path().join("data3");
+    ok(&["dataset", "--count", "10", "--seed", "4", "--reach-pairs", "0", "--scene", "other", "--out", p(&data3)]);
+    fails(&["train", "--data", p(&data3), "--epochs", "1", "--quiet", "--out", p(&tmp.path().join("o3"))], "shows another robot");
 }
 
 #[test]

@@ -92,6 +92,8 @@ pub struct Dataset {
     pub crop: CropMode,
     pub frame_size: (u32, u32),
     pub samples: Vec<Sample>,
+    /// Frames that show another robot, not the mirror image (`msr dataset --scene other`).
+    pub other_robot_frames: usize,
 }
 
 impl Dataset {
@@ -104,6 +106,10 @@ impl Dataset {
     /// Loads only the frames of one split (`None`: all).
     pub fn load_split(path: &Path, only: Option<Split>, crop: CropMode) -> Result<Dataset> {
         let (root, index) = locate(path)?;
+        let other_robot_frames = match &index {
+            Index::Sim(ix) => ix.frames.iter().filter(|f| f.seen_head.is_some()).count(),
+            Index::Published(_) => 0,
+        };
         let (layout, pending, robot, template_file, size) = match index {
             Index::Sim(ix) => {
                 let (robot, tpl, size) =
@@ -133,6 +139,7 @@ impl Dataset {
             crop,
             frame_size: size,
             samples,
+            other_robot_frames,
         })
     }
 

@@ -289,6 +289,14 @@ pub fn run(args: TrainConfig) -> Result<()> {
     let dev = device(args.device)?;
 
     let ds = Dataset::load(&args.data, args.crop).with_context(|| format!("loading dataset {}", args.data.display()))?;
+    // The decoder learns the robot's own face as the mirror shows it at each head pose.
+    ensure!(
+        ds.other_robot_frames == 0,
+        "dataset {} shows another robot in {} frames (`msr dataset --scene other`): the decoder \
+         learns the robot's own face in the mirror; train on a mirror dataset",
+        args.data.display(),
+        ds.other_robot_frames
+    );
     let (h, w) = ds.face_size();
     let train = samples(ds.split(Split::Train), false);
     let test = samples(ds.split(Split::Test), true);
