@@ -246,7 +246,7 @@ impl Session {
         let mut got = self.poll()?;
         got.retain(|m| {
             self.faces.on_message(m);
-            !matches!(m, BoardToHost::FrameAck(_) | BoardToHost::UploadAck { .. })
+            !is_ack(m)
         });
         Ok(got)
     }
@@ -261,13 +261,9 @@ impl Session {
         while self.faces.in_flight_since().is_some() && Instant::now() < deadline {
             got.extend(self.step_faces()?);
         }
-        self.send_message(&HostToBoard::GetStatus)?;
-        let (msgs, ok) = self.wait_for(timeout, |m| matches!(m, BoardToHost::Status(_)))?;
-        got.extend(msgs.into_iter().filter(|m| !matches!(m, BoardToHost::FrameAck(_) | BoardToHost::UploadAck { .. })));
-        match got.pop() {
-            Some(BoardToHost::Status(s)) if ok => Ok((got, s)),
-            _ => bail!("no status from the board within {timeout:?}"),
-        }
+        let (before, st) = self.status_and_before(timeout)?;
+        got.extend(before.into_iter().filter(|m| !is_ack(m)));
+        Ok((got, st))
     }
 
     /// What the face link did so far, and the face bytes delivered per second of the session.
@@ -277,10 +273,15 @@ impl Session {
     }
 
     pub fn status(&mut self, timeout: Duration) -> Result<Status> {
+        self.status_and_before(timeout).map(|(_, st)| st)
+    }
+
+    /// Asks for the board's status; returns it and what the board sent before it.
+    fn status_and_before(&mut self, timeout: Duration) -> Result<(Vec<BoardToHost>, Status)> {
         self.send_message(&HostToBoard::GetStatus)?;
-        let (msgs, ok) = self.wait_for(timeout, |m| matches!(m, BoardToHost::Status(_)))?;
-        match msgs.last() {
-            Some(BoardToHost::Status(s)) if ok => Ok(*s),
+        let (mut msgs, ok) = self.wait_for(timeout, |m| matches!(m, BoardToHost::Status(_)))?;
+        match msgs.pop() {
+            Some(BoardToHost::Status(s)) if ok => Ok((msgs, s)),
             _ => bail!("no status from the board within {timeout:?}"),
         }
     }
@@ -289,4 +290,9 @@ impl Session {
     pub fn counters(&self) -> msr_shared::frame::LinkCounters {
         *self.host.counters()
     }
+}
+
+/// Protocol messages the face link and the upload consume; never shown to a caller.
+fn is_ack(m: &BoardToHost) -> bool {
+    matches!(m, BoardToHost::FrameAck(_) | BoardToHost::UploadAck { .. })
 }

@@ -214,19 +214,14 @@ pub fn run(a: Args) -> Result<()> {
     let streamed = stream();
     // The answers to faces already sent still count when the source failed (a cut stream):
     // they are printed before its error.
-    let (late, st) = match (s.close(timeout), streamed) {
-        (Ok(c), Ok(())) => c,
-        (Ok((late, _)), Err(e)) => {
-            for m in &late {
-                print(m, a.json)?;
-            }
-            return Err(e);
+    let closed = s.close(timeout);
+    if let Ok((late, _)) = &closed {
+        for m in late {
+            print(m, a.json)?;
         }
-        (Err(_), Err(e)) | (Err(e), Ok(())) => return Err(e),
-    };
-    for m in &late {
-        print(m, a.json)?;
     }
+    streamed?;
+    let (_, st) = closed?;
     print(&BoardToHost::Status(st), a.json)?;
     let (link, goodput) = s.link_stats();
     if a.json {
