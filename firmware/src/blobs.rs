@@ -239,6 +239,22 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
         mask: &[u8],
         width: usize,
         height: usize,
+        emit: F,
+    ) -> Result<Summary, MaskError> {
+        self.label_rows(mask, width, height, &[], emit)
+    }
+
+    /// [`label`](Self::label), told how many pixels each row has set: a row `y` with
+    /// `counts[y] == 0` is not read, and the others only up to their last set pixel (rows past
+    /// `counts` are read whole). The counts must be the mask's own (the saliency that wrote it
+    /// counts them); most rows of a face are empty, and reading them was most of this stage's
+    /// cost.
+    pub fn label_rows<F: FnMut(&Blob)>(
+        &mut self,
+        mask: &[u8],
+        width: usize,
+        height: usize,
+        counts: &[u16],
         mut emit: F,
     ) -> Result<Summary, MaskError> {
         if width == 0
@@ -249,13 +265,25 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
         {
             return Err(MaskError::Shape);
         }
-        self.reset();
         let mut sum = Summary::default();
+        if counts.len() >= height && counts[..height].iter().all(|&c| c == 0) {
+            return Ok(sum);
+        }
+        self.reset();
         let mut cur = 0usize;
         for y in 0..height {
-            let row = &mask[y * width..(y + 1) * width];
             let prev = 1 - cur;
-            self.scan_row(row, cur);
+            match counts.get(y) {
+                Some(0) => {
+                    self.n_rows[cur] = 0;
+                    if self.n_rows[prev] == 0 {
+                        // Nothing here, nothing above to finish.
+                        cur = prev;
+                        continue;
+                    }
+                }
+                c => self.scan_row(&mask[y * width..(y + 1) * width], cur, c.map_or(usize::MAX, |&c| c as usize)),
+            }
             self.connect(y, width, cur, prev, &mut sum);
             // Resolve this row's runs to their roots, then free or finish the row above's.
             for i in 0..self.n_rows[cur] {
@@ -287,17 +315,20 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
         Ok(sum)
     }
 
-    /// The runs of one row into `rows[slot]`.
-    fn scan_row(&mut self, row: &[u8], slot: usize) {
+    /// The runs of one row into `rows[slot]`; `set`: the row's set pixels when known (the
+    /// scan stops once it has found them all), else `usize::MAX`.
+    fn scan_row(&mut self, row: &[u8], slot: usize, mut set: usize) {
         let runs = &mut self.rows[slot];
         let mut n = 0usize;
         let mut x = 0usize;
         let w = row.len();
-        while x < w {
-            // Skip empty pixels four at a time: most of a face is not salient.
-            while x + 4 <= w
-                && u32::from_ne_bytes([row[x], row[x + 1], row[x + 2], row[x + 3]]) == 0
-            {
+        while x < w && set > 0 {
+            // Skip empty pixels four at a time (one unaligned word load on the board): most of
+            // a face is not salient.
+            while let Some(&[a, b, c, d]) = row.get(x..x + 4) {
+                if u32::from_ne_bytes([a, b, c, d]) != 0 {
+                    break;
+                }
                 x += 4;
             }
             while x < w && row[x] == 0 {
@@ -310,6 +341,7 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
             while x < w && row[x] != 0 {
                 x += 1;
             }
+            set = set.saturating_sub(x - x0);
             if n < RUNS {
                 runs[n] = Run {
                     x0: x0 as u16,

@@ -9,7 +9,7 @@ use crate::blobs::{Blob, FaceLabeller, Summary};
 use crate::decoder::{DecodeError, Decoder};
 use crate::reach;
 use crate::saliency::{self, Settings, Thresholds};
-use msr_shared::blob::{Model, REACH_OUT};
+use msr_shared::blob::{Model, Sided, MAX_FACE_H, REACH_OUT};
 
 /// Why a frame was not processed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -68,6 +68,9 @@ pub struct Workspace {
     /// The head pose of the last [`decode`](Self::decode): its pose cell's statistics are
     /// the saliency's ([`Model::stats_at`]).
     head: [f32; 2],
+    /// Salient pixels per row of the last mask, when its saliency counted them (the pooled
+    /// one-sided test): the labeller skips the empty rows.
+    row_counts: Option<[u16; MAX_FACE_H]>,
 }
 
 impl Default for Workspace {
@@ -84,6 +87,7 @@ impl Workspace {
             thresholds: Thresholds::new(),
             labeller: FaceLabeller::new(),
             head: [f32::NAN; 2],
+            row_counts: None,
         }
     }
 
@@ -91,11 +95,13 @@ impl Workspace {
     pub fn invalidate(&mut self) {
         self.decoder.invalidate();
         self.thresholds.invalidate();
+        self.row_counts = None;
     }
 
     /// Stage 1: the predicted face (cached per head pose).
     pub fn decode(&mut self, model: &Model, head: [f32; 2]) -> Result<&[u16], DecodeError> {
         self.head = head;
+        self.row_counts = None;
         self.decoder.predict(model, head)
     }
 
@@ -121,9 +127,20 @@ impl Workspace {
             return Err(DetectError::CropSize);
         }
         let tn = self.thresholds.table();
-        Ok(match model.novelty.pool {
-            0 => saliency::saliency(crop, face, mu, tn, s.sided, mask),
-            pool => saliency::pooled(crop, face, mu, tn, s.sided, mask, model.face_w as usize, pool),
+        let (w, pool) = (model.face_w as usize, model.novelty.pool);
+        self.row_counts = None;
+        Ok(match (pool, s.sided) {
+            (0, _) => saliency::saliency(crop, face, mu, tn, s.sided, mask),
+            (_, Sided::One) => {
+                // The mask, then the ring of error rows behind it, in the decoder's spare buffer.
+                let (mask, rest) = mask.split_at_mut(crop.len());
+                let (_, ring, _) = bytemuck::pod_align_to_mut::<u8, i32>(rest);
+                let mut rows = [0u16; MAX_FACE_H];
+                let n = saliency::pool::pooled_one_sided(crop, face, tn, mask, ring, w, pool, &mut rows);
+                self.row_counts = Some(rows);
+                n
+            }
+            (_, Sided::Two) => saliency::pooled(crop, face, mu, tn, s.sided, mask, w, pool),
         })
     }
 
@@ -139,7 +156,8 @@ impl Workspace {
     pub fn blobs(&mut self, model: &Model, s: &Settings) -> (Option<Blob>, Summary) {
         let (w, h) = (model.face_w as usize, model.face_h as usize);
         let mask = self.decoder.scratch();
-        merge::pick(&mut self.labeller, mask, w, h, s.min_area, s.merge)
+        let counts = self.row_counts.as_ref().map_or(&[][..], |c| &c[..]);
+        merge::pick(&mut self.labeller, mask, w, h, counts, s.min_area, s.merge)
     }
 }
 

@@ -8,11 +8,16 @@
 //! made once per model and setting, so the test is `e - mu > tn` (or `|e - mu| > tn`) in
 //! integers. `tn = round(t * n * 256)` saturates at 65535, which no error reaches.
 //! `n = 0` gives `tn = 0`: any error different from mu is salient, as a division by 0 would say.
+//!
+//! A pooled model's one-sided test (the default) is in [`pool`]: one assembly routine a row on
+//! the board, with `mu + tn + 1` in the table.
 
 use msr_shared::blob::{
     Merge, Model, Normalisation, Novelty, PoseRegion, Sided, U16Table, MAX_FACE_PIXELS, MAX_FACE_W,
     MAX_POOL,
 };
+
+pub mod pool;
 
 /// Novelty settings in force: the model's defaults, or what the host configured.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -78,12 +83,14 @@ impl Settings {
     }
 }
 
-/// `t * n` per pixel, Q8.8 grey levels.
+/// `t * n` per pixel, Q8.8 grey levels; for a pooled model's one-sided test, `mu + t * n + 1`
+/// ([`pool::Combine`]).
 pub struct Thresholds {
     tn: [u16; MAX_FACE_PIXELS],
     len: usize,
-    /// (model CRC, threshold bits, normalisation, statistics cell) the table was made for.
-    key: Option<(u32, u32, Normalisation, u8)>,
+    /// (model CRC, threshold bits, normalisation, statistics cell, combined) the table was made
+    /// for.
+    key: Option<(u32, u32, Normalisation, u8, bool)>,
 }
 
 impl Default for Thresholds {
@@ -117,24 +124,38 @@ impl Thresholds {
     }
 
     /// Makes the table for `model` and `threshold`/`normalisation` at head pose `head` (the
-    /// sigma of its pose cell, [`Model::stats_at`]), unless it is already made. Returns true
-    /// when it was recomputed: with pose statistics, once per change of cell.
+    /// statistics of its pose cell, [`Model::stats_at`]), unless it is already made. A pooled
+    /// model's one-sided test gets the combined table (`mu + tn + 1`, [`pool::Combine`]), any
+    /// other test `tn` alone ([`threshold_q88`]). Returns true when it was recomputed: with
+    /// pose statistics, once per change of cell.
     pub fn prepare(&mut self, model: &Model, s: &Settings, head: [f32; 2]) -> bool {
-        let (_, sigma, cell) = model.stats_at(head);
-        let key = (model.crc32, s.threshold.to_bits(), s.normalisation, cell);
-        let n = model.face_pixels().min(MAX_FACE_PIXELS).min(sigma.len());
+        let (mu, sigma, cell) = model.stats_at(head);
+        let combined = model.novelty.pool > 0 && s.sided == Sided::One;
+        let key = (model.crc32, s.threshold.to_bits(), s.normalisation, cell, combined);
+        let n = model.face_pixels().min(MAX_FACE_PIXELS).min(sigma.len()).min(mu.len());
         if self.key == Some(key) && self.len == n {
             return false;
         }
-        // Blobs are 4-byte aligned, so sigma is normally a u16 slice; else read bytes.
-        match bytemuck::try_cast_slice::<u8, u16>(sigma.0) {
-            Ok(sigma) => {
-                for (t, &sigma) in self.tn[..n].iter_mut().zip(sigma) {
+        let out = &mut self.tn[..n];
+        // Blobs are 4-byte aligned, so the tables are normally u16 slices; else read bytes.
+        let aligned = (bytemuck::try_cast_slice::<u8, u16>(sigma.0), bytemuck::try_cast_slice::<u8, u16>(mu.0));
+        match (combined, aligned) {
+            (true, (Ok(sigma), Ok(mu))) => {
+                pool::combined_table(sigma, mu, &pool::Combine::new(s.threshold, s.normalisation), out)
+            }
+            (true, _) => {
+                let c = pool::Combine::new(s.threshold, s.normalisation);
+                for (i, t) in out.iter_mut().enumerate() {
+                    *t = c.at(sigma.get(i), mu.get(i));
+                }
+            }
+            (false, (Ok(sigma), _)) => {
+                for (t, &sigma) in out.iter_mut().zip(sigma) {
                     *t = threshold_q88(sigma, s.threshold, s.normalisation);
                 }
             }
-            Err(_) => {
-                for (t, sigma) in self.tn[..n].iter_mut().zip(sigma.iter()) {
+            (false, _) => {
+                for (t, sigma) in out.iter_mut().zip(sigma.iter()) {
                     *t = threshold_q88(sigma, s.threshold, s.normalisation);
                 }
             }
@@ -149,7 +170,8 @@ impl Thresholds {
         self.key = None;
     }
 
-    /// The `tn` table, Q8.8 grey levels per pixel, row-major (empty before `prepare`).
+    /// The table, Q8.8 grey levels per pixel, row-major (empty before `prepare`): `tn`, or
+    /// `mu + tn + 1` for a pooled model's one-sided test.
     pub fn table(&self) -> &[u16] {
         &self.tn[..self.len]
     }
@@ -173,7 +195,9 @@ pub fn saliency(
     }
 }
 
-/// [`saliency`] on the pooled error (the blob's flag bit 4): `e = |mean of (I << 8) - pred over
+/// [`saliency`] on the pooled error (the blob's flag bit 4), with `mu` and `tn` apart: the
+/// two-sided test (the board runs the one-sided one, the default, with
+/// [`pool::pooled_one_sided`]; [`pool::reference`] is that one written out plainly): `e = |mean of (I << 8) - pred over
 /// the (2 pool + 1)^2 window, clipped at the border|`, Q8.8, the mean truncated toward zero.
 /// `w` is the face's width; the rows are `frame.len() / w`. Row by row, in two passes that each
 /// keep few values live (one pass doing both spilled registers on the Cortex-M4): [`vertical`]

@@ -94,18 +94,20 @@ impl Fragments {
 
 /// Stages 3 and 4 on a mask: the components, and the winner among them, or among the merged
 /// fragments when `merge` is on (the paper's winner for a frame that overflows the fragments).
+/// `counts`: the mask's set pixels per row, when known (`Labeller::label_rows`), else empty.
 pub fn pick<const L: usize, const R: usize>(
     labeller: &mut Labeller<L, R>,
     mask: &[u8],
     w: usize,
     h: usize,
+    counts: &[u16],
     min_area: u16,
     merge: Merge,
 ) -> (Option<Blob>, Summary) {
     let mut plain = crate::winner::Winner::new(min_area);
     let mut frags = Fragments::new(merge.fragment);
     let summary = labeller
-        .label(mask, w, h, |b| {
+        .label_rows(mask, w, h, counts, |b| {
             plain.offer(b);
             if merge.is_on() {
                 frags.offer(b);

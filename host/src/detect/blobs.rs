@@ -81,7 +81,7 @@ pub fn label(mask: &[bool], w: usize, h: usize) -> Result<(Vec<Blob>, bool)> {
 /// pixels, the earlier first pixel on ties (`msr_firmware::blobs::merge::pick`).
 pub fn pick(mask: &[bool], w: usize, h: usize, min_area: u16, merge: Merge) -> Result<Option<Blob>> {
     let bytes = check(mask, w, h)?;
-    let (best, _) = LABELLER.with(|l| merge::pick(&mut **l.borrow_mut(), &bytes, w, h, min_area, merge));
+    let (best, _) = LABELLER.with(|l| merge::pick(&mut **l.borrow_mut(), &bytes, w, h, &[], min_area, merge));
     Ok(best.as_ref().map(Blob::from))
 }
 

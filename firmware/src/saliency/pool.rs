@@ -1,0 +1,587 @@
+//! The pooled one-sided saliency (the default test of a pooled model), row by row in one
+//! assembly routine on the Cortex-M4, the same steps in Rust elsewhere.
+//!
+//! The test: pixel `x` is salient when `floor(|s| / k) - mu > tn`, where `s` is the sum of the
+//! signed error `(I << 8) - pred` (Q8.8) over the `(2 r + 1)^2` window clipped at the border and
+//! `k` the pixels in it. That is `|s| >= (mu + tn + 1) k`, so the threshold table holds
+//! `T = min(mu + tn + 1, 65535)` per pixel ([`combined_table`]); the saturation is exact for
+//! every prediction the decoder makes (its grey step tops at 65280, so `|s| < 65535 k`).
+//!
+//! Per row ([`row`]), with the column sums of the window's rows kept between rows:
+//! 1. each column's sum takes in the error of row `y + r` and gives up that of row `y - r - 1`,
+//!    which a ring of `2 r + 1` error rows still holds (each error is computed once);
+//! 2. the window sum slides along the row, a column in, a column out, and each pixel is tested.
+//!
+//! Both steps run in one pass, a column's update `r` pixels ahead of the test that first needs
+//! it; 19 instructions a pixel inside the row (the routine's comments count them), against 39
+//! for the two loops LLVM made of the Rust. The edges take the clipped window's `k`.
+
+use msr_shared::blob::{Normalisation, MAX_FACE_W, MAX_POOL};
+
+use super::threshold_q88;
+
+/// Zero columns on either side of the column sums: one more than the largest radius, so that
+/// the column leaving the window at `x = 0` is one of them.
+pub const PAD: usize = MAX_POOL as usize + 1;
+
+/// Rows past the face's bottom: their error is zero (frame 0, prediction 0); read as bytes for
+/// the frame.
+static ZERO_ROW: [u16; MAX_FACE_W] = [0; MAX_FACE_W];
+
+/// What the row routine reads (see its prologue).
+#[repr(C)]
+struct RowJob {
+    /// Row `y + r` of the frame (or zeros past the bottom).
+    frame: *const u8,
+    /// The same row of the prediction, Q8.8.
+    pred: *const u16,
+    /// The ring's row for `y + r`: holds row `y - r - 1`'s errors (or zeros), gets row `y + r`'s.
+    ring: *mut i32,
+    /// Column 0 of the column sums, with [`PAD`] zero columns before and after.
+    cols: *mut i32,
+    /// Row `y` of the combined thresholds `T`.
+    thr: *const u16,
+    /// Row `y` of the mask.
+    mask: *mut u8,
+    w: u32,
+    r: u32,
+    /// Rows inside the window (fewer at the top and bottom).
+    rows: u32,
+    /// Non-zero: only take row `y + r` into the column sums (the rows above the first output).
+    prime: u32,
+}
+
+/// One row; returns its salient pixels. The caller guarantees `w > 2 r`, `1 <= r <= MAX_POOL`,
+/// `w` bytes/values/words behind each row pointer, and `cols` with `PAD` columns either side.
+#[cfg(target_arch = "arm")]
+unsafe fn run_row(job: &RowJob) -> u32 {
+    // SAFETY: the caller's contract above; the routine keeps AAPCS.
+    unsafe { msr_pool_row(job) }
+}
+
+#[cfg(target_arch = "arm")]
+extern "C" {
+    fn msr_pool_row(job: *const RowJob) -> u32;
+    fn msr_pool_table(job: *const TableJob);
+}
+
+// Registers in the row: r0 frame, r1 pred, r2 ring, r3 the column entering (x + r), r4 T,
+// r5 mask, r6 the column leaving (x - r - 1), r7 the window sum, r8 the count, r9 k, r10 and
+// r11 scratch, r12 the phase's end, lr = 1. On the stack: r, w, prime (then the end of the
+// inside), rows.
+#[cfg(target_arch = "arm")]
+core::arch::global_asm!(
+    // Column x + r takes row y + r in and row y - r - 1 out (10 instructions).
+    ".macro MSR_POOL_COLUMN",
+    "ldrb r10, [r0], #1",
+    "ldrh r11, [r1], #2",
+    "rsb r10, r11, r10, lsl #8",
+    "ldr r11, [r2]",
+    "str r10, [r2], #4",
+    "sub r10, r10, r11",
+    "ldr r11, [r3]",
+    "add r11, r11, r10",
+    "str r11, [r3], #4",
+    ".endm",
+    // The test of pixel x once the window sum is in r7: |s| - T k >= 0 (7 instructions).
+    ".macro MSR_POOL_TEST",
+    "eor r10, r7, r7, asr #31",
+    "sub r10, r10, r7, asr #31",
+    "ldrh r11, [r4], #2",
+    "mls r10, r11, r9, r10",
+    "add r10, lr, r10, asr #31",
+    "strb r10, [r5], #1",
+    "add r8, r8, r10",
+    ".endm",
+    // A whole pixel: its column in, the window slid, the test (19 instructions).
+    ".macro MSR_POOL_PIXEL",
+    "MSR_POOL_COLUMN",
+    "add r7, r7, r11",
+    "ldr r11, [r6], #4",
+    "sub r7, r7, r11",
+    "MSR_POOL_TEST",
+    ".endm",
+    ".section .text.msr_pool_row,\"ax\",%progbits",
+    ".global msr_pool_row",
+    ".type msr_pool_row,%function",
+    ".p2align 2",
+    ".thumb_func",
+    "msr_pool_row:",
+    "push {{r4-r11, lr}}",
+    "ldr r9, [r0, #28]",
+    "ldr r10, [r0, #24]",
+    "ldr r11, [r0, #36]",
+    "ldr r12, [r0, #32]",
+    "push {{r9-r12}}",
+    "ldm r0, {{r0-r5}}",
+    "movs r7, #0",
+    "mov r8, #0",
+    "mov lr, #1",
+    // The column leaving the window of x = 0: -r - 1.
+    "add r6, r9, #1",
+    "sub r6, r3, r6, lsl #2",
+    // 1. Columns 0 .. r (all w when priming) into the sums; the window of x = -1 is their sum.
+    "cmp r11, #0",
+    "ite ne",
+    "movne r12, r10",
+    "moveq r12, r9",
+    "add r12, r3, r12, lsl #2",
+    "1:",
+    "MSR_POOL_COLUMN",
+    "add r7, r7, r11",
+    "cmp r3, r12",
+    "bne 1b",
+    "ldr r11, [sp, #8]",
+    "cmp r11, #0",
+    "bne 9f",
+    // 2. The left edge, x < r: k = rows (x + r + 1).
+    "ldr r12, [sp, #12]",
+    "ldr r10, [sp]",
+    "add r9, r10, #1",
+    "mul r9, r9, r12",
+    "add r12, r5, r10",
+    "2:",
+    "MSR_POOL_PIXEL",
+    "ldr r10, [sp, #12]",
+    "add r9, r9, r10",
+    "cmp r5, r12",
+    "bne 2b",
+    // 3. The inside, k = rows (2 r + 1): w - 2 r pixels, (w - 2 r) % 4 single ones first,
+    //    then fours.
+    "ldr r10, [sp, #4]",
+    "ldr r11, [sp]",
+    "sub r10, r10, r11, lsl #1",
+    "add r12, r5, r10",
+    "ands r10, r10, #3",
+    "beq 3f",
+    "str r12, [sp, #8]",
+    "add r12, r5, r10",
+    "11:",
+    "MSR_POOL_PIXEL",
+    "cmp r5, r12",
+    "bne 11b",
+    "ldr r12, [sp, #8]",
+    "3:",
+    "cmp r5, r12",
+    "beq 4f",
+    "5:",
+    "MSR_POOL_PIXEL",
+    "MSR_POOL_PIXEL",
+    "MSR_POOL_PIXEL",
+    "MSR_POOL_PIXEL",
+    "cmp r5, r12",
+    "bne 5b",
+    "4:",
+    // 4. The right edge, x >= w - r: no column comes in; k = rows (w - x + r).
+    "ldr r10, [sp]",
+    "add r12, r5, r10",
+    "6:",
+    "ldr r10, [sp, #12]",
+    "sub r9, r9, r10",
+    "ldr r11, [r6], #4",
+    "sub r7, r7, r11",
+    "MSR_POOL_TEST",
+    "cmp r5, r12",
+    "bne 6b",
+    "9:",
+    "mov r0, r8",
+    "add sp, sp, #16",
+    "pop {{r4-r11, pc}}",
+    ".size msr_pool_row, . - msr_pool_row",
+    // The combined table, T = min(mu + ((sigma tq + add) >> shift), 65535): 7 instructions a
+    // pixel, the loop's 2 over four (n = 0 writes nothing). r0 sigma, r1 mu, r2 out, r3 end, r4 tq, r5 add, r6 shift.
+    ".macro MSR_POOL_T",
+    "ldrh r7, [r0], #2",
+    "ldrh r8, [r1], #2",
+    "mla r7, r7, r4, r5",
+    "lsr r7, r7, r6",
+    "add r7, r7, r8",
+    "usat r7, #16, r7",
+    "strh r7, [r2], #2",
+    ".endm",
+    ".section .text.msr_pool_table,\"ax\",%progbits",
+    ".global msr_pool_table",
+    ".type msr_pool_table,%function",
+    ".p2align 2",
+    ".thumb_func",
+    "msr_pool_table:",
+    "push {{r4-r8, lr}}",
+    "ldm r0, {{r0-r6}}",
+    // n % 4 single pixels first, then fours.
+    "and r12, r3, #3",
+    "add r3, r2, r3, lsl #1",
+    "cmp r12, #0",
+    "beq 8f",
+    "7:",
+    "MSR_POOL_T",
+    "subs r12, r12, #1",
+    "bne 7b",
+    "8:",
+    "cmp r2, r3",
+    "beq 9f",
+    "10:",
+    "MSR_POOL_T",
+    "MSR_POOL_T",
+    "MSR_POOL_T",
+    "MSR_POOL_T",
+    "cmp r2, r3",
+    "bne 10b",
+    "9:",
+    "pop {{r4-r8, pc}}",
+    ".size msr_pool_table, . - msr_pool_table",
+    ".purgem MSR_POOL_COLUMN",
+    ".purgem MSR_POOL_TEST",
+    ".purgem MSR_POOL_PIXEL",
+    ".purgem MSR_POOL_T",
+);
+
+/// The routine's steps in Rust, in the same order, for builds that are not the board's.
+#[cfg(not(target_arch = "arm"))]
+unsafe fn run_row(job: &RowJob) -> u32 {
+    let (w, r) = (job.w as usize, job.r as usize);
+    // SAFETY: the caller's contract on `run_row` (w values behind each row pointer; PAD
+    // columns either side of `cols`).
+    let (frame, pred, ring, thr, mask, cols) = unsafe {
+        (
+            core::slice::from_raw_parts(job.frame, w),
+            core::slice::from_raw_parts(job.pred, w),
+            core::slice::from_raw_parts_mut(job.ring, w),
+            core::slice::from_raw_parts(job.thr, w),
+            core::slice::from_raw_parts_mut(job.mask, w),
+            core::slice::from_raw_parts_mut(job.cols.sub(PAD), w + 2 * PAD),
+        )
+    };
+    // Column j takes row y + r in and row y - r - 1 out; returns its new sum.
+    let column = |j: usize, cols: &mut [i32], ring: &mut [i32]| {
+        let e = ((frame[j] as i32) << 8) - pred[j] as i32;
+        let c = &mut cols[PAD + j];
+        *c = c.wrapping_add(e.wrapping_sub(ring[j]));
+        ring[j] = e;
+        *c
+    };
+    let mut sum = 0i32;
+    for j in 0..if job.prime != 0 { w } else { r } {
+        sum = sum.wrapping_add(column(j, cols, ring));
+    }
+    if job.prime != 0 {
+        return 0;
+    }
+    let rows = job.rows as i32;
+    let mut count = 0u32;
+    let mut k = rows.wrapping_mul(r as i32 + 1);
+    for x in 0..w {
+        if x + r < w {
+            sum = sum.wrapping_add(column(x + r, cols, ring));
+        } else {
+            k = k.wrapping_sub(rows);
+        }
+        sum = sum.wrapping_sub(cols[PAD + x - (r + 1)]);
+        let a = (sum ^ (sum >> 31)).wrapping_sub(sum >> 31);
+        let d = a.wrapping_sub((thr[x] as i32).wrapping_mul(k));
+        let s = (1 + (d >> 31)) as u8;
+        mask[x] = s;
+        count += s as u32;
+        if x < r {
+            k = k.wrapping_add(rows);
+        }
+    }
+    count
+}
+
+/// What the table routine reads.
+#[cfg(target_arch = "arm")]
+#[repr(C)]
+struct TableJob {
+    sigma: *const u16,
+    mu: *const u16,
+    out: *mut u16,
+    n: u32,
+    tq: u32,
+    add: u32,
+    shift: u32,
+}
+
+/// The threshold `t` as the integer multiplier of the table: `tq = round(t 2^shift)`, the
+/// shift the largest up to 16 that keeps `tq <= 65535`, so that `sigma tq + add` fits 32 bits.
+/// `t` at or above 16384 (shift under 2) takes the 64-bit path in [`combined_table`].
+pub fn threshold_q(t: f32) -> (u32, u32) {
+    let mut shift = 16u32;
+    loop {
+        // `as` saturates (NaN gives 0): finite, positive thresholds are what Settings allow.
+        // Scaling by 2^shift is exact in f32, so this rounds t 2^shift once.
+        let tq = (t * (1u32 << shift) as f32 + 0.5) as u64;
+        if tq <= 0xFFFF || shift == 0 {
+            return (tq.min(0xFFFF_FFFF) as u32, shift);
+        }
+        shift -= 1;
+    }
+}
+
+/// How `T = min(mu + tn + 1, 65535)` is made from a pixel's sigma and mu, `tn` being `t` times
+/// the normalisation in Q8.8: for [`Normalisation::StdDev`] (the default) `(sigma tq +
+/// 2^(shift - 1)) >> shift` with [`threshold_q`] (one multiply-add a pixel; it can differ from
+/// [`threshold_q88`]'s float rounding by one Q8.8 step), for [`Normalisation::Variance`]
+/// [`threshold_q88`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Combine {
+    t: f32,
+    normalisation: Normalisation,
+    tq: u32,
+    shift: u32,
+    /// The rounding and the test's + 1, added before the shift.
+    add: u32,
+}
+
+impl Combine {
+    /// The rule for threshold `t` and `normalisation`.
+    pub fn new(t: f32, normalisation: Normalisation) -> Combine {
+        let (tq, shift) = threshold_q(t);
+        let add = if shift == 0 { 1 } else { (1u32 << (shift - 1)) + (1u32 << shift) };
+        Combine { t, normalisation, tq, shift, add }
+    }
+
+    /// `T` of one pixel.
+    pub fn at(&self, sigma: u16, mu: u16) -> u16 {
+        let tn1 = match self.normalisation {
+            Normalisation::StdDev => (sigma as u64 * self.tq as u64 + self.add as u64) >> self.shift,
+            Normalisation::Variance => threshold_q88(sigma, self.t, self.normalisation) as u64 + 1,
+        };
+        (tn1 + mu as u64).min(0xFFFF) as u16
+    }
+}
+
+/// [`Combine::at`] for each pixel; `sigma`, `mu` and `out` run to the shortest.
+pub fn combined_table(sigma: &[u16], mu: &[u16], c: &Combine, out: &mut [u16]) {
+    let n = sigma.len().min(mu.len()).min(out.len());
+    let (sigma, mu, out) = (&sigma[..n], &mu[..n], &mut out[..n]);
+    #[cfg(target_arch = "arm")]
+    if c.normalisation == Normalisation::StdDev && c.shift >= 2 {
+        let job = TableJob {
+            sigma: sigma.as_ptr(),
+            mu: mu.as_ptr(),
+            out: out.as_mut_ptr(),
+            n: n as u32,
+            tq: c.tq,
+            add: c.add,
+            shift: c.shift,
+        };
+        // SAFETY: n values behind each pointer; sigma tq + add < 2^32 because
+        // tq <= 65535 and add < 2^17, and the shifted sum plus mu stays under 2^31 (shift >= 2),
+        // so USAT sees it as positive: the same value as `Combine::at`.
+        unsafe { msr_pool_table(&job) };
+        return;
+    }
+    for ((o, &s), &m) in out.iter_mut().zip(sigma).zip(mu) {
+        *o = c.at(s, m);
+    }
+}
+
+/// The pooled one-sided mask of a `w`-wide face (rows: the shortest input / `w`) against the
+/// combined table `thr` ([`combined_table`]); returns the salient pixels and writes each row's
+/// count to `row_counts` (as many rows as it holds). `ring` needs `(2 pool + 1) w` words. A
+/// face no wider than the window, a radius of 0 or past [`MAX_POOL`], a width past
+/// [`MAX_FACE_W`] or a short ring take [`reference`] (same result, slower).
+pub fn pooled_one_sided(
+    frame: &[u8],
+    pred: &[u16],
+    thr: &[u16],
+    mask: &mut [u8],
+    ring: &mut [i32],
+    w: usize,
+    pool: u8,
+    row_counts: &mut [u16],
+) -> u32 {
+    let r = pool as usize;
+    if w == 0 || w > MAX_FACE_W {
+        return 0;
+    }
+    let n = frame.len().min(pred.len()).min(thr.len()).min(mask.len()) / w * w;
+    let h = n / w;
+    let slots = 2 * r + 1;
+    if r == 0 || pool > MAX_POOL || w <= 2 * r || ring.len() < slots * w {
+        let count = reference(&frame[..n], &pred[..n], &thr[..n], &mut mask[..n], w, pool);
+        for (y, c) in row_counts.iter_mut().enumerate().take(h) {
+            *c = mask[y * w..y * w + w].iter().filter(|&&m| m != 0).count() as u16;
+        }
+        return count;
+    }
+    let ring = &mut ring[..slots * w];
+    ring.fill(0);
+    let mut cols = [0i32; MAX_FACE_W + 2 * PAD];
+    let (fp, pp, rp) = (frame.as_ptr(), pred.as_ptr(), ring.as_mut_ptr());
+    let (tp, mp) = (thr.as_ptr(), mask.as_mut_ptr());
+    let mut job = RowJob {
+        frame: fp,
+        pred: pp,
+        ring: rp,
+        cols: cols[PAD..].as_mut_ptr(),
+        thr: tp,
+        mask: mp,
+        w: w as u32,
+        r: r as u32,
+        rows: 0,
+        prime: 1,
+    };
+    // Both calls below: every pointer is at a row inside the slices checked above (h rows of
+    // w, slots rows of w in the ring, ZERO_ROW's w), `cols` has PAD columns either side of w,
+    // 1 <= r <= MAX_POOL and w > 2 r: `run_row`'s contract.
+    // Rows 0 .. r into the column sums and ring slots 0 .. r before the first output row.
+    for y in 0..r.min(h) {
+        job.frame = fp.wrapping_add(y * w);
+        job.pred = pp.wrapping_add(y * w);
+        job.ring = rp.wrapping_add(y * w);
+        // SAFETY: see above.
+        unsafe { run_row(&job) };
+    }
+    job.prime = 0;
+    let zero = ZERO_ROW.as_ptr();
+    // Row y + r comes in; its slot, (y + r) mod slots, held row y - r - 1.
+    let (mut slot, mut count) = (r, 0u32);
+    for y in 0..h {
+        let yin = y + r;
+        (job.frame, job.pred) = if yin < h {
+            (fp.wrapping_add(yin * w), pp.wrapping_add(yin * w))
+        } else {
+            (zero as *const u8, zero)
+        };
+        job.ring = rp.wrapping_add(slot * w);
+        job.thr = tp.wrapping_add(y * w);
+        job.mask = mp.wrapping_add(y * w);
+        job.rows = (yin.min(h - 1) + 1 - y.saturating_sub(r)) as u32;
+        // SAFETY: see above.
+        let c = unsafe { run_row(&job) };
+        if let Some(rc) = row_counts.get_mut(y) {
+            *rc = c as u16;
+        }
+        count += c;
+        slot = if slot + 1 == slots { 0 } else { slot + 1 };
+    }
+    count
+}
+
+/// The same mask written out plainly: each pixel's clipped window summed, `|s| >= T k`.
+#[inline(never)]
+pub fn reference(frame: &[u8], pred: &[u16], thr: &[u16], mask: &mut [u8], w: usize, pool: u8) -> u32 {
+    if w == 0 || pool > MAX_POOL {
+        return 0;
+    }
+    let n = frame.len().min(pred.len()).min(thr.len()).min(mask.len()) / w * w;
+    let (h, r) = (n / w, pool as usize);
+    let mut count = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let (mut s, mut k) = (0i64, 0i64);
+            for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
+                for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
+                    let i = yy * w + xx;
+                    s += ((frame[i] as i64) << 8) - pred[i] as i64;
+                    k += 1;
+                }
+            }
+            let m = (s.abs() >= thr[y * w + x] as i64 * k) as u8;
+            mask[y * w + x] = m;
+            count += m as u32;
+        }
+    }
+    count
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// The row routine's steps against the window written out, on random faces of every
+    /// width from 1 to 24 (narrower than the window too), heights 1 to 9, radii 0 to 3, with
+    /// thresholds from 0 to the saturated 65535 and predictions over the whole u16 range.
+    #[test]
+    fn rows_match_the_plain_window() {
+        let mut rng = ChaCha8Rng::seed_from_u64(19);
+        for w in 1..=24usize {
+            for h in 1..=9usize {
+                for pool in 0..=MAX_POOL {
+                    let n = w * h;
+                    let frame: Vec<u8> = (0..n).map(|_| rng.gen()).collect();
+                    let pred: Vec<u16> = (0..n).map(|_| rng.gen()).collect();
+                    let thr: Vec<u16> = (0..n)
+                        .map(|_| match rng.gen_range(0..8) {
+                            0 => 0,
+                            1 => u16::MAX,
+                            _ => rng.gen_range(0..24_000),
+                        })
+                        .collect();
+                    let mut want = vec![0u8; n];
+                    let count = reference(&frame, &pred, &thr, &mut want, w, pool);
+                    // Leftovers from another frame in the mask and the ring change nothing.
+                    let mut mask = vec![9u8; n];
+                    let mut ring = vec![-5i32; 7 * w];
+                    let mut rows = [0u16; 16];
+                    let got = pooled_one_sided(&frame, &pred, &thr, &mut mask, &mut ring, w, pool, &mut rows);
+                    assert_eq!(mask, want, "{w} x {h}, pool {pool}");
+                    assert_eq!(got, count);
+                    for y in 0..h {
+                        let c = want[y * w..y * w + w].iter().filter(|&&m| m == 1).count();
+                        assert_eq!(rows[y] as usize, c, "row {y} of {w} x {h}, pool {pool}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// Salient exactly when the truncated window mean exceeds mu + tn, at the decoder's
+    /// largest prediction too (the saturated table never fires).
+    #[test]
+    fn the_test_is_the_truncated_mean() {
+        // 3 x 3 face, radius 1, every frame pixel 10 grey, prediction 0: the mean is 2560 (Q8.8).
+        let frame = [10u8; 9];
+        let pred = [0u16; 9];
+        for (mu_tn, salient) in [(2559u16, true), (2560, false)] {
+            let thr = [mu_tn + 1; 9];
+            let mut mask = [0u8; 9];
+            reference(&frame, &pred, &thr, &mut mask, 3, 1);
+            assert_eq!(mask, [salient as u8; 9], "mu + tn = {mu_tn}");
+        }
+        // A mean one step under zero: |floor(-1/9 ...)|: s = -1 over 9 pixels is a mean of 0.
+        let mut pred = [0u16; 9];
+        pred[4] = 1;
+        let mut mask = [7u8; 9];
+        assert_eq!(reference(&[0; 9], &pred, &[1; 9], &mut mask, 3, 1), 0);
+        // The decoder's brightest prediction against a black frame stays under a saturated T.
+        let frame = [0u8; 25];
+        let pred = [65280u16; 25];
+        let mut mask = [0u8; 25];
+        let mut ring = [0i32; 25];
+        let mut rows = [0u16; 5];
+        assert_eq!(pooled_one_sided(&frame, &pred, &[u16::MAX; 25], &mut mask, &mut ring, 5, 2, &mut rows), 0);
+        assert_eq!(pooled_one_sided(&frame, &pred, &[65280; 25], &mut mask, &mut ring, 5, 2, &mut rows), 25);
+    }
+
+    /// The integer table is within one Q8.8 step of the float rule (`threshold_q88` + mu + 1)
+    /// for every sigma at thresholds from tiny to huge (both round t sigma; 5 % of the sigmas
+    /// differ at 4.59), and saturates where it does.
+    #[test]
+    fn combined_table_is_the_float_rule_within_a_step() {
+        let sigma: Vec<u16> = (0..=u16::MAX).collect();
+        for t in [4.59f32, 1.0, 0.5, 2.7, 3.3, 6.0, 9.9, 1e-3, 1e-6, 1e-30, 255.9, 16383.9, 16384.0, 1e5, 1e30] {
+            for mu in [0u16, 700, 65535] {
+                let mus = vec![mu; sigma.len()];
+                let mut out = vec![0u16; sigma.len()];
+                let c = Combine::new(t, Normalisation::StdDev);
+                combined_table(&sigma, &mus, &c, &mut out);
+                for (&s, &o) in sigma.iter().zip(&out) {
+                    let float = (threshold_q88(s, t, Normalisation::StdDev) as u32 + mu as u32 + 1).min(0xFFFF);
+                    assert!((o as i64 - float as i64).abs() <= 1, "t {t} sigma {s} mu {mu}: {o} vs {float}");
+                    assert_eq!(o, c.at(s, mu));
+                }
+            }
+            // Variance keeps the float rule exactly.
+            let c = Combine::new(t, Normalisation::Variance);
+            for s in [0u16, 1, 255, 256, 4096, 65535] {
+                let want = (threshold_q88(s, t, Normalisation::Variance) as u32 + 8).min(0xFFFF) as u16;
+                assert_eq!(c.at(s, 7), want, "variance t {t} sigma {s}");
+            }
+        }
+        assert_eq!(threshold_q(4.59), (37601, 13));
+    }
+}
