@@ -5,8 +5,9 @@
 //!   Cortex-M4 with `-icount shift=0`; stage figures are emulated instructions per frame
 //!   (SysTick, 40-instruction resolution), the mean over 4 built-in frames (two with a mark),
 //!   the decoder always run in full (uncached). Stack peak: painted stack of the benchmark run.
-//!   The image also reports a CRC-32 of each predicted face; the bench fails unless they equal
-//!   the host build's (`"faces_match_host": true`).
+//!   The image also reports a CRC-32 of each predicted face and the digest of the golden frames
+//!   (`msr_firmware::golden`: every stage, masks and blobs included, at 16 head poses); the bench
+//!   fails unless they equal the host build's (`"faces_match_host"`, `"golden_matches_host"`).
 //!   Static RAM and code size: the board image (`msr-qemu`) as linked, read from its ELF
 //!   (what runs on the robot): `code_bytes` = vector table + .text + .rodata (the target's "code
 //!   without the model tables"), `flash_bytes` = code + .data's initial values + the model blob.
@@ -111,6 +112,17 @@ pub fn synthetic(kind: ArchKind) -> Result<BenchModel> {
 
 /// [`synthetic`] with i8 weights when `i8w` (the same values scaled to 7 bits).
 pub fn synthetic_with(kind: ArchKind, i8w: bool) -> Result<BenchModel> {
+    synthetic_model(kind, i8w, false)
+}
+
+/// [`synthetic_with`] with what `msr train` gives by default after the decoder: the pooled
+/// error (radius 2), the one-sided test, statistics in 3 x 3 head-pose cells (each cell's mu
+/// and sigma a little different). The source says "pooled".
+pub fn synthetic_pooled(kind: ArchKind, i8w: bool) -> Result<BenchModel> {
+    synthetic_model(kind, i8w, true)
+}
+
+fn synthetic_model(kind: ArchKind, i8w: bool, pooled: bool) -> Result<BenchModel> {
     let (h, w) = FACE;
     let spec = DecoderSpec::new(kind, h as usize, w as usize);
     let shapes = spec.layer_shapes()?;
@@ -203,12 +215,34 @@ pub fn synthetic_with(kind: ArchKind, i8w: bool) -> Result<BenchModel> {
         crop: CropMode::Pixel,
         pose: None,
     };
+    let spec = if pooled {
+        let cells = (0..9u16)
+            .map(|c| {
+                let mu = spec.mu.iter().map(|&m| m + c * 40).collect();
+                let sigma = spec.sigma.iter().map(|&s| s + (c % 4) * 60).collect();
+                (mu, sigma)
+            })
+            .collect();
+        let grid = msr_shared::blob::PoseGrid { bins: [3, 3], lo: [-0.0873; 2], hi: [0.0873; 2] };
+        ModelSpec {
+            novelty: Novelty { sided: Sided::One, pool: 2, ..spec.novelty },
+            pose: Some((grid, cells)),
+            ..spec
+        }
+    } else {
+        spec
+    };
     let blob = spec.to_bytes().map_err(|e| anyhow::anyhow!("synthetic {kind:?} blob: {e}"))?;
     let name = match kind {
         ArchKind::Conv => "conv",
         ArchKind::Mlp => "published-mlp",
     };
-    let source = if i8w { "synthetic, i8 weights" } else { "synthetic" };
+    let source = match (i8w, pooled) {
+        (false, false) => "synthetic",
+        (true, false) => "synthetic, i8 weights",
+        (false, true) => "synthetic, pooled",
+        (true, true) => "synthetic, i8 weights, pooled",
+    };
     Ok(BenchModel { name: name.into(), source: source.into(), blob })
 }
 
@@ -348,6 +382,14 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
         board_crcs == host_crcs,
         "the board's predicted faces differ from the host build's (CRC-32 {board_crcs:?} vs {host_crcs:?})"
     );
+    let host_golden = host_golden(&model)?;
+    ensure!(
+        r["golden_digest"].as_u64() == Some(host_golden.digest as u64),
+        "the board's golden frames differ from the host build's (digest {} vs {}): a pipeline stage \
+         after the decoder computes differently on the board",
+        r["golden_digest"],
+        host_golden.digest
+    );
     let stage = |k: &str| r["stages"][k].as_u64().unwrap_or(0);
     let stages = [stage("decoder"), stage("saliency"), stage("blobs"), stage("reach")];
     let total: u64 = stages.iter().sum();
@@ -377,6 +419,8 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
         "model_bytes": m.blob.len(),
         "stack_peak_bytes": stack,
         "faces_match_host": true,
+        "golden_matches_host": true,
+        "golden_detections": host_golden.detections,
         "frames": r["frames"],
         "marks_found": r["marks_found"],
         "bench_image": {"static_ram_bytes": r["static_ram_bytes"], "code_bytes": r["code_bytes"]},
@@ -388,6 +432,13 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
             "code_bytes": {"max": TARGET_CODE, "met": code <= TARGET_CODE},
         },
     }))
+}
+
+/// The golden frames through the host build (`msr_firmware::golden::run`).
+pub fn host_golden(model: &Model) -> Result<msr_firmware::golden::GoldenReport> {
+    let mut ws = Box::new(Workspace::new());
+    let mut crop = vec![0u8; model.face_pixels()];
+    msr_firmware::golden::run(&mut ws, model, &mut crop).map_err(|e| anyhow::anyhow!("host golden frames: {e}"))
 }
 
 /// CRC-32 of the host build's predicted face (u16 little-endian) for each of [`POSES`], as the
@@ -481,9 +532,12 @@ mod tests {
     use super::*;
 
     /// The benchmark image's faces equal the host build's for both weight types (the assembly
-    /// kernels differ: SMLAD on i16 pairs, SXTB16 + SMLAD on i8), and it reports every stage.
+    /// kernels differ: SMLAD on i16 pairs, SXTB16 + SMLAD on i8), so do the golden frames
+    /// (every stage after the decoder) for the per-pixel two-sided test and the pooled
+    /// one-sided one with pose cells (its assembly row and table routines), and it reports
+    /// every stage.
     #[test]
-    fn qemu_bench_faces_match_the_host_for_i8_and_i16() {
+    fn qemu_bench_faces_and_golden_frames_match_the_host() {
         use msr_sim::qemu;
         if !qemu::qemu_available()
             || qemu::find_image(qemu::BENCH_IMAGE).is_err()
@@ -492,15 +546,16 @@ mod tests {
             eprintln!("skipped: QEMU or the firmware images are missing (cargo xtask images)");
             return;
         }
-        for i8w in [false, true] {
+        for (i8w, pooled) in [(false, false), (true, false), (false, true)] {
             for kind in [ArchKind::Conv, ArchKind::Mlp] {
-                let m = synthetic_with(kind, i8w).unwrap();
+                let m = synthetic_model(kind, i8w, pooled).unwrap();
                 let v = bench_qemu(&m).unwrap();
                 assert_eq!(v["faces_match_host"], true);
+                assert_eq!(v["golden_matches_host"], true);
                 for s in ["decoder", "saliency", "blobs", "reach"] {
                     assert!(v["stages"][s].as_u64().unwrap() > 0, "{kind:?} i8 {i8w}: {s}");
                 }
-                assert_eq!(v["marks_found"], 2, "{kind:?} i8 {i8w}");
+                assert_eq!(v["marks_found"], 2, "{kind:?} i8 {i8w} pooled {pooled}");
             }
         }
     }

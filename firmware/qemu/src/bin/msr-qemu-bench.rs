@@ -9,6 +9,9 @@
 //! noise, and on every other frame a 15 x 15 mark of grey 226 (the published test marks).
 //! The decoder is timed uncached: the full inference, as the benchmark must report it.
 //!
+//! After the timed frames, the golden frames (`msr_firmware::golden`: 16 head poses, marks, every
+//! stage) give a digest the host compares with its own build's.
+//!
 //! Output: one line `MSR-BENCH {json}` on the semihosting console, then exit code 0; a bad model
 //! prints `MSR-BENCH-ERROR ...` and exits with 1.
 #![no_std]
@@ -165,6 +168,13 @@ fn main() -> ! {
     }
     // Before anything is printed: formatting takes stack the pipeline does not.
     let stack_peak = memory::stack_peak();
+    let golden = match msr_firmware::golden::run(ws, &model, frame) {
+        Ok(g) => g,
+        Err(e) => {
+            hprintln!("MSR-BENCH-ERROR golden frames: {}", e);
+            exit(1);
+        }
+    };
     let mut sum = Stages::default();
     for (k, l) in lines.iter().enumerate() {
         let s = l.stages;
@@ -180,7 +190,7 @@ fn main() -> ! {
     let f = POSES.len() as u64;
     let sizes = memory::sizes();
     hprintln!(
-        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}]}}",
+        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}],\"golden_digest\":{},\"golden_detections\":{}}}",
         f,
         found,
         model.decoder_macs(),
@@ -197,7 +207,9 @@ fn main() -> ! {
         lines[0].face_crc,
         lines[1].face_crc,
         lines[2].face_crc,
-        lines[3].face_crc
+        lines[3].face_crc,
+        golden.digest,
+        golden.detections
     );
     exit(0)
 }
