@@ -10,7 +10,7 @@
 //! `n = 0` gives `tn = 0`: any error different from mu is salient, as a division by 0 would say.
 //!
 //! A pooled model's one-sided test (the default) is in [`pool`]: one assembly routine a row on
-//! the board, with `mu + tn + 1` in the table.
+//! the board, with `mu + tn` in the table.
 
 use msr_shared::blob::{
     Merge, Model, Normalisation, Novelty, PoseRegion, Sided, U16Table, MAX_FACE_PIXELS, MAX_FACE_W,
@@ -83,7 +83,7 @@ impl Settings {
     }
 }
 
-/// `t * n` per pixel, Q8.8 grey levels; for a pooled model's one-sided test, `mu + t * n + 1`
+/// `t * n` per pixel, Q8.8 grey levels; for a pooled model's one-sided test, `mu + t * n`
 /// ([`pool::Combine`]).
 pub struct Thresholds {
     tn: [u16; MAX_FACE_PIXELS],
@@ -125,7 +125,7 @@ impl Thresholds {
 
     /// Makes the table for `model` and `threshold`/`normalisation` at head pose `head` (the
     /// statistics of its pose cell, [`Model::stats_at`]), unless it is already made. A pooled
-    /// model's one-sided test gets the combined table (`mu + tn + 1`, [`pool::Combine`]), any
+    /// model's one-sided test gets the combined table (`mu + tn`, [`pool::Combine`]), any
     /// other test `tn` alone ([`threshold_q88`]). Returns true when it was recomputed: with
     /// pose statistics, once per change of cell.
     pub fn prepare(&mut self, model: &Model, s: &Settings, head: [f32; 2]) -> bool {
@@ -171,7 +171,7 @@ impl Thresholds {
     }
 
     /// The table, Q8.8 grey levels per pixel, row-major (empty before `prepare`): `tn`, or
-    /// `mu + tn + 1` for a pooled model's one-sided test.
+    /// `mu + tn` for a pooled model's one-sided test.
     pub fn table(&self) -> &[u16] {
         &self.tn[..self.len]
     }
