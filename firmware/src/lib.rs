@@ -72,8 +72,9 @@
 //!
 //! # Memory
 //! [`Workspace`] (two `MAX_ACTIVATION_LEN` i16 activation buffers, the threshold table, the
-//! labeller; the saliency mask reuses the spare activation buffer) plus the frame buffer and
-//! the link buffers make up [`Board`]: 56 184 bytes for faces up to 64 x 96, whatever the model
+//! labeller; the saliency mask, and the pooled saliency's ring of error rows behind it, reuse
+//! the spare activation buffer) plus the frame buffer and the link buffers make up [`Board`]:
+//! 57 992 bytes for faces up to 64 x 96, whatever the model
 //! (`size_of::<Board<RamStore<0>>>()`, checked by a test against 60 KiB). The model store is
 //! separate: a built-in blob stays in flash; uploads need a staging area ([`ModelStore`]).
 //!
@@ -95,9 +96,13 @@
 //! per MAC, target 1.0; 0.85 with 64 hidden units), published MLP (565 784 MACs) about 0.44 M
 //! (0.78 per MAC); i8 weights (SXTB16 on top of SMLAD): 1.32 and 1.33 per MAC. SMLAD alone is
 //! 0.5 per MAC; the rest is mostly the per-output table step (3 instructions plus packing) and
-//! loads. After the decoder, per-pixel error: saliency about 90 k, blobs about 26 k, reach
-//! about 1.6 k: about 27.2 per pixel (`msr bench --backend qemu`); the pooled error (flag bit 4)
-//! takes saliency to about 217 k (56.5 per pixel).
+//! loads. After the decoder (`msr bench --backend qemu`, 58 x 75 = 4 350 pixels), a model with
+//! the pooled error and pose cells, what `msr train` makes (saliency: one assembly routine a
+//! row, [`saliency::pool`]): saliency about 96 k at a held head pose and 120 k when the frame
+//! changes pose cell (the threshold table made again, 24 k), blobs 1 k on an empty mask and 13 k
+//! with a mark, reach about 1.8 k: about 28.1 per pixel over the bench's four frames, three of
+//! them in a new cell (target 30). The paper's per-pixel error (`--pool 0`): saliency about
+//! 74 k, blobs about 26 k: about 23.5 per pixel.
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
 // Index loops read best in the numeric kernels.
 #![allow(clippy::needless_range_loop)]

@@ -152,7 +152,7 @@ impl Workspace {
     }
 
     /// Stage 3 and 4: components of the mask, and the winner among them (among the merged
-    /// fragments when `s` merges them: [`merge`](crate::blobs::merge)).
+    /// fragments when `s` merges them: [`crate::blobs::merge`]).
     pub fn blobs(&mut self, model: &Model, s: &Settings) -> (Option<Blob>, Summary) {
         let (w, h) = (model.face_w as usize, model.face_h as usize);
         let mask = self.decoder.scratch();

@@ -195,18 +195,17 @@ pub fn saliency(
     }
 }
 
-/// [`saliency`] on the pooled error (the blob's flag bit 4), with `mu` and `tn` apart: the
-/// two-sided test (the board runs the one-sided one, the default, with
-/// [`pool::pooled_one_sided`]; [`pool::reference`] is that one written out plainly): `e = |mean of (I << 8) - pred over
-/// the (2 pool + 1)^2 window, clipped at the border|`, Q8.8, the mean truncated toward zero.
-/// `w` is the face's width; the rows are `frame.len() / w`. Row by row, in two passes that each
-/// keep few values live (one pass doing both spilled registers on the Cortex-M4): [`vertical`]
-/// brings the running column sums to the row's window (one row in, one out), then
-/// [`horizontal`] slides the window sum along the row and tests each pixel. No division:
-/// `floor(|s| / n) > k` is tested as `|s| >= (k + 1) n`. A mu table that is not 2-byte aligned
-/// is read a row at a time into a buffer (blobs are 4-aligned, so only a caller's odd slice
-/// takes that path). A radius above [`MAX_POOL`] (which no blob carries) or a width of 0 or
-/// past [`MAX_FACE_W`] finds nothing. Slices are taken with `get`, so nothing here can panic.
+/// [`saliency`] on the pooled error (the blob's flag bit 4), with `mu` and `tn` apart, for the
+/// two-sided test (the one-sided one, the default, is [`pool::pooled_one_sided`]): `e = |mean
+/// of (I << 8) - pred over the (2 pool + 1)^2 window, clipped at the border|`, Q8.8, the mean
+/// truncated toward zero. `w` is the face's width; the rows are `frame.len() / w`. Row by row,
+/// in two passes that each keep few values live: `vertical` brings the running column sums to
+/// the row's window (one row in, one out), then `horizontal` slides the window sum along the
+/// row and tests each pixel. No division: `floor(|s| / n) > k` is tested as `|s| >= (k + 1) n`.
+/// A mu table that is not 2-byte aligned is read a row at a time into a buffer (blobs are
+/// 4-aligned, so only a caller's odd slice takes that path). A radius above [`MAX_POOL`] (which
+/// no blob carries) or a width of 0 or past [`MAX_FACE_W`] finds nothing. Slices are taken
+/// with `get`, so nothing here can panic.
 #[allow(clippy::too_many_arguments)]
 pub fn pooled(
     frame: &[u8],

@@ -365,7 +365,7 @@ pub fn combined_table(sigma: &[u16], mu: &[u16], c: &Combine, out: &mut [u16]) {
 /// table `thr` ([`combined_table`]); returns the salient pixels and writes each row's
 /// count to `row_counts` (as many rows as it holds). `ring` needs `(2 pool + 1) w` words. A
 /// face no wider than the window, a radius of 0 or past [`MAX_POOL`], a width past
-/// [`MAX_FACE_W`] or a short ring take [`reference`] (same result, slower).
+/// [`MAX_FACE_W`] or a short ring take [`reference()`] (same result, slower).
 pub fn pooled_one_sided(
     frame: &[u8],
     pred: &[u16],
