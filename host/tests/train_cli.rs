@@ -151,6 +151,9 @@ fn bad_arguments_are_one_clear_line() {
     fails(&["train", "--data", p(tmp.path()), "--epochs", "0", "--out", p(&o)], "epochs");
     fails(&["train", "--data", p(tmp.path()), "--threshold-percentile", "120", "--out", p(&o)], "percentile");
     fails(&["train", "--data", p(tmp.path()), "--sigma-floor", "NaN", "--out", p(&o)], "--sigma-floor must be a number in 0..=255 grey levels");
+    fails(&["train", "--data", p(tmp.path()), "--pool", "4", "--out", p(&o)], "--pool must be in 0..=3");
+    fails(&["train", "--data", p(tmp.path()), "--pose-bins", "1", "--out", p(&o)], "--pose-bins must be 0");
+    fails(&["demo", "--pose-bins", "5", "--out", p(&o)], "--pose-bins must be 0");
 
     let (a, b) = (tmp.path().join("a.csv"), tmp.path().join("b.csv"));
     std::fs::write(&a, "1,2\n3,4\n5,6\n").unwrap();

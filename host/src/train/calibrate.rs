@@ -198,11 +198,13 @@ pub struct NoveltyParams {
     #[serde(default)]
     pub region: Option<PoseRegion>,
     /// Radius of the window the signed error is averaged over (the blob's `Novelty::pool`);
-    /// 0, per pixel (the paper), by default and in older files.
+    /// 0, per pixel (the paper), in older files and in `NoveltyParams::default()`, which
+    /// describes a stored model; what `msr train` makes is [`DEFAULT_POOL`].
     #[serde(default)]
     pub pool: u8,
     /// Error statistics per cell of this grid over the head pose (the blob's flag bit 5); none
-    /// (one set for all poses, the paper) by default and in older files.
+    /// (one set for all poses, the paper) in older files and in `NoveltyParams::default()`;
+    /// `msr train` makes a [`DEFAULT_POSE_BINS`] grid.
     #[serde(default)]
     pub pose_grid: Option<PoseGrid>,
 }

@@ -6,8 +6,14 @@
 //! - `{name}.json`: [`ModelInfo`] (architecture, face size, hyper-parameters, per-epoch losses,
 //!   training seconds, novelty parameters and how the threshold was chosen);
 //! - `{name}_mu.npy`, `{name}_sigma.npy`: float64 `h x w` error statistics in grey levels, like the
-//!   published ones (sigma not floored; the floor is in the JSON);
+//!   published ones (sigma not floored; the floor is in the JSON), over all training poses; with
+//!   pose cells (`--pose-bins`, by default 3) also `{name}_pose_stats.npy`: each cell's mu then
+//!   sigma in turn, `2 cells h x w`;
 //! - `{name}_loss.png`: loss curves; `template.png`: the face template the crops were made with.
+//!
+//! The error is by default pooled and its statistics measured per head-pose cell
+//! ([`calibrate::DEFAULT_POOL`], [`calibrate::DEFAULT_POSE_BINS`]); `--pool 0 --pose-bins 0` is the
+//! paper's per-pixel error with one set of statistics.
 //!
 //! Frames: the training split's unmarked frames train the model and make the statistics; the test
 //! split gives the per-epoch test loss (mark pixels excluded) and, for `--threshold-percentile`,
