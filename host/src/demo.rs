@@ -19,7 +19,7 @@ use std::time::Instant;
 
 /// What the demo makes and how much of it: `DemoConfig::new(out)` is `msr demo`'s defaults (the
 /// red robot, the paper's 1300 frames and 50 epochs, 40 trials, 5 of them under QEMU, the
-/// Dynamixel bus).
+/// Dynamixel bus, the error pooled over 5 x 5 with statistics per cell of a 3 x 3 head-pose grid).
 #[derive(burn::config::Config, Debug)]
 pub struct DemoConfig {
     /// Output folder.
@@ -52,6 +52,13 @@ pub struct DemoConfig {
     /// calibrated on the spot (0: none).
     #[config(default = 6)]
     pub gate_trials: usize,
+    /// The error's pooling radius of both models (`TrainConfig::pool`; 0: per pixel, the paper).
+    #[config(default = "train::calibrate::DEFAULT_POOL")]
+    pub pool: u8,
+    /// Cells per angle of the head-pose grid the error statistics are measured over
+    /// (`TrainConfig::pose_bins`; 0: one set for all poses, the paper).
+    #[config(default = "train::calibrate::DEFAULT_POSE_BINS")]
+    pub pose_bins: u8,
 }
 
 struct Progress {
@@ -81,6 +88,8 @@ fn train_config(data: &Path, out: &Path, model: ModelKind, a: &DemoConfig) -> tr
         .with_crop(a.crop)
         .with_epochs(a.epochs)
         .with_seed(a.seed)
+        .with_pool(a.pool)
+        .with_pose_bins(a.pose_bins)
         .with_quiet(true)
 }
 
@@ -321,6 +330,19 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
 
 /// The chosen novelty settings in a few words.
 fn novelty_line(n: &crate::train::calibrate::NoveltyParams) -> String {
+    let error = match n.pool {
+        0 => "per-pixel error".to_string(),
+        r => format!("error pooled over {0} x {0}", 2 * r as u32 + 1),
+    };
+    let stats = match n.pose_grid {
+        Some(g) => format!("statistics per cell of a {} x {} head-pose grid", g.bins[0], g.bins[1]),
+        None => "one set of statistics".into(),
+    };
+    format!("{error}, {stats}; {}", novelty_thresholds(n))
+}
+
+/// The thresholds and merges of the chosen novelty settings, with the pose region's.
+fn novelty_thresholds(n: &crate::train::calibrate::NoveltyParams) -> String {
     let merge = |m: msr_shared::blob::Merge| {
         if m.is_on() {
             format!("merge fragments of >= {} px within {} px", m.fragment, m.margin)

@@ -35,7 +35,8 @@ fn p(x: &Path) -> &str {
 fn train_writes_the_layout_and_quantize_matches_float() {
     let tmp = tempfile::tempdir().unwrap();
     let (data, out) = (tmp.path().join("data"), tmp.path().join("out"));
-    ok(&["dataset", "--count", "50", "--seed", "3", "--unmarked-test-fraction", "0", "--out", p(&data)]);
+    // 80 training frames: enough for 2 in each of the default 3 x 3 pose cells.
+    ok(&["dataset", "--count", "100", "--seed", "3", "--unmarked-test-fraction", "0", "--out", p(&data)]);
     // Unmark a few test frames so that there are normal held-out frames for the percentile.
     let ix_path = data.join("dataset.json");
     let mut ix: Value = serde_json::from_str(&std::fs::read_to_string(&ix_path).unwrap()).unwrap();
@@ -50,11 +51,13 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     std::fs::write(&ix_path, serde_json::to_string(&ix).unwrap()).unwrap();
 
     ok(&["train", "--data", p(&data), "--epochs", "2", "--quiet", "--threshold-percentile", "100", "--out", p(&out)]);
-    for f in ["decoder.mpk", "decoder.json", "decoder_mu.npy", "decoder_sigma.npy", "decoder_loss.png", "template.png"] {
+    for f in ["decoder.mpk", "decoder.json", "decoder_mu.npy", "decoder_sigma.npy", "decoder_pose_stats.npy", "decoder_loss.png", "template.png"] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
     let info: Value = serde_json::from_str(&std::fs::read_to_string(out.join("decoder.json")).unwrap()).unwrap();
     assert_eq!(info["arch"], "conv");
+    // The defaults: the error pooled over 5 x 5, statistics per cell of a 3 x 3 pose grid.
+    assert_eq!((&info["novelty"]["pool"], &info["novelty"]["pose_grid"]["bins"]), (&Value::from(2), &Value::from(vec![3, 3])));
     assert_eq!(info["train_loss"].as_array().unwrap().len(), 2);
     assert_eq!(info["threshold_policy"]["kind"], "percentile");
     assert_eq!(info["threshold_policy"]["n_frames"], 4);
@@ -151,6 +154,9 @@ fn bad_arguments_are_one_clear_line() {
     fails(&["train", "--data", p(tmp.path()), "--epochs", "0", "--out", p(&o)], "epochs");
     fails(&["train", "--data", p(tmp.path()), "--threshold-percentile", "120", "--out", p(&o)], "percentile");
     fails(&["train", "--data", p(tmp.path()), "--sigma-floor", "NaN", "--out", p(&o)], "--sigma-floor must be a number in 0..=255 grey levels");
+    fails(&["train", "--data", p(tmp.path()), "--pool", "4", "--out", p(&o)], "--pool must be in 0..=3");
+    fails(&["train", "--data", p(tmp.path()), "--pose-bins", "1", "--out", p(&o)], "--pose-bins must be 0");
+    fails(&["demo", "--pose-bins", "5", "--out", p(&o)], "--pose-bins must be 0");
 
     let (a, b) = (tmp.path().join("a.csv"), tmp.path().join("b.csv"));
     std::fs::write(&a, "1,2\n3,4\n5,6\n").unwrap();

@@ -40,6 +40,16 @@ fn line_noise(n: &super::line_noise::LineNoise) -> Result<()> {
     int("--burst-len", n.burst_len, 1, 65_536, " bytes")
 }
 
+/// The error's pooling radius and the pose grid, as `msr train` and `msr demo` take them.
+fn novelty_flags(pool: u8, pose_bins: u8) -> Result<()> {
+    int("--pool", pool, 0, msr_shared::blob::MAX_POOL, " px (window radius; 0: per pixel)")?;
+    let most = msr_shared::blob::MAX_POSE_BINS;
+    if pose_bins == 1 || pose_bins > most {
+        bail!("--pose-bins must be 0 (one set of statistics for all poses) or in 2..={most} cells per angle, got {pose_bins}");
+    }
+    Ok(())
+}
+
 fn real(flag: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
     if !(v.is_finite() && v >= lo && v <= hi) {
         bail!("{flag} must be a number in {}..={}{unit}, got {}", num(lo), num(hi), num(v));
@@ -142,6 +152,7 @@ pub fn check(c: &Command) -> Result<()> {
                 real("--threshold-percentile", p, 0.0, 100.0, " %")?;
             }
             int("--min-area", a.min_area, 1, u16::MAX, " px")?;
+            novelty_flags(a.pool, a.pose_bins)?;
             fsio::check_out_dir(&[("--data", &a.data)], "--out", &a.out)?;
         }
         Command::TrainReach(a) => {
@@ -257,6 +268,7 @@ pub fn check(c: &Command) -> Result<()> {
             int("--trials", a.trials, 1, MAX_TRIALS, "")?;
             int("--qemu-trials", a.qemu_trials, 0, a.trials, " (at most --trials)")?;
             int("--gate-trials", a.gate_trials, 0, MAX_TRIALS, "")?;
+            novelty_flags(a.pool, a.pose_bins)?;
             if let Some(r) = &a.real {
                 fsio::check_out_dir(&[("--real", r)], "--out", &a.out)?;
             }

@@ -40,6 +40,14 @@ pub struct Args {
     /// calibrated on the spot (0: none)
     #[arg(long, default_value_t = 6)]
     pub gate_trials: usize,
+    /// Average the decoder's signed error over a (2 N + 1)^2 window before its magnitude
+    /// (0: per pixel, the paper), as `msr train --pool`
+    #[arg(long, default_value_t = crate::train::calibrate::DEFAULT_POOL)]
+    pub pool: u8,
+    /// Error statistics per cell of an N x N grid over the training head poses (0: one set for
+    /// all poses, the paper), as `msr train --pose-bins`
+    #[arg(long, default_value_t = crate::train::calibrate::DEFAULT_POSE_BINS)]
+    pub pose_bins: u8,
     /// Only rewrite index.html from an earlier run's report.json, model.msrm and dataset in --out
     #[arg(long)]
     pub html_only: bool,
@@ -57,7 +65,9 @@ impl Args {
             .with_qemu_trials(self.qemu_trials)
             .with_seed(self.seed)
             .with_servo_bus(self.servo_bus)
-            .with_gate_trials(self.gate_trials);
+            .with_gate_trials(self.gate_trials)
+            .with_pool(self.pool)
+            .with_pose_bins(self.pose_bins);
         c.real = self.real.clone();
         c
     }
@@ -81,5 +91,15 @@ mod tests {
     fn flag_defaults_are_the_library_defaults() {
         let args: Args = parse_args(&["msr"]).unwrap();
         assert_eq!(format!("{}", args.config()), format!("{}", DemoConfig::new("demo-out".into())));
+    }
+
+    #[test]
+    fn the_paper_per_pixel_error_is_a_flag_away() {
+        let c = parse_args::<Args>(&["msr"]).unwrap().config();
+        let d = (crate::train::calibrate::DEFAULT_POOL, crate::train::calibrate::DEFAULT_POSE_BINS);
+        assert_eq!((c.pool, c.pose_bins), d);
+        assert_eq!(d, (2, 3));
+        let c = parse_args::<Args>(&["msr", "--pool", "0", "--pose-bins", "0"]).unwrap().config();
+        assert_eq!((c.pool, c.pose_bins), (0, 0));
     }
 }

@@ -59,8 +59,9 @@ pub struct Args {
     #[arg(long, default_value_t = calibrate::DEFAULT_POOL)]
     pub pool: u8,
     /// Error statistics (mu, sigma) per cell of an N x N grid over the training head poses,
-    /// 2..=4; the board takes the cell of the reported head pose (0: one set for all poses)
-    #[arg(long, default_value_t = 0)]
+    /// 2..=4; the board takes the cell of the reported head pose (0: one set for all poses, the
+    /// paper; each cell needs at least 2 training frames)
+    #[arg(long, default_value_t = calibrate::DEFAULT_POSE_BINS)]
     pub pose_bins: u8,
     /// Smallest blob that counts as a detection, pixels
     #[arg(long, default_value_t = calibrate::DEFAULT_MIN_AREA)]
@@ -125,7 +126,7 @@ mod tests {
             "pixel", "--epochs", "3", "--batch", "7", "--lr", "0.1", "--lr-step", "2",
             "--lr-decay", "0.9", "--seed", "5", "--normalisation", "variance", "--two-sided",
             "--sigma-floor", "2", "--threshold-percentile", "99", "--min-area", "4", "--quiet",
-            "--pool", "1", "--conv-hidden", "16", "--conv-channels", "3",
+            "--pool", "1", "--pose-bins", "2", "--conv-hidden", "16", "--conv-channels", "3",
         ])
         .unwrap();
         let c = args.config();
@@ -137,6 +138,6 @@ mod tests {
         assert_eq!(c.normalisation, NormArg::Variance);
         assert!(c.two_sided && c.quiet);
         assert_eq!(c.threshold_percentile, Some(99.0));
-        assert_eq!((c.pool, c.conv_hidden, c.conv_channels), (1, Some(16), Some(3)));
+        assert_eq!((c.pool, c.pose_bins, c.conv_hidden, c.conv_channels), (1, 2, Some(16), Some(3)));
     }
 }

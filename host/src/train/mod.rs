@@ -6,8 +6,14 @@
 //! - `{name}.json`: [`ModelInfo`] (architecture, face size, hyper-parameters, per-epoch losses,
 //!   training seconds, novelty parameters and how the threshold was chosen);
 //! - `{name}_mu.npy`, `{name}_sigma.npy`: float64 `h x w` error statistics in grey levels, like the
-//!   published ones (sigma not floored; the floor is in the JSON);
+//!   published ones (sigma not floored; the floor is in the JSON), over all training poses; with
+//!   pose cells (`--pose-bins`, by default 3) also `{name}_pose_stats.npy`: each cell's mu then
+//!   sigma in turn, `2 cells h x w`;
 //! - `{name}_loss.png`: loss curves; `template.png`: the face template the crops were made with.
+//!
+//! The error is by default pooled and its statistics measured per head-pose cell
+//! ([`calibrate::DEFAULT_POOL`], [`calibrate::DEFAULT_POSE_BINS`]); `--pool 0 --pose-bins 0` is the
+//! paper's per-pixel error with one set of statistics.
 //!
 //! Frames: the training split's unmarked frames train the model and make the statistics; the test
 //! split gives the per-epoch test loss (mark pixels excluded) and, for `--threshold-percentile`,
@@ -122,13 +128,14 @@ pub struct TrainConfig {
     pub threshold: f64,
     /// Pick the threshold as this percentile of the detection scores of the unmarked test frames.
     pub threshold_percentile: Option<f64>,
-    /// Average the signed error over a (2 N + 1)^2 window before its magnitude (0: per pixel,
-    /// the paper; see `detect::pipeline::pooled_error`).
+    /// Average the signed error over a (2 N + 1)^2 window before its magnitude (default
+    /// [`calibrate::DEFAULT_POOL`]; 0: per pixel, the paper; see `detect::pipeline::pooled_error`).
     #[config(default = "calibrate::DEFAULT_POOL")]
     pub pool: u8,
-    /// Error statistics per cell of an N x N grid over the training head poses (0: one set for
-    /// all poses, the paper; see `calibrate::error_stats_by_pose`).
-    #[config(default = 0)]
+    /// Error statistics per cell of an N x N grid over the training head poses (default
+    /// [`calibrate::DEFAULT_POSE_BINS`]; 0: one set for all poses, the paper; see
+    /// `calibrate::error_stats_by_pose`).
+    #[config(default = "calibrate::DEFAULT_POSE_BINS")]
     pub pose_bins: u8,
     /// Smallest blob that counts as a detection, pixels.
     #[config(default = "calibrate::DEFAULT_MIN_AREA")]
@@ -309,6 +316,32 @@ pub fn run(args: TrainConfig) -> Result<()> {
             args.data.display()
         );
     }
+    // The pose grid spans the training poses, so every cell holds about as many frames; each
+    // needs at least 2 for a standard deviation. Fail before training, naming the flag.
+    let pose_grid = if args.pose_bins > 0 {
+        let max_head = train.heads.iter().flatten().fold(0f32, |m, a| m.max(a.abs()));
+        let grid = calibrate::pose_grid(args.pose_bins, max_head)?;
+        let mut per_cell = vec![0usize; grid.len()];
+        for &hd in &train.heads {
+            let Some(k) = grid.bin(hd) else { bail!("a training frame has a non-finite head pose {hd:?}") };
+            per_cell[k] += 1;
+        }
+        let fewest = per_cell.iter().copied().min().unwrap_or(0);
+        ensure!(
+            fewest >= 2,
+            "--pose-bins {n} (the default is {d}) needs at least 2 unmarked training frames in each of the {c} head-pose \
+             cells, but dataset {} has {fewest} in one ({} in all); pass --pose-bins 0 (one set of statistics for all \
+             poses) or fewer cells, or render more frames",
+            args.data.display(),
+            train.len(),
+            n = args.pose_bins,
+            d = calibrate::DEFAULT_POSE_BINS,
+            c = grid.len(),
+        );
+        Some(grid)
+    } else {
+        None
+    };
     let spec = match (args.arch, args.conv_hidden, args.conv_channels) {
         (ArchKind::Conv, hid, ch) => {
             let d = DecoderSpec::conv(h, w);
@@ -353,10 +386,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
     let preds = net.predict_batch(&train.heads, &train.faces);
     let mut stats = calibrate::error_stats(h, w, novelty.pool, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?;
     let mut novelty = novelty;
-    if args.pose_bins > 0 {
-        // The grid spans the training poses, so every cell holds about as many frames.
-        let max_head = train.heads.iter().flatten().fold(0f32, |m, a| m.max(a.abs()));
-        let grid = calibrate::pose_grid(args.pose_bins, max_head)?;
+    if let Some(grid) = pose_grid {
         let samples = train.heads.iter().zip(&train.faces).zip(&preds).map(|((&hd, f), p)| (hd, &f[..], &p[..]));
         stats.pose = Some(calibrate::error_stats_by_pose(h, w, novelty.pool, grid, samples)?);
         novelty.pose_grid = Some(grid);

@@ -3,7 +3,8 @@
 //!
 //! The model is small on purpose (CI has two cores): 400 rendered frames, the published fully
 //! connected decoder trained for 20 epochs (the paper's optimiser and schedule), calibrated on the
-//! training split, the reach network on 70 sim IK pairs. Good enough to find the sim's marks and
+//! training split with `msr train`'s default error pooling and pose cells, the reach network on
+//! 70 sim IK pairs. Good enough to find the sim's marks and
 //! reach them; the full protocol is what `msr demo` runs.
 #![allow(dead_code)]
 
@@ -44,11 +45,19 @@ fn trained_model_of(robot: Robot, arch: ArchKind) -> Vec<u8> {
         ArchKind::Mlp => "",
         ArchKind::Conv => "conv-",
     };
-    let key = format!("{}-{kind}f{TRAIN_FRAMES}-e{TRAIN_EPOCHS}-subpixel-v2", robot.name());
+    // The key names every setting the blob depends on that has changed since models were first
+    // cached, so that a model made under other defaults is never taken for this one: the error
+    // pooling and the pose cells (defaults since issue 19; before, per pixel and one set).
+    let (pool, pose_bins) = (train::calibrate::DEFAULT_POOL, train::calibrate::DEFAULT_POSE_BINS);
+    let key = format!("{}-{kind}f{TRAIN_FRAMES}-e{TRAIN_EPOCHS}-subpixel-pool{pool}-bins{pose_bins}-v3", robot.name());
     let dir = cache_dir();
     let path = dir.join(format!("{key}.msrm"));
     if let Ok(b) = std::fs::read(&path) {
-        if msr_shared::blob::Model::parse(&b).is_ok() {
+        // A cached blob counts only when it holds what the key says.
+        let holds = |m: &msr_shared::blob::Model| {
+            m.novelty.pool == pool && m.pose.as_ref().map_or(0, |p| p.grid.bins[0]) == pose_bins
+        };
+        if msr_shared::blob::Model::parse(&b).is_ok_and(|m| holds(&m)) {
             return b;
         }
     }
@@ -63,6 +72,8 @@ fn trained_model_of(robot: Robot, arch: ArchKind) -> Vec<u8> {
         TrainConfig::new(data, models.clone())
             .with_arch(arch)
             .with_epochs(TRAIN_EPOCHS)
+            .with_pool(pool)
+            .with_pose_bins(pose_bins)
             .with_quiet(true),
     )
     .expect("train the decoder");
