@@ -1,9 +1,9 @@
 //! The pooled one-sided saliency (the default test of a pooled model), row by row in one
 //! assembly routine on the Cortex-M4, the same steps in Rust elsewhere.
 //!
-//! The test: pixel `x` is salient when the mean of the signed error `(I << 8) - pred` (Q8.8)
-//! over the `(2 r + 1)^2` window, clipped at the border, exceeds `mu + tn` in magnitude:
-//! `|s| > T k`, with `s` the window's sum, `k` its pixels and `T = min(mu + tn, 65535)` per
+//! The test: pixel `x` is salient when the magnitude of the mean of the signed error
+//! `(I << 8) - pred` (Q8.8) over the `(2 r + 1)^2` window, clipped at the border, exceeds
+//! `mu + tn`: `|s| > T k`, with `s` the window's sum, `k` its pixels and `T = min(mu + tn, 65535)` per
 //! pixel in the threshold table ([`combined_table`]; `tn` is `t` sigma in Q8.8, rounded down).
 //! The mean is not rounded, and a saturated `T` never fires.
 //!
