@@ -321,24 +321,13 @@ fn horizontal(cols: &[i32], mu: &[u16], tn: &[u16], out: &mut [u8], r: usize, ro
         let thr = mid(mu, lo, hi).iter().zip(mid(tn, lo, hi));
         let outs = out.get_mut(lo..hi).unwrap_or(&mut []);
         let mut inner = 0u32;
-        match sided {
-            Sided::One => {
-                // floor(|s| / k) - mu > t  <=>  |s| >= (mu + t + 1) k
-                for (((&a, &b), (&m, &t)), o) in ins.zip(thr).zip(outs) {
-                    sum += a - b;
-                    let s = (sum.unsigned_abs() >= (m as u32 + t as u32) * k + k) as u8;
-                    *o = s;
-                    inner += s as u32;
-                }
-            }
-            Sided::Two => {
-                for (((&a, &b), (&m, &t)), o) in ins.zip(thr).zip(outs) {
-                    sum += a - b;
-                    let s = test(sum.unsigned_abs(), k, m, t, Sided::Two);
-                    *o = s;
-                    inner += s as u32;
-                }
-            }
+        // The board takes pool::pooled_one_sided for the one-sided test; this loop serves the
+        // two-sided one and callers with mu and tn apart, so one loop for both.
+        for (((&a, &b), (&m, &t)), o) in ins.zip(thr).zip(outs) {
+            sum += a - b;
+            let s = test(sum.unsigned_abs(), k, m, t, sided);
+            *o = s;
+            inner += s as u32;
         }
         count += inner;
     }
