@@ -257,10 +257,29 @@ fn num(v: &Value) -> String {
     }
 }
 
+/// A column name as a header: underscores become spaces so that a narrow column can wrap.
+fn header(c: &str) -> String {
+    esc(&c.replace('_', " "))
+}
+
+/// A table of `rows` by `cols`. A wide table of few rows (a summary per backend) is drawn
+/// transposed, one row a field, so that it fits the page.
 fn table(rows: &[Value], cols: &[&str]) -> String {
-    let mut s = String::from("<table><tr>");
+    let mut s = String::from("<table>");
+    if cols.len() > 10 && rows.len() <= 4 {
+        for c in cols {
+            let _ = write!(s, "<tr><th>{}</th>", header(c));
+            for r in rows {
+                let _ = write!(s, "<td>{}</td>", num(&r[*c]));
+            }
+            s.push_str("</tr>");
+        }
+        s.push_str("</table>");
+        return s;
+    }
+    s.push_str("<tr>");
     for c in cols {
-        let _ = write!(s, "<th>{}</th>", esc(c));
+        let _ = write!(s, "<th>{}</th>", header(c));
     }
     s.push_str("</tr>");
     for r in rows {
@@ -338,10 +357,14 @@ pub fn write_html(out: &Path, report: &DemoReport, blob: &[u8], data: &Path) -> 
     let mut h = String::new();
     let _ = write!(
         h,
-        "<!doctype html><html><head><meta charset=utf-8><title>msr demo: {robot}</title><style>\
-         body{{font-family:sans-serif;margin:2em;max-width:1200px;color:#222}} table{{border-collapse:collapse;margin:.5em 0}} \
-         td,th{{border:1px solid #bbb;padding:3px 8px;text-align:right}} th{{background:#eee}} \
-         .strip img{{margin:2px;image-rendering:pixelated;vertical-align:top}} figure{{display:inline-block;margin:4px}} \
+        "<!doctype html><html><head><meta charset=utf-8><meta name=viewport content=\"width=device-width\"><title>msr demo: {robot}</title><style>\
+         body{{font-family:sans-serif;margin:2em auto;padding:0 1em;max-width:1200px;color:#222}} \
+         table{{border-collapse:collapse;margin:.5em 0;max-width:100%;font-size:90%}} \
+         td,th{{border:1px solid #bbb;padding:3px 6px;text-align:right;overflow-wrap:anywhere}} th{{background:#eee}} \
+         .strip{{display:grid;grid-template-columns:320fr repeat(4,225fr);gap:6px;align-items:start}} \
+         .strip figure{{margin:0;min-width:0}} .strip img{{width:100%;height:auto;image-rendering:pixelated;display:block}} \
+         figure{{display:inline-block;margin:4px;max-width:100%}} img{{max-width:100%;height:auto}} \
+         .plots{{display:grid;grid-template-columns:1fr 1fr;gap:8px}} .plots figure{{margin:0}} \
          figcaption{{font-size:80%;color:#555}} .cap{{font-size:85%;color:#444;margin-bottom:1.2em}}</style></head><body>"
     );
     let _ = write!(h, "<h1>Mirror mark test: the {robot} robot</h1><p>Everything below was made by <code>msr demo</code> from nothing: a rendered dataset, the decoder trained and calibrated, the reach network trained on the sim's IK pairs, the fixed-point blob, the paper's table, mirror-test episodes through the emulated links, and the published model on the real frames.</p>");
@@ -375,13 +398,14 @@ pub fn write_html(out: &Path, report: &DemoReport, blob: &[u8], data: &Path) -> 
     }
 
     // Loss curves.
-    let _ = write!(h, "<h2>Training</h2>");
+    let _ = write!(h, "<h2>Training</h2><div class=plots>");
     for name in ["decoder", "autoencoder"] {
         let src = out.join("models").join(format!("{name}_loss.png"));
         if src.exists() {
-            let _ = write!(h, "<figure><img src=\"models/{name}_loss.png\" width=520><figcaption>{name}: loss per epoch</figcaption></figure>");
+            let _ = write!(h, "<figure><img src=\"models/{name}_loss.png\" alt=\"{name} loss\"><figcaption>{name}: loss per epoch</figcaption></figure>");
         }
     }
+    h.push_str("</div>");
     let tr = &report.training;
     let rows: Vec<Value> = [("decoder", &tr.decoder), ("autoencoder", &tr.autoencoder)]
         .iter()

@@ -66,5 +66,54 @@ fn demo_writes_model_report_and_page() {
     assert!(html.contains("pictures/test0_saliency.png") && html.contains("Reach poses"));
     assert!(html.contains("The self gate") && html.contains("<svg"));
     assert!(out.join("pictures/test0_saliency.png").exists());
+    page_fits_1280(&out);
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// The page as headless Chromium lays it out in a 1280 px window: nothing wider than the window,
+/// each test frame's five pictures in one row, and the loss plots at least 500 px wide (their
+/// labels are drawn for that). A script added to a copy of the page writes what it measured into
+/// the title, which `--dump-dom` prints.
+fn page_fits_1280(out: &std::path::Path) {
+    let script = r#"<script>
+const d = document.documentElement;
+const rows = [...document.querySelectorAll('.strip')].map(s => {
+  const tops = [...s.querySelectorAll('img')].map(i => Math.round(i.getBoundingClientRect().top));
+  return [tops.length, Math.max(...tops) - Math.min(...tops)];
+});
+const over = [...document.querySelectorAll('body *')]
+  .filter(e => e.getBoundingClientRect().right > d.clientWidth + 0.5)
+  .map(e => e.tagName + '.' + e.className).slice(0, 5);
+const plots = [...document.querySelectorAll('.plots img')].map(i => Math.round(i.getBoundingClientRect().width));
+document.title = 'LAYOUT ' + JSON.stringify({scroll: d.scrollWidth, client: d.clientWidth, rows, over, plots});
+</script></body>"#;
+    let html = std::fs::read_to_string(out.join("index.html")).unwrap();
+    let page = out.join("layout-check.html");
+    std::fs::write(&page, html.replace("</body>", script)).unwrap();
+    let chromium = "chromium-headless-shell";
+    let res = std::process::Command::new(chromium)
+        .args(["--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars"])
+        .args(["--window-size=1280,900", "--virtual-time-budget=10000", "--dump-dom"])
+        .arg(format!("file://{}", page.display()))
+        .output()
+        .unwrap_or_else(|e| panic!("{chromium} could not start ({e}): `cargo xtask setup` installs it"));
+    let dom = String::from_utf8_lossy(&res.stdout);
+    let json = dom
+        .split("<title>LAYOUT ")
+        .nth(1)
+        .and_then(|t| t.split("</title>").next())
+        .unwrap_or_else(|| panic!("no layout in Chromium's output: {}", String::from_utf8_lossy(&res.stderr)));
+    let m: serde_json::Value = serde_json::from_str(&json.replace("&quot;", "\"")).unwrap();
+    eprintln!("report layout at 1280 px: {m}");
+    assert_eq!(m["client"], 1280, "{m}");
+    assert!(m["scroll"].as_u64().unwrap() <= 1280, "the page is wider than 1280 px: {m}");
+    assert!(m["over"].as_array().unwrap().is_empty(), "elements past the right edge: {m}");
+    let rows = m["rows"].as_array().unwrap();
+    assert!(!rows.is_empty(), "{m}");
+    for r in rows {
+        assert_eq!((r[0].as_u64(), r[1].as_u64()), (Some(5), Some(0)), "a test frame's pictures are not in one row: {m}");
+    }
+    let plots = m["plots"].as_array().unwrap();
+    assert_eq!(plots.len(), 2, "{m}");
+    assert!(plots.iter().all(|w| w.as_u64().unwrap() >= 500), "loss plots too small to read: {m}");
 }

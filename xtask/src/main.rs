@@ -1,7 +1,7 @@
 //! `cargo xtask test`: everything the test suite needs, from a fresh machine.
 //!
-//! 1. checks (and installs when it can) the `thumbv7em-none-eabihf` target, `qemu-system-arm` and
-//!    `ffmpeg`;
+//! 1. checks (and installs when it can) the `thumbv7em-none-eabihf` target, `qemu-system-arm`,
+//!    `ffmpeg` and headless Chromium;
 //! 2. builds `msr-shared` and `msr-firmware` for the bare-metal target without std;
 //! 3. builds the QEMU and NUCLEO-F429ZI firmware images;
 //! 4. runs every test of the workspace (the QEMU tests use the image from step 3).
@@ -29,7 +29,7 @@ fn main() -> ExitCode {
                 "usage: cargo xtask <command>\n\n\
                  commands:\n  \
                  test [ARGS]  set up, build the firmware images, run every test (ARGS go to cargo test)\n  \
-                 setup        install or check the thumbv7em target, qemu-system-arm and ffmpeg\n  \
+                 setup        install or check the thumbv7em target, qemu-system-arm, ffmpeg, Chromium\n  \
                  images       setup, then build the bare-metal firmware images"
             );
             return ExitCode::from(2);
@@ -93,7 +93,13 @@ fn setup() -> Result<(), String> {
         "qemu-system-arm",
         "qemu-system-arm (for the emulated Cortex-M4 tests)",
     )?;
-    tool("ffmpeg", &["-version"], "ffmpeg", "ffmpeg (for the camera-stream tests)")
+    tool("ffmpeg", &["-version"], "ffmpeg", "ffmpeg (for the camera-stream tests)")?;
+    tool(
+        "chromium-headless-shell",
+        &["--version"],
+        "chromium-headless-shell",
+        "headless Chromium (for the test that lays out the demo's report at 1280 px)",
+    )
 }
 
 /// Checks that `program` runs, or installs the Debian package `package` when this user can.

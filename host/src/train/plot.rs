@@ -31,7 +31,7 @@ fn draw(h: &History, title: &str, path: &Path, text: bool) -> Result<()> {
         let mut b = ChartBuilder::on(&root);
         b.margin(12);
         if text {
-            b.caption(title, ("sans-serif", 22)).x_label_area_size(40).y_label_area_size(70);
+            b.caption(title, ("sans-serif", 30)).x_label_area_size(56).y_label_area_size(110);
         }
         let mut chart = b.build_cartesian_2d(1usize..n, 0.0..hi).map_err(|x| e(&x))?;
         if text {
@@ -40,6 +40,9 @@ fn draw(h: &History, title: &str, path: &Path, text: bool) -> Result<()> {
                 .x_desc("epoch")
                 .y_desc("MSE (grey/255)")
                 .y_label_formatter(&|v| format!("{v:.4}"))
+                // Sized to stay readable at half a 1280 px page (the report shows two plots a row).
+                .label_style(("sans-serif", 22))
+                .axis_desc_style(("sans-serif", 24))
                 .draw()
                 .map_err(|x| e(&x))?;
         }
@@ -53,7 +56,7 @@ fn draw(h: &History, title: &str, path: &Path, text: bool) -> Result<()> {
             }
         }
         if text {
-            chart.configure_series_labels().border_style(BLACK).background_style(WHITE).draw().map_err(|x| e(&x))?;
+            chart.configure_series_labels().label_font(("sans-serif", 22)).border_style(BLACK).background_style(WHITE).draw().map_err(|x| e(&x))?;
         }
         root.present().map_err(|x| e(&x))?;
     }
