@@ -364,7 +364,7 @@ pub fn write_html(out: &Path, report: &DemoReport, blob: &[u8], data: &Path) -> 
          .strip{{display:grid;grid-template-columns:320fr repeat(4,225fr);gap:6px;align-items:start}} \
          .strip figure{{margin:0;min-width:0}} .strip img{{width:100%;height:auto;image-rendering:pixelated;display:block}} \
          figure{{display:inline-block;margin:4px;max-width:100%}} img{{max-width:100%;height:auto}} \
-         .plots{{display:grid;grid-template-columns:1fr 1fr;gap:8px}} .plots figure{{margin:0}} \
+         .plots{{display:grid;grid-template-columns:1fr 1fr;gap:8px}} .plots figure{{margin:0}} .plots img{{width:100%}} \
          figcaption{{font-size:80%;color:#555}} .cap{{font-size:85%;color:#444;margin-bottom:1.2em}}</style></head><body>"
     );
     let _ = write!(h, "<h1>Mirror mark test: the {robot} robot</h1><p>Everything below was made by <code>msr demo</code> from nothing: a rendered dataset, the decoder trained and calibrated, the reach network trained on the sim's IK pairs, the fixed-point blob, the paper's table, mirror-test episodes through the emulated links, and the published model on the real frames.</p>");
