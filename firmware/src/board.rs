@@ -21,7 +21,7 @@ use msr_shared::joints::REACH_JOINTS;
 use msr_shared::msg::{
     BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameAck, FrameHeader,
     FrameState, HostToBoard, JointTarget, Mode, ServoBusKind, ServoBusReport,
-    GateUndecided, ServoToBoard, Status,
+    GateUndecided, ModelSource, ServoToBoard, Status, StoreReport,
 };
 
 /// Most bytes taken from one link per poll, so a flood cannot starve the control loop.
@@ -87,6 +87,8 @@ struct Core<S: ModelStore> {
     /// The time of the latest poll, for decisions made outside one.
     last_poll_us: u64,
     head_move: Option<HeadMove>,
+    /// `ModelBegin` was taken while the store erased: the `UploadAck` goes out once it is done.
+    upload_ack_due: bool,
 }
 
 /// The firmware. `S` holds the model blobs (see [`ModelStore`]).
@@ -133,6 +135,7 @@ impl<S: ModelStore> Board<S> {
                 last_reach: None,
                 last_poll_us: 0,
                 head_move: None,
+                upload_ack_due: false,
             },
         }
     }
@@ -157,7 +160,16 @@ impl<S: ModelStore> Board<S> {
         let core = &mut self.core;
         if !core.checked {
             core.checked = true;
+            core.store.start();
             core.load_active(&mut self.ws);
+        }
+        // Flash work in steps (one sector's erase at most), so the control period holds.
+        core.store.step();
+        if core.upload_ack_due && !core.store.busy() {
+            core.upload_ack_due = false;
+            if let Some(next) = core.upload.next() {
+                core.upload_ack(host, next);
+            }
         }
         let mut buf = [0u8; READ_CHUNK];
         let mut taken = 0;
@@ -402,9 +414,13 @@ impl<S: ModelStore> Core<S> {
                 },
             },
             HostToBoard::ModelBegin { len, crc32 } => match self.upload.begin(&mut self.store, len, crc32) {
+                // The slot is being erased: the ack (and so the chunks) wait for it.
+                Ok(_) if self.store.busy() => self.upload_ack_due = true,
                 Ok(next) => self.upload_ack(host, next),
                 Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
             },
+            // Chunks before the ack: dropped (the host sends them again from where the ack says).
+            HostToBoard::ModelChunk { .. } if self.upload_ack_due => {}
             HostToBoard::ModelChunk { offset, data } => {
                 match self.upload.chunk(&mut self.store, offset, data) {
                     Ok(None) => {}
@@ -449,7 +465,28 @@ impl<S: ModelStore> Core<S> {
                 self.host_tx.send(host, &BoardToHost::ServoBus(r));
             }
             HostToBoard::MoveHead { yaw, pitch } => self.move_head(now_us, [yaw, pitch], host),
+            HostToBoard::GetStore => self.store_report(now_us, host),
+            HostToBoard::ResetStats => {
+                let crc = self.loaded.map_or(0, |l| l.crc);
+                if !self.store.reset_stats(crc) {
+                    self.error(host, ErrorCode::StoreBusy, 0);
+                }
+                self.store_report(now_us, host);
+            }
         }
+    }
+
+    fn store_report<H: Write>(&mut self, now_us: u64, host: &mut H) {
+        let crc = self.loaded.map_or(0, |l| l.crc);
+        let r = StoreReport {
+            model_crc: crc,
+            source: if self.loaded.is_some() { self.store.source() } else { ModelSource::None },
+            stats: self.loaded.and_then(|l| self.store.stats_age(l.crc)),
+            now_ms: now_us / 1000,
+            busy: self.store.busy(),
+            capacity: self.store.capacity().min(u32::MAX as usize) as u32,
+        };
+        self.host_tx.send(host, &BoardToHost::Store(r));
     }
 
     fn move_head<H: Write>(&mut self, now_us: u64, head: [f32; 2], host: &mut H) {
