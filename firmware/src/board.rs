@@ -256,6 +256,11 @@ impl<S: ModelStore> Board<S> {
         &self.core.store
     }
 
+    /// The model store, to change it outside the host link (a preloaded model at start-up).
+    pub fn store_mut(&mut self) -> &mut S {
+        &mut self.core.store
+    }
+
     /// The behaviour's phase.
     pub fn phase(&self) -> Phase {
         self.core.motion.phase()

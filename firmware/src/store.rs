@@ -67,6 +67,27 @@ pub const F429_BANK2: Layout = Layout {
     slots: [(2, 8), (8, 12)],
 };
 
+/// The emulated boards' flash (`msr serve --flash`, the QEMU image): the F429's sector sizes
+/// continued to 3.5 MiB, so that both slots take the published decoder with i16 weights
+/// (1.1 MB): log halves in the two first 16 KiB sectors, slot 0 (1632 KiB) and slot 1
+/// (1920 KiB) after them.
+pub const EMULATED: Layout = Layout {
+    sectors: &EMULATED_SECTORS,
+    log: [(0, 1), (1, 2)],
+    slots: [(2, 17), (17, 32)],
+};
+
+/// 4 x 16 KiB, 64 KiB, 27 x 128 KiB = 3.5 MiB.
+pub const EMULATED_SECTORS: [u32; 32] = {
+    let mut s = [128 * 1024; 32];
+    let mut i = 0;
+    while i < 5 {
+        s[i] = F429_BANK_SECTORS[i];
+        i += 1;
+    }
+    s
+};
+
 /// One bank of the F429 (RM0090 table 6): 4 x 16 KiB, 1 x 64 KiB, 7 x 128 KiB = 1 MiB.
 pub const F429_BANK_SECTORS: [u32; 12] = {
     let mut s = [128 * 1024; 12];
@@ -93,11 +114,16 @@ impl Layout {
         b - a
     }
     /// The region's size.
-    pub fn len(&self) -> u32 {
-        self.sectors.iter().sum()
+    pub const fn len(&self) -> u32 {
+        let (mut i, mut n) = (0, 0);
+        while i < self.sectors.len() {
+            n += self.sectors[i];
+            i += 1;
+        }
+        n
     }
     /// An empty layout (no sectors).
-    pub fn is_empty(&self) -> bool {
+    pub const fn is_empty(&self) -> bool {
         self.sectors.is_empty()
     }
 }
