@@ -89,6 +89,8 @@ struct Core<S: ModelStore> {
     head_move: Option<HeadMove>,
     /// `ModelBegin` was taken while the store erased: the `UploadAck` goes out once it is done.
     upload_ack_due: bool,
+    /// `ModelCommit` came while the store was busy: it is carried out once it is done.
+    commit_due: bool,
 }
 
 /// The firmware. `S` holds the model blobs (see [`ModelStore`]).
@@ -136,6 +138,7 @@ impl<S: ModelStore> Board<S> {
                 last_poll_us: 0,
                 head_move: None,
                 upload_ack_due: false,
+                commit_due: false,
             },
         }
     }
@@ -161,7 +164,7 @@ impl<S: ModelStore> Board<S> {
         if !core.checked {
             core.checked = true;
             core.store.start();
-            core.load_active(&mut self.ws);
+            core.load_active(&mut self.ws, false);
         }
         // Flash work in steps (one sector's erase at most), so the control period holds.
         core.store.step();
@@ -170,6 +173,9 @@ impl<S: ModelStore> Board<S> {
             if let Some(next) = core.upload.next() {
                 core.upload_ack(host, next);
             }
+        }
+        if core.commit_due && !core.store.busy() {
+            core.commit_upload(&mut self.ws, &mut self.frame, host);
         }
         let mut buf = [0u8; READ_CHUNK];
         let mut taken = 0;
@@ -278,8 +284,9 @@ impl<S: ModelStore> Board<S> {
 }
 
 impl<S: ModelStore> Core<S> {
-    /// Takes the store's active blob if it validates (the built-in one at start-up).
-    fn load_active(&mut self, ws: &mut Workspace) {
+    /// Takes the store's active blob if it validates (the built-in one at start-up); `trusted`:
+    /// it validated just now, all but the CRC is checked again.
+    fn load_active(&mut self, ws: &mut Workspace, trusted: bool) {
         ws.invalidate();
         self.loaded = None;
         self.settings = None;
@@ -287,7 +294,8 @@ impl<S: ModelStore> Core<S> {
         if self.motion.phase() == Phase::Probe {
             self.motion.go_home();
         }
-        if let Some(m) = self.store.active().and_then(|b| model::validate(b).ok()) {
+        let check = if trusted { model::validate_trusted } else { model::validate };
+        if let Some(m) = self.store.active().and_then(|b| check(b).ok()) {
             self.gate = m.self_gate.map(Gate::new);
             self.loaded = Some(Loaded {
                 crc: m.crc32,
@@ -424,8 +432,9 @@ impl<S: ModelStore> Core<S> {
                 Ok(next) => self.upload_ack(host, next),
                 Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
             },
-            // Chunks before the ack: dropped (the host sends them again from where the ack says).
-            HostToBoard::ModelChunk { .. } if self.upload_ack_due => {}
+            // Chunks before the ack, or while the flash is busy: dropped (the host sends them
+            // again from where the board says it stands).
+            HostToBoard::ModelChunk { .. } if self.upload_ack_due || self.store.busy() => {}
             HostToBoard::ModelChunk { offset, data } => {
                 match self.upload.chunk(&mut self.store, offset, data) {
                     Ok(None) => {}
@@ -433,19 +442,9 @@ impl<S: ModelStore> Core<S> {
                     Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
                 }
             }
-            HostToBoard::ModelCommit => match self.upload.commit(&mut self.store) {
-                Ok(crc) => {
-                    frame.clear();
-                    self.load_active(ws);
-                    self.host_tx
-                        .send(host, &BoardToHost::ModelAccepted { crc32: crc });
-                }
-                Err(UploadError::Incomplete { next }) => self.upload_ack(host, next),
-                Err(e @ UploadError::Invalid(_)) => {
-                    self.error(host, ErrorCode::BadModel, e.detail())
-                }
-                Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
-            },
+            // The commit record waits for flash work in progress (a log compaction).
+            HostToBoard::ModelCommit if self.store.busy() => self.commit_due = true,
+            HostToBoard::ModelCommit => self.commit_upload(ws, frame, host),
             HostToBoard::Configure(c) => {
                 if !self.configure(&c) {
                     self.error(host, ErrorCode::BadConfig, 0);
@@ -478,6 +477,22 @@ impl<S: ModelStore> Core<S> {
                 }
                 self.store_report(now_us, host);
             }
+        }
+    }
+
+    fn commit_upload<H: Write>(&mut self, ws: &mut Workspace, frame: &mut Assembly, host: &mut H) {
+        self.commit_due = false;
+        match self.upload.commit(&mut self.store) {
+            Ok(crc) => {
+                frame.clear();
+                // Just validated whole: its CRC need not be read again (a pass over the blob
+                // would stretch this poll, and so the control period).
+                self.load_active(ws, true);
+                self.host_tx.send(host, &BoardToHost::ModelAccepted { crc32: crc });
+            }
+            Err(UploadError::Incomplete { next }) => self.upload_ack(host, next),
+            Err(e @ UploadError::Invalid(_)) => self.error(host, ErrorCode::BadModel, e.detail()),
+            Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
         }
     }
 
@@ -676,6 +691,12 @@ impl<S: ModelStore> Core<S> {
             return;
         };
         let head = [yaw, pitch];
+        if self.store.busy() {
+            // On a board the model's flash bank may be being erased: reading it would stall the
+            // CPU (and the control period) until the erase ends. The next frame is read.
+            self.error(host, ErrorCode::StoreBusy, 1);
+            return;
+        }
         let result = match (self.settings, self.store.active()) {
             (Some(settings), Some(bytes)) => match Model::parse_trusted(bytes) {
                 Ok(model) => {

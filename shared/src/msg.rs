@@ -649,7 +649,9 @@ pub enum ErrorCode {
     HeadRefused,
     /// The head did not settle at the asked pose in time; `detail` is the milliseconds waited.
     HeadNotSettled,
-    /// The model store is busy with flash work (a log compaction): asked again later, it goes.
+    /// The model store is busy with flash work: `detail` 0 statistics not reset (a log
+    /// compaction runs; ask again), 1 a frame not read (a sector of the model's flash bank is
+    /// being erased).
     StoreBusy,
 }
 
