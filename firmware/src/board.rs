@@ -21,7 +21,7 @@ use msr_shared::joints::REACH_JOINTS;
 use msr_shared::msg::{
     BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameAck, FrameHeader,
     FrameState, HostToBoard, JointTarget, Mode, ServoBusKind, ServoBusReport,
-    GateUndecided, ServoToBoard, Status,
+    GateUndecided, ModelSource, ServoToBoard, Status, StoreReport,
 };
 
 /// Most bytes taken from one link per poll, so a flood cannot starve the control loop.
@@ -87,6 +87,10 @@ struct Core<S: ModelStore> {
     /// The time of the latest poll, for decisions made outside one.
     last_poll_us: u64,
     head_move: Option<HeadMove>,
+    /// `ModelBegin` was taken while the store erased: the `UploadAck` goes out once it is done.
+    upload_ack_due: bool,
+    /// `ModelCommit` came while the store was busy: it is carried out once it is done.
+    commit_due: bool,
 }
 
 /// The firmware. `S` holds the model blobs (see [`ModelStore`]).
@@ -133,6 +137,8 @@ impl<S: ModelStore> Board<S> {
                 last_reach: None,
                 last_poll_us: 0,
                 head_move: None,
+                upload_ack_due: false,
+                commit_due: false,
             },
         }
     }
@@ -157,7 +163,19 @@ impl<S: ModelStore> Board<S> {
         let core = &mut self.core;
         if !core.checked {
             core.checked = true;
-            core.load_active(&mut self.ws);
+            core.store.start();
+            core.load_active(&mut self.ws, false);
+        }
+        // Flash work in steps (one sector's erase at most), so the control period holds.
+        core.store.step();
+        if core.upload_ack_due && !core.store.busy() {
+            core.upload_ack_due = false;
+            if let Some(next) = core.upload.next() {
+                core.upload_ack(host, next);
+            }
+        }
+        if core.commit_due && !core.store.busy() {
+            core.commit_upload(&mut self.ws, &mut self.frame, host);
         }
         let mut buf = [0u8; READ_CHUNK];
         let mut taken = 0;
@@ -244,6 +262,11 @@ impl<S: ModelStore> Board<S> {
         &self.core.store
     }
 
+    /// The model store, to change it outside the host link (a preloaded model at start-up).
+    pub fn store_mut(&mut self) -> &mut S {
+        &mut self.core.store
+    }
+
     /// The behaviour's phase.
     pub fn phase(&self) -> Phase {
         self.core.motion.phase()
@@ -261,8 +284,9 @@ impl<S: ModelStore> Board<S> {
 }
 
 impl<S: ModelStore> Core<S> {
-    /// Takes the store's active blob if it validates (the built-in one at start-up).
-    fn load_active(&mut self, ws: &mut Workspace) {
+    /// Takes the store's active blob if it validates (the built-in one at start-up); `trusted`:
+    /// it validated just now, all but the CRC is checked again.
+    fn load_active(&mut self, ws: &mut Workspace, trusted: bool) {
         ws.invalidate();
         self.loaded = None;
         self.settings = None;
@@ -270,7 +294,8 @@ impl<S: ModelStore> Core<S> {
         if self.motion.phase() == Phase::Probe {
             self.motion.go_home();
         }
-        if let Some(m) = self.store.active().and_then(|b| model::validate(b).ok()) {
+        let check = if trusted { model::validate_trusted } else { model::validate };
+        if let Some(m) = self.store.active().and_then(|b| check(b).ok()) {
             self.gate = m.self_gate.map(Gate::new);
             self.loaded = Some(Loaded {
                 crc: m.crc32,
@@ -402,9 +427,14 @@ impl<S: ModelStore> Core<S> {
                 },
             },
             HostToBoard::ModelBegin { len, crc32 } => match self.upload.begin(&mut self.store, len, crc32) {
+                // The slot is being erased: the ack (and so the chunks) wait for it.
+                Ok(_) if self.store.busy() => self.upload_ack_due = true,
                 Ok(next) => self.upload_ack(host, next),
                 Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
             },
+            // Chunks before the ack, or while the flash is busy: dropped (the host sends them
+            // again from where the board says it stands).
+            HostToBoard::ModelChunk { .. } if self.upload_ack_due || self.store.busy() => {}
             HostToBoard::ModelChunk { offset, data } => {
                 match self.upload.chunk(&mut self.store, offset, data) {
                     Ok(None) => {}
@@ -412,19 +442,9 @@ impl<S: ModelStore> Core<S> {
                     Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
                 }
             }
-            HostToBoard::ModelCommit => match self.upload.commit(&mut self.store) {
-                Ok(crc) => {
-                    frame.clear();
-                    self.load_active(ws);
-                    self.host_tx
-                        .send(host, &BoardToHost::ModelAccepted { crc32: crc });
-                }
-                Err(UploadError::Incomplete { next }) => self.upload_ack(host, next),
-                Err(e @ UploadError::Invalid(_)) => {
-                    self.error(host, ErrorCode::BadModel, e.detail())
-                }
-                Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
-            },
+            // The commit record waits for flash work in progress (a log compaction).
+            HostToBoard::ModelCommit if self.store.busy() => self.commit_due = true,
+            HostToBoard::ModelCommit => self.commit_upload(ws, frame, host),
             HostToBoard::Configure(c) => {
                 if !self.configure(&c) {
                     self.error(host, ErrorCode::BadConfig, 0);
@@ -449,7 +469,44 @@ impl<S: ModelStore> Core<S> {
                 self.host_tx.send(host, &BoardToHost::ServoBus(r));
             }
             HostToBoard::MoveHead { yaw, pitch } => self.move_head(now_us, [yaw, pitch], host),
+            HostToBoard::GetStore => self.store_report(now_us, host),
+            HostToBoard::ResetStats => {
+                let crc = self.loaded.map_or(0, |l| l.crc);
+                if !self.store.reset_stats(crc) {
+                    self.error(host, ErrorCode::StoreBusy, 0);
+                }
+                self.store_report(now_us, host);
+            }
         }
+    }
+
+    fn commit_upload<H: Write>(&mut self, ws: &mut Workspace, frame: &mut Assembly, host: &mut H) {
+        self.commit_due = false;
+        match self.upload.commit(&mut self.store) {
+            Ok(crc) => {
+                frame.clear();
+                // Just validated whole: its CRC need not be read again (a pass over the blob
+                // would stretch this poll, and so the control period).
+                self.load_active(ws, true);
+                self.host_tx.send(host, &BoardToHost::ModelAccepted { crc32: crc });
+            }
+            Err(UploadError::Incomplete { next }) => self.upload_ack(host, next),
+            Err(e @ UploadError::Invalid(_)) => self.error(host, ErrorCode::BadModel, e.detail()),
+            Err(e) => self.error(host, ErrorCode::BadUpload, e.detail()),
+        }
+    }
+
+    fn store_report<H: Write>(&mut self, now_us: u64, host: &mut H) {
+        let crc = self.loaded.map_or(0, |l| l.crc);
+        let r = StoreReport {
+            model_crc: crc,
+            source: if self.loaded.is_some() { self.store.source() } else { ModelSource::None },
+            stats: self.loaded.and_then(|l| self.store.stats_age(l.crc)),
+            now_ms: now_us / 1000,
+            busy: self.store.busy(),
+            capacity: self.store.capacity().min(u32::MAX as usize) as u32,
+        };
+        self.host_tx.send(host, &BoardToHost::Store(r));
     }
 
     fn move_head<H: Write>(&mut self, now_us: u64, head: [f32; 2], host: &mut H) {
@@ -634,6 +691,12 @@ impl<S: ModelStore> Core<S> {
             return;
         };
         let head = [yaw, pitch];
+        if self.store.busy() {
+            // On a board the model's flash bank may be being erased: reading it would stall the
+            // CPU (and the control period) until the erase ends. The next frame is read.
+            self.error(host, ErrorCode::StoreBusy, 1);
+            return;
+        }
         let result = match (self.settings, self.store.active()) {
             (Some(settings), Some(bytes)) => match Model::parse_trusted(bytes) {
                 Ok(model) => {

@@ -121,6 +121,7 @@ pub mod pipeline;
 pub mod reach;
 pub mod saliency;
 pub mod self_gate;
+pub mod store;
 pub mod winner;
 
 #[cfg(test)]

@@ -8,6 +8,7 @@
 
 use crate::decoder;
 use msr_shared::blob::{BlobError, Model, CRC32};
+use msr_shared::msg::{ModelSource, StatsAge};
 
 /// Why an upload step was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -56,8 +57,29 @@ pub trait ModelStore {
     fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError>;
     /// The staged bytes, `len` of them.
     fn staged(&self) -> &[u8];
-    /// Makes the staged blob the active one.
-    fn activate(&mut self);
+    /// Makes the staged blob the active one (a flash store writes its commit record); `crc32`
+    /// is the CRC-32 of the staged bytes, as read back from staging.
+    fn activate(&mut self, crc32: u32) -> Result<(), UploadError>;
+    /// Called once before the first use: a flash store finds its model here.
+    fn start(&mut self) {}
+    /// One piece of background work (a flash sector erase), between control periods.
+    fn step(&mut self) {}
+    /// Background work is pending: `begin`'s erase is not done, `write` would be refused.
+    fn busy(&self) -> bool {
+        false
+    }
+    /// Where the active blob came from.
+    fn source(&self) -> ModelSource;
+    /// When the statistics saved for model `model_crc` were saved, if any are.
+    fn stats_age(&self, model_crc: u32) -> Option<StatsAge> {
+        let _ = model_crc;
+        None
+    }
+    /// Drops the statistics saved for model `model_crc`; `false` if that could not be done now.
+    fn reset_stats(&mut self, model_crc: u32) -> bool {
+        let _ = model_crc;
+        true
+    }
 }
 
 /// Copies an upload chunk into a staging area: an offset that overflows is out of sequence, one
@@ -132,14 +154,30 @@ impl<const N: usize> ModelStore for RamStore<N> {
         let s = self.staging();
         &self.slots[s].0[..self.lens[s].min(N)]
     }
-    fn activate(&mut self) {
+    fn activate(&mut self, _crc32: u32) -> Result<(), UploadError> {
         self.active = Some(self.staging());
+        Ok(())
+    }
+    fn source(&self) -> ModelSource {
+        match (self.active, self.builtin) {
+            (Some(_), _) => ModelSource::Ram,
+            (None, Some(_)) => ModelSource::BuiltIn,
+            (None, None) => ModelSource::None,
+        }
     }
 }
 
 /// Validates a blob for this firmware: `Model::parse` and the scale chaining the decoder needs.
 pub fn validate(bytes: &[u8]) -> Result<Model<'_>, BlobError> {
-    let m = Model::parse(bytes)?;
+    chained(Model::parse(bytes)?)
+}
+
+/// [`validate`] without the CRC pass, for a blob that passed [`validate`] and has not changed.
+pub fn validate_trusted(bytes: &[u8]) -> Result<Model<'_>, BlobError> {
+    chained(Model::parse_trusted(bytes)?)
+}
+
+fn chained(m: Model<'_>) -> Result<Model<'_>, BlobError> {
     if let Err(decoder::DecodeError::Scale(i)) = decoder::check_scales(&m) {
         return Err(BlobError::Chain(i));
     }
@@ -167,6 +205,11 @@ impl Upload {
     /// No upload in progress.
     pub const fn new() -> Self {
         Upload { state: None }
+    }
+
+    /// The byte offset wanted next, while an upload is open.
+    pub fn next(&self) -> Option<u32> {
+        self.state.map(|s| s.received as u32)
     }
 
     /// A `ModelBegin` was accepted and no commit (or store write failure) has ended it yet.
@@ -248,14 +291,14 @@ impl Upload {
             return Err(UploadError::Crc);
         }
         let crc = validate(bytes).map_err(UploadError::Invalid)?.crc32;
-        store.activate();
+        store.activate(st.crc32)?;
         Ok(crc)
     }
 }
 
 #[cfg(feature = "std")]
 mod heap {
-    use super::{ModelStore, UploadError};
+    use super::{ModelSource, ModelStore, UploadError};
 
     /// A model store on the heap (with the `std` feature: the in-process board on a PC, and tests):
     /// the active blob and a staging area, 4-byte aligned.
@@ -264,6 +307,8 @@ mod heap {
         lens: [usize; 2],
         active: Option<usize>,
         capacity: usize,
+        /// The active blob came by upload (else: built in).
+        uploaded: bool,
     }
 
     impl HeapStore {
@@ -275,6 +320,7 @@ mod heap {
                 lens: [0; 2],
                 active: None,
                 capacity,
+                uploaded: false,
             };
             if let Some(b) = builtin {
                 let mut w = std::vec![0u32; b.len().div_ceil(4)];
@@ -322,8 +368,17 @@ mod heap {
             let b = bytemuck::cast_slice::<u32, u8>(&self.slots[s]);
             &b[..self.lens[s].min(b.len())]
         }
-        fn activate(&mut self) {
+        fn activate(&mut self, _crc32: u32) -> Result<(), UploadError> {
             self.active = Some(self.staging());
+            self.uploaded = true;
+            Ok(())
+        }
+        fn source(&self) -> ModelSource {
+            match (self.active, self.uploaded) {
+                (None, _) => ModelSource::None,
+                (Some(_), false) => ModelSource::BuiltIn,
+                (Some(_), true) => ModelSource::Ram,
+            }
         }
     }
 }

@@ -14,6 +14,7 @@ pub mod episode;
 pub mod camera;
 pub mod record;
 pub mod session;
+pub mod flash_file;
 pub mod bench;
 pub mod report;
 pub mod demo;

@@ -8,7 +8,7 @@ use crate::data::crop;
 use anyhow::{bail, Context, Result};
 use msr_shared::deliver::{FaceLink, LinkStats};
 use msr_shared::host_port::HostPort;
-use msr_shared::msg::{BoardToHost, HostToBoard, Status, CHUNK};
+use msr_shared::msg::{BoardToHost, HostToBoard, Status, StoreReport, CHUNK};
 use std::io::{Read, Write};
 use std::time::{Duration, Instant};
 
@@ -270,6 +270,16 @@ impl Session {
     pub fn link_stats(&self) -> (LinkStats, f64) {
         let s = self.faces.stats;
         (s, s.face_bytes as f64 / self.t0.elapsed().as_secs_f64().max(1e-9))
+    }
+
+    /// What the board's model store holds (its model's origin, the saved statistics).
+    pub fn store(&mut self, timeout: Duration) -> Result<StoreReport> {
+        self.send_message(&HostToBoard::GetStore)?;
+        let (msgs, ok) = self.wait_for(timeout, |m| matches!(m, BoardToHost::Store(_)))?;
+        match msgs.last() {
+            Some(BoardToHost::Store(r)) if ok => Ok(*r),
+            _ => bail!("no answer to GetStore from the board within {timeout:?} (its firmware may predate it)"),
+        }
     }
 
     pub fn status(&mut self, timeout: Duration) -> Result<Status> {

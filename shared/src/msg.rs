@@ -397,6 +397,54 @@ pub enum HostToBoard<'a> {
     /// frames). `yaw`, `pitch`: HeadYaw and HeadPitch, radians.
     #[allow(missing_docs)]
     MoveHead { yaw: f32, pitch: f32 },
+    /// Asks for [`BoardToHost::Store`]: where the running model came from, the saved statistics.
+    GetStore,
+    /// Back to the model's own statistics: the saved ones are dropped (in flash too); answered
+    /// by [`BoardToHost::Store`].
+    ResetStats,
+}
+
+/// Where the running model came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum ModelSource {
+    /// No model.
+    None,
+    /// Built into the firmware image.
+    BuiltIn,
+    /// Uploaded into RAM: lost at reset.
+    Ram,
+    /// Uploaded into flash slot `slot` and made current by commit record `seq`: survives reset
+    /// and power loss.
+    #[allow(missing_docs)]
+    Flash { slot: u8, seq: u32 },
+}
+
+/// When saved statistics were saved.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StatsAge {
+    /// Board time of the save, ms since that start-up.
+    pub saved_ms: u64,
+    /// Saved in this start-up (then `saved_ms` is comparable with the board's clock).
+    pub this_boot: bool,
+    /// The record's sequence number in the store's log.
+    pub seq: u32,
+}
+
+/// What the board's model store holds (answers [`HostToBoard::GetStore`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct StoreReport {
+    /// CRC-32 of the running model blob (as `Status::model_crc`), 0 when none.
+    pub model_crc: u32,
+    /// Where it came from.
+    pub source: ModelSource,
+    /// The saved statistics of the running model, if any.
+    pub stats: Option<StatsAge>,
+    /// Board time now, ms (for the statistics' age).
+    pub now_ms: u64,
+    /// Flash work pending (a slot or log erase).
+    pub busy: bool,
+    /// Bytes an upload may take now.
+    pub capacity: u32,
 }
 
 /// The servo bus's protocol.
@@ -601,6 +649,10 @@ pub enum ErrorCode {
     HeadRefused,
     /// The head did not settle at the asked pose in time; `detail` is the milliseconds waited.
     HeadNotSettled,
+    /// The model store is busy with flash work: `detail` 0 statistics not reset (a log
+    /// compaction runs; ask again), 1 a frame not read (a sector of the model's flash bank is
+    /// being erased).
+    StoreBusy,
 }
 
 /// Board to host.
@@ -634,6 +686,8 @@ pub enum BoardToHost {
     /// report them, radians.
     #[allow(missing_docs)]
     HeadAt { head: [f32; 2] },
+    /// Answers [`HostToBoard::GetStore`] and [`HostToBoard::ResetStats`].
+    Store(StoreReport),
 }
 
 /// One joint's commanded position.

@@ -1,6 +1,7 @@
 //! NUCLEO-F429ZI image: the firmware library's `Board` with the host link on USART3 (ST-LINK VCP,
 //! PD8 TX / PD9 RX), the servo bus on USART2, the DWT cycle counter as its clock, models in flash
-//! (built in, or uploaded into bank 2), logging with defmt over RTT.
+//! (built in, or uploaded into bank 2, where they survive reset and power loss: `store.rs`),
+//! logging with defmt over RTT.
 //!
 //! The servo bus is a Dynamixel Protocol 2.0 chain, the board its master: USART2 in single-wire
 //! half-duplex mode on PD5 (open drain, pull-up), 1 Mbaud. With the `framed-servo-bus` feature it
@@ -18,10 +19,11 @@ mod port;
 mod store;
 
 use msr_firmware::board::Board;
+use msr_firmware::model::ModelStore;
 use store::FlashStore;
 
-// SAFETY (FlashStore::new): the one store of this image.
-static mut BOARD: Board<FlashStore> = Board::new(unsafe { FlashStore::new() });
+// SAFETY (store::store): the one store of this image.
+static mut BOARD: Board<FlashStore> = Board::new(unsafe { store::store() });
 
 /// Host link: the ST-LINK virtual COM port.
 const HOST_BAUD: u32 = 921_600;
@@ -73,12 +75,14 @@ fn main() -> ! {
     let mut servo = port::Port::new(unsafe { &*pac::USART2::ptr() }, &port::SERVO_RX);
     // SAFETY: the only reference to BOARD, taken once; interrupts do not touch it.
     let board = unsafe { &mut *core::ptr::addr_of_mut!(BOARD) };
+    board.store_mut().start();
     defmt::info!(
-        "msr-nucleo: {} Hz, host link USART3 {} baud, servo bus USART2 {} baud, built-in model {} bytes",
+        "msr-nucleo: {} Hz, host link USART3 {} baud, servo bus USART2 {} baud, built-in model {} bytes, model in use: {}",
         clocks.sysclk().raw(),
         HOST_BAUD,
         SERVO_BAUD,
-        store::BUILT_IN.len()
+        store::BUILT_IN.len(),
+        defmt::Debug2Format(&board.store().source())
     );
     let mut next_log_ms = 0u32;
     loop {

@@ -1,27 +1,23 @@
-//! Model storage in the STM32F429's flash bank 2: two upload slots of 512 KiB (active and
-//! staging, swapped on a good commit) behind the library's `ModelStore`, and the built-in model
-//! (`MSR_MODEL_BLOB` at build time, in bank 1 with the code) that runs until the first upload.
+//! The model store in the STM32F429's flash bank 2 (0x0810_0000, 1 MiB): the firmware library's
+//! power-safe [`FlashStore`] with the `F429_BANK2` layout (record log in sectors 12 and 13, slot
+//! 0 in 14..=19, slot 1 in 20..=23), and the built-in model (`MSR_MODEL_BLOB` at build time, in
+//! bank 1 with the code) that runs when no upload is committed.
 //!
-//! Code runs from bank 1 while bank 2 is erased and programmed (read-while-write), so the USART
-//! interrupts keep filling their rings; the main loop itself stalls while a slot is erased
-//! (about 1 s per 128 KiB sector), so upload while the robot rests. An upload lasts until reset:
-//! at start-up the built-in model runs again.
+//! Programs go through the HAL's `embedded-storage` implementation (byte programming). Erases
+//! are started here and polled ([`MappedFlash::erase_step`]), one sector at a time between
+//! control periods: the code runs from bank 1 while bank 2 is erased (read-while-write), so the
+//! main loop and the USART interrupts go on. A read of bank 2 (the running model) while it is
+//! erased would stall the CPU until the erase ends: the board answers frames with `StoreBusy`
+//! meanwhile (`Board` asks the store whether it is busy).
 
-use msr_firmware::model::{ModelStore, UploadError};
-use stm32f4xx_hal::flash::FlashExt;
+use embedded_storage::nor_flash::{ErrorType, NorFlash, ReadNorFlash};
+use msr_firmware::store::{MappedFlash, F429_BANK2, F429_BANK_SECTORS};
+use stm32f4xx_hal::flash::{Error, FlashExt};
 use stm32f4xx_hal::pac;
 
-/// Bank 2 sector numbers (as the HAL counts them) and offsets from the flash base.
-const SLOTS: [(u32, &[u8]); 2] = [(0x10_0000, &[12, 13, 14, 15, 16, 17, 18, 19]), (0x18_0000, &[20, 21, 22, 23])];
-/// Sizes of sectors 12..=23: 4 x 16 KiB, 64 KiB, 7 x 128 KiB.
-const fn sector_size(n: u8) -> u32 {
-    match n {
-        12..=15 => 16 * 1024,
-        16 => 64 * 1024,
-        _ => 128 * 1024,
-    }
-}
-pub const SLOT: usize = 512 * 1024;
+/// Bank 2's offset from the flash base, and its size.
+const BANK2: u32 = 0x10_0000;
+const BANK2_LEN: usize = 1024 * 1024;
 const FLASH_BASE: usize = 0x0800_0000;
 
 #[repr(C, align(8))]
@@ -32,81 +28,117 @@ static BUILT_IN_BLOB: &Aligned<[u8]> = &Aligned(*include_bytes!(concat!(env!("OU
 /// The model built into the image, empty when there is none.
 pub static BUILT_IN: &[u8] = &BUILT_IN_BLOB.0;
 
-pub struct FlashStore {
-    lens: [usize; 2],
-    active: Option<usize>,
+/// Flash bank 2 as `embedded-storage` NOR flash, offsets from its start.
+pub struct Bank2 {
+    /// The sector whose erase was started (its offset), until it is seen done.
+    erasing: Option<u32>,
 }
 
-impl FlashStore {
-    /// # Safety
-    /// The one store; it alone erases and programs flash (it steals the FLASH peripheral for it).
-    pub const unsafe fn new() -> FlashStore {
-        FlashStore { lens: [0; 2], active: None }
-    }
+/// The board's store.
+pub type FlashStore = msr_firmware::store::FlashStore<Bank2>;
 
-    fn staging(&self) -> usize {
-        self.active.map_or(0, |i| 1 - i)
-    }
-
-    fn slot(i: usize, len: usize) -> &'static [u8] {
-        // SAFETY: memory-mapped flash, read-only here; `len <= SLOT` inside bank 2.
-        unsafe { core::slice::from_raw_parts((FLASH_BASE + SLOTS[i].0 as usize) as *const u8, len.min(SLOT)) }
-    }
-
-    fn flash() -> pac::FLASH {
-        // SAFETY: see `new`: nothing else uses the FLASH peripheral.
-        unsafe { pac::FLASH::steal() }
-    }
+/// The one store of this image.
+///
+/// # Safety
+/// Make one: it alone erases and programs the flash (it steals the FLASH peripheral for it).
+pub const unsafe fn store() -> FlashStore {
+    msr_firmware::store::FlashStore::new(Bank2 { erasing: None }, F429_BANK2, Some(BUILT_IN))
 }
 
-impl ModelStore for FlashStore {
-    fn active(&self) -> Option<&[u8]> {
-        match self.active {
-            Some(i) => Some(Self::slot(i, self.lens[i])),
-            None => (!BUILT_IN.is_empty()).then_some(BUILT_IN),
+fn flash() -> pac::FLASH {
+    // SAFETY: see `store`: nothing else uses the FLASH peripheral.
+    unsafe { pac::FLASH::steal() }
+}
+
+impl ErrorType for Bank2 {
+    type Error = Error;
+}
+
+impl ReadNorFlash for Bank2 {
+    const READ_SIZE: usize = 1;
+
+    fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Error> {
+        let m = self.mapped();
+        let s = offset as usize;
+        match m.get(s..s + bytes.len()) {
+            Some(src) => {
+                bytes.copy_from_slice(src);
+                Ok(())
+            }
+            None => Err(Error::ProgrammingAlignment),
         }
     }
 
     fn capacity(&self) -> usize {
-        SLOT
+        BANK2_LEN
+    }
+}
+
+impl NorFlash for Bank2 {
+    const WRITE_SIZE: usize = 1;
+    const ERASE_SIZE: usize = 16 * 1024;
+
+    fn erase(&mut self, from: u32, to: u32) -> Result<(), Error> {
+        let mut f = flash();
+        let mut u = f.unlocked();
+        NorFlash::erase(&mut u, BANK2 + from, BANK2 + to)
     }
 
-    fn begin(&mut self, len: usize) -> Result<(), UploadError> {
-        if len > SLOT {
-            return Err(UploadError::TooLarge);
+    fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Error> {
+        let mut f = flash();
+        let mut u = f.unlocked();
+        u.program((BANK2 + offset) as usize, bytes.iter())
+    }
+}
+
+/// The HAL's sector number of the bank-2 sector at `offset`, and the SNB field's value
+/// (sectors 12..=23 are 16..=27 there, RM0090 3.9.8).
+fn sector_of(offset: u32) -> Option<u8> {
+    let mut at = 0;
+    for (i, s) in F429_BANK_SECTORS.iter().enumerate() {
+        if at == offset {
+            return Some(12 + i as u8);
         }
-        let s = self.staging();
-        let mut flash = Self::flash();
-        let mut unlocked = flash.unlocked();
-        let mut covered = 0u32;
-        for &n in SLOTS[s].1 {
-            if covered as usize >= len {
-                break;
-            }
-            unlocked.erase(n).map_err(|_| UploadError::Store)?;
-            covered += sector_size(n);
+        at += s;
+    }
+    None
+}
+
+impl MappedFlash for Bank2 {
+    fn mapped(&self) -> &[u8] {
+        // SAFETY: memory-mapped flash, read-only here.
+        unsafe { core::slice::from_raw_parts((FLASH_BASE + BANK2 as usize) as *const u8, BANK2_LEN) }
+    }
+
+    /// Starts a sector erase and returns; later calls poll BSY (RM0090 3.6.3).
+    fn erase_step(&mut self, from: u32, to: u32) -> Result<bool, Error> {
+        let _ = to;
+        // SAFETY: register access of the FLASH block this store owns.
+        let regs = unsafe { &*pac::FLASH::ptr() };
+        if regs.sr().read().bsy().bit() {
+            return Ok(false);
         }
-        self.lens[s] = len;
-        Ok(())
-    }
-
-    fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError> {
-        let s = self.staging();
-        let end = offset.checked_add(data.len()).ok_or(UploadError::TooLarge)?;
-        if end > SLOT {
-            return Err(UploadError::TooLarge);
+        if self.erasing == Some(from) {
+            self.erasing = None;
+            let sr = regs.sr().read();
+            let failed = sr.wrperr().bit() || sr.pgaerr().bit() || sr.pgperr().bit() || sr.pgserr().bit() || sr.operr().bit();
+            regs.cr().modify(|_, w| w.ser().clear_bit().lock().set_bit());
+            return if failed { Err(Error::Operation) } else { Ok(true) };
         }
-        let mut flash = Self::flash();
-        let mut unlocked = flash.unlocked();
-        unlocked.program(SLOTS[s].0 as usize + offset, data.iter()).map_err(|_| UploadError::Store)
-    }
-
-    fn staged(&self) -> &[u8] {
-        let s = self.staging();
-        Self::slot(s, self.lens[s])
-    }
-
-    fn activate(&mut self) {
-        self.active = Some(self.staging());
+        let Some(sector) = sector_of(from) else { return Err(Error::ProgrammingAlignment) };
+        let snb = sector + 4;
+        regs.keyr().write(|w| unsafe { w.key().bits(0x4567_0123) });
+        regs.keyr().write(|w| unsafe { w.key().bits(0xCDEF_89AB) });
+        // Clear old error flags (write 1 to clear), then start.
+        regs.sr().write(|w| unsafe { w.bits(0xF3) });
+        regs.cr().modify(|_, w| {
+            w.psize().psize8();
+            unsafe { w.snb().bits(snb) };
+            w.ser().set_bit();
+            w.pg().clear_bit()
+        });
+        regs.cr().modify(|_, w| w.strt().set_bit());
+        self.erasing = Some(from);
+        Ok(false)
     }
 }

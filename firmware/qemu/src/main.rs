@@ -13,8 +13,8 @@
 //!   does.
 //!
 //! The model is the built-in one (`MSR_MODEL_BLOB` at build time), whatever the host uploads
-//! (`ModelBegin` / `ModelChunk` / `ModelCommit`) into the two flash slots, or the one a reset
-//! (`R` on UART2) left active in them. A model preloaded into PSRAM with QEMU's generic loader
+//! (`ModelBegin` / `ModelChunk` / `ModelCommit`) into the store's two flash slots, or the one
+//! committed there before a reset (`R` on UART2). A model preloaded into PSRAM with QEMU's generic loader
 //! ([`model_area::take_preload`]) goes into the slots at a start that finds them empty, checked
 //! as an upload is.
 //!
@@ -56,8 +56,8 @@ fn boot_request() -> Option<u64> {
     (magic == BOOT_MAGIC && tick > 0).then_some(tick as u64)
 }
 
-// SAFETY (FlashStore::new): the one store of this image; the bench area is not used here.
-static mut BOARD: Board<FlashStore> = Board::new(unsafe { FlashStore::new() });
+// SAFETY (model_area::store): the one store of this image.
+static mut BOARD: Board<FlashStore> = Board::new(unsafe { model_area::store() });
 
 /// The clock channel on UART2. Host to board, one opcode byte then little-endian fields:
 /// - `T host:u16 servo:u16`: one tick; the host wrote `host` bytes to UART0 and `servo` to UART1
@@ -246,7 +246,9 @@ fn main() -> ! {
     uart::enable_rx_irqs();
     // SAFETY: the only reference to BOARD, taken once in this single-threaded image.
     let board = unsafe { &mut *core::ptr::addr_of_mut!(BOARD) };
-    report_preload(model_area::take_preload());
+    // The store finds its committed model (if any) before anything asks for it.
+    board.store_mut().start();
+    report_preload(model_area::take_preload(board.store_mut()));
     let crc = announce(board);
     let mut hello = [ctl::HELLO, 0, 0, 0, 0];
     hello[1..].copy_from_slice(&crc.to_le_bytes());

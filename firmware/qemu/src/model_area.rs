@@ -1,24 +1,24 @@
-//! The model's home in "flash": a model built into the image at compile time, and two slots an
-//! uploaded one is written to (active and staging, as a board with flash would do it).
+//! The model's home in "flash": a model built into the image at compile time, and the board's
+//! model store (`msr_firmware::store`) on an emulated NOR flash with the F429's sector sizes in
+//! the PSRAM ([`FLASH_ADDR`]), which QEMU keeps across a reset (`SYSRESETREQ` does not clear
+//! memory): a reset comes back with the uploaded model, so a host can restart the board between
+//! trials without uploading again. A fresh QEMU starts with the region zeroed: nothing
+//! committed, the built-in model (or none).
 //!
 //! Built in: set `MSR_MODEL_BLOB=/path/to/model.msrm` when building the image; `build.rs` copies
 //! it into the build and [`BUILT_IN`] holds it (4-byte aligned, as the decoder's fast paths
 //! want). Without it, [`BUILT_IN`] is empty and the model must be uploaded.
 //!
-//! The slots live in the `.model` section, which `memory.x` places in the code memory without
-//! loading it: on mps2 that memory is RAM, so the image can write it like programmed flash.
-//! Which slot is active is kept there too ([`Meta`]), as a board keeps it in flash: a reset
-//! (`SYSRESETREQ`, which QEMU performs without clearing memory) comes back with the uploaded
-//! model, so a host can restart the board between trials without uploading again. A fresh QEMU
-//! starts with zeroed memory: no record, the built-in model.
-//!
 //! Preloaded: a host that starts QEMU may put a model into the board's PSRAM with QEMU's generic
 //! loader ([`PRELOAD_ADDR`], see [`take_preload`]) instead of uploading it over the emulated UART
 //! (20-40 KB/s: half a minute for the demo's model). At a start with no uploaded model in the
-//! slots, the image takes it through the upload's own state machine, CRC and validation
+//! flash, the image takes it through the upload's own state machine, CRC and validation
 //! included, as if it had come over UART0, and refuses a bad one as an upload would.
 
 use msr_firmware::model::{ModelStore, Upload, UploadError};
+use msr_firmware::store::emu::{Cells, EmuFlash};
+use msr_firmware::store::{EMULATED, EMULATED_SECTORS};
+use msr_shared::msg::ModelSource;
 
 /// Bytes per slot: the published MLP decoder with i16 weights is 1.1 MB.
 pub const SLOT: usize = 1536 * 1024;
@@ -31,125 +31,49 @@ static BUILT_IN_BLOB: &Aligned<[u8]> = &Aligned(*include_bytes!(concat!(env!("OU
 /// The model built into the image, empty when there is none.
 pub static BUILT_IN: &[u8] = &BUILT_IN_BLOB.0;
 
-/// The active slot's record, written last on a commit.
-#[repr(C)]
-#[derive(Clone, Copy)]
-struct Meta {
-    magic: u32,
-    slot: u32,
-    len: u32,
-    /// `magic ^ slot ^ len`, so a half-written or stray record is not taken.
-    check: u32,
-}
+/// Where the board's flash lies: 3.5 MiB of the mps2 boards' PSRAM (16 MiB at 0x2100_0000;
+/// the preload uses its start), which QEMU keeps across a reset as a board keeps its flash. A
+/// fresh QEMU starts with it all zero, which the store takes as flash holding nothing valid.
+pub const FLASH_ADDR: usize = 0x2180_0000;
 
-const META_MAGIC: u32 = 0x4D53_524D; // "MSRM"
+/// The flash region's bytes: the PSRAM at [`FLASH_ADDR`].
+pub struct Psram;
 
-impl Meta {
-    fn active(self) -> Option<(usize, usize)> {
-        let ok = self.magic == META_MAGIC
-            && self.check == self.magic ^ self.slot ^ self.len
-            && self.slot < 2
-            && self.len as usize <= SLOT;
-        ok.then_some((self.slot as usize, self.len as usize))
+impl Cells for Psram {
+    fn bytes(&self) -> &[u8] {
+        // SAFETY: PSRAM, always mapped under QEMU; only the one store (see [`store`]) uses it.
+        unsafe { core::slice::from_raw_parts(FLASH_ADDR as *const u8, EMULATED_LEN) }
+    }
+    fn bytes_mut(&mut self) -> &mut [u8] {
+        // SAFETY: as above; `&mut self` is the store's exclusive access.
+        unsafe { core::slice::from_raw_parts_mut(FLASH_ADDR as *mut u8, EMULATED_LEN) }
     }
 }
 
-#[link_section = ".model"]
-static mut META: Meta = Meta { magic: 0, slot: 0, len: 0, check: 0 };
+const EMULATED_LEN: usize = 3584 * 1024;
+const _: () = assert!(EMULATED_LEN == EMULATED.len() as usize);
 
-fn read_meta() -> Meta {
-    // SAFETY: a plain read of the record; only `FlashStore::activate` writes it.
-    unsafe { core::ptr::read_volatile(core::ptr::addr_of!(META)) }
+/// The emulated flash: byte programming, the F429's sector sizes (the store's `EMULATED`).
+pub type Flash = EmuFlash<Psram, 1>;
+/// The board's model store.
+pub type FlashStore = msr_firmware::store::FlashStore<Flash>;
+
+/// The board's store over [`FLASH_ADDR`], running [`BUILT_IN`] (when not empty) until an upload
+/// is committed.
+///
+/// # Safety
+/// Make one: the store owns the flash region.
+pub const unsafe fn store() -> FlashStore {
+    msr_firmware::store::FlashStore::new(EmuFlash::new(Psram, &EMULATED_SECTORS), EMULATED, Some(BUILT_IN))
 }
 
 #[link_section = ".model"]
 static mut SLOT_A: Aligned<[u8; SLOT]> = Aligned([0; SLOT]);
-#[link_section = ".model"]
-static mut SLOT_B: Aligned<[u8; SLOT]> = Aligned([0; SLOT]);
 
-fn slot_ptr(i: usize) -> *mut [u8; SLOT] {
-    // SAFETY: only the addresses are taken here.
-    unsafe {
-        if i == 0 {
-            core::ptr::addr_of_mut!(SLOT_A.0)
-        } else {
-            core::ptr::addr_of_mut!(SLOT_B.0)
-        }
-    }
-}
-
-/// The whole first slot, for the benchmark image, which takes a model without the link
-/// protocol. Must not be used together with a [`FlashStore`].
+/// The bench image's model area (code memory, not part of the image file).
 pub fn bench_area() -> &'static mut [u8; SLOT] {
-    // SAFETY: the benchmark image calls this once and has no FlashStore.
-    unsafe { &mut *slot_ptr(0) }
-}
-
-/// The two slots behind the library's [`ModelStore`]: one active, one staging, swapped on a
-/// good commit; the built-in model runs until then (or the model a reset left active). Make
-/// only one (it owns the slots).
-pub struct FlashStore {
-    /// Bytes announced for the staging slot.
-    staging_len: usize,
-}
-
-impl FlashStore {
-    /// # Safety
-    /// At most one `FlashStore` may be in use at a time (apart from [`take_preload`]'s own, used
-    /// before any other), and [`bench_area`] must not be used with it.
-    pub const unsafe fn new() -> FlashStore {
-        FlashStore { staging_len: 0 }
-    }
-
-    fn staging(&self) -> usize {
-        read_meta().active().map_or(0, |(i, _)| 1 - i)
-    }
-}
-
-impl ModelStore for FlashStore {
-    fn active(&self) -> Option<&[u8]> {
-        match read_meta().active() {
-            // SAFETY: the active slot is never the staging one, the only one written; `&self`
-            // ties the borrow to the store, so no commit (`&mut self`) can overlap it.
-            Some((i, len)) => Some(unsafe { &(&*slot_ptr(i))[..len] }),
-            None => (!BUILT_IN.is_empty()).then_some(BUILT_IN),
-        }
-    }
-
-    fn capacity(&self) -> usize {
-        SLOT
-    }
-
-    fn begin(&mut self, len: usize) -> Result<(), UploadError> {
-        if len > SLOT {
-            return Err(UploadError::TooLarge);
-        }
-        self.staging_len = len;
-        Ok(())
-    }
-
-    fn write(&mut self, offset: usize, data: &[u8]) -> Result<(), UploadError> {
-        let s = self.staging();
-        let end = offset.checked_add(data.len()).ok_or(UploadError::TooLarge)?;
-        // SAFETY: the staging slot, never handed out while staging; `&mut self` is exclusive.
-        let slot = unsafe { &mut *slot_ptr(s) };
-        slot.get_mut(offset..end).ok_or(UploadError::TooLarge)?.copy_from_slice(data);
-        Ok(())
-    }
-
-    fn staged(&self) -> &[u8] {
-        let s = self.staging();
-        // SAFETY: read-only view of the staging slot tied to `&self`.
-        unsafe { &(&*slot_ptr(s))[..self.staging_len.min(SLOT)] }
-    }
-
-    fn activate(&mut self) {
-        let slot = self.staging() as u32;
-        let len = self.staging_len as u32;
-        let m = Meta { magic: META_MAGIC, slot, len, check: META_MAGIC ^ slot ^ len };
-        // SAFETY: `&mut self` is exclusive; nothing borrows the record.
-        unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(META), m) };
-    }
+    // SAFETY: the benchmark image calls this once; nothing else uses the area.
+    unsafe { &mut *core::ptr::addr_of_mut!(SLOT_A.0) }
 }
 
 /// Where a host may preload a model: the mps2 boards' 16 MiB PSRAM, which this image does not
@@ -166,8 +90,8 @@ const PRELOAD_HEADER: usize = 16;
 pub enum Preload {
     /// No preload header (or a damaged one) at [`PRELOAD_ADDR`].
     None,
-    /// An uploaded model is active in the slots (a reset after an upload or an earlier preload):
-    /// the preload is left alone, as a board keeps its flash.
+    /// An uploaded model is committed in the flash (a reset after an upload or an earlier
+    /// preload): the preload is left alone, as a board keeps its flash.
     Kept,
     /// Verified and active; its CRC-32.
     Taken(u32),
@@ -177,7 +101,7 @@ pub enum Preload {
 
 /// Takes a preloaded model into the slots when none is active there, through [`Upload`] (CRC and
 /// blob validation as for `ModelCommit`). Call once at start-up, before the board uses its store.
-pub fn take_preload() -> Preload {
+pub fn take_preload(store: &mut FlashStore) -> Preload {
     let base = PRELOAD_ADDR as *const u32;
     // SAFETY: PSRAM on mps2-an385/386/500/511, always mapped under QEMU; any bit pattern is a
     // valid u32, and a fresh machine's zeroes fail the magic.
@@ -185,23 +109,25 @@ pub fn take_preload() -> Preload {
     if magic != PRELOAD_MAGIC || check != magic ^ len ^ crc {
         return Preload::None;
     }
-    if read_meta().active().is_some() {
+    store.start();
+    if matches!(store.source(), ModelSource::Flash { .. }) {
         return Preload::Kept;
     }
-    // SAFETY: called at start-up, before the board's store is used; this store is dropped
-    // before that and holds nothing but the length announced by `begin` below.
-    let mut store = unsafe { FlashStore::new() };
     let mut upload = Upload::new();
-    if let Err(e) = upload.begin(&mut store, len, crc) {
+    if let Err(e) = upload.begin(store, len, crc) {
         return Preload::Refused(e);
     }
-    // `begin` refused anything longer than a slot, so the blob lies inside the 16 MiB PSRAM.
-    // SAFETY: `len <= SLOT` bytes of mapped PSRAM after the header, read-only while alive.
+    while store.busy() {
+        store.step();
+    }
+    // `begin` refused anything longer than a slot, so the blob lies inside the 16 MiB PSRAM
+    // (below the flash region: a slot is smaller than the 8 MiB before it).
+    // SAFETY: `len` bytes of mapped PSRAM after the header, read-only while alive.
     let blob = unsafe { core::slice::from_raw_parts((PRELOAD_ADDR + PRELOAD_HEADER) as *const u8, len as usize) };
-    if let Err(e) = upload.chunk(&mut store, 0, blob) {
+    if let Err(e) = upload.chunk(store, 0, blob) {
         return Preload::Refused(e);
     }
-    match upload.commit(&mut store) {
+    match upload.commit(store) {
         Ok(crc) => Preload::Taken(crc),
         Err(e) => Preload::Refused(e),
     }

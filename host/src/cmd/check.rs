@@ -258,6 +258,10 @@ pub fn check(c: &Command) -> Result<()> {
                 bail!("--resume and --force contradict each other: give one");
             }
         }
+        Command::Status(a) => {
+            int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
+            int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
+        }
         Command::Template(a) => {
             super::template::parse_box(&a.r#box)?;
             outputs(&[("--frame", &a.frame)], &[("--out", &a.out)])?;

@@ -17,6 +17,7 @@ pub mod serve;
 pub mod record;
 pub mod template;
 pub mod line_noise;
+pub mod status;
 
 use self::run as run_board;
 use anyhow::Result;
@@ -62,6 +63,8 @@ pub enum Command {
     Servos(servos::Args),
     /// An emulated board (in-process or QEMU) with the sim's servos on a new PTY
     Serve(serve::Args),
+    /// What a board runs: its model's CRC and origin, the saved statistics, its counters
+    Status(status::Args),
     /// Record a training set on the robot: head babbling, frames with the reported head angles
     Record(record::Args),
     /// Cut a face template out of a camera frame
@@ -161,5 +164,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Record(a) => record::run(a),
         Command::Template(a) => template::run(a),
         Command::Demo(a) => demo::run(a),
+        Command::Status(a) => status::run(a),
     }
 }

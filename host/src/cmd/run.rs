@@ -123,6 +123,7 @@ pub fn describe(m: &BoardToHost) -> String {
         ),
         BoardToHost::FrameAck(a) => format!("frame {} round {}: {:?}", a.frame, a.round, a.state),
         BoardToHost::UploadAck { next } => format!("upload: the board wants byte {next} next"),
+        BoardToHost::Store(r) => crate::cmd::status::describe_store(r),
         BoardToHost::SelfGate(g) => format!(
             "self gate at frame {}: {:?}, gain ratio {:.3}, rest {:.2} px, frames {:?}, {} ms",
             g.frame, g.decision, g.gain_ratio, g.rest_px, g.frames, g.elapsed_ms
@@ -193,6 +194,10 @@ pub fn run(a: Args) -> Result<()> {
         }
         let crc = s.upload(&blob, timeout + line)?;
         print(&BoardToHost::ModelAccepted { crc32: crc }, a.json)?;
+    } else {
+        // Frames cropped with one model's template and read with another's: refuse.
+        let runs = s.status(timeout)?.model_crc;
+        crate::cmd::status::check_model(runs, model.crc32, &a.model)?;
     }
     let mut stream = || -> Result<()> {
         while let Some(camera::Frame { name, grey: frame }) = frames.next_frame()? {

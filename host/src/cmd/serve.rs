@@ -30,6 +30,10 @@ pub struct Args {
     /// Seed of the host link's faults
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Keep the board's flash in this file (created when missing): an uploaded model and the
+    /// saved statistics are there again after a restart (in-process board)
+    #[arg(long, value_name = "FILE")]
+    pub flash: Option<PathBuf>,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -40,6 +44,7 @@ pub fn run(a: Args) -> Result<()> {
     let mut cfg = ServeConfig::new(a.backend, model);
     cfg.host_faults = a.noise.faults();
     cfg.seed = a.seed;
+    cfg.flash = a.flash.clone();
     let board = SimBoard::serve(cfg)?;
     // The path on stdout alone, for scripts; the rest on stderr.
     println!("{}", board.path());

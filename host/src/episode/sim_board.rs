@@ -13,7 +13,9 @@ use msr_sim::link::{FaultConfig, LinkEnd};
 use msr_sim::pty::{Pty, PtyBridge};
 use msr_sim::world::{self, Flow, World, WorldConfig};
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::path::PathBuf;
 use std::sync::Arc;
+use msr_firmware::{Board, ModelStore};
 use std::thread::JoinHandle;
 
 /// What the served board did, when it stopped.
@@ -41,12 +43,15 @@ pub struct ServeConfig {
     /// board only), seeded by `seed`: a noisy USB-serial line to test a host against.
     pub host_faults: FaultConfig,
     pub seed: u64,
+    /// The board's flash in this file (created when missing): uploads and statistics survive
+    /// a restart. Without it an upload lives in RAM until the server stops.
+    pub flash: Option<PathBuf>,
 }
 
 impl ServeConfig {
     /// A clean line to the board `backend` runs, with `model` (or none) in it.
     pub fn new(backend: Backend, model: Option<Vec<u8>>) -> ServeConfig {
-        ServeConfig { backend, model, host_faults: FaultConfig::default(), seed: 0 }
+        ServeConfig { backend, model, host_faults: FaultConfig::default(), seed: 0, flash: None }
     }
 }
 
@@ -54,8 +59,18 @@ impl SimBoard {
     /// Starts the board `cfg` names behind a new PTY.
     pub fn serve(cfg: ServeConfig) -> Result<SimBoard> {
         match cfg.backend {
-            Backend::Inproc => SimBoard::start_with(cfg.model, cfg.host_faults, cfg.seed),
+            Backend::Inproc => match cfg.flash {
+                Some(path) => {
+                    let builtin = cfg.model.as_deref().map(crate::flash_file::leak_aligned);
+                    let store = crate::flash_file::open_store(&path, msr_firmware::store::EMULATED, builtin)?;
+                    SimBoard::start_board(Box::new(msr_firmware::Board::new(store)), cfg.host_faults, cfg.seed)
+                }
+                None => SimBoard::start_with(cfg.model, cfg.host_faults, cfg.seed),
+            },
             Backend::Qemu => {
+                if cfg.flash.is_some() {
+                    bail!("--flash keeps the in-process board's flash (--backend inproc); the QEMU board's is not kept in a file yet");
+                }
                 if cfg.host_faults != FaultConfig::default() {
                     bail!("host-link faults are emulated for the in-process board only (--backend inproc)");
                 }
@@ -139,6 +154,19 @@ impl SimBoard {
 
     /// [`SimBoard::start`] with `faults` on both directions of the host link, seeded by `seed`.
     pub fn start_with(blob: Option<Vec<u8>>, faults: FaultConfig, seed: u64) -> Result<SimBoard> {
+        let board = match &blob {
+            Some(b) => inproc_board(b),
+            None => Box::new(msr_firmware::Board::new(crate::episode::HeapStore::new(None, 2 * 1024 * 1024))),
+        };
+        SimBoard::start_board(board, faults, seed)
+    }
+
+    /// Serves `board` (any model store) behind a new PTY, `faults` on its host link.
+    pub fn start_board<S: ModelStore + Send + 'static>(
+        mut board: Box<Board<S>>,
+        faults: FaultConfig,
+        seed: u64,
+    ) -> Result<SimBoard> {
         faults.check().map_err(|e| anyhow!("host-link faults: {e}"))?;
         let pty = Pty::open()?;
         let path = pty.path().to_string();
@@ -146,13 +174,6 @@ impl SimBoard {
         let stop2 = stop.clone();
         let thread = std::thread::Builder::new().name("sim-board".into()).spawn(
             move || -> Result<Served> {
-                let mut board = match &blob {
-                    Some(b) => inproc_board(b),
-                    None => Box::new(msr_firmware::Board::new(crate::episode::HeapStore::new(
-                        None,
-                        2 * 1024 * 1024,
-                    ))),
-                };
                 let mut bridge = PtyBridge::new(pty);
                 let mut io_error = None;
                 let mut cfg = WorldConfig { pace: Some(1.0), ..WorldConfig::default() }.seeded(seed);

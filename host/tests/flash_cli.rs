@@ -1,0 +1,123 @@
+//! `msr serve --flash FILE`: what the emulated board learns, it keeps. An uploaded model is there
+//! after the server is killed and started again (`msr status` shows it), and a server killed at
+//! any moment of an upload comes back with the old model or the new one, never none (the new
+//! one whenever the board had accepted it).
+mod common;
+
+use msr_host::session::Session;
+use rand::{Rng, SeedableRng};
+use serde_json::Value;
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::time::Duration;
+
+const T: Duration = Duration::from_secs(3);
+
+/// `msr serve --flash flash` as a child process, and the PTY path it printed.
+fn serve(flash: &Path) -> (Child, String) {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_msr"))
+        .args(["serve", "--flash", flash.to_str().unwrap()])
+        .stdout(Stdio::piped())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    let path = line.trim().to_string();
+    assert!(path.starts_with("/dev/"), "msr serve printed {line:?}");
+    (child, path)
+}
+
+/// `msr status --json` on `port`: the store's part.
+fn store(port: &str) -> Value {
+    let out = Command::new(env!("CARGO_BIN_EXE_msr"))
+        .args(["status", "--port", port, "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "msr status: {}", String::from_utf8_lossy(&out.stderr));
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["store"]["model_crc"], v["status"]["model_crc"], "{v}");
+    v["store"].clone()
+}
+
+fn crc(blob: &[u8]) -> u64 {
+    msr_shared::blob::Model::parse(blob).unwrap().crc32 as u64
+}
+
+fn kill(mut c: Child) {
+    c.kill().unwrap();
+    c.wait().unwrap();
+}
+
+#[test]
+fn an_upload_survives_a_killed_server_and_a_killed_upload_leaves_the_old_or_the_new_model() {
+    let tmp = tempfile::tempdir().unwrap();
+    let flash = tmp.path().join("board.flash");
+    // Two models: the conv decoder with i16 weights, and with i8 weights.
+    let first = msr_host::bench::synthetic_with(msr_host::models::ArchKind::Conv, false).unwrap().blob;
+    let second = msr_host::bench::synthetic_with(msr_host::models::ArchKind::Conv, true).unwrap().blob;
+    assert_ne!(crc(&first), crc(&second));
+
+    // A new file: no model. Upload the first, kill the server, start it again: still there.
+    let (server, port) = serve(&flash);
+    assert_eq!(store(&port)["source"], "None");
+    let mut s = Session::open(&port, 921_600).unwrap();
+    let line = Duration::from_secs_f64(first.len() as f64 * 11.0 / 921_600.0);
+    assert_eq!(s.upload(&first, T + line).unwrap() as u64, crc(&first));
+    drop(s);
+    kill(server);
+    let (server, port) = serve(&flash);
+    let st = store(&port);
+    assert_eq!(st["model_crc"], crc(&first), "{st}");
+    assert_eq!(st["source"]["Flash"]["slot"], 0, "{st}");
+    kill(server);
+
+    // Five uploads, the server killed at a random moment of each: of the second model, and
+    // whenever the second one came through, of the first again (so each upload goes over the
+    // slot of the model before).
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(27);
+    let line = Duration::from_secs_f64(second.len() as f64 * 11.0 / 921_600.0);
+    let mut seen = [0; 2];
+    let mut running = crc(&first);
+    for i in 0..5 {
+        let (server, port) = serve(&flash);
+        let next = if running == crc(&first) { &second } else { &first };
+        let blob = next.clone();
+        let uploader = std::thread::spawn(move || {
+            let mut s = Session::open(&port, 921_600).ok()?;
+            s.upload(&blob, T + line).ok()
+        });
+        let at = Duration::from_secs_f64(rng.gen_range(0.2..2.5) * line.as_secs_f64());
+        std::thread::sleep(at);
+        kill(server);
+        let finished = uploader.join().unwrap().is_some();
+        let (server, port) = serve(&flash);
+        let st = store(&port);
+        let got = st["model_crc"].as_u64().unwrap();
+        eprintln!(
+            "upload {i} of {:08x}: killed after {:.2} s (finished: {finished}): runs {got:08x}",
+            crc(next),
+            at.as_secs_f64()
+        );
+        assert!(got == crc(&first) || got == crc(&second), "upload {i}: {st}");
+        if finished {
+            assert_eq!(got, crc(next), "upload {i}: accepted, then lost: {st}");
+        }
+        seen[usize::from(got == crc(&second))] += 1;
+        running = got;
+        kill(server);
+    }
+    eprintln!("after the five kills: {} times the first model ran, {} times the second", seen[0], seen[1]);
+}
+
+#[test]
+fn a_flash_file_of_the_wrong_size_is_refused_in_one_line() {
+    let tmp = tempfile::tempdir().unwrap();
+    let flash = tmp.path().join("small.flash");
+    std::fs::write(&flash, [0xFFu8; 100]).unwrap();
+    let (ok, _, err) = common::msr(&["serve", "--flash", flash.to_str().unwrap(), "--seconds", "1"]);
+    assert!(!ok);
+    assert!(err.contains("is 100 bytes, an emulated board's flash is"), "{err}");
+    assert_eq!(std::fs::read(&flash).unwrap(), [0xFFu8; 100], "the file is left alone");
+}
