@@ -17,3 +17,4 @@ pub mod session;
 pub mod bench;
 pub mod report;
 pub mod demo;
+pub mod rosbag;
