@@ -5,8 +5,9 @@
 //!
 //! Needs the venv `target/pyenv` that `cargo xtask setup` (and `cargo xtask test`) makes; without
 //! it these tests fail and say so.
-#[path = "../../tests/tests/common/mod.rs"]
 mod common;
+#[path = "../../tests/tests/common/mod.rs"]
+mod models;
 
 use image::GrayImage;
 use msr_host::data::crop::to_grey;
@@ -57,8 +58,13 @@ fn index(ds: &Path) -> DatasetIndex {
 
 fn import(bag: &Path, ds: &Path, out: &Path, extra: &[&str]) -> (bool, Value, String) {
     let tpl = ds.join("template.png");
-    let mut args = vec!["import-bag", s(bag), "--image-topic", "/camera/image_raw", "--joints-topic", "/joint_states"];
-    args.extend(["--template", s(&tpl), "--out", s(out)]);
+    let mut args = vec!["import-bag", s(bag), "--template", s(&tpl), "--out", s(out)];
+    // The topics `write_bag.py` writes, unless `extra` names others.
+    for (flag, topic) in [("--image-topic", "/camera/image_raw"), ("--joints-topic", "/joint_states")] {
+        if !extra.contains(&flag) {
+            args.extend([flag, topic]);
+        }
+    }
     args.extend(extra);
     let (ok, stdout, stderr) = common::msr(&args);
     (ok, serde_json::from_str(&stdout).unwrap_or(Value::Null), stderr)
@@ -184,7 +190,7 @@ fn bad_bags_are_refused_in_one_line_and_nothing_is_written() {
 
 fn model(dir: &Path) -> PathBuf {
     let m = dir.join("model.msrm");
-    std::fs::write(&m, common::trained_model(Robot::Red)).unwrap();
+    std::fs::write(&m, models::trained_model(Robot::Red)).unwrap();
     m
 }
 

@@ -92,7 +92,9 @@ impl SessionLog {
         let saliency = self.saliency.as_mut().and_then(|(blob, ws)| {
             let model = msr_shared::blob::Model::parse(blob).ok()?;
             let d = crate::detect::fixed::detect_with(ws, &model, face, head).ok()?;
-            Some(d.saliency.iter().map(|s| (s * 128.0).clamp(0.0, 255.0) as u8).collect::<Vec<u8>>())
+            // Saliency is in sigma units; the blob's threshold maps to 128.
+            let thr = model.novelty.threshold.max(1e-6);
+            Some(d.saliency.iter().map(|s| (s / thr * 128.0).clamp(0.0, 255.0) as u8).collect::<Vec<u8>>())
         });
         if let Some(px) = saliency {
             let img = write::mono8(t, "face", c.width, c.height, px);
