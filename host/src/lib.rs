@@ -18,3 +18,4 @@ pub mod flash_file;
 pub mod bench;
 pub mod report;
 pub mod demo;
+pub mod rosbag;

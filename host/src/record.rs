@@ -51,6 +51,8 @@ pub struct RecordConfig {
     pub head_timeout: Duration,
     pub frame_timeout: Duration,
     pub progress: bool,
+    /// Also write the recording as MCAP (`--mcap`).
+    pub mcap: Option<PathBuf>,
 }
 
 impl RecordConfig {
@@ -70,6 +72,7 @@ impl RecordConfig {
             head_timeout: Duration::from_secs(5),
             frame_timeout: Duration::from_secs(5),
             progress: false,
+            mcap: None,
         }
     }
 }
@@ -240,6 +243,7 @@ pub fn record(cfg: &RecordConfig) -> Result<Recorded> {
         b
     });
     let mut tries = 0usize;
+    let mut mcap = cfg.mcap.as_ref().map(|_| (crate::rosbag::session::SessionLog::default(), std::time::Instant::now()));
     while frames.len() < cfg.count {
         tries += 1;
         if tries > MAX_TRIES_PER_FRAME * cfg.count {
@@ -261,11 +265,20 @@ pub fn record(cfg: &RecordConfig) -> Result<Recorded> {
                 continue;
             }
         };
+        if let Some((l, t0)) = &mut mcap {
+            let us = t0.elapsed().as_micros() as u64;
+            l.joints(us, &["HeadYaw", "HeadPitch"], &head, &asked);
+        }
         let err = (head[0] - asked[0]).abs().max((head[1] - asked[1]).abs()).to_degrees();
         rec.max_pose_error_deg = rec.max_pose_error_deg.max(err);
         let frame = grab(&mut src, head)?;
         let face = cropper.crop(&frame.grey).with_context(|| format!("frame {}", frame.name))?;
-        if correlation(&face.grey, tpl.as_raw()) < MIN_FACE_CORRELATION {
+        let face_found = correlation(&face.grey, tpl.as_raw()) >= MIN_FACE_CORRELATION;
+        if let Some((l, t0)) = &mut mcap {
+            let label = if face_found { format!("frame {}", frames.len()) } else { "no face: skipped".into() };
+            l.frame_labelled(t0.elapsed().as_micros() as u64, &frame.grey, &face, &label);
+        }
+        if !face_found {
             rec.skipped_no_face += 1;
             writeln!(log, "skip,no-face,{:.10},{:.10}", head[0], head[1])?;
             continue;
@@ -285,6 +298,10 @@ pub fn record(cfg: &RecordConfig) -> Result<Recorded> {
     }
     if let Some(b) = &bar {
         b.finish();
+    }
+    if let (Some(p), Some((mut l, _))) = (&cfg.mcap, mcap) {
+        l.close()?;
+        crate::rosbag::session::write_logs(p, [&l])?;
     }
     finish(cfg, &frames)?;
     Ok(rec)

@@ -1,7 +1,8 @@
 //! `cargo xtask test`: everything the test suite needs, from a fresh machine.
 //!
 //! 1. checks (and installs when it can) the `thumbv7em-none-eabihf` target, `qemu-system-arm`,
-//!    `ffmpeg` and headless Chromium;
+//!    `ffmpeg` and headless Chromium, and makes the Python venv `target/pyenv` with `rosbags` and
+//!    `mcap` (pip);
 //! 2. builds `msr-shared` and `msr-firmware` for the bare-metal target without std;
 //! 3. builds the QEMU and NUCLEO-F429ZI firmware images;
 //! 4. runs every test of the workspace (the QEMU tests use the image from step 3).
@@ -29,7 +30,8 @@ fn main() -> ExitCode {
                 "usage: cargo xtask <command>\n\n\
                  commands:\n  \
                  test [ARGS]  set up, build the firmware images, run every test (ARGS go to cargo test)\n  \
-                 setup        install or check the thumbv7em target, qemu-system-arm, ffmpeg, Chromium\n  \
+                 setup        install or check the thumbv7em target, qemu-system-arm, ffmpeg, Chromium\n               \
+                              and the Python venv target/pyenv (rosbags, mcap, pillow)\n  \
                  images       setup, then build the bare-metal firmware images"
             );
             return ExitCode::from(2);
@@ -99,7 +101,35 @@ fn setup() -> Result<(), String> {
         &["--version"],
         "chromium-headless-shell",
         "headless Chromium (for the test that lays out the demo's report at 1280 px)",
-    )
+    )?;
+    pyenv()
+}
+
+/// The Python packages the ROS 2 tests check `msr` against (independent readers and writers of
+/// rosbag2 and MCAP; Pillow encodes the JPEG and PNG test images), pinned.
+const PY_PACKAGES: [&str; 3] = ["rosbags==0.11.9", "mcap==1.6.0", "pillow==13.0.0"];
+
+/// Makes the virtual environment `target/pyenv` with [`PY_PACKAGES`] (the tests in
+/// host/tests/rosbag_py.rs run its python and fail, naming this command, without it).
+fn pyenv() -> Result<(), String> {
+    tool("python3", &["--version"], "python3-venv", "python3 (for the ROS 2 bag tests)")?;
+    let env = root().join("target/pyenv");
+    let py = env.join("bin/python");
+    step(&format!("making the Python venv {} with {}", env.display(), PY_PACKAGES.join(", ")));
+    let env_s = env.to_string_lossy().into_owned();
+    let py_s = py.to_string_lossy().into_owned();
+    if !py.exists() {
+        run(&root(), "python3", &["-m", "venv", &env_s])?;
+    }
+    let check = "import importlib.metadata as m; print(m.version('rosbags'), m.version('mcap'), m.version('pillow'))";
+    let want: Vec<&str> = PY_PACKAGES.iter().map(|p| p.split("==").nth(1).unwrap_or("")).collect();
+    if output(&py_s, &["-c", check]).is_some_and(|v| v.split_whitespace().eq(want.iter().copied())) {
+        println!("{} are installed", PY_PACKAGES.join(", "));
+        return Ok(());
+    }
+    let mut args = vec!["-m", "pip", "install", "-q"];
+    args.extend(PY_PACKAGES);
+    run(&root(), &py_s, &args)
 }
 
 /// Checks that `program` runs, or installs the Debian package `package` when this user can.

@@ -217,7 +217,7 @@ pub fn check(c: &Command) -> Result<()> {
             if let Some(p) = a.parallel {
                 int("--parallel", p, 1, 256, " trials")?;
             }
-            let outs: Vec<(&str, &Path)> = [("--trials-out", &a.trials_out), ("--bus-log", &a.bus_log)]
+            let outs: Vec<(&str, &Path)> = [("--trials-out", &a.trials_out), ("--bus-log", &a.bus_log), ("--mcap", &a.mcap)]
                 .into_iter()
                 .filter_map(|(f, p)| p.as_deref().map(|p| (f, p)))
                 .collect();
@@ -229,6 +229,11 @@ pub fn check(c: &Command) -> Result<()> {
             int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
             int("--count", a.count, 1, MAX_FRAMES, " frames")?;
             int("--frame-timeout-ms", a.frame_timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
+            if let Some(p) = &a.mcap {
+                let mut ins: Vec<(&str, &Path)> = vec![("--model", &a.model)];
+                ins.extend(a.frames.as_deref().map(|f| ("--frames", f)));
+                outputs(&ins, &[("--mcap", p)])?;
+            }
         }
         Command::Servos(a) => {
             int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
@@ -257,6 +262,9 @@ pub fn check(c: &Command) -> Result<()> {
             if a.resume && a.force {
                 bail!("--resume and --force contradict each other: give one");
             }
+            if let Some(p) = &a.mcap {
+                outputs(&[("--out", &a.out)], &[("--mcap", p)])?;
+            }
         }
         Command::Status(a) => {
             int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
@@ -276,6 +284,13 @@ pub fn check(c: &Command) -> Result<()> {
             if let Some(r) = &a.real {
                 fsio::check_out_dir(&[("--real", r)], "--out", &a.out)?;
             }
+        }
+        Command::ImportBag(a) => {
+            real("--max-head-speed-deg-s", a.max_head_speed_deg_s, 0.0, 1e4, " deg/s")?;
+            real("--max-joint-gap-ms", a.max_joint_gap_ms, 0.0, 1e7, " ms")?;
+            real("--test-fraction", a.test_fraction, 0.0, 1.0, "")?;
+            super::import_bag::joint_names(&a.joint_names)?;
+            fsio::check_out_dir(&[("the bag", &a.bag), ("--template", &a.template)], "--out", &a.out)?;
         }
     }
     Ok(())

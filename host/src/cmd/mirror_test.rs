@@ -60,6 +60,10 @@ pub struct Args {
     /// Print the summary as JSON
     #[arg(long)]
     pub json: bool,
+    /// Also write the trials as an MCAP file (ROS 2 messages: frames, face crops, saliency,
+    /// annotations, joints, board status) for Foxglove or `ros2 bag play`
+    #[arg(long, value_name = "FILE")]
+    pub mcap: Option<PathBuf>,
 }
 
 /// Whose self gate the trials run with.
@@ -119,6 +123,10 @@ pub fn run(a: Args) -> Result<()> {
     }
     let cfg = config(&a)?;
     let blob = gated_blob(episode::read_model(&a.model)?, a.self_gate, a.robot)?;
+    let mut cfg = cfg;
+    if a.mcap.is_some() {
+        cfg.mcap = Some(crate::rosbag::session::LogModel(blob.clone().into()));
+    }
     let quiet = a.json;
     if !quiet {
         let gate = msr_shared::blob::Model::parse(&blob).ok().and_then(|m| m.self_gate);
@@ -155,6 +163,12 @@ pub fn run(a: Args) -> Result<()> {
     }
     if let Some(p) = &a.trials_out {
         crate::fsio::write(p, serde_json::to_vec_pretty(&trials)?)?;
+    }
+    if let Some(p) = &a.mcap {
+        let counts = crate::rosbag::session::write_logs(p, trials.iter().filter_map(|t| t.log.as_ref()))?;
+        if !quiet {
+            eprintln!("wrote {}: {}", p.display(), serde_json::to_string(&counts)?);
+        }
     }
     Ok(())
 }

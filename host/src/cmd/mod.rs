@@ -18,6 +18,7 @@ pub mod record;
 pub mod template;
 pub mod line_noise;
 pub mod status;
+pub mod import_bag;
 
 use self::run as run_board;
 use anyhow::Result;
@@ -71,6 +72,8 @@ pub enum Command {
     Template(template::Args),
     /// From nothing to a report: dataset, training, reach, quantization, evaluation, episodes
     Demo(demo::Args),
+    /// Import a ROS 2 bag (MCAP or SQLite3: camera images and joint states) as a dataset
+    ImportBag(import_bag::Args),
 }
 
 /// `msr`'s argument parser: the derived one, with every flag that takes a value also taking a
@@ -165,5 +168,6 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Template(a) => template::run(a),
         Command::Demo(a) => demo::run(a),
         Command::Status(a) => status::run(a),
+        Command::ImportBag(a) => import_bag::run(a),
     }
 }

@@ -56,6 +56,10 @@ pub struct Args {
     /// Longest wait for a camera frame, milliseconds
     #[arg(long, default_value_t = 5000)]
     pub frame_timeout_ms: u64,
+    /// Also write the recording as an MCAP file (frames, face crops, asked and reported head
+    /// angles) for Foxglove or `ros2 bag play`
+    #[arg(long, value_name = "FILE")]
+    pub mcap: Option<PathBuf>,
 }
 
 pub fn config(a: &Args) -> Result<RecordConfig> {
@@ -77,6 +81,7 @@ pub fn config(a: &Args) -> Result<RecordConfig> {
     c.head_timeout = Duration::from_millis(a.timeout_ms);
     c.frame_timeout = Duration::from_millis(a.frame_timeout_ms);
     c.progress = true;
+    c.mcap = a.mcap.clone();
     Ok(c)
 }
 

@@ -57,6 +57,10 @@ pub struct Args {
     /// One JSON object per line
     #[arg(long)]
     pub json: bool,
+    /// Also write the session as an MCAP file (ROS 2 messages: frames, face crops, saliency,
+    /// annotations, reported head, reach targets, board status) for Foxglove or `ros2 bag play`
+    #[arg(long, value_name = "FILE")]
+    pub mcap: Option<PathBuf>,
 }
 
 /// The frames of a folder, in name order.
@@ -199,11 +203,30 @@ pub fn run(a: Args) -> Result<()> {
         let runs = s.status(timeout)?.model_crc;
         crate::cmd::status::check_model(runs, model.crc32, &a.model)?;
     }
+    let mut log = a.mcap.as_ref().map(|_| crate::rosbag::session::SessionLog::with_saliency(&blob));
+    let start = Instant::now();
+    let us = || start.elapsed().as_micros() as u64;
+    // The face link numbers frames 1, 2, ... (wrapping): the ids the board's answers carry.
+    let mut frame_id = 0u16;
+    let mut head = [0f32; 2];
     let mut stream = || -> Result<()> {
         while let Some(camera::Frame { name, grey: frame }) = frames.next_frame()? {
             let t0 = Instant::now();
             let face = cropper.crop(&frame).with_context(|| format!("frame {name}"))?;
+            frame_id = frame_id.wrapping_add(1);
+            if let Some(l) = &mut log {
+                // The saliency at the head angles the board last reported.
+                l.frame(us(), frame_id, &frame, &face, None, head);
+            }
             let msgs = s.send_face(&face, period.min(timeout))?;
+            for m in &msgs {
+                if let BoardToHost::Detection(d) = m {
+                    head = d.head;
+                }
+                if let Some(l) = &mut log {
+                    l.board(us(), m);
+                }
+            }
             if !a.json {
                 println!("{name}: face at ({}, {})", face.crop.x, face.crop.y);
             }
@@ -220,9 +243,23 @@ pub fn run(a: Args) -> Result<()> {
     // The answers to faces already sent still count when the source failed (a cut stream):
     // they are printed before its error.
     let closed = s.close(timeout);
-    if let Ok((late, _)) = &closed {
+    if let Ok((late, st)) = &closed {
         for m in late {
             print(m, a.json)?;
+            if let Some(l) = &mut log {
+                l.board(us(), m);
+            }
+        }
+        if let Some(l) = &mut log {
+            l.status(us(), st);
+        }
+    }
+    // What was streamed is written even when the source failed.
+    if let (Some(p), Some(mut l)) = (&a.mcap, log) {
+        l.close()?;
+        let counts = crate::rosbag::session::write_logs(p, [&l])?;
+        if !a.json {
+            eprintln!("wrote {}: {}", p.display(), serde_json::to_string(&counts)?);
         }
     }
     streamed?;

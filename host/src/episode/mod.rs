@@ -143,6 +143,8 @@ pub struct EpisodeConfig {
     /// Simulated seconds per wall second; `None`: as fast as possible (in-process). A firmware
     /// with its own clock (QEMU) needs real time.
     pub pace: Option<f64>,
+    /// Log each trial for `--mcap` (its model draws the saliency image).
+    pub mcap: Option<crate::rosbag::session::LogModel>,
 }
 
 impl EpisodeConfig {
@@ -164,6 +166,7 @@ impl EpisodeConfig {
                 .map_or(1, |n| n.get())
                 .min(4),
             pace: None,
+            mcap: None,
         }
     }
 
@@ -308,6 +311,9 @@ pub struct Trial {
     /// What the board sent on the servo bus, when [`EpisodeConfig::log_bus`].
     #[serde(skip)]
     pub bus_bytes: Vec<u8>,
+    /// The trial as ROS 2 messages, when [`EpisodeConfig::mcap`].
+    #[serde(skip)]
+    pub log: Option<crate::rosbag::session::SessionLog>,
 }
 
 /// The summary `msr mirror-test --json` prints, exactly these keys.
@@ -494,6 +500,7 @@ struct Scenario<'a> {
     detections: Vec<(u64, Detection)>,
     /// Frames sent while the mark was on the face.
     frames_with_mark: usize,
+    log: Option<crate::rosbag::session::SessionLog>,
 }
 
 impl Scenario<'_> {
@@ -518,6 +525,9 @@ impl Scenario<'_> {
         let msgs = self.port.receive(&w.host.receive());
         self.port.check_version()?;
         for m in msgs {
+            if let Some(l) = &mut self.log {
+                l.board(now, &m);
+            }
             self.faces.on_message(&m);
             match m {
                 BoardToHost::Detection(d) => {
@@ -571,21 +581,25 @@ impl Scenario<'_> {
             Some(t) => now.saturating_sub(t) >= FACE_MAX_AGE_PERIODS * period,
         };
         if now >= self.next_frame_us && ready {
-            let (face, with_mark) = if self.scene.scene == Scene::Mirror {
-                let (_, face) = self.camera.shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng)?;
-                (face, self.mark.is_some())
+            let (grey, face, with_mark) = if self.scene.scene == Scene::Mirror {
+                let (grey, face) = self.camera.shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng)?;
+                (grey, face, self.mark.is_some())
             } else {
                 let v = self.scene.view(now, &w.body_pose());
                 // A delayed picture shows the mark once it had appeared by then.
                 let mark = self.mark.as_ref().filter(|_| v.as_of_us >= self.cfg.mark_at_us);
-                let (_, face) = self.camera.shoot_seen(v.camera, &v.seen, mark, &mut self.rng)?;
-                (face, mark.is_some())
+                let (grey, face) = self.camera.shoot_seen(v.camera, &v.seen, mark, &mut self.rng)?;
+                (grey, face, mark.is_some())
             };
+            let logged = self.log.is_some().then(|| face.clone());
             let c = face.crop;
             let size = [c.width as u16, c.height as u16];
             // The sub-pixel part too: the self gate follows the face to a fraction of a pixel.
             let at = msr_shared::msg::CropAt::subpixel([c.x as u16, c.y as u16], face.shift);
-            self.faces.start(at, size, face.grey, now);
+            let id = self.faces.start(at, size, face.grey, now);
+            if let Some(f) = logged {
+                self.log_frame(now, id, w, &grey, &f, with_mark);
+            }
             self.trial.frames_sent += 1;
             if with_mark {
                 self.frames_with_mark += 1;
@@ -603,6 +617,9 @@ impl Scenario<'_> {
         if now >= self.next_sample_us {
             self.next_sample_us = now + SAMPLE_US;
             self.sample(now, w);
+            if let Some(l) = &mut self.log {
+                l.servos(now, w.servos.servos());
+            }
         }
         let limit = match self.stage {
             Stage::Watching => self.cfg.mark_at_us + self.cfg.watch_us,
@@ -613,6 +630,25 @@ impl Scenario<'_> {
         } else {
             Flow::Continue
         })
+    }
+
+    /// Logs a frame sent (`--mcap`), with the mark's box from a clean render of the same view.
+    fn log_frame(&mut self, now: u64, id: u16, w: &World, grey: &GrayImage, face: &crop::Face, with_mark: bool) {
+        let r = self.camera.renderer;
+        let truth = match (with_mark, self.scene.scene) {
+            (false, _) => None,
+            (true, Scene::Mirror) => r.render(&w.body_pose(), self.mark.as_ref(), &Variation::CLEAN).mark,
+            (true, _) => {
+                let v = self.scene.view(now, &w.body_pose());
+                let full = [0, 0, msr_sim::body::WIDTH, msr_sim::body::HEIGHT];
+                r.render_seen(v.camera, &v.seen, self.mark.as_ref(), &Variation::CLEAN, full).mark
+            }
+        };
+        let truth = truth.filter(|m| m.pixels > 0).map(|m| m.box_xyxy);
+        let q = w.servos.reach_angles();
+        if let Some(l) = &mut self.log {
+            l.frame(now, id, grey, face, truth, [q[0] as f32, q[1] as f32]);
+        }
     }
 
     fn on_reach(&mut self, now: u64, d: Detection) {
@@ -744,6 +780,9 @@ pub fn run_trial_inproc(
     // In-process the board's own counters are at hand (a GetStatus would report the same).
     let s = board.status();
     add_board_counters(&mut trial, &s);
+    if let Some(l) = &mut trial.log {
+        l.status((trial.sim_s * 1e6) as u64, &s);
+    }
     Ok(trial)
 }
 
@@ -832,6 +871,7 @@ pub fn run_trial_with<F: world::Firmware>(
         status: None,
         detections: Vec::new(),
         frames_with_mark: 0,
+        log: cfg.mcap.as_ref().map(|m| crate::rosbag::session::SessionLog::with_saliency(&m.0)),
     };
     let wcfg = cfg.world(seed);
     let (w, report) = world::run(
@@ -867,6 +907,11 @@ pub fn run_trial_with<F: world::Firmware>(
     }
     t.sim_s = report.end_us as f64 * 1e-6;
     t.wall_s = report.wall_s;
+    if let Some(mut l) = sc.log.take() {
+        l.outcome(0, &format!("trial {index}"), &t, (t.mark.is_some() && !t.touched) || t.false_reach);
+        l.close()?;
+        t.log = Some(l);
+    }
     Ok((t, sc.status))
 }
 

@@ -178,8 +178,11 @@ pub struct ModelInfo {
     pub train_frames: usize,
     pub test_frames: usize,
     pub train_loss: Vec<f64>,
+    /// NaN (JSON null) for each epoch when the dataset has no test frames.
+    #[serde(deserialize_with = "nan_if_null::vec")]
     pub test_loss: Vec<f64>,
     pub final_train_mse: f64,
+    #[serde(deserialize_with = "nan_if_null::one")]
     pub final_test_mse: f64,
     pub training_seconds: f64,
     pub novelty: NoveltyParams,
@@ -219,6 +222,18 @@ impl Files {
             template: "template.png".into(),
             pose_stats: None,
         }
+    }
+}
+
+/// serde_json writes a NaN as null: read null back as NaN (a dataset without test frames, e.g. a
+/// recording imported with `--test-fraction 0`, has no test loss).
+mod nan_if_null {
+    use serde::{Deserialize, Deserializer};
+    pub fn one<'de, D: Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+        Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
+    }
+    pub fn vec<'de, D: Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+        Ok(Vec::<Option<f64>>::deserialize(d)?.into_iter().map(|v| v.unwrap_or(f64::NAN)).collect())
     }
 }
 
