@@ -18,29 +18,37 @@ pub fn mark_spread(frame: &[u8], pred: &[u16], thr: &[u16], mask: &mut [u8], w: 
     }
     let n = frame.len().min(pred.len()).min(thr.len()).min(mask.len()) / w * w;
     let mut kept = 0u32;
-    for (y, row) in mask[..n].chunks_exact_mut(w).enumerate() {
+    for (y, m) in mask[..n].chunks_exact_mut(w).enumerate() {
         let mut left = row_counts.get(y).map_or(usize::MAX, |&c| c as usize);
+        if left == 0 {
+            continue;
+        }
+        // Rows of one length: the indexing below needs no bounds checks.
         let at = y * w;
+        let (f, p, t) = (&frame[at..at + w], &pred[at..at + w], &thr[at..at + w]);
         let mut x = 0;
-        while left > 0 && x < w {
-            // Four empty pixels at a time (one word load on the board): most are empty.
-            while let Some(&[a, b, c, d]) = row.get(x..x + 4) {
-                if u32::from_ne_bytes([a, b, c, d]) != 0 {
-                    break;
-                }
-                x += 4;
+        while x < w {
+            // Four pixels at a time (one word load on the board): most are empty.
+            let end = (x + 4).min(w);
+            if end - x == 4 && u32::from_ne_bytes([m[x], m[x + 1], m[x + 2], m[x + 3]]) == 0 {
+                x = end;
+                continue;
             }
-            let Some(m) = row.get_mut(x) else { break };
-            if *m != 0 {
-                left -= 1;
-                let e = ((frame[at + x] as i32) << 8) - pred[at + x] as i32;
-                if e.unsigned_abs() > thr[at + x] as u32 {
-                    kept += 1;
-                } else {
-                    *m = SPREAD;
+            for i in x..end {
+                if m[i] != 0 {
+                    left -= 1;
+                    let e = ((f[i] as i32) << 8) - p[i] as i32;
+                    if e.unsigned_abs() > t[i] as u32 {
+                        kept += 1;
+                    } else {
+                        m[i] = SPREAD;
+                    }
                 }
             }
-            x += 1;
+            if left == 0 {
+                break;
+            }
+            x = end;
         }
     }
     kept
