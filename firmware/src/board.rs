@@ -758,10 +758,6 @@ impl<S: ModelStore> Core<S> {
             return self.tick_dynamixel(now_us, servo);
         }
         let time_ms = (now_us / 1000) as u32;
-        // Power-on: listen before asking. The host may choose a Dynamixel bus in its first
-        // message (a few bytes, within a millisecond or two), and framed servos report by
-        // themselves; a StateRequest now would be the first bytes on a Dynamixel bus.
-        self.last_request_us.get_or_insert(now_us);
         let stale = self
             .servo_wd
             .last_us()
