@@ -113,6 +113,7 @@ pub mod board;
 pub mod confirm;
 pub mod decoder;
 pub mod dynamixel;
+pub mod extent;
 pub mod golden;
 pub mod link;
 pub mod model;

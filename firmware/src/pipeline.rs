@@ -137,6 +137,8 @@ impl Workspace {
                 let (_, ring, _) = bytemuck::pod_align_to_mut::<u8, i32>(rest);
                 let mut rows = [0u16; MAX_FACE_H];
                 let n = saliency::pool::pooled_one_sided(crop, face, tn, mask, ring, w, pool, &mut rows);
+                // The decision stays the pooled mask's; its extent is the mark's own pixels.
+                crate::extent::mark_spread(crop, face, tn, mask, w, &rows);
                 self.row_counts = Some(rows);
                 n
             }
@@ -144,7 +146,8 @@ impl Workspace {
         })
     }
 
-    /// The mask of the last [`saliency`](Self::saliency) call (1 = salient).
+    /// The mask of the last [`saliency`](Self::saliency) call: 0 not salient, 1 salient,
+    /// [`crate::extent::SPREAD`] salient through its pooling window only (not in the extent).
     pub fn mask(&mut self, pixels: usize) -> &[u8] {
         let m = self.decoder.scratch();
         let n = pixels.min(m.len());

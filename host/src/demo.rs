@@ -19,7 +19,8 @@ use std::time::Instant;
 
 /// What the demo makes and how much of it: `DemoConfig::new(out)` is `msr demo`'s defaults (the
 /// red robot, the paper's 1300 frames and 50 epochs, 40 trials, 5 of them under QEMU, the
-/// Dynamixel bus, the error pooled over 5 x 5 with statistics per cell of a 3 x 3 head-pose grid).
+/// Dynamixel bus, the error pooled over 5 x 5 with statistics per cell of a 3 x 3 head-pose grid,
+/// a self gate calibrated for the robot in the model, as `msr quantize` attaches one).
 #[derive(burn::config::Config, Debug)]
 pub struct DemoConfig {
     /// Output folder.
@@ -59,6 +60,10 @@ pub struct DemoConfig {
     /// (`TrainConfig::pose_bins`; 0: one set for all poses, the paper).
     #[config(default = "train::calibrate::DEFAULT_POSE_BINS")]
     pub pose_bins: u8,
+    /// The model carries a self gate calibrated for `robot` (`train::self_gate`), as `msr
+    /// quantize`'s does; `false`: a confirmed mark is reached at once, as the paper.
+    #[config(default = true)]
+    pub self_gate: bool,
 }
 
 struct Progress {
@@ -177,11 +182,31 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
     // 4. Quantize.
     p.start("4/8 quantizing to the fixed-point model blob");
     let blob = crate::quant::model_blob::blob_from_training(&models, "decoder", &reach)?;
+    // The same default as `msr quantize`: the model carries a gate calibrated for its robot, so
+    // that the model the demo hands over does not reach for another robot's face.
+    let (blob, gate_line) = if a.self_gate {
+        let (gated, cal) = crate::train::self_gate::attach(&blob, a.robot, &crate::train::self_gate::GateCalibration::default())
+            .context("calibrating the self gate (--no-self-gate leaves it out)")?;
+        let g = &cal.gate;
+        let line = format!(
+            "; a self gate calibrated for the {} robot: gain {:.1} px/rad +- {:.1} %, rest {:.2} px, hold {:.2} px, level {:.2} px",
+            a.robot,
+            g.gain_px_per_rad,
+            100.0 * g.gain_tol,
+            g.rest_tol_px,
+            g.hold_tol_px,
+            g.level_tol_px
+        );
+        (gated, line)
+    } else {
+        notes.push("The model has no self gate (`--no-self-gate`): a confirmed mark is reached at once, as the paper, even for another robot's face.".into());
+        (blob, "; no self gate".to_string())
+    };
     let model_path = out.join("model.msrm");
     crate::fsio::write(&model_path, &blob)?;
     p.done(
         "quantize_s",
-        &format!("{} ({} bytes)", model_path.display(), blob.len()),
+        &format!("{} ({} bytes){gate_line}", model_path.display(), blob.len()),
     );
 
     // 5. Evaluation table.
@@ -221,8 +246,9 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
     p.done("episodes_inproc_s", &crate::cmd::mirror_test::readable(&inproc));
     let self_gate = if a.gate_trials > 0 {
         p.start(&format!(
-            "   the self gate: {} trials in each scene (the mirror, another robot, a delayed picture), the gate calibrated on the spot",
-            a.gate_trials
+            "   the self gate: {} trials in each scene (the mirror, another robot, a delayed picture), {}",
+            a.gate_trials,
+            if a.self_gate { "the model's gate" } else { "a gate calibrated on the spot" }
         ));
         let g = self_gate_episodes(&blob, &cfg, a)?;
         let line = g
@@ -380,11 +406,19 @@ fn novelty_note(a: &train::policy::Applied) -> String {
     )
 }
 
-/// The demo's model with a self gate calibrated on the spot (`train::self_gate`), a few trials
-/// in each scene: the gate must pass its own mirror image and refuse the others.
+/// The demo's model with its self gate (one calibrated on the spot, `train::self_gate`, when the
+/// model has none), a few trials in each scene: the gate must pass its own mirror image and
+/// refuse the others.
 fn self_gate_episodes(blob: &[u8], cfg: &EpisodeConfig, a: &DemoConfig) -> Result<SelfGateReport> {
     use crate::train::self_gate::{attach, GateCalibration};
-    let (gated, cal) = attach(blob, a.robot, &GateCalibration::default())?;
+    let own = msr_shared::blob::Model::parse(blob).ok().and_then(|m| m.self_gate);
+    let (gated, g) = match own {
+        Some(g) => (blob.to_vec(), crate::train::self_gate::SelfGateJson::from(&g)),
+        None => {
+            let (gated, cal) = attach(blob, a.robot, &GateCalibration::default())?;
+            (gated, cal.gate)
+        }
+    };
     let mut scenes = Vec::new();
     for scene in [Scene::Mirror, Scene::Other, Scene::Delayed] {
         let mut c = cfg.clone();
@@ -394,7 +428,6 @@ fn self_gate_episodes(blob: &[u8], cfg: &EpisodeConfig, a: &DemoConfig) -> Resul
         let summary = episode::summarise(Backend::Inproc, a.robot, a.servo_bus, &trials);
         scenes.push(SceneReport { summary, gain_ratios });
     }
-    let g = &cal.gate;
     Ok(SelfGateReport {
         gain_tol: g.gain_tol,
         rest_tol_px: g.rest_tol_px,

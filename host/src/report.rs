@@ -309,7 +309,7 @@ fn kv(v: &Value) -> String {
 /// The self gate's scenes: a table, and the gain ratio of every decision per scene against the
 /// pass band (an inline SVG strip plot).
 fn self_gate_section(h: &mut String, g: &SelfGateReport) {
-    let _ = write!(h, "<h2>The self gate: is it me?</h2><p>Before a confirmed mark starts a reach, the board turns its head a few degrees each way and checks that the face in the frame follows with its own mirror image's gain. The demo's model with a gate calibrated on the spot, in three scenes: its own mirror image, another robot of the same look where the image would be (holding still or babbling its head), and its own image through a video delay of 0.3-2 s. Only the mirror may reach.</p>");
+    let _ = write!(h, "<h2>The self gate: is it me?</h2><p>Before a confirmed mark starts a reach, the board turns its head a few degrees each way and checks that the face in the frame follows with its own mirror image's gain. The demo's model with its gate (calibrated for the robot when the model is made), in three scenes: its own mirror image, another robot of the same look where the image would be (holding still or babbling its head), and its own image through a video delay of 0.3-2 s. Only the mirror may reach.</p>");
     let rows: Vec<Value> = g.scenes.iter().map(|s| value(&s.summary)).collect();
     h.push_str(&table(
         &rows,

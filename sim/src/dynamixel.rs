@@ -10,9 +10,16 @@
 //!
 //! Like a real X-series servo: EEPROM items (Return Delay Time, Min/Max Position Limit, Status
 //! Return Level) are writable only with torque off (else Access Error); a Goal Position outside
-//! Min/Max Position Limit is refused (Data Limit Error); torque on takes the present position as
-//! the goal; an overload sets Hardware Error Status, turns the torque off and raises the Alert
-//! bit of every status. IDs, the baud rate and the operating mode are read-only here.
+//! Min/Max Position Limit is refused (Data Limit Error, error number 6); torque on takes the
+//! present position as the goal; an overload sets Hardware Error Status, turns the torque off and
+//! raises the Alert bit of every status. IDs, the baud rate and the operating mode are read-only
+//! here.
+//!
+//! Like a configured robot's servos: Min/Max Position Limit hold each joint's range (the map's
+//! raw limits, what the board writes at start-up) from power-on, so that any master sees the
+//! range the joint really has. A goal beyond the joint's mechanical stop (possible only once a
+//! master has widened the limits, or through a mounting the master's map gets wrong) stalls the
+//! joint at the stop; held there for [`STALL_OVERLOAD_US`], the servo raises Overload.
 //!
 //! Safety accounting (as the framed bus): a Goal Position that the servo refuses, or whose angle
 //! through the robot's true mounting is outside the joint's limits, is a **limit violation**.
@@ -90,6 +97,8 @@ struct Regs {
     hw_error: u8,
     goal: i32,
     silent: bool,
+    /// Since when the joint has been pushed against a mechanical stop with torque on.
+    stalled_since: Option<u64>,
 }
 
 /// The Protocol 2.0 side of an emulated bus: registers, parsing, answers and their timing.
@@ -120,13 +129,15 @@ impl DxlBus {
                 map: *m,
                 return_delay: cfg.return_delay,
                 status_return_level: 2,
-                min_limit: 0,
-                max_limit: table::COUNTS_PER_TURN as i32 - 1,
+                // As the board writes them at start-up: the joint's range.
+                min_limit: m.raw_min,
+                max_limit: m.raw_max,
                 torque: true,
                 led: 0,
                 hw_error: 0,
                 goal: m.zero,
                 silent: false,
+                stalled_since: None,
             })
             .collect();
         let byte_us = cfg.bits_per_byte as f64 * 1e6 / cfg.baud as f64;
@@ -162,8 +173,21 @@ impl DxlBus {
         self.regs.iter().find(|r| r.map.joint == j).map(|r| r.torque)
     }
 
-    /// Applies the faults due by `now_us` (and the torque state to the dynamics).
+    /// Applies the faults due by `now_us`, the overload of a joint stalled at a stop, and the
+    /// torque state to the dynamics.
     pub fn faults_at(&mut self, now_us: u64, servos: &mut [Servo]) {
+        for r in &mut self.regs {
+            let s = servos.iter().find(|s| s.joint == r.map.joint);
+            if r.torque && s.is_some_and(|s| pushed_against_stop(r, s)) {
+                let since = *r.stalled_since.get_or_insert(now_us);
+                if now_us - since >= STALL_OVERLOAD_US {
+                    r.hw_error |= table::hw::OVERLOAD;
+                    r.torque = false;
+                }
+            } else {
+                r.stalled_since = None;
+            }
+        }
         for f in &self.cfg.faults {
             match *f {
                 DxlFault::Silent { id, at_us } if now_us >= at_us => {
@@ -445,6 +469,19 @@ impl DxlBus {
         }
         0
     }
+}
+
+/// How long a joint may be held against a mechanical stop before the servo raises Overload.
+/// The e-Manual says only "persistent load that exceeds maximum output" (Hardware Error Status
+/// bit 5); 1 s at stall torque is our assumption for an X-series servo, not a ROBOTIS figure.
+pub const STALL_OVERLOAD_US: u64 = 1_000_000;
+
+/// The goal lies beyond a joint limit (the mechanical stop) and the joint sits at that stop.
+fn pushed_against_stop(r: &Regs, s: &Servo) -> bool {
+    let Some(l) = r.map.joint.limits() else { return false };
+    let (goal, at) = (r.map.to_rad(r.goal) as f64, s.position);
+    let count = 1.0 / r.map.counts_per_rad as f64;
+    (goal > l.max as f64 + count && at >= l.max as f64 - count) || (goal < l.min as f64 - count && at <= l.min as f64 + count)
 }
 
 const FIRMWARE: u8 = 46;

@@ -4,7 +4,7 @@
 use msr_firmware::dynamixel::{Master, Stage};
 use msr_shared::dynamixel::map::default_map;
 use msr_sim::dynamixel::serve::{serve, servos};
-use msr_sim::dynamixel::DxlConfig;
+use msr_sim::dynamixel::{DxlConfig, STALL_OVERLOAD_US};
 use msr_sim::pty::Pty;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
@@ -29,6 +29,16 @@ fn dynamixel2_drives_the_emulated_servos_over_a_pty() {
             // Home: HeadYaw at 0 rad is the centre count.
             assert_eq!(d.read_u32(1, 132).unwrap().data, 2048);
             assert_eq!(d.read_u16(1, 0).unwrap().data, 1020);
+            // A configured robot's servos: Min/Max Position Limit hold each joint's range from
+            // power-on (what the board writes at start-up), not the factory 0 and 4095, and a
+            // goal outside them is refused with Data Limit Error (error number 6).
+            for e in default_map() {
+                assert_eq!(d.read_u32(e.id, 48).unwrap().data, e.raw_max as u32, "{:?}", e.joint);
+                assert_eq!(d.read_u32(e.id, 52).unwrap().data, e.raw_min as u32, "{:?}", e.joint);
+            }
+            let yaw = default_map()[0];
+            assert_eq!(motor_error(d.write_u32(1, 116, yaw.raw_max as u32 + 1)), Some(6));
+            assert_eq!(motor_error(d.write_u32(1, 116, yaw.raw_min as u32 - 1)), Some(6));
             // Torque off, limits, read back, torque on, goal.
             d.write_u8(1, 64, 0).unwrap();
             d.write_u32(1, 48, 2300).unwrap();
@@ -37,8 +47,7 @@ fn dynamixel2_drives_the_emulated_servos_over_a_pty() {
             assert_eq!(d.read_u32(1, 52).unwrap().data, 1800);
             d.write_u8(1, 64, 1).unwrap();
             // A goal outside the limits: the servo refuses it (Data Limit Error, 0x06).
-            let e = d.write_u32(1, 116, 2400).unwrap_err();
-            assert!(format!("{e:?}").contains('6'), "{e:?}");
+            assert_eq!(motor_error(d.write_u32(1, 116, 2400)), Some(6));
             d.write_u32(1, 116, 2200).unwrap();
             std::thread::sleep(Duration::from_millis(300));
             let r = d.sync_read_u32(&ids, 132).unwrap();
@@ -52,15 +61,42 @@ fn dynamixel2_drives_the_emulated_servos_over_a_pty() {
             std::thread::sleep(Duration::from_millis(600));
             let p = d.read_u32(3, 132).unwrap().data;
             assert!(p.abs_diff(goal) <= 2, "{p} vs {goal}");
+            // Limits widened past the mechanical stop: a goal beyond it stalls the joint there,
+            // and after STALL_OVERLOAD_US the servo raises Overload (Hardware Error Status bit
+            // 5) with the Alert bit, and drops its torque.
+            let roll = default_map()[3];
+            d.write_u8(roll.id, 64, 0).unwrap();
+            d.write_u32(roll.id, 48, 4095).unwrap();
+            d.write_u8(roll.id, 64, 1).unwrap();
+            d.write_u32(roll.id, 116, roll.raw_max as u32 + 300).unwrap();
+            std::thread::sleep(Duration::from_millis(300));
+            let r = d.read_u8(roll.id, 70).unwrap();
+            assert_eq!((r.data, r.alert), (0, false), "not yet");
+            let stop = d.read_u32(roll.id, 132).unwrap().data;
+            assert!(stop.abs_diff(roll.raw_max as u32) <= 1, "at the stop: {stop} vs {}", roll.raw_max);
+            std::thread::sleep(Duration::from_micros(STALL_OVERLOAD_US));
+            let r = d.read_u8(roll.id, 70).unwrap();
+            assert_eq!((r.data, r.alert), (0x20, true), "Overload and Alert");
+            assert_eq!(d.read_u8(roll.id, 64).unwrap().data, 0, "torque off");
         }));
         stop.store(true, Ordering::Relaxed);
         let (served, bus) = server.join().unwrap();
         assert!(served.unwrap().bytes_out > 0);
-        assert_eq!(bus.dynamixel().unwrap().counters().limit_violations, 1);
+        // The three refused goals and the one beyond the stop.
+        assert_eq!(bus.dynamixel().unwrap().counters().limit_violations, 4);
         if let Err(e) = result {
             std::panic::resume_unwind(e);
         }
     });
+}
+
+/// The error number of a status that refused the instruction (`None`: it was accepted).
+fn motor_error<T>(r: Result<T, dynamixel2::TransferError>) -> Option<u8> {
+    match r {
+        Ok(_) => None,
+        Err(dynamixel2::TransferError::ReadError(dynamixel2::ReadError::MotorError(e))) => Some(e.error_number()),
+        Err(e) => panic!("not a status with an error number: {e:?}"),
+    }
 }
 
 /// What `dynamixel2` writes for `f`, read off the PTY (answers, if it waits for any, time out).

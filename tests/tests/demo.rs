@@ -23,7 +23,8 @@ fn demo_writes_model_report_and_page() {
     )
     .unwrap();
     let blob = std::fs::read(out.join("model.msrm")).unwrap();
-    msr_shared::blob::Model::parse(&blob).unwrap();
+    // The model the demo hands over carries a calibrated self gate, as `msr quantize`'s does.
+    let gate = msr_shared::blob::Model::parse(&blob).unwrap().self_gate.expect("the demo's model has a self gate");
     // report.json is the typed report, whole: it reads back as what the demo returned.
     let r: DemoReport =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
@@ -46,6 +47,8 @@ fn demo_writes_model_report_and_page() {
     }
     // The self gate: its own mirror image may reach; a delayed picture of it never.
     let g = r.self_gate.as_ref().expect("the self gate's scenes");
+    // The gate trials ran with the model's own gate.
+    assert_eq!((g.gain_tol, g.rest_tol_px, g.hold_tol_px), (gate.gain_tol, gate.rest_tol, gate.hold_tol));
     let scenes: Vec<&str> = g.scenes.iter().map(|s| s.summary.scene.as_str()).collect();
     assert_eq!(scenes, ["mirror", "other", "delayed"]);
     assert_eq!(g.scenes[2].summary.reaches, 0, "a delayed picture started a reach");

@@ -48,6 +48,10 @@ pub struct Args {
     /// all poses, the paper), as `msr train --pose-bins`
     #[arg(long, default_value_t = crate::train::calibrate::DEFAULT_POSE_BINS)]
     pub pose_bins: u8,
+    /// Leave out the self gate: the model reaches for a confirmed mark at once, as the paper
+    /// (by default it carries a gate calibrated for --robot, as `msr quantize`'s)
+    #[arg(long)]
+    pub no_self_gate: bool,
     /// Only rewrite index.html from an earlier run's report.json, model.msrm and dataset in --out
     #[arg(long)]
     pub html_only: bool,
@@ -67,7 +71,8 @@ impl Args {
             .with_servo_bus(self.servo_bus)
             .with_gate_trials(self.gate_trials)
             .with_pool(self.pool)
-            .with_pose_bins(self.pose_bins);
+            .with_pose_bins(self.pose_bins)
+            .with_self_gate(!self.no_self_gate);
         c.real = self.real.clone();
         c
     }

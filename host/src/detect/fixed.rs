@@ -35,7 +35,8 @@ pub fn detect_with(
     )
     .map_err(|e| anyhow!("firmware pipeline: {e}"))?;
     let pixels = model.face_pixels();
-    let mask: Vec<bool> = ws.mask(pixels).iter().map(|&m| m != 0).collect();
+    // The extent: salient pixels, not those salient through their pooling window only.
+    let mask: Vec<bool> = ws.mask(pixels).iter().map(|&m| m == 1).collect();
     let face_q88 = ws
         .decoder
         .face()

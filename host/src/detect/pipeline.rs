@@ -90,7 +90,8 @@ pub struct Detection {
     pub predicted: Vec<f32>,
     /// Saliency in threshold units (for pictures and AUROC).
     pub saliency: Vec<f32>,
-    /// Salient pixels.
+    /// Salient pixels: with the pooled one-sided test, those whose own error passes too (the
+    /// extent; the blob is the pooled mask's).
     pub mask: Vec<bool>,
     /// The winning blob in full-frame pixels.
     pub blob: Option<Blob>,
@@ -183,6 +184,14 @@ impl FloatEngine {
         let joints = match (&self.reach, blob) {
             (Some(r), Some(b)) => Some(reach_float(r, b.centroid[0] as f32, b.centroid[1] as f32)),
             _ => None,
+        };
+        // Pooled one-sided, as the board (`msr_firmware::extent`): the pooled mask decides, the
+        // extent reported is the salient pixels whose own error passes too.
+        let mask = if self.pool > 0 && s.sided == Sided::One {
+            let own = self::saliency(face_error(face, &predicted, self.face_w, 0), mu, sigma, 0.0, s.normalisation, s.sided);
+            mask.iter().zip(own).map(|(&m, o)| m && o > s.threshold).collect()
+        } else {
+            mask
         };
         Detection {
             crop,

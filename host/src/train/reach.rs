@@ -3,8 +3,15 @@
 //! As the published code: inputs (mark centre x, y in full-frame pixels) and outputs (HeadYaw,
 //! HeadPitch, LShoulderPitch, LShoulderRoll, LElbowRoll in radians) min-max scaled to [0, 1] from
 //! the training pairs; `sigmoid(W2 sigmoid(W1 x + b1) + b2)`; MSE on the scaled outputs; Adam
-//! (lr 0.01, PyTorch's betas and epsilon), 10^4 full-batch iterations, PyTorch's default init from
-//! a seeded stream.
+//! (lr 0.01, PyTorch's betas and epsilon), full-batch iterations, PyTorch's default init from a
+//! seeded stream.
+//!
+//! Unlike the published recipe (10^4 iterations, no penalty), which over-fits 70 hand-guided
+//! pairs, the default adds an L2 penalty on the weights (not the biases) whose size is chosen by
+//! [`FOLDS`]-fold cross-validation over [`WEIGHT_DECAY_GRID`] on the pairs it is given, and trains
+//! 3000 iterations (the penalised fit has settled by then). The leave-one-out report therefore
+//! chooses inside each fold, never from the pair it scores. `--weight-decay 0 --iterations 10000`
+//! is the published recipe.
 //!
 //! The network has 85 parameters and leave-one-out needs one training per pair, so it is trained
 //! by a closed-form backward pass in f64 here (checked against finite differences in the tests)
@@ -25,9 +32,19 @@ use std::path::{Path, PathBuf};
 pub const JOINTS: [&str; O] = ["HeadYaw", "HeadPitch", "LShoulderPitch", "LShoulderRoll", "LElbowRoll"];
 /// The published network's per-joint RMS error on its own 70 training pairs (radians).
 pub const PUBLISHED_FIT_RMS: [f64; O] = [0.15, 0.11, 0.11, 0.07, 0.05];
+/// Weight decays the cross-validation chooses from (0: the paper's plain MSE). The penalty is
+/// this times the sum of the squared weights, added to the MSE of the scaled outputs.
+pub const WEIGHT_DECAY_GRID: [f64; 5] = [0.0, 3e-6, 1e-5, 3e-5, 1e-4];
+/// Folds of the cross-validation that chooses the weight decay.
+pub const FOLDS: usize = 5;
+/// Iterations by default: the penalised fit has settled by then (the paper's 10^4 over-fits).
+pub const DEFAULT_ITERATIONS: usize = 3000;
+/// Restarts of the final training by default (the cross-validation runs one per candidate).
+pub const DEFAULT_RESTARTS: usize = 3;
 
 /// What [`run`] trains from and where it writes: `ReachConfig::new(inputs, targets, out)` gives
-/// the paper's recipe (10^4 iterations, lr 0.01, one run, the leave-one-out report).
+/// the default (3000 iterations, lr 0.01, one run, the weight decay chosen by cross-validation,
+/// the leave-one-out report).
 #[derive(burn::config::Config, Debug)]
 pub struct ReachConfig {
     /// CSV of mark positions, one `x,y` row per pair (full-frame pixels).
@@ -36,18 +53,23 @@ pub struct ReachConfig {
     pub targets: PathBuf,
     /// Output safetensors file; the scaling and report go to the same name with .json.
     pub out: PathBuf,
-    #[config(default = 10_000)]
+    #[config(default = "DEFAULT_ITERATIONS")]
     pub iterations: usize,
     #[config(default = 0.01)]
     pub lr: f64,
     #[config(default = 0)]
     pub seed: u64,
-    /// Train from this many seeds and keep the lowest training loss (1: the paper's single run).
-    #[config(default = 1)]
+    /// Train from this many seeds and keep the lowest (penalised) training loss (1: the
+    /// paper's single run). Three by default: at one, the init alone moved the leave-one-out
+    /// RMS of a joint by 0.005 rad.
+    #[config(default = "DEFAULT_RESTARTS")]
     pub restarts: usize,
     /// The leave-one-out report (one training per pair).
     #[config(default = true)]
     pub leave_one_out: bool,
+    /// The L2 penalty on the weights; `None`: chosen by [`FOLDS`]-fold cross-validation over
+    /// [`WEIGHT_DECAY_GRID`] (in every leave-one-out fold, from that fold's pairs alone).
+    pub weight_decay: Option<f64>,
 }
 
 /// Weights of the 2-10-5 network, PyTorch layout (`[out][in]`).
@@ -95,6 +117,17 @@ impl Net {
             *yk = sigmoid(self.b2[k] + self.w2[k].iter().zip(&h).map(|(w, h)| w * h).sum::<f64>());
         }
         y
+    }
+
+    /// The penalty `decay * sum of squared weights` (biases free) added to the loss, and its
+    /// gradient added to `g`.
+    fn penalise(&self, decay: f64, g: &mut Net) -> f64 {
+        let mut p = 0.0;
+        for (w, gw) in self.w1.iter().flatten().chain(self.w2.iter().flatten()).zip(g.w1.iter_mut().flatten().chain(g.w2.iter_mut().flatten())) {
+            p += decay * w * w;
+            *gw += 2.0 * decay * w;
+        }
+        p
     }
 
     /// Mean squared error over all outputs (PyTorch's MSELoss) and its gradient.
@@ -207,10 +240,12 @@ impl ReachModel {
     }
 }
 
-/// Adam with PyTorch's defaults (betas 0.9, 0.999, eps 1e-8), full batch.
-pub fn train_once(xs: &[[f64; I]], ys: &[[f64; O]], iterations: usize, lr: f64, seed: u64) -> Result<(ReachModel, f64)> {
+/// Adam with PyTorch's defaults (betas 0.9, 0.999, eps 1e-8), full batch, on the MSE plus
+/// `decay` times the squared weights. Returns the model and that penalised loss.
+pub fn train_once(xs: &[[f64; I]], ys: &[[f64; O]], iterations: usize, lr: f64, decay: f64, seed: u64) -> Result<(ReachModel, f64)> {
     ensure!(xs.len() == ys.len() && !xs.is_empty(), "need matching, non-empty inputs and targets");
     ensure!(lr.is_finite() && lr > 0.0, "learning rate must be positive");
+    ensure!(decay.is_finite() && decay >= 0.0, "weight decay must be 0 or positive, got {decay}");
     let scaling = Scaling::fit(xs, ys)?;
     let sx: Vec<[f64; I]> = xs.iter().map(|x| scaling.scale_in(x)).collect();
     let sy: Vec<[f64; O]> = ys.iter().map(|y| scaling.scale_out(y)).collect();
@@ -219,7 +254,10 @@ pub fn train_once(xs: &[[f64; I]], ys: &[[f64; O]], iterations: usize, lr: f64, 
     let (mut m, mut v) = (vec![0.0; n], vec![0.0; n]);
     let (b1, b2, eps) = (0.9f64, 0.999f64, 1e-8);
     for t in 1..=iterations {
-        let (_, g) = net.loss_and_grad(&sx, &sy);
+        let (_, mut g) = net.loss_and_grad(&sx, &sy);
+        if decay > 0.0 {
+            net.penalise(decay, &mut g);
+        }
         let g = g.params();
         let (c1, c2) = (1.0 - b1.powi(t as i32), 1.0 - b2.powi(t as i32));
         for (i, p) in net.params_mut().enumerate() {
@@ -228,37 +266,100 @@ pub fn train_once(xs: &[[f64; I]], ys: &[[f64; O]], iterations: usize, lr: f64, 
             *p -= lr * (m[i] / c1) / ((v[i] / c2).sqrt() + eps);
         }
     }
-    let loss = net.loss_and_grad(&sx, &sy).0;
+    let (mse, mut g) = net.loss_and_grad(&sx, &sy);
+    let loss = mse + net.penalise(decay, &mut g);
     ensure!(loss.is_finite() && net.params().iter().all(|p| p.is_finite()), "reach training diverged");
     Ok((ReachModel { net, scaling }, loss))
 }
 
-/// How to train: the paper's settings by default; `restarts` > 1 trains from that many seeds
-/// (`seed`, `seed + 1`, ...) and keeps the lowest training loss.
+/// How to train: by default 3000 iterations with the weight decay chosen by cross-validation;
+/// `restarts` > 1 trains from that many seeds (`seed`, `seed + 1`, ...) and keeps the lowest
+/// (penalised) training loss. [`Opts::paper`] is the published recipe.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Opts {
     pub iterations: usize,
     pub lr: f64,
     pub seed: u64,
     pub restarts: usize,
+    /// `None`: chosen by [`FOLDS`]-fold cross-validation over [`WEIGHT_DECAY_GRID`].
+    pub weight_decay: Option<f64>,
 }
 
 impl Default for Opts {
     fn default() -> Self {
-        Opts { iterations: 10_000, lr: 0.01, seed: 0, restarts: 1 }
+        Opts { iterations: DEFAULT_ITERATIONS, lr: 0.01, seed: 0, restarts: DEFAULT_RESTARTS, weight_decay: None }
     }
 }
 
+impl Opts {
+    /// The published recipe: 10^4 iterations, no penalty, one run.
+    pub fn paper() -> Opts {
+        Opts { iterations: 10_000, weight_decay: Some(0.0), restarts: 1, ..Opts::default() }
+    }
+}
+
+/// How the weight decay of a training was set.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DecayChoice {
+    /// Given (`--weight-decay`).
+    Given,
+    /// The lowest cross-validated error over [`WEIGHT_DECAY_GRID`].
+    CrossValidated,
+    /// Too few pairs for [`FOLDS`] folds of two or more: no penalty, as the paper.
+    TooFewPairs,
+}
+
 pub fn train(xs: &[[f64; I]], ys: &[[f64; O]], o: &Opts) -> Result<ReachModel> {
+    Ok(train_chosen(xs, ys, o)?.0)
+}
+
+/// [`train`], with the weight decay it used and how that was set.
+pub fn train_chosen(xs: &[[f64; I]], ys: &[[f64; O]], o: &Opts) -> Result<(ReachModel, f64, DecayChoice)> {
     ensure!(o.iterations > 0 && o.restarts > 0, "iterations and restarts must be at least 1");
+    let (decay, how) = match o.weight_decay {
+        Some(d) => (d, DecayChoice::Given),
+        None if xs.len() < 2 * FOLDS => (0.0, DecayChoice::TooFewPairs),
+        None => (choose_weight_decay(xs, ys, o)?, DecayChoice::CrossValidated),
+    };
+    Ok((train_restarts(xs, ys, o, decay)?, decay, how))
+}
+
+fn train_restarts(xs: &[[f64; I]], ys: &[[f64; O]], o: &Opts, decay: f64) -> Result<ReachModel> {
     let mut best: Option<(ReachModel, f64)> = None;
     for r in 0..o.restarts as u64 {
-        let (m, loss) = train_once(xs, ys, o.iterations, o.lr, o.seed.wrapping_add(r))?;
+        let (m, loss) = train_once(xs, ys, o.iterations, o.lr, decay, o.seed.wrapping_add(r))?;
         if best.as_ref().is_none_or(|(_, l)| loss < *l) {
             best = Some((m, loss));
         }
     }
     best.map(|(m, _)| m).ok_or_else(|| anyhow::anyhow!("no restarts"))
+}
+
+/// The weight decay of [`WEIGHT_DECAY_GRID`] with the lowest squared error (radians, all joints)
+/// on held-out pairs over [`FOLDS`] folds (pair `i` in fold `i % FOLDS`), trained as `o` says
+/// but from one seed (a third of the cost of three).
+/// A candidate whose folds cannot be trained (a fold with a constant column) is passed over.
+pub fn choose_weight_decay(xs: &[[f64; I]], ys: &[[f64; O]], o: &Opts) -> Result<f64> {
+    let mut best: Option<(f64, f64)> = None;
+    for &decay in &WEIGHT_DECAY_GRID {
+        let mut err = 0.0;
+        for f in 0..FOLDS {
+            let part = |want: bool| -> (Vec<[f64; I]>, Vec<[f64; O]>) {
+                xs.iter().zip(ys).enumerate().filter(|(i, _)| (i % FOLDS == f) == want).map(|(_, (x, y))| (*x, *y)).unzip()
+            };
+            let ((tx, ty), (vx, vy)) = (part(false), part(true));
+            let Ok(m) = train_restarts(&tx, &ty, &Opts { restarts: 1, ..*o }, decay) else {
+                err = f64::INFINITY;
+                break;
+            };
+            err += vx.iter().zip(&vy).map(|(x, y)| m.predict(*x).iter().zip(y).map(|(p, t)| (p - t).powi(2)).sum::<f64>()).sum::<f64>();
+        }
+        if err.is_finite() && best.is_none_or(|(_, e)| err < e) {
+            best = Some((decay, err));
+        }
+    }
+    best.map(|(d, _)| d).ok_or_else(|| anyhow::anyhow!("no weight decay could be cross-validated (a fold of the pairs has a constant column)"))
 }
 
 /// Per-joint RMS error (radians) of `model` on the pairs.
@@ -353,6 +454,12 @@ pub struct Sidecar {
     pub loo_rms_rad: Option<[f64; O]>,
     pub published_fit_rms_rad: [f64; O],
     pub training_seconds: f64,
+    /// The L2 penalty on the weights of the model written (0 in sidecars from before it).
+    #[serde(default)]
+    pub weight_decay: f64,
+    /// How it was set (`None` in sidecars from before it).
+    #[serde(default)]
+    pub weight_decay_choice: Option<DecayChoice>,
 }
 
 pub fn sidecar_path(weights: &Path) -> PathBuf {
@@ -422,9 +529,15 @@ pub fn run(args: &ReachConfig) -> Result<Sidecar> {
         args.targets.display(),
         ys.len()
     );
-    let opts = Opts { iterations: args.iterations, lr: args.lr, seed: args.seed, restarts: args.restarts };
+    let opts = Opts {
+        iterations: args.iterations,
+        lr: args.lr,
+        seed: args.seed,
+        restarts: args.restarts,
+        weight_decay: args.weight_decay,
+    };
     let started = std::time::Instant::now();
-    let model = train(&xs, &ys, &opts)?;
+    let (model, decay, choice) = train_chosen(&xs, &ys, &opts)?;
     let seconds = started.elapsed().as_secs_f64();
     let fit = rms(&model, &xs, &ys);
     let loo = if args.leave_one_out { Some(leave_one_out(&xs, &ys, &opts)?) } else { None };
@@ -449,6 +562,8 @@ pub fn run(args: &ReachConfig) -> Result<Sidecar> {
         loo_rms_rad: loo,
         published_fit_rms_rad: PUBLISHED_FIT_RMS,
         training_seconds: seconds,
+        weight_decay: decay,
+        weight_decay_choice: Some(choice),
     };
     crate::fsio::write(&sidecar_path(&args.out), serde_json::to_string_pretty(&side)?)?;
     Ok(side)
@@ -492,7 +607,7 @@ mod tests {
     #[test]
     fn learns_a_smooth_map_and_round_trips_through_files() {
         let (xs, ys) = toy(40);
-        let m = train(&xs, &ys, &Opts { iterations: 2000, ..Default::default() }).unwrap();
+        let m = train(&xs, &ys, &Opts { iterations: 2000, weight_decay: Some(0.0), ..Default::default() }).unwrap();
         let fit = rms(&m, &xs, &ys);
         // The spread of the targets is 0.2..0.8 rad; the fit must be far below it.
         assert!(fit.iter().all(|&e| e < 0.05), "{fit:?}");
@@ -537,11 +652,61 @@ mod tests {
         assert_eq!((xs.len(), ys.len()), (70, 70));
         // The paper's single run lands near the published network's own fit (0.15, 0.11, 0.11,
         // 0.07, 0.05 rad); the data are hand-guided arm poses, so no 2-10-5 net goes far below.
-        let m = train(&xs, &ys, &Opts::default()).unwrap();
+        let m = train(&xs, &ys, &Opts::paper()).unwrap();
         let fit = rms(&m, &xs, &ys);
         eprintln!("fit RMS {fit:?}");
         for k in 0..O {
             assert!(fit[k] < 1.25 * PUBLISHED_FIT_RMS[k], "{}: {} vs {}", JOINTS[k], fit[k], PUBLISHED_FIT_RMS[k]);
         }
+    }
+
+    /// Leave-one-out RMS on the 70 real pairs of the published recipe (10^4 iterations, no
+    /// penalty: `msr train-reach` before issue 29), and of the same network in PyTorch (Adam lr
+    /// 0.01, 3000 full-batch steps, min-max scaling as published), as issue 29 gives them.
+    const PUBLISHED_RECIPE_LOO_RMS: [f64; O] = [0.216, 0.212, 0.192, 0.134, 0.097];
+    const PYTORCH_LOO_RMS: [f64; O] = [0.193, 0.173, 0.154, 0.093, 0.081];
+
+    #[test]
+    fn the_default_generalises_better_than_the_published_recipe() {
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/nao-red-real");
+        if !dir.exists() {
+            eprintln!("skipping: {} not found", dir.display());
+            return;
+        }
+        let xs = read_rows::<2>(&dir.join("centroid_samples.csv")).unwrap();
+        let ys = read_rows::<5>(&dir.join("arm_samples.csv")).unwrap();
+        // The weight decay is chosen inside every fold, from its 69 pairs.
+        let loo = leave_one_out(&xs, &ys, &Opts::default()).unwrap();
+        eprintln!("leave-one-out RMS {loo:?} (PyTorch's 3000 steps: {PYTORCH_LOO_RMS:?})");
+        // Better than the published recipe on every joint. Against PyTorch's figures it is
+        // better on four joints and level on LElbowRoll (0.0810 vs 0.081, docs/defaults.md):
+        // the guard is that it stays within 0.001 rad of them.
+        for k in 0..O {
+            assert!(loo[k] < PUBLISHED_RECIPE_LOO_RMS[k], "{}: {:.3} vs {:.3}", JOINTS[k], loo[k], PUBLISHED_RECIPE_LOO_RMS[k]);
+            assert!(loo[k] < PYTORCH_LOO_RMS[k] + 0.001, "{}: {:.4} vs PyTorch's {:.3}", JOINTS[k], loo[k], PYTORCH_LOO_RMS[k]);
+        }
+    }
+
+    #[test]
+    fn the_penalty_gradient_matches_finite_differences_and_shrinks_the_weights() {
+        let net = Net::init(5);
+        let mut g = Net { w1: [[0.0; I]; H], b1: [0.0; H], w2: [[0.0; H]; O], b2: [0.0; O] };
+        let p = net.penalise(0.01, &mut g);
+        let mut probe = net.clone();
+        probe.w1[2][1] += 1e-6;
+        let mut unused = g.clone();
+        let num = (probe.penalise(0.01, &mut unused) - p) / 1e-6;
+        assert!((num - g.w1[2][1]).abs() < 1e-6, "{num} vs {}", g.w1[2][1]);
+        assert!(g.b1.iter().chain(&g.b2).all(|&b| b == 0.0), "biases are free");
+        let (xs, ys) = toy(30);
+        let w = |d: f64| {
+            let m = train(&xs, &ys, &Opts { iterations: 1500, weight_decay: Some(d), ..Default::default() }).unwrap();
+            m.net.w1.iter().flatten().chain(m.net.w2.iter().flatten()).map(|w| w * w).sum::<f64>()
+        };
+        assert!(w(1e-3) < 0.5 * w(0.0));
+        assert!(train(&xs, &ys, &Opts { weight_decay: Some(-1.0), ..Default::default() }).is_err());
+        // Too few pairs for the folds: no penalty, and it says so.
+        let (_, d, how) = train_chosen(&xs[..6], &ys[..6], &Opts { iterations: 10, ..Default::default() }).unwrap();
+        assert_eq!((d, how), (0.0, DecayChoice::TooFewPairs));
     }
 }

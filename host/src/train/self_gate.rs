@@ -28,8 +28,11 @@ pub struct GateCalibration {
     /// what the gate was measured with; the tolerance rule wants a quantile, not a maximum.
     pub draws: usize,
     pub seed: u64,
-    /// From a head pose to a frame of it on the board: the frame's transfer (75 x 58 at
-    /// 921600 baud: 47 ms), two servo periods and a margin.
+    /// From the head settled at a pose (the board's reported yaw near it) to a frame of it on
+    /// the board: the frame's transfer (75 x 58 at 921600 baud: 47 ms), the servo settling to
+    /// well under a pixel (five 30 ms time constants; 100 ms left the face still moving by up
+    /// to 0.8 px between the two frames of a hold, and the gate refused its own mirror image in
+    /// 5 of 19 red and 33 of 36 skin trials, issue 29) and a margin.
     pub latency_ms: u16,
     pub timeout_ms: u16,
     pub min_frames: u8,
@@ -48,7 +51,7 @@ impl Default for GateCalibration {
             amplitude: 0.07,
             draws: 24,
             seed: 0,
-            latency_ms: 100,
+            latency_ms: 250,
             timeout_ms: 2000,
             min_frames: 2,
             margin: 1.5,

@@ -150,6 +150,56 @@ fn an_overload_turns_the_torque_off_and_raises_the_alert() {
 }
 
 #[test]
+fn the_limits_are_the_joints_range_from_power_on() {
+    let mut b = bus(vec![]);
+    for e in default_map() {
+        assert_eq!(b.dynamixel().unwrap().position_limits(e.joint), Some((e.raw_min, e.raw_max)));
+        let a = send(&mut b, &enc(|w| dxl::read(e.id, 48, 8, w)), 1_000, 1_000);
+        let want = [(e.raw_max as u32).to_le_bytes(), (e.raw_min as u32).to_le_bytes()].concat();
+        assert_eq!(statuses(&a), vec![(e.id, 0, want)], "{:?}", e.joint);
+    }
+    // A goal one count past the range: Data Limit Error, counted, nothing moves.
+    let e = default_map()[4];
+    let a = send(&mut b, &enc(|w| dxl::write(e.id, 116, &(e.raw_max as u32 + 1).to_le_bytes(), w)), 2_000, 2_000);
+    assert_eq!(statuses(&a), vec![(e.id, error::DATA_LIMIT, vec![])]);
+    assert_eq!(b.dynamixel().unwrap().counters().goals, 0);
+    assert_eq!(b.dynamixel().unwrap().counters().limit_violations, 1);
+}
+
+#[test]
+fn a_joint_held_against_its_stop_overloads_after_the_stall_time() {
+    let roll = default_map()[3];
+    let mut b = bus(vec![]);
+    // Limits widened past the stop, then a goal beyond it.
+    send(&mut b, &enc(|w| dxl::write(roll.id, 64, &[0], w)), 500, 1_000);
+    send(&mut b, &enc(|w| dxl::write(roll.id, 48, &4095u32.to_le_bytes(), w)), 1_500, 2_000);
+    send(&mut b, &enc(|w| dxl::write(roll.id, 64, &[1], w)), 2_500, 3_000);
+    let goal = (roll.raw_max + 200) as u32;
+    let a = send(&mut b, &enc(|w| dxl::write(roll.id, 116, &goal.to_le_bytes(), w)), 3_500, 4_000);
+    assert_eq!(statuses(&a), vec![(roll.id, 0, vec![])]);
+    let limit = Joint::LShoulderRoll.limits().unwrap().max as f64;
+    // At the stop in well under 0.5 s; no error while the stall is younger than the stall time.
+    let mut t = 5_000;
+    while t < 4_000 + STALL_OVERLOAD_US - 1_000 {
+        b.exchange(&[], t);
+        t += 1_000;
+    }
+    assert!((b.position(Joint::LShoulderRoll) - limit).abs() < 1e-9);
+    assert_eq!(b.dynamixel().unwrap().hardware_error(Joint::LShoulderRoll), Some(0));
+    assert_eq!(b.dynamixel().unwrap().torque(Joint::LShoulderRoll), Some(true));
+    for t in (t..t + 600_000).step_by(1_000) {
+        b.exchange(&[], t);
+    }
+    let d = b.dynamixel().unwrap();
+    assert_eq!(d.hardware_error(Joint::LShoulderRoll), Some(hw::OVERLOAD));
+    assert_eq!(d.torque(Joint::LShoulderRoll), Some(false));
+    let a = send(&mut b, &enc(|w| dxl::read(roll.id, 70, 1, w)), 2_000_000, 2_000_000);
+    assert_eq!(statuses(&a), vec![(roll.id, error::ALERT, vec![hw::OVERLOAD])]);
+    // The other joints are fine; a goal inside the range never stalls.
+    assert_eq!(b.dynamixel().unwrap().hardware_error(Joint::HeadYaw), Some(0));
+}
+
+#[test]
 fn corrupted_packets_are_not_obeyed_nor_answered() {
     let mut b = bus(vec![]);
     let yaw = id(Joint::HeadYaw);
@@ -179,11 +229,15 @@ mod with_the_board {
     }
 
     fn run_board(faults: Vec<DxlFault>, servo_faults: FaultConfig, ms: u64) -> Run {
+        run_board_on(DxlConfig { faults, ..DxlConfig::default() }, servo_faults, ms)
+    }
+
+    fn run_board_on(dxl: DxlConfig, servo_faults: FaultConfig, ms: u64) -> Run {
         let mut board = Box::new(Board::new(RamStore::<64>::new(None)));
         board.set_servo_bus(Some(Master::new()));
         let cfg = WorldConfig {
             servo_link: LinkConfig { baud: 1_000_000, a_to_b: servo_faults.clone(), b_to_a: servo_faults, seed: 3, ..Default::default() },
-            dynamixel: Some(DxlConfig { faults, ..DxlConfig::default() }),
+            dynamixel: Some(dxl),
             ..WorldConfig::default()
         };
         let mut acc = FrameAccumulator::<MAX_WIRE_FRAME>::new();
@@ -249,7 +303,8 @@ mod with_the_board {
         assert!(missing.len() >= 2 && missing.iter().all(|e| e.2 == 4), "{:?}", r.errors);
         let d = r.world.servos.dynamixel().unwrap();
         assert_eq!(d.counters().goals, 0);
-        assert_eq!(d.position_limits(Joint::HeadYaw), Some((0, 4095)), "no servo was configured");
+        let yaw = default_map()[0];
+        assert_eq!(d.position_limits(Joint::HeadYaw), Some((yaw.raw_min, yaw.raw_max)), "as at power-on");
         assert!(matches!(r.board.dynamixel().unwrap().stage(), Stage::Failed { .. }));
         assert!(r.board.commanded().is_none());
     }
@@ -273,6 +328,29 @@ mod with_the_board {
         assert!(r.errors.iter().any(|e| e.1 == ErrorCode::ServoFault && e.2 == want), "{:?}", r.errors);
         assert_eq!(r.board.status().mode, Mode::Halted);
         assert_eq!(goals_after(&r, 530_000), 0);
+    }
+
+    #[test]
+    fn a_joint_driven_into_its_stop_overloads_and_the_board_reports_it() {
+        // LShoulderRoll's horn sits 300 counts (0.46 rad) off where the board's map has it: the
+        // board's home goal lands past the true stop, the joint stalls there, and after the
+        // stall time the servo raises Overload; the board reports it and stops.
+        let mut map = default_map().to_vec();
+        let roll = &mut map[3];
+        roll.zero += 300;
+        roll.raw_min += 300;
+        roll.raw_max = (roll.raw_max + 300).min(4095);
+        let r = run_board_on(DxlConfig { map, ..DxlConfig::default() }, FaultConfig::default(), 1_500 + STALL_OVERLOAD_US / 1000);
+        let id = default_map()[3].id as u32;
+        let want = id | (hw::OVERLOAD as u32) << 8;
+        let at: Vec<u64> = r.errors.iter().filter(|e| e.1 == ErrorCode::ServoFault && e.2 == want).map(|e| e.0).collect();
+        assert!(!at.is_empty(), "{:?}", r.errors);
+        assert!(at[0] >= STALL_OVERLOAD_US, "reported at {} us, before the stall time", at[0]);
+        let d = r.world.servos.dynamixel().unwrap();
+        assert_eq!(d.torque(Joint::LShoulderRoll), Some(false));
+        assert_eq!(r.board.status().mode, Mode::Halted);
+        // The goals past the true stop were counted as what they are.
+        assert!(d.counters().limit_violations > 0);
     }
 
     #[test]

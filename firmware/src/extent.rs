@@ -1,0 +1,125 @@
+//! The salient extent of a pooled mask. The pooled test decides (a faint mark adds up over its
+//! window), but the window also spreads a mark's salient area by its radius on every side, so
+//! the mask covers more face than mark (the paper's a_i / (a_i + a_d) fell from 0.89 to 0.67).
+//! [`mark_spread`] keeps the decision and marks [`SPREAD`] the salient pixels whose own error
+//! does not pass the same threshold: the components, the winner and its centroid are those of
+//! the pooled mask (any non-zero byte is salient), the extent is the pixels left at 1.
+
+/// A pixel salient through its window only (its own error is under the threshold).
+pub const SPREAD: u8 = 2;
+
+/// Marks [`SPREAD`] each salient pixel of the `w`-wide `mask` whose own error fails the pooled
+/// one-sided test taken with a window of one (`|(I << 8) - pred| > T`, `thr` the table of `T`);
+/// returns the salient pixels left at 1. Rows with a zero in `row_counts` are empty and not
+/// read; the others only up to their last salient pixel.
+pub fn mark_spread(frame: &[u8], pred: &[u16], thr: &[u16], mask: &mut [u8], w: usize, row_counts: &[u16]) -> u32 {
+    if w == 0 {
+        return 0;
+    }
+    let n = frame.len().min(pred.len()).min(thr.len()).min(mask.len()) / w * w;
+    let mut kept = 0u32;
+    for (y, m) in mask[..n].chunks_exact_mut(w).enumerate() {
+        let mut left = row_counts.get(y).map_or(usize::MAX, |&c| c as usize);
+        if left == 0 {
+            continue;
+        }
+        // Rows of one length: the indexing below needs no bounds checks.
+        let at = y * w;
+        let (f, p, t) = (&frame[at..at + w], &pred[at..at + w], &thr[at..at + w]);
+        let mut x = 0;
+        while x < w {
+            // Four pixels at a time (one word load on the board): most are empty.
+            let end = (x + 4).min(w);
+            if end - x == 4 && u32::from_ne_bytes([m[x], m[x + 1], m[x + 2], m[x + 3]]) == 0 {
+                x = end;
+                continue;
+            }
+            for i in x..end {
+                if m[i] != 0 {
+                    left -= 1;
+                    let e = ((f[i] as i32) << 8) - p[i] as i32;
+                    if e.unsigned_abs() > t[i] as u32 {
+                        kept += 1;
+                    } else {
+                        m[i] = SPREAD;
+                    }
+                }
+            }
+            if left == 0 {
+                break;
+            }
+            x = end;
+        }
+    }
+    kept
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::saliency::pool::{pooled_one_sided, reference};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// A mark on a quiet face: pooled, its salient area is the mark grown by the radius; the
+    /// extent is the mark again, and the pooled decision (every non-zero pixel) is unchanged.
+    #[test]
+    fn the_extent_of_a_pooled_mark_is_the_mark() {
+        let (w, h, r) = (30usize, 24usize, 2u8);
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let pred: Vec<u16> = (0..w * h).map(|_| 100 << 8).collect();
+        let mut frame: Vec<u8> = (0..w * h).map(|_| (100 + rng.gen_range(-2i32..=2)) as u8).collect();
+        for y in 8..15 {
+            frame[y * w + 10..y * w + 17].fill(160);
+        }
+        // T = 10 grey levels: noise never passes, the mark always does.
+        let thr = vec![10u16 << 8; w * h];
+        let mut mask = vec![0u8; w * h];
+        let mut ring = vec![0i32; (2 * r as usize + 1) * w];
+        let mut rows = [0u16; 24];
+        let pooled = pooled_one_sided(&frame, &pred, &thr, &mut mask, &mut ring, w, r, &mut rows);
+        let before = mask.clone();
+        assert!(pooled > 49, "the window spreads the 7 x 7 mark: {pooled}");
+        let kept = mark_spread(&frame, &pred, &thr, &mut mask, w, &rows);
+        assert_eq!(kept, 49);
+        for i in 0..w * h {
+            let on = (8..15).contains(&(i / w)) && (10..17).contains(&(i % w));
+            assert_eq!(mask[i] == 1, on, "pixel {i}");
+            assert_eq!(mask[i] != 0, before[i] != 0, "pixel {i}: the decision's mask changed");
+        }
+    }
+
+    /// On random faces and thresholds: a pixel is left at 1 exactly when it was salient and its
+    /// own error passes, whether the row counts are given or not.
+    #[test]
+    fn spread_is_salient_without_its_own_error() {
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        for w in [1usize, 3, 7, 13, 75] {
+            for h in [1usize, 5, 9] {
+                let n = w * h;
+                let frame: Vec<u8> = (0..n).map(|_| rng.gen()).collect();
+                let pred: Vec<u16> = (0..n).map(|_| rng.gen()).collect();
+                let thr: Vec<u16> = (0..n).map(|_| if rng.gen_range(0..6) == 0 { u16::MAX } else { rng.gen_range(0..30_000) }).collect();
+                let mut mask = vec![0u8; n];
+                reference(&frame, &pred, &thr, &mut mask, w, 1);
+                let counts: Vec<u16> = mask.chunks(w).map(|r| r.iter().filter(|&&m| m != 0).count() as u16).collect();
+                for given in [&counts[..], &[][..]] {
+                    let mut m = mask.clone();
+                    let kept = mark_spread(&frame, &pred, &thr, &mut m, w, given);
+                    let mut want = 0;
+                    for i in 0..n {
+                        let own = (((frame[i] as i32) << 8) - pred[i] as i32).unsigned_abs() > thr[i] as u32;
+                        let expect = match (mask[i], own) {
+                            (0, _) => 0,
+                            (_, true) => 1,
+                            (_, false) => SPREAD,
+                        };
+                        assert_eq!(m[i], expect, "{w} x {h} pixel {i}");
+                        want += (expect == 1) as u32;
+                    }
+                    assert_eq!(kept, want);
+                }
+            }
+        }
+    }
+}
