@@ -152,21 +152,23 @@ impl Dataset {
             Index::Sim(ix) => {
                 let (robot, tpl, size) =
                     (ix.robot.clone(), ix.template.clone(), (ix.width, ix.height));
-                (Layout::Sim, sim_frames(&root, ix, only)?, robot, tpl, size)
+                (Layout::Sim, sim_frames(&root, ix, None)?, robot, tpl, size)
             }
             Index::Published(m) => {
                 let tpl = m.face_crop.template.clone();
                 let size = (m.camera.width, m.camera.height);
                 (
                     Layout::Published,
-                    published_frames(&root, m, only)?,
+                    published_frames(&root, m, None)?,
                     "published".into(),
                     tpl,
                     size,
                 )
             }
         };
+        // The whole index is checked, whichever split is read.
         check_index(&root, &robot, &pending, layout)?;
+        let pending: Vec<Pending> = pending.into_iter().filter(|p| only.is_none_or(|s| s == p.split)).collect();
         let template = load_grey(&root.join(&template_file))
             .with_context(|| format!("dataset {}: face template", root.display()))?;
         let samples = parallel_map(&pending, |p| p.load(&template, crop, size))?;
