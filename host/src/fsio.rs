@@ -103,6 +103,9 @@ impl LazyLog {
 
     fn open(&mut self) -> std::io::Result<&mut std::fs::File> {
         if self.file.is_none() {
+            if let Some(dir) = self.path.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir)?;
+            }
             let tmp = temp_beside(&self.path);
             let f = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp)?;
             if let Err(e) = std::fs::rename(&tmp, &self.path) {

@@ -104,6 +104,37 @@ fn a_run_after_a_face_timeout_gets_its_frames_run_and_a_halted_board_is_said() {
     assert!(text.contains("link: 1 of 1 frames answered"), "{text}");
 }
 
+#[test]
+fn detect_refuses_head_angles_far_outside_the_training_range() {
+    // Was: 2.0 rad of yaw with a model trained on +-5 deg reported a mark and reach targets.
+    let tmp = tempfile::tempdir().unwrap();
+    let m = model(tmp.path());
+    let blob = std::fs::read(&m).unwrap();
+    let grid = msr_shared::blob::Model::parse(&blob).unwrap().pose.unwrap().grid;
+    let image = tmp.path().join("f.png");
+    msr_host::cmd::run::sim_frames(Robot::Red, 1, 0).remove(0).1.save(&image).unwrap();
+    let detect = |yaw: f32, pitch: f32| {
+        Command::new(env!("CARGO_BIN_EXE_msr"))
+            .args(["detect", "--model", m.to_str().unwrap(), "--image", image.to_str().unwrap()])
+            .args(["--head-yaw", &yaw.to_string(), "--head-pitch", &pitch.to_string()])
+            .output()
+            .unwrap()
+    };
+    let w = grid.hi[0] - grid.lo[0];
+    for (yaw, pitch) in [(2.0, 0.0), (grid.hi[0] + 0.3 * w, 0.0), (0.0, grid.lo[1] - 0.3 * (grid.hi[1] - grid.lo[1]))] {
+        let out = detect(yaw, pitch);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{yaw} {pitch}: {err}");
+        assert!(err.contains("far outside") && err.trim().lines().count() == 1, "{err}");
+        assert!(out.stdout.is_empty(), "nothing reported");
+    }
+    // Inside the range, and a little past its edge, it answers.
+    for (yaw, pitch) in [(0.0, 0.0), (grid.hi[0] + 0.2 * w, grid.lo[1])] {
+        let out = detect(yaw, pitch);
+        assert!(out.status.success(), "{yaw} {pitch}: {}", String::from_utf8_lossy(&out.stderr));
+    }
+}
+
 /// A frame for the run: the sim's at home, noise, or a size other than the model's.
 #[derive(Clone, Debug)]
 enum Frame {

@@ -94,7 +94,7 @@ fn writable(flag: &str, p: &Path) -> Result<()> {
     if p.is_dir() {
         bail!("{flag} {} is a folder, not a file", p.display());
     }
-    fsio::refuse_special(p).with_context(|| flag.to_string())?;
+    fsio::refuse_special(p).map_err(|e| anyhow::anyhow!("{flag} {e}"))?;
     let mut dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     while !dir.exists() {
         match dir.parent().filter(|d| !d.as_os_str().is_empty()) {

@@ -238,9 +238,8 @@ pub fn run(a: Args) -> Result<()> {
             print(m, a.json)?;
         }
     }
-    streamed?;
-    let (_, st) = closed?;
-    // A face the board never answered is said so: never "no mark", never "through".
+    // A face the board never answered is said so (also before an error): never "no mark",
+    // never "through".
     for (id, name) in &unanswered {
         if a.json {
             println!("{}", serde_json::json!({ "unanswered": { "frame": id, "name": name } }));
@@ -248,6 +247,8 @@ pub fn run(a: Args) -> Result<()> {
             println!("{name}: frame {id}: no answer from the board (dropped, or not run)");
         }
     }
+    streamed?;
+    let (_, st) = closed?;
     print(&BoardToHost::Status(st), a.json)?;
     let (link, goodput) = s.link_stats();
     let answered = sent - unanswered.len();

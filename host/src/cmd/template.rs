@@ -24,12 +24,12 @@ pub fn parse_box(s: &str) -> Result<[u32; 4]> {
         .split(',')
         .map(|p| p.trim().parse::<u32>())
         .collect::<Result<_, _>>()
-        .map_err(|_| anyhow::anyhow!("--box must be x0,y0,x1,y1 in whole pixels (0 or more), got {s:?}"))?;
+        .map_err(|_| anyhow::anyhow!("x0,y0,x1,y1 in whole pixels (0 or more) are needed"))?;
     let [x0, y0, x1, y1] = v[..] else {
-        bail!("--box must be four numbers x0,y0,x1,y1, got {s:?}")
+        bail!("four numbers x0,y0,x1,y1 are needed, got {}", v.len())
     };
     if x1 < x0 || y1 < y0 {
-        bail!("--box {s}: x1 must not be left of x0, nor y1 above y0");
+        bail!("x1 must not be left of x0, nor y1 above y0");
     }
     Ok([x0, y0, x1, y1])
 }
