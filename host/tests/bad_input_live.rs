@@ -281,6 +281,8 @@ fn bench_saves_two_models_of_one_kind_under_two_names() {
     assert_eq!(std::fs::read(dir.join("conv-1.msrm")).unwrap(), conv);
     assert_eq!(std::fs::read(dir.join("conv-2.msrm")).unwrap(), conv8);
     assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 2);
+    // A --save-models that is not a folder is said so (was: "creating /dev/null: File exists").
+    fails_with_code(&["bench", "--backend", "host", "--reps", "1", "--model", s(&a), "--save-models", s(&a)], 1, "is a file, not a folder");
 }
 
 #[test]

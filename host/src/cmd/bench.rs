@@ -45,6 +45,9 @@ pub fn run(args: Args) -> Result<()> {
         for p in &paths {
             crate::fsio::refuse_special(p)?;
         }
+        if dir.exists() && !dir.is_dir() {
+            anyhow::bail!("--save-models {} is a file, not a folder", dir.display());
+        }
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
         for (m, p) in models.iter().zip(&paths) {
             crate::fsio::write(p, &m.blob)?;
