@@ -21,6 +21,7 @@ pub fn write_with(path: &Path, save: impl FnOnce(&Path) -> Result<()>) -> Result
     if path.is_dir() {
         bail!("cannot write {}: it is a folder", path.display());
     }
+    refuse_special(path)?;
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir)
             .with_context(|| format!("cannot write {}: cannot create {}", path.display(), dir.display()))?;
@@ -32,8 +33,105 @@ pub fn write_with(path: &Path, save: impl FnOnce(&Path) -> Result<()>) -> Result
     if done.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }
-    done.with_context(|| format!("cannot write {}", path.display()))
+    done.map_err(|e| untemp(e, &tmp, path))
+        .with_context(|| format!("cannot write {}", path.display()))
         .map_err(dedupe)
+}
+
+/// An error of a write to `tmp` told in the user's words: the temporary file's path, name and
+/// extension (a saver that picks the format by the extension names it) become `path`'s.
+fn untemp(e: anyhow::Error, tmp: &Path, path: &Path) -> anyhow::Error {
+    let msgs: Vec<String> = e.chain().map(|c| c.to_string()).collect();
+    let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
+    let ext = |p: &Path| p.extension().map(|n| n.to_string_lossy().into_owned());
+    let mut swaps = vec![(tmp.display().to_string(), path.display().to_string())];
+    if let (Some(t), Some(p)) = (name(tmp), name(path)) {
+        swaps.push((t, p));
+    }
+    match (ext(tmp), ext(path)) {
+        (Some(t), Some(p)) if t != p => swaps.push((t, p)),
+        (Some(t), None) => swaps.extend([(format!(".\"{t}\""), "(none)".into()), (t, String::new())]),
+        _ => {}
+    }
+    if !msgs.iter().any(|m| swaps.iter().any(|(t, _)| m.contains(t.as_str()))) {
+        return e;
+    }
+    let fix = |m: &str| swaps.iter().fold(m.to_string(), |m, (t, p)| m.replace(t.as_str(), p));
+    let mut it = msgs.iter().rev();
+    let mut out = anyhow::anyhow!(fix(it.next().map_or("", |m| m.as_str())));
+    for m in it {
+        out = out.context(fix(m));
+    }
+    out
+}
+
+/// Refuses to write over a device, a FIFO or a socket (or a link to one): the rename would
+/// replace the node with a regular file, and writing into it is no file the user keeps.
+pub fn refuse_special(path: &Path) -> Result<()> {
+    let special = |m: std::fs::Metadata| {
+        let t = m.file_type();
+        !(t.is_file() || t.is_dir() || t.is_symlink())
+    };
+    let own = std::fs::symlink_metadata(path).map(special).unwrap_or(false);
+    let target = std::fs::metadata(path).map(special).unwrap_or(false);
+    if own || target {
+        bail!(
+            "{} is a device or another special file, not a regular file: refusing to write it (give a file path)",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+/// A log written as it grows (`msr servos --bus-log`): nothing happens to `path` until the first
+/// bytes come; then a new file is made beside it and renamed over it (a link is replaced, never
+/// followed), and the rest goes into that file.
+pub struct LazyLog {
+    path: PathBuf,
+    file: Option<std::fs::File>,
+}
+
+impl LazyLog {
+    /// Checks `path` now (a folder or a special file is refused); opens nothing.
+    pub fn new(path: &Path) -> Result<LazyLog> {
+        if path.is_dir() {
+            bail!("cannot write {}: it is a folder", path.display());
+        }
+        refuse_special(path)?;
+        Ok(LazyLog { path: path.to_path_buf(), file: None })
+    }
+
+    fn open(&mut self) -> std::io::Result<&mut std::fs::File> {
+        if self.file.is_none() {
+            if let Some(dir) = self.path.parent().filter(|d| !d.as_os_str().is_empty()) {
+                std::fs::create_dir_all(dir)?;
+            }
+            let tmp = temp_beside(&self.path);
+            let f = std::fs::OpenOptions::new().write(true).create_new(true).open(&tmp)?;
+            if let Err(e) = std::fs::rename(&tmp, &self.path) {
+                let _ = std::fs::remove_file(&tmp);
+                return Err(e);
+            }
+            self.file = Some(f);
+        }
+        Ok(self.file.as_mut().expect("opened above"))
+    }
+}
+
+impl std::io::Write for LazyLog {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        if buf.is_empty() {
+            return Ok(0);
+        }
+        let path = self.path.display().to_string();
+        self.open()
+            .and_then(|f| f.write(buf))
+            .map_err(|e| std::io::Error::new(e.kind(), format!("writing {path}: {e}")))
+    }
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.file.as_mut().map_or(Ok(()), |f| f.flush())
+    }
 }
 
 /// Writes `bytes` to `path` atomically (temporary file + rename).

@@ -19,7 +19,7 @@ fn main() -> std::process::ExitCode {
         Err(e) => {
             // One clear line (with its causes), never a panic trace.
             eprintln!("msr: error: {}", msr_host::cmd::one_line(&e));
-            ExitCode::FAILURE
+            ExitCode::from(msr_host::cmd::exit_code(&e))
         }
     }
 }

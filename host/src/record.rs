@@ -14,6 +14,7 @@ use crate::data::crop::{self, CropMode, Cropper};
 use crate::fsio;
 use anyhow::{bail, Context, Result};
 use image::GrayImage;
+use msr_shared::joints::Joint;
 use msr_shared::msg::{BoardToHost, ErrorCode, HostToBoard};
 use msr_sim::layout::{self, DatasetIndex, FrameRecord, Split};
 use rand::{Rng, SeedableRng};
@@ -162,14 +163,38 @@ fn template(cfg: &RecordConfig) -> Result<GrayImage> {
     )
 }
 
-/// Checks `out` before anything is sent: a finished recording is kept unless `force`, an
-/// unfinished one needs `resume` (or `force`). Returns the log entries to continue from.
-fn prepare_out(cfg: &RecordConfig) -> Result<Vec<Entry>> {
+/// Checks `out` before anything is sent or changed: a finished recording is kept unless
+/// `force`, an unfinished one needs `resume` (or `force`) and a log that [`check_log`] passes.
+/// Returns the log entries to continue from.
+fn check_out(cfg: &RecordConfig) -> Result<Vec<Entry>> {
     let out = &cfg.out;
     let index = out.join(layout::INDEX_FILE);
     let log = out.join(LOG_FILE);
+    if out.exists() && !out.is_dir() {
+        bail!("--out {} is a file, not a folder", out.display());
+    }
     if cfg.force {
-        for f in [&index, &log, &out.join(layout::ANGLES_FILE)] {
+        return Ok(Vec::new());
+    } else if index.exists() {
+        bail!("{} holds a finished recording (or dataset): --force to record over it", out.display());
+    } else if log.exists() {
+        if !cfg.resume {
+            bail!("{} holds an unfinished recording: --resume to continue it, --force to start again", out.display());
+        }
+        let entries = read_log(&log)?;
+        check_log(out, &log, &entries, cfg.count)?;
+        return Ok(entries);
+    } else if out.is_dir() && std::fs::read_dir(out)?.any(|e| e.is_ok_and(|e| e.file_name() != layout::TEMPLATE_FILE)) {
+        bail!("{} is not empty and holds no recording: give a new folder", out.display());
+    }
+    Ok(Vec::new())
+}
+
+/// Makes `out` ready once [`check_out`] passed: with `force`, the old recording goes.
+fn prepare_out(cfg: &RecordConfig) -> Result<()> {
+    let out = &cfg.out;
+    if cfg.force {
+        for f in [&out.join(layout::INDEX_FILE), &out.join(LOG_FILE), &out.join(layout::ANGLES_FILE)] {
             if f.exists() {
                 std::fs::remove_file(f).with_context(|| format!("removing {}", f.display()))?;
             }
@@ -178,35 +203,74 @@ fn prepare_out(cfg: &RecordConfig) -> Result<Vec<Entry>> {
         if frames.is_dir() {
             std::fs::remove_dir_all(&frames).with_context(|| format!("removing {}", frames.display()))?;
         }
-    } else if index.exists() {
-        bail!("{} holds a finished recording (or dataset): --force to record over it", out.display());
-    } else if log.exists() {
-        if !cfg.resume {
-            bail!("{} holds an unfinished recording: --resume to continue it, --force to start again", out.display());
-        }
-        return read_log(&log);
-    } else if out.is_dir() && std::fs::read_dir(out)?.any(|e| e.is_ok_and(|e| e.file_name() != layout::TEMPLATE_FILE)) {
-        bail!("{} is not empty and holds no recording: give a new folder", out.display());
     }
     std::fs::create_dir_all(out.join("frames")).with_context(|| format!("creating {}", out.display()))?;
-    Ok(Vec::new())
+    Ok(())
+}
+
+/// The head angles a frame is kept with, as recorded and as read back: finite and inside the
+/// Nao's joint range.
+fn check_head(head: [f64; 2]) -> Result<()> {
+    for (joint, a) in [(Joint::HeadYaw, head[0]), (Joint::HeadPitch, head[1])] {
+        joint.validate(a as f32).map_err(|e| anyhow::anyhow!("head {e} (the Nao's joint range)"))?;
+    }
+    Ok(())
+}
+
+/// The log read back, held to what a recording writes: the k-th kept frame is
+/// `frames/{k:06}.png` (so none missing, none twice, none outside the folder), its PNG is there,
+/// its angles pass [`check_head`], and there are no more frames than `count`.
+fn check_log(out: &Path, log: &Path, entries: &[Entry], count: usize) -> Result<()> {
+    let mut k = 0usize;
+    for e in entries {
+        let Entry::Frame { file, head } = e else { continue };
+        let want = format!("frames/{k:06}.png");
+        if *file != want {
+            bail!(
+                "{}: kept frame {} is {file:?}, a recording writes {want:?} (a frame missing, twice, \
+                 or outside the folder): --force to record again",
+                log.display(),
+                k + 1
+            );
+        }
+        check_head(*head).with_context(|| format!("{}: frame {file}", log.display()))?;
+        if !out.join(file).is_file() {
+            bail!("{}: frame {file} is listed but {} is missing: --force to record again", log.display(), out.join(file).display());
+        }
+        k += 1;
+    }
+    if k > count {
+        bail!("{} holds {k} frames, more than --count {count}", log.display());
+    }
+    Ok(())
 }
 
 /// Records `cfg.count` frames.
 pub fn record(cfg: &RecordConfig) -> Result<Recorded> {
     let tpl = template(cfg)?;
-    let done = prepare_out(cfg)?;
+    // Everything that can fail is checked before anything in --out changes and before the
+    // banner: the folder and its log, the camera, the port.
+    let done = check_out(cfg)?;
+    let mut src = camera::open(
+        &cfg.source,
+        &SourceOptions { timeout: cfg.frame_timeout, ..SourceOptions::default() },
+    )?;
+    let mut session = Session::open(&cfg.port, cfg.baud)?;
+    prepare_out(cfg)?;
+    if cfg.progress {
+        eprintln!(
+            "recording {} frames (head within +-{} deg) into {}",
+            cfg.count,
+            cfg.range_deg,
+            cfg.out.display()
+        );
+    }
     let tpl_path = cfg.out.join(layout::TEMPLATE_FILE);
     let same = |a: &Path| a.canonicalize().ok().is_some_and(|a| Some(a) == tpl_path.canonicalize().ok());
     if cfg.template.as_deref().is_some_and(|t| !same(t)) || !tpl_path.is_file() {
         fsio::write_with(&tpl_path, |p| tpl.save_with_format(p, image::ImageFormat::Png).map_err(Into::into))?;
     }
     let cropper = Cropper::new(tpl.clone(), CropMode::Subpixel);
-    let mut src = camera::open(
-        &cfg.source,
-        &SourceOptions { timeout: cfg.frame_timeout, ..SourceOptions::default() },
-    )?;
-    let mut session = Session::open(&cfg.port, cfg.baud)?;
     let mut log = std::fs::OpenOptions::new()
         .create(true)
         .append(true)
@@ -265,6 +329,7 @@ pub fn record(cfg: &RecordConfig) -> Result<Recorded> {
                 continue;
             }
         };
+        check_head(head).context("the board reported a head pose that no frame may be kept with")?;
         if let Some((l, t0)) = &mut mcap {
             let us = t0.elapsed().as_micros() as u64;
             l.joints(us, &["HeadYaw", "HeadPitch"], &head, &asked);

@@ -196,8 +196,7 @@ fn frame_pictures(
     let mut files = Vec::new();
     for (n, img) in names.iter().zip(imgs) {
         let file = format!("test{i}_{n}.png");
-        img.save(pics.join(&file))
-            .with_context(|| format!("writing {file}"))?;
+        crate::fsio::write_with(&pics.join(&file), |tmp| Ok(img.save(tmp)?))?;
         files.push(format!("pictures/{file}"));
     }
     let truth = f.mark.as_ref().map_or("no mark".to_string(), |m| {
@@ -237,9 +236,7 @@ fn reach_picture(robot: msr_sim::Robot, q: [f32; 5], file: &Path) -> Result<()> 
     let img = r
         .render(&pose, None, &msr_sim::render::Variation::CLEAN)
         .rgb;
-    img.save(file)
-        .with_context(|| format!("writing {}", file.display()))?;
-    Ok(())
+    crate::fsio::write_with(file, |tmp| Ok(img.save(tmp)?))
 }
 
 fn num(v: &Value) -> String {

@@ -26,6 +26,38 @@ pub struct Session {
     t0: Instant,
     /// Model bytes sent again on resuming uploads.
     pub upload_resent: u64,
+    /// The id of the last face sent.
+    frame_id: u16,
+}
+
+/// A session's first frame id: from the clock and the process id, so that two sessions seldom
+/// start in the same stretch of ids.
+fn first_id() -> u16 {
+    let t = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_nanos() as u64);
+    let x = t ^ (std::process::id() as u64).rotate_left(32);
+    (x ^ (x >> 16) ^ (x >> 32) ^ (x >> 48)) as u16
+}
+
+/// Whether `m` answers face `frame`: its detection, or an error that says why the board ran
+/// nothing on it. A watchdog's error (`FaceTimeout`, `ServoTimeout` 0) or a servo fault is news
+/// of the board, not an answer: one still queued from before the frame was taken for its
+/// answer.
+pub fn answers(m: &BoardToHost, frame: u16) -> bool {
+    use msr_shared::msg::ErrorCode;
+    match m {
+        // While the arm is up every whole frame is answered with the reach's detection.
+        BoardToHost::Detection(d) => d.frame == frame || (d.confirmed && d.reach.is_some()),
+        BoardToHost::Error { code, detail } => match code {
+            ErrorCode::BadFrame => *detail == frame as u32,
+            ErrorCode::NoModel | ErrorCode::Version => true,
+            // No servo positions for the decoder's input.
+            ErrorCode::ServoTimeout => *detail == 1,
+            _ => false,
+        },
+        _ => false,
+    }
 }
 
 /// How long the PC waits for the board's ack of a face-frame round after its last byte went
@@ -45,15 +77,25 @@ impl Session {
             .timeout(Duration::from_millis(5))
             .open()
             .with_context(|| format!("opening serial port {path}"))?;
+        let mut faces = FaceLink::new(ACK_TIMEOUT.as_micros() as u64);
+        // Not where the last session's ids were (see `FaceLink::skip_ids`); a start that lands
+        // among them anyway is found by its missing answer ([`Session::send_face`]).
+        faces.skip_ids(first_id());
         Ok(Session {
             port,
             host: HostPort::default(),
             byte_time: Duration::from_secs_f64(10.0 / baud as f64),
             pending: Vec::new(),
-            faces: FaceLink::new(ACK_TIMEOUT.as_micros() as u64),
+            faces,
             t0: Instant::now(),
             upload_resent: 0,
+            frame_id: 0,
         })
+    }
+
+    /// The id of the face [`Session::send_face`] sent last.
+    pub fn frame_id(&self) -> u16 {
+        self.frame_id
     }
 
     /// Sends bytes at no more than the line rate. A full output buffer (the board, or the PTY
@@ -217,15 +259,22 @@ impl Session {
         let c = face.crop;
         let size = [c.width as u16, c.height as u16];
         let at = msr_shared::msg::CropAt::subpixel([c.x as u16, c.y as u16], face.shift);
-        self.faces.start(at, size, face.grey.clone(), now(self.t0));
+        let id = self.faces.start(at, size, face.grey.clone(), now(self.t0));
+        self.frame_id = id;
         let deadline = Instant::now() + timeout;
         let mut got = Vec::new();
         loop {
             // The whole batch is kept: what came after the answer in it is not dropped.
             let batch = self.step_faces()?;
-            let answered = batch.iter().any(|m| matches!(m, BoardToHost::Detection(_) | BoardToHost::Error { .. }));
+            let answered = batch.iter().any(|m| answers(m, id));
             got.extend(batch);
-            if answered || Instant::now() >= deadline {
+            if answered {
+                return Ok(got);
+            }
+            if Instant::now() >= deadline {
+                // Unanswered: the board may hold ids near this one from an earlier session;
+                // the next face starts past all it can take for old.
+                self.faces.skip_ids(msr_shared::msg::STALE_WINDOW);
                 return Ok(got);
             }
         }

@@ -180,7 +180,8 @@ fn detect_and_eval_refuse_bad_input() {
             "--head-pitch",
             "0",
         ],
-        "smaller than the face template",
+        // Issue 30: one rule for every path, the model's frame size or larger.
+        "60x40, smaller than the 320x240",
     );
 
     // A flipped byte in the blob: the CRC catches it.

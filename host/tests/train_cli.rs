@@ -129,6 +129,27 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     assert_eq!(msr_shared::blob::Model::parse(&plain).unwrap().self_gate, None);
     assert_eq!(msr_shared::blob::set_self_gate(&bytes, None).unwrap(), plain);
 
+    // Issue 30: a folder whose parts come from two runs is refused when read (each part's
+    // CRC-32 is in decoder.json), and a folder in use by another run is refused.
+    let mixed = tmp.path().join("mixed");
+    std::fs::create_dir(&mixed).unwrap();
+    for e in std::fs::read_dir(&out).unwrap() {
+        let e = e.unwrap();
+        if e.file_type().unwrap().is_file() {
+            std::fs::copy(e.path(), mixed.join(e.file_name())).unwrap();
+        }
+    }
+    assert!(info["parts"]["decoder_mu.npy"].is_u64(), "{info}");
+    msr_host::train::calibrate::write_npy(&mixed.join("decoder_mu.npy"), h, w, &vec![1.0; h * w]).unwrap();
+    fails(&["quantize", "--train", p(&mixed), "--reach", p(&reach), "--out", p(&mixed.join("m.msrm"))], "another run wrote into");
+    std::fs::copy(out.join("decoder_mu.npy"), mixed.join("decoder_mu.npy")).unwrap();
+    std::fs::write(mixed.join("decoder.mpk"), b"weights of another run").unwrap();
+    let e = msr_host::train::load(&mixed, "decoder").unwrap_err().to_string();
+    assert!(e.contains("decoder.mpk is not the file"), "{e}");
+    let held = msr_host::train::lock_out(&out).unwrap();
+    fails(&["train", "--data", p(&data), "--epochs", "1", "--quiet", "--out", p(&out)], "in use by another msr run");
+    drop(held);
+
     // Bad input, on the real outputs above.
     fails(&["quantize", "--train", p(&out), "--reach", p(&tmp.path().join("nope.safetensors")), "--out", p(&blob)], "nope");
     fails(&["quantize", "--train", p(&tmp.path().join("none")), "--reach", p(&reach), "--out", p(&blob)], "decoder");

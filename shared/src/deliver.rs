@@ -329,6 +329,13 @@ impl FaceLink {
         }
     }
 
+    /// Moves the next frame id `n` ahead. A board keeps the id it last completed across host
+    /// sessions: a session whose ids start again where an earlier one's were would have its
+    /// frames taken for old ones (ignored, or acked `Complete` without being run).
+    pub fn skip_ids(&mut self, n: u16) {
+        self.frame_id = self.frame_id.wrapping_add(n);
+    }
+
     /// When the frame in flight started, if one is.
     pub fn in_flight_since(&self) -> Option<u64> {
         self.current.as_ref().map(|c| c.started_us)

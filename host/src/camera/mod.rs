@@ -142,13 +142,25 @@ impl Frames {
     }
 }
 
-/// `img` scaled to `size`. Another aspect ratio is refused: stretching would change the face's
-/// shape, and the template would no longer match it.
+/// `img` at `size`, the one rule for every path that takes camera frames (`msr run`, `msr record`,
+/// `msr detect`): a frame of that size as it is, a larger one of the same aspect ratio scaled
+/// down. A smaller frame is refused: scaling up invents the detail the decoder compares, and
+/// every pixel it blurs is a "mark". Another aspect ratio is refused: stretching would change
+/// the face's shape, and the template would no longer match it.
 pub fn fit(img: &GrayImage, size: [u32; 2]) -> Result<GrayImage> {
     let (w, h) = img.dimensions();
     let [tw, th] = size;
     if w == 0 || h == 0 || tw == 0 || th == 0 {
         bail!("an empty frame ({w}x{h}) or frame size ({tw}x{th})");
+    }
+    if (w, h) == (tw, th) {
+        return Ok(img.clone());
+    }
+    if w < tw || h < th {
+        bail!(
+            "the frame is {w}x{h}, smaller than the {tw}x{th} the model's template was cut from: \
+             scaling it up would invent the face's detail; give frames of {tw}x{th} or larger"
+        );
     }
     let ratio = (w as f64 / h as f64) / (tw as f64 / th as f64);
     if (ratio - 1.0).abs() > 0.01 {
@@ -261,6 +273,11 @@ mod tests {
         let wide = GrayImage::new(640, 360);
         let e = fit(&wide, [320, 240]).unwrap_err().to_string();
         assert!(e.contains("640x360") && e.contains("aspect"), "{e}");
+        // Smaller frames are never scaled up, whatever their aspect ratio.
+        for (w, h) in [(40, 30), (319, 239), (160, 120), (320, 200)] {
+            let e = fit(&GrayImage::new(w, h), [320, 240]).unwrap_err().to_string();
+            assert!(e.contains(&format!("{w}x{h}")) && e.contains("smaller"), "{e}");
+        }
     }
 
     #[test]

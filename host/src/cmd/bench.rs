@@ -36,12 +36,21 @@ pub fn run(args: Args) -> Result<()> {
         args.model.iter().map(|p| from_file(p)).collect::<Result<Vec<_>>>()?
     };
     if let Some(dir) = &args.save_models {
+        let names = save_names(&models.iter().map(|m| m.name.as_str()).collect::<Vec<_>>());
+        let paths: Vec<PathBuf> = names.iter().map(|n| dir.join(format!("{n}.msrm"))).collect();
+        // Every name checked before the first is written.
+        let inputs: Vec<(&str, &std::path::Path)> = args.model.iter().map(|m| ("--model", m.as_path())).collect();
+        let outputs: Vec<(&str, &std::path::Path)> = paths.iter().map(|p| ("--save-models", p.as_path())).collect();
+        crate::fsio::check_outputs(&inputs, &outputs)?;
+        for p in &paths {
+            crate::fsio::refuse_special(p)?;
+        }
+        if dir.exists() && !dir.is_dir() {
+            anyhow::bail!("--save-models {} is a file, not a folder", dir.display());
+        }
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
-        for m in &models {
-            let p = dir.join(format!("{}.msrm", m.name));
-            let inputs: Vec<(&str, &std::path::Path)> = args.model.iter().map(|m| ("--model", m.as_path())).collect();
-            crate::fsio::check_outputs(&inputs, &[("--save-models", &p)])?;
-            crate::fsio::write(&p, &m.blob)?;
+        for (m, p) in models.iter().zip(&paths) {
+            crate::fsio::write(p, &m.blob)?;
             eprintln!("wrote {} ({} bytes)", p.display(), m.blob.len());
         }
     }
@@ -63,3 +72,27 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
+/// One file name a model: its kind, and when several share a kind, `-1`, `-2`, ... in the order
+/// given (`conv-1`, `conv-2`).
+pub fn save_names(kinds: &[&str]) -> Vec<String> {
+    kinds
+        .iter()
+        .enumerate()
+        .map(|(i, k)| {
+            if kinds.iter().filter(|o| *o == k).count() == 1 {
+                k.to_string()
+            } else {
+                format!("{k}-{}", kinds[..=i].iter().filter(|o| *o == k).count())
+            }
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn two_models_of_one_kind_get_two_names() {
+        assert_eq!(super::save_names(&["conv", "published-mlp"]), ["conv", "published-mlp"]);
+        assert_eq!(super::save_names(&["conv", "mlp", "conv"]), ["conv-1", "mlp", "conv-2"]);
+    }
+}

@@ -19,7 +19,7 @@ pub const MAX_TIMEOUT_MS: u64 = 600_000;
 
 fn int<T: PartialOrd + std::fmt::Display + Copy>(flag: &str, v: T, lo: T, hi: T, unit: &str) -> Result<()> {
     if v < lo || v > hi {
-        bail!("{flag} must be in {lo}..={hi}{unit}, got {v}");
+        return Err(super::usage(format!("{flag} must be in {lo}..={hi}{unit}, got {v}")));
     }
     Ok(())
 }
@@ -45,21 +45,21 @@ fn novelty_flags(pool: u8, pose_bins: u8) -> Result<()> {
     int("--pool", pool, 0, msr_shared::blob::MAX_POOL, " px (window radius; 0: per pixel)")?;
     let most = msr_shared::blob::MAX_POSE_BINS;
     if pose_bins == 1 || pose_bins > most {
-        bail!("--pose-bins must be 0 (one set of statistics for all poses) or in 2..={most} cells per angle, got {pose_bins}");
+        return Err(super::usage(format!("--pose-bins must be 0 (one set of statistics for all poses) or in 2..={most} cells per angle, got {pose_bins}")));
     }
     Ok(())
 }
 
 fn real(flag: &str, v: f64, lo: f64, hi: f64, unit: &str) -> Result<()> {
     if !(v.is_finite() && v >= lo && v <= hi) {
-        bail!("{flag} must be a number in {}..={}{unit}, got {}", num(lo), num(hi), num(v));
+        return Err(super::usage(format!("{flag} must be a number in {}..={}{unit}, got {}", num(lo), num(hi), num(v))));
     }
     Ok(())
 }
 
 fn positive(flag: &str, v: f64, unit: &str) -> Result<()> {
     if !(v.is_finite() && v > 0.0) {
-        bail!("{flag} must be a positive number{unit}, got {}", num(v));
+        return Err(super::usage(format!("{flag} must be a positive number{unit}, got {}", num(v))));
     }
     Ok(())
 }
@@ -94,6 +94,7 @@ fn writable(flag: &str, p: &Path) -> Result<()> {
     if p.is_dir() {
         bail!("{flag} {} is a folder, not a file", p.display());
     }
+    fsio::refuse_special(p).map_err(|e| anyhow::anyhow!("{flag} {e}"))?;
     let mut dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     while !dir.exists() {
         match dir.parent().filter(|d| !d.as_os_str().is_empty()) {
@@ -108,6 +109,34 @@ fn writable(flag: &str, p: &Path) -> Result<()> {
         bail!("{flag} {}: {} is not a folder", p.display(), dir.display());
     }
     let probe = dir.join(fsio::temp_beside(p).file_name().unwrap_or_default());
+    std::fs::OpenOptions::new()
+        .write(true)
+        .create_new(true)
+        .open(&probe)
+        .with_context(|| format!("{flag} {}: cannot write in {}", p.display(), dir.display()))?;
+    let _ = std::fs::remove_file(&probe);
+    Ok(())
+}
+
+/// An output folder: a folder (or none yet) whose nearest existing folder takes new files.
+fn writable_dir(flag: &str, p: &Path) -> Result<()> {
+    if p.exists() && !p.is_dir() {
+        bail!("{flag} {} is a file, not a folder", p.display());
+    }
+    let mut dir = p;
+    while !dir.exists() {
+        match dir.parent().filter(|d| !d.as_os_str().is_empty()) {
+            Some(up) => dir = up,
+            None => {
+                dir = Path::new(".");
+                break;
+            }
+        }
+    }
+    if !dir.is_dir() {
+        bail!("{flag} {}: {} is not a folder", p.display(), dir.display());
+    }
+    let probe = dir.join(format!(".msr-probe.tmp{}", std::process::id()));
     std::fs::OpenOptions::new()
         .write(true)
         .create_new(true)
@@ -137,6 +166,7 @@ pub fn check(c: &Command) -> Result<()> {
             real("--test-fraction", a.test_fraction, 0.0, 1.0, "")?;
             real("--unmarked-test-fraction", a.unmarked_test_fraction, 0.0, 1.0, "")?;
             int("--reach-pairs", a.reach_pairs, 0, 100_000, " pairs")?;
+            writable_dir("--out", &a.out)?;
         }
         Command::Train(a) => {
             int("--epochs", a.epochs, 1, 100_000, "")?;
@@ -144,7 +174,7 @@ pub fn check(c: &Command) -> Result<()> {
             positive("--lr", a.lr, "")?;
             int("--lr-step", a.lr_step, 1, usize::MAX, " epochs")?;
             if !(a.lr_decay > 0.0 && a.lr_decay <= 1.0) {
-                bail!("--lr-decay must be in (0, 1], got {}", num(a.lr_decay));
+                return Err(super::usage(format!("--lr-decay must be in (0, 1], got {}", num(a.lr_decay))));
             }
             real("--sigma-floor", a.sigma_floor, 0.0, 255.0, " grey levels")?;
             positive("--threshold", a.threshold, " (saliency units)")?;
@@ -154,6 +184,7 @@ pub fn check(c: &Command) -> Result<()> {
             int("--min-area", a.min_area, 1, u16::MAX, " px")?;
             novelty_flags(a.pool, a.pose_bins)?;
             fsio::check_out_dir(&[("--data", &a.data)], "--out", &a.out)?;
+            writable_dir("--out", &a.out)?;
         }
         Command::TrainReach(a) => {
             int("--iterations", a.iterations, 1, 10_000_000, "")?;
@@ -195,6 +226,9 @@ pub fn check(c: &Command) -> Result<()> {
         }
         Command::Detect(a) => {
             if let Some(p) = &a.png {
+                if !p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
+                    return Err(super::usage(format!("--png {} must end in .png (the picture is a PNG)", p.display())));
+                }
                 outputs(&[("--model", &a.model), ("--image", &a.image)], &[("--png", p)])?;
             }
         }
@@ -260,8 +294,9 @@ pub fn check(c: &Command) -> Result<()> {
             int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
             int("--frame-timeout-ms", a.frame_timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
             if a.resume && a.force {
-                bail!("--resume and --force contradict each other: give one");
+                return Err(super::usage("--resume and --force contradict each other: give one"));
             }
+            writable_dir("--out", &a.out)?;
             if let Some(p) = &a.mcap {
                 outputs(&[("--out", &a.out)], &[("--mcap", p)])?;
             }
@@ -271,7 +306,6 @@ pub fn check(c: &Command) -> Result<()> {
             int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
         }
         Command::Template(a) => {
-            super::template::parse_box(&a.r#box)?;
             outputs(&[("--frame", &a.frame)], &[("--out", &a.out)])?;
         }
         Command::Demo(a) => {

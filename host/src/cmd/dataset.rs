@@ -1,6 +1,6 @@
 //! `msr dataset`: render a mirror dataset (frames, head angles, splits, marks) for one robot.
 use crate::episode::Scene;
-use anyhow::{bail, Result};
+use anyhow::{bail, Context, Result};
 use msr_sim::dataset::{write_dataset_with, DatasetConfig, DatasetScene};
 use msr_sim::Robot;
 use std::path::PathBuf;
@@ -58,6 +58,8 @@ pub fn run(args: Args) -> Result<()> {
         unmarked_test_fraction: args.unmarked_test_fraction,
         scene,
     };
+    // The folder before the banner: an --out that cannot be made is the one line said.
+    std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create --out {}", args.out.display()))?;
     // The size first: a large --count runs for hours and fills a disk.
     let est = args.count as f64 * FRAME_BYTES_ESTIMATE;
     eprintln!(

@@ -1,7 +1,7 @@
 //! `msr detect`: one camera frame through a model blob's pipeline, printed (and drawn).
 use crate::data::crop::load_grey;
 use crate::detect::{cropper_of, detect_face, parse_blob, picture, read_blob, readable, to_json, EngineArg};
-use anyhow::Result;
+use anyhow::{Context, Result};
 use msr_shared::joints::Joint;
 use std::path::PathBuf;
 
@@ -10,7 +10,7 @@ pub struct Args {
     /// The model blob (.msrm)
     #[arg(long)]
     pub model: PathBuf,
-    /// The camera frame (PNG, any size at least the template's)
+    /// The camera frame (PNG, 320x240, or larger with that aspect ratio: scaled down)
     #[arg(long)]
     pub image: PathBuf,
     /// HeadYaw when the frame was taken, radians
@@ -34,11 +34,16 @@ pub fn run(args: Args) -> Result<()> {
     let head = [args.head_yaw, args.head_pitch];
     // The angles the servos can report: finite and inside Nao's head limits.
     for (joint, a) in [(Joint::HeadYaw, head[0]), (Joint::HeadPitch, head[1])] {
-        joint.validate(a).map_err(|e| anyhow::anyhow!("head angle: {e}"))?;
+        joint.validate(a).map_err(|e| super::usage(format!("head angle: {e}")))?;
     }
     let bytes = read_blob(&args.model)?;
     let model = parse_blob(&bytes, &args.model)?;
-    let frame = load_grey(&args.image)?;
+    check_trained_range(&model, head)?;
+    // The same rule as `msr run`'s and `msr record`'s frames: the model's frame size, or larger
+    // and scaled down; never scaled up.
+    let size = crate::camera::SourceOptions::default().size;
+    let frame = crate::camera::fit(&load_grey(&args.image)?, size)
+        .with_context(|| format!("--image {}", args.image.display()))?;
     let face = cropper_of(&model)?.crop(&frame)?;
     let det = detect_face(&model, &face, head, args.engine)?;
     if args.json {
@@ -53,3 +58,30 @@ pub fn run(args: Args) -> Result<()> {
     Ok(())
 }
 
+/// How far past the edge of the head poses a model was trained on `msr detect` still answers,
+/// as a share of the range's width: the decoder extrapolates there, and its "marks" are its own
+/// errors.
+pub const RANGE_MARGIN: f32 = 0.25;
+
+/// Refuses a head pose far outside the range the blob was trained on. The blob knows the range
+/// when it has pose cells (its grid spans the training poses, `msr train`'s default); a blob
+/// without them (the paper's layout, an imported model) does not, and only the joint range holds.
+pub fn check_trained_range(model: &msr_shared::blob::Model, head: [f32; 2]) -> Result<()> {
+    let Some(pose) = &model.pose else { return Ok(()) };
+    let g = pose.grid;
+    for (a, name) in [(0, "yaw"), (1, "pitch")] {
+        let m = RANGE_MARGIN * (g.hi[a] - g.lo[a]);
+        if head[a] < g.lo[a] - m || head[a] > g.hi[a] + m {
+            anyhow::bail!(
+                "head {name} {:.2} deg is far outside the {:.2}..{:.2} deg the model was trained on \
+                 (more than {:.0} % of that range past its edge): its prediction there is a guess, \
+                 and so is any mark",
+                head[a].to_degrees(),
+                g.lo[a].to_degrees(),
+                g.hi[a].to_degrees(),
+                RANGE_MARGIN * 100.0
+            );
+        }
+    }
+    Ok(())
+}

@@ -109,7 +109,7 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     c.scene = a.scene;
     c.log_bus = a.bus_log.is_some();
     if a.bus_log.is_some() && a.backend != Backend::Inproc {
-        bail!("--bus-log needs --backend inproc");
+        return Err(super::usage("--bus-log needs --backend inproc"));
     }
     if let Some(p) = a.parallel {
         c.parallel = p.max(1);

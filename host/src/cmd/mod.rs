@@ -118,6 +118,33 @@ pub fn clap_line(e: &clap::Error) -> String {
     m.strip_prefix("error: ").map(str::to_string).unwrap_or(m)
 }
 
+/// A flag value that does not parse or is out of range: `msr` exits with 2 (usage), as for the
+/// values the parser itself refuses.
+#[derive(Debug)]
+pub struct Usage(pub String);
+
+impl std::fmt::Display for Usage {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.0)
+    }
+}
+
+impl std::error::Error for Usage {}
+
+/// A [`Usage`] error.
+pub fn usage(msg: impl Into<String>) -> anyhow::Error {
+    anyhow::Error::new(Usage(msg.into()))
+}
+
+/// The exit code for an error: 2 when a flag value was at fault, else 1.
+pub fn exit_code(e: &anyhow::Error) -> u8 {
+    if e.chain().any(|c| c.is::<Usage>()) {
+        2
+    } else {
+        1
+    }
+}
+
 /// An error as one line: its causes joined by `: `, a cause that repeats the text before it
 /// left out (image errors carry their own message twice), line breaks folded.
 pub fn one_line(e: &anyhow::Error) -> String {

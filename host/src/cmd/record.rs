@@ -2,7 +2,7 @@
 //! [`crate::record`]).
 use crate::camera::SourceConfig;
 use crate::record::{self, RecordConfig};
-use anyhow::{bail, Result};
+use anyhow::Result;
 use msr_sim::Robot;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -65,10 +65,10 @@ pub struct Args {
 pub fn config(a: &Args) -> Result<RecordConfig> {
     let source = match (&a.frames, &a.camera, a.sim) {
         (Some(p), _, _) if p.as_os_str() == "-" => SourceConfig::Y4mStdin,
-        (Some(p), _, _) => bail!("--frames takes `-` (a Y4M stream on standard input), got {}", p.display()),
+        (Some(p), _, _) => return Err(super::usage(format!("--frames takes `-` (a Y4M stream on standard input), got {}", p.display()))),
         (None, Some(dev), _) => SourceConfig::Camera(dev.clone()),
         (None, None, Some(robot)) => SourceConfig::Sim { robot, count: None, seed: a.seed, mark_from: None },
-        (None, None, None) => bail!("give a camera: --sim red|skin, --frames - or --camera DEV"),
+        (None, None, None) => return Err(super::usage("give a camera: --sim red|skin, --frames - or --camera DEV")),
     };
     let mut c = RecordConfig::new(&a.port, source, a.count, &a.out);
     c.baud = a.baud;
@@ -87,12 +87,7 @@ pub fn config(a: &Args) -> Result<RecordConfig> {
 
 pub fn run(a: Args) -> Result<()> {
     let c = config(&a)?;
-    eprintln!(
-        "recording {} frames (head within +-{} deg) into {}",
-        c.count,
-        c.range_deg,
-        c.out.display()
-    );
+    // The banner comes from `record` once the folder, the log, the camera and the port passed.
     let r = record::record(&c)?;
     println!("{}", serde_json::to_string(&r)?);
     eprintln!(

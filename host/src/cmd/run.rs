@@ -9,7 +9,7 @@ use crate::session::Session;
 use msr_shared::host_port::HostPort;
 use anyhow::{anyhow, bail, Context, Result};
 use image::GrayImage;
-use msr_shared::msg::BoardToHost;
+use msr_shared::msg::{BoardToHost, Mode};
 use msr_sim::Robot;
 use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
@@ -176,7 +176,7 @@ pub fn run(a: Args) -> Result<()> {
         (Some(p), _, _) => SourceConfig::frames_arg(p),
         (None, Some(dev), _) => SourceConfig::Camera(dev.clone()),
         (None, None, Some(robot)) => sim_source(robot, a.count, a.seed),
-        (None, None, None) => bail!("give --frames DIR|-, --camera DEV or --sim red|skin"),
+        (None, None, None) => return Err(super::usage("give --frames DIR|-, --camera DEV or --sim red|skin")),
     };
     let opts = SourceOptions {
         timeout: Duration::from_millis(a.frame_timeout_ms),
@@ -185,6 +185,14 @@ pub fn run(a: Args) -> Result<()> {
     };
     let mut frames = camera::open(&source, &opts)?;
     let mut s = Session::open(&a.port, a.baud)?;
+    // A halted board is said so before its answers (or their absence) are read.
+    if !a.upload {
+        if let Ok(st) = s.status(timeout) {
+            if st.mode == Mode::Halted && !a.json {
+                eprintln!("{}", halted(&st, true));
+            }
+        }
+    }
     if a.upload {
         // An upload takes about 11 bits a byte on the line; allow for it.
         let line = Duration::from_secs_f64(blob.len() as f64 * 11.0 / a.baud as f64);
@@ -206,19 +214,22 @@ pub fn run(a: Args) -> Result<()> {
     let mut log = a.mcap.as_ref().map(|_| crate::rosbag::session::SessionLog::with_saliency(&blob));
     let start = Instant::now();
     let us = || start.elapsed().as_micros() as u64;
-    // The face link numbers frames 1, 2, ... (wrapping): the ids the board's answers carry.
-    let mut frame_id = 0u16;
     let mut head = [0f32; 2];
+    // Faces sent and not (yet) answered, by id: a late answer still counts; the rest are said.
+    let mut unanswered: Vec<(u16, String)> = Vec::new();
+    let mut sent = 0usize;
     let mut stream = || -> Result<()> {
         while let Some(camera::Frame { name, grey: frame }) = frames.next_frame()? {
             let t0 = Instant::now();
             let face = cropper.crop(&frame).with_context(|| format!("frame {name}"))?;
-            frame_id = frame_id.wrapping_add(1);
+            let msgs = s.send_face(&face, period.min(timeout))?;
+            // The id the session gave this face: the one the board's answers carry.
+            let id = s.frame_id();
+            sent += 1;
             if let Some(l) = &mut log {
                 // The saliency at the head angles the board last reported.
-                l.frame(us(), frame_id, &frame, &face, None, head);
+                l.frame(us(), id, &frame, &face, None, head);
             }
-            let msgs = s.send_face(&face, period.min(timeout))?;
             for m in &msgs {
                 if let BoardToHost::Detection(d) = m {
                     head = d.head;
@@ -228,7 +239,11 @@ pub fn run(a: Args) -> Result<()> {
                 }
             }
             if !a.json {
-                println!("{name}: face at ({}, {})", face.crop.x, face.crop.y);
+                println!("{name}: face at ({}, {}), frame {id}", face.crop.x, face.crop.y);
+            }
+            unanswered.retain(|(f, _)| !msgs.iter().any(|m| matches!(m, BoardToHost::Detection(d) if d.frame == *f)));
+            if !msgs.iter().any(|m| crate::session::answers(m, id)) {
+                unanswered.push((id, name.clone()));
             }
             for m in &msgs {
                 print(m, a.json)?;
@@ -245,6 +260,7 @@ pub fn run(a: Args) -> Result<()> {
     let closed = s.close(timeout);
     if let Ok((late, st)) = &closed {
         for m in late {
+            unanswered.retain(|(f, _)| !matches!(m, BoardToHost::Detection(d) if d.frame == *f));
             print(m, a.json)?;
             if let Some(l) = &mut log {
                 l.board(us(), m);
@@ -262,22 +278,54 @@ pub fn run(a: Args) -> Result<()> {
             eprintln!("wrote {}: {}", p.display(), serde_json::to_string(&counts)?);
         }
     }
+    // A face the board never answered is said so (also before an error): never "no mark",
+    // never "through".
+    for (id, name) in &unanswered {
+        if a.json {
+            println!("{}", serde_json::json!({ "unanswered": { "frame": id, "name": name } }));
+        } else {
+            println!("{name}: frame {id}: no answer from the board (dropped, or not run)");
+        }
+    }
     streamed?;
     let (_, st) = closed?;
     print(&BoardToHost::Status(st), a.json)?;
     let (link, goodput) = s.link_stats();
+    let answered = sent - unanswered.len();
     if a.json {
-        let j = serde_json::json!({ "link": link, "goodput_bytes_per_s": goodput, "upload_resent_bytes": s.upload_resent });
+        let j = serde_json::json!({ "link": link, "answered": answered, "sent": sent, "goodput_bytes_per_s": goodput, "upload_resent_bytes": s.upload_resent });
         println!("{j}");
     } else {
         println!(
-            "link: {} of {} frames through, {} superseded, goodput {:.0} face bytes/s, {} chunks sent again, \
-             {} polls ({} after a timeout), {} model bytes sent again",
-            link.delivered, link.frames, link.superseded, goodput, link.chunks_resent, link.polls, link.timeouts, s.upload_resent
+            "link: {answered} of {sent} frames answered, {} delivered whole, {} superseded, goodput {:.0} face bytes/s, \
+             {} chunks sent again, {} polls ({} after a timeout), {} model bytes sent again",
+            link.delivered, link.superseded, goodput, link.chunks_resent, link.polls, link.timeouts, s.upload_resent
         );
     }
     let _ = std::io::stdout().flush();
+    if st.mode == Mode::Halted {
+        bail!("{}", halted(&st, false));
+    }
+    if sent > 0 && answered == 0 {
+        bail!("the board answered none of the {sent} frames (mode {:?}): see its status line above", st.mode);
+    }
     Ok(())
+}
+
+/// What a halted board means and what brings it back.
+fn halted(st: &msr_shared::msg::Status, before: bool) -> String {
+    let why = if st.face_watchdog_trips > 0 && st.servo_watchdog_trips == 0 {
+        "its face watchdog tripped (no whole frame for 500 ms); whole frames bring it back"
+    } else if st.servo_watchdog_trips > 0 {
+        "its servo watchdog tripped (no servo state for 100 ms); servo states again bring it back"
+    } else {
+        "its servo bus faulted; check the servos and restart the board"
+    };
+    if before {
+        format!("the board is halted: {why}")
+    } else {
+        format!("the board is halted at the end of the run: {why}")
+    }
 }
 
 /// Reads everything a reader has now (for tests).

@@ -42,7 +42,8 @@ pub fn run(a: Args) -> Result<()> {
     let mut bus = servos(cfg.clone()).map_err(anyhow::Error::msg)?;
     let stop = AtomicBool::new(false);
     let mut log = match &a.bus_log {
-        Some(p) => Some(std::fs::File::create(p).with_context(|| format!("creating {}", p.display()))?),
+        // Made only when the first byte comes: a run that fails first leaves the old log.
+        Some(p) => Some(crate::fsio::LazyLog::new(p)?),
         None => None,
     };
     let ids: Vec<String> = cfg.map.iter().map(|e| format!("{} {}", e.joint.name(), e.id)).collect();

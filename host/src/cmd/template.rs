@@ -11,8 +11,8 @@ pub struct Args {
     #[arg(long)]
     pub frame: PathBuf,
     /// The face's box: x0,y0,x1,y1, inclusive
-    #[arg(long, value_name = "x0,y0,x1,y1")]
-    pub r#box: String,
+    #[arg(long, value_name = "x0,y0,x1,y1", allow_hyphen_values = true, value_parser = box_arg)]
+    pub r#box: [u32; 4],
     /// The template to write (PNG), e.g. DIR/template.png for `msr record --out DIR`
     #[arg(long)]
     pub out: PathBuf,
@@ -24,22 +24,27 @@ pub fn parse_box(s: &str) -> Result<[u32; 4]> {
         .split(',')
         .map(|p| p.trim().parse::<u32>())
         .collect::<Result<_, _>>()
-        .map_err(|_| anyhow::anyhow!("--box must be x0,y0,x1,y1 in pixels, got {s:?}"))?;
+        .map_err(|_| anyhow::anyhow!("x0,y0,x1,y1 in whole pixels (0 or more) are needed"))?;
     let [x0, y0, x1, y1] = v[..] else {
-        bail!("--box must be four numbers x0,y0,x1,y1, got {s:?}")
+        bail!("four numbers x0,y0,x1,y1 are needed, got {}", v.len())
     };
     if x1 < x0 || y1 < y0 {
-        bail!("--box {s}: x1 must not be left of x0, nor y1 above y0");
+        bail!("x1 must not be left of x0, nor y1 above y0");
     }
     Ok([x0, y0, x1, y1])
 }
 
+/// [`parse_box`] for the parser: a box that does not parse is a usage error (exit 2).
+fn box_arg(s: &str) -> Result<[u32; 4], String> {
+    parse_box(s).map_err(|e| e.to_string())
+}
+
 pub fn run(a: Args) -> Result<()> {
-    let [x0, y0, x1, y1] = parse_box(&a.r#box)?;
+    let [x0, y0, x1, y1] = a.r#box;
     let frame = crop::load_grey(&a.frame)?;
     let (w, h) = frame.dimensions();
     if x1 >= w || y1 >= h {
-        bail!("--box {} leaves the {w}x{h} frame {}", a.r#box, a.frame.display());
+        bail!("--box {x0},{y0},{x1},{y1} leaves the {w}x{h} frame {}", a.frame.display());
     }
     let t = image::imageops::crop_imm(&frame, x0, y0, x1 - x0 + 1, y1 - y0 + 1).to_image();
     fsio::write_with(&a.out, |p| t.save_with_format(p, image::ImageFormat::Png).map_err(Into::into))?;

@@ -14,9 +14,47 @@ pub mod npy;
 use crate::data::crop::{crop_face_with, load_grey, CropBox, CropMode, Face};
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use image::GrayImage;
+use msr_shared::joints::Joint;
 use msr_sim::layout::{DatasetIndex, Split, INDEX_FILE};
 use serde::Deserialize;
 use std::path::{Path, PathBuf};
+
+/// Robot names a sim-layout index may give: `msr dataset --robot`'s, and `msr record`'s.
+pub const ROBOT_NAMES: [&str; 3] = ["red", "skin", "recorded"];
+
+/// What an index says, checked before any frame is read, as `msr dataset` and `msr record`
+/// write it: a known robot, every frame once, inside the dataset folder, at head angles the Nao
+/// can take.
+fn check_index(root: &Path, robot: &str, pending: &[Pending], layout: Layout) -> Result<()> {
+    if layout == Layout::Sim && !ROBOT_NAMES.contains(&robot) {
+        bail!(
+            "dataset {} says robot {robot:?}: msr dataset --robot makes red or skin, msr record makes recorded",
+            root.display()
+        );
+    }
+    let mut seen = std::collections::HashMap::new();
+    for (i, p) in pending.iter().enumerate() {
+        let rel = p.file.strip_prefix(root).unwrap_or(&p.file);
+        if !rel.components().all(|c| matches!(c, std::path::Component::Normal(_))) {
+            bail!("dataset {}: frame {} lies outside the dataset folder", root.display(), rel.display());
+        }
+        if let Some(j) = seen.insert(rel.to_path_buf(), i) {
+            bail!(
+                "dataset {}: frame {} is listed twice (entries {} and {}): each frame counts once",
+                root.display(),
+                rel.display(),
+                j + 1,
+                i + 1
+            );
+        }
+        for (joint, a) in [(Joint::HeadYaw, p.head[0]), (Joint::HeadPitch, p.head[1])] {
+            joint.validate(a as f32).map_err(|e| {
+                anyhow!("dataset {}: frame {}: head {e} (the Nao's joint range)", root.display(), rel.display())
+            })?;
+        }
+    }
+    Ok(())
+}
 
 /// The published layout's index file.
 pub const MANIFEST_FILE: &str = "manifest.json";
@@ -114,20 +152,23 @@ impl Dataset {
             Index::Sim(ix) => {
                 let (robot, tpl, size) =
                     (ix.robot.clone(), ix.template.clone(), (ix.width, ix.height));
-                (Layout::Sim, sim_frames(&root, ix, only)?, robot, tpl, size)
+                (Layout::Sim, sim_frames(&root, ix, None)?, robot, tpl, size)
             }
             Index::Published(m) => {
                 let tpl = m.face_crop.template.clone();
                 let size = (m.camera.width, m.camera.height);
                 (
                     Layout::Published,
-                    published_frames(&root, m, only)?,
+                    published_frames(&root, m, None)?,
                     "published".into(),
                     tpl,
                     size,
                 )
             }
         };
+        // The whole index is checked, whichever split is read.
+        check_index(&root, &robot, &pending, layout)?;
+        let pending: Vec<Pending> = pending.into_iter().filter(|p| only.is_none_or(|s| s == p.split)).collect();
         let template = load_grey(&root.join(&template_file))
             .with_context(|| format!("dataset {}: face template", root.display()))?;
         let samples = parallel_map(&pending, |p| p.load(&template, crop, size))?;

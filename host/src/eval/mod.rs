@@ -81,13 +81,16 @@ pub fn evaluate(blob_path: &Path, data: &Path) -> Result<Report> {
 
 /// [`evaluate`], with the float decoder taken from a published manifest when one is given.
 pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> Result<Report> {
+    let bytes = read_blob(blob_path)?;
+    let model = parse_blob(&bytes, blob_path)?;
     let published = match manifest {
-        Some(m) => Some(published_float_decoder(m)?),
+        Some(m) => {
+            imported_from(&model, blob_path, m)?;
+            Some(published_float_decoder(m)?)
+        }
         None => None,
     };
     let mut published = published;
-    let bytes = read_blob(blob_path)?;
-    let model = parse_blob(&bytes, blob_path)?;
     // Crop as the host would for this model.
     let crop = crate::detect::crop_mode_of(&model);
     let ds = Dataset::load_split(data, Some(Split::Test), crop)
@@ -423,6 +426,36 @@ fn trained_model(
             dir.join(format!("{name}.mpk")).display()
         ),
     }))
+}
+
+/// Refuses a manifest the blob was not imported from: the float rows would score another model
+/// than the fixed-point rows. `msr import` puts the manifest's face size, its mean error (Q8.8)
+/// and its template into the blob; all three must be the manifest's.
+fn imported_from(model: &Model, blob_path: &Path, manifest: &Path) -> Result<()> {
+    let p = crate::quant::import::Published::load(manifest)?;
+    let not = |why: String| {
+        anyhow::anyhow!(
+            "--model {} was not imported from --manifest {} ({why}): the float rows would score another model; \
+             give the manifest the blob was made from, or make the blob with msr import {} --out FILE",
+            blob_path.display(),
+            manifest.display(),
+            manifest.display()
+        )
+    };
+    let (h, w) = (p.decoder.face_h, p.decoder.face_w);
+    if (model.face_h as usize, model.face_w as usize) != (h, w) {
+        return Err(not(format!("faces of {}x{} and {w}x{h}", model.face_w, model.face_h)));
+    }
+    let differ = p.mu.iter().enumerate().filter(|&(i, &m)| i >= model.mu.len() || model.mu.get(i) != crate::quant::quantize::q8_8(m)).count();
+    if differ > 0 {
+        return Err(not(format!("their mean error differs at {differ} of {} pixels", p.mu.len())));
+    }
+    if let Some(t) = &model.template {
+        if (t.w as u32, t.h as u32) != p.template.dimensions() || t.pixels != p.template.as_raw().as_slice() {
+            return Err(not("their face templates differ".into()));
+        }
+    }
+    Ok(())
 }
 
 /// The published float decoder with its float64 statistics (sigma + 1e-5, as the published code)

@@ -197,6 +197,61 @@ pub struct ModelInfo {
     /// Frames the error statistics were made from.
     pub stats_frames: usize,
     pub files: Files,
+    /// CRC-32 of every part this run wrote (file name -> checksum): a folder whose parts come
+    /// from two runs is refused when it is read. Absent in files from before it.
+    #[serde(default)]
+    pub parts: std::collections::BTreeMap<String, u32>,
+}
+
+impl ModelInfo {
+    /// The parts' file names.
+    fn part_names(&self) -> Vec<&str> {
+        let f = &self.files;
+        [Some(&f.record), Some(&f.mu), Some(&f.sigma), Some(&f.template), f.pose_stats.as_ref()]
+            .into_iter()
+            .flatten()
+            .map(String::as_str)
+            .collect()
+    }
+
+    /// Refuses a part of `dir` that is not the one this description's run wrote.
+    pub fn check_part(&self, dir: &Path, name: &str) -> Result<()> {
+        let Some(&want) = self.parts.get(name) else { return Ok(()) };
+        let p = dir.join(name);
+        let got = msr_shared::blob::CRC32.checksum(&crate::fsio::read(&p)?);
+        ensure!(
+            got == want,
+            "{} is not the file the run that wrote {}.json made (CRC-32 {got:08x}, it says {want:08x}): \
+             another run wrote into {}; train again",
+            p.display(),
+            self.model.name(),
+            dir.display()
+        );
+        Ok(())
+    }
+}
+
+/// Holds an output folder for one writer (`msr train`): the lock goes with the process, so a run
+/// that is killed leaves no stale lock.
+pub struct OutLock(#[allow(dead_code)] std::fs::File);
+
+/// Locks `dir` (created if missing) for writing, or says that another run holds it.
+pub fn lock_out(dir: &Path) -> Result<OutLock> {
+    std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    let p = dir.join(".msr-train.lock");
+    let f = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&p)
+        .with_context(|| format!("cannot open {}", p.display()))?;
+    match f.try_lock() {
+        Ok(()) => Ok(OutLock(f)),
+        Err(std::fs::TryLockError::WouldBlock) => {
+            bail!("{} is in use by another msr run (it holds {}): wait for it, or give another --out", dir.display(), p.display())
+        }
+        Err(std::fs::TryLockError::Error(e)) => Err(e).with_context(|| format!("cannot lock {}", p.display())),
+    }
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -323,6 +378,12 @@ pub fn run(args: TrainConfig) -> Result<()> {
     let train = samples(ds.split(Split::Train), false);
     let test = samples(ds.split(Split::Test), true);
     ensure!(train.len() >= 2, "dataset {} has {} unmarked training frames; need at least 2", args.data.display(), train.len());
+    // The test MSE is the figure training reports; without test frames it would be NaN.
+    ensure!(
+        !test.is_empty(),
+        "dataset {} has no test frames: the test MSE needs some (msr dataset/record --test-fraction above 0)",
+        args.data.display()
+    );
     // Fail before training, not after, when the policy has nothing to work on.
     if args.threshold_percentile.is_some() {
         ensure!(
@@ -364,7 +425,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
             DecoderSpec::conv_with(h, w, hid.unwrap_or(d.dense[0]), ch.unwrap_or(c))
         }
         (ArchKind::Mlp, None, None) => DecoderSpec::mlp(h, w),
-        (ArchKind::Mlp, _, _) => bail!("--conv-hidden and --conv-channels are for --arch conv"),
+        (ArchKind::Mlp, _, _) => return Err(crate::cmd::usage("--conv-hidden and --conv-channels are for --arch conv")),
     };
     if !args.quiet {
         eprintln!(
@@ -376,7 +437,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
             test.len()
         );
     }
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let _lock = lock_out(&args.out)?;
     let out = Outputs { dir: &args.out, name: args.model.name() };
     let trained = match args.model {
         ModelKind::Decoder => {
@@ -452,7 +513,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
     }
     crate::fsio::write_with(&args.out.join(&files.template), |tmp| Ok(ds.template.save(tmp)?))?;
     plot::loss_png(&hist, &format!("{} ({:?})", out.name, args.arch), &args.out.join(&files.loss_png))?;
-    let info = ModelInfo {
+    let mut info = ModelInfo {
         model: args.model,
         arch: args.arch,
         face_h: h,
@@ -476,7 +537,12 @@ pub fn run(args: TrainConfig) -> Result<()> {
         general_policy: None,
         stats_frames: stats.frames,
         files,
+        parts: Default::default(),
     };
+    for name in info.part_names().into_iter().map(String::from).collect::<Vec<_>>() {
+        let crc = msr_shared::blob::CRC32.checksum(&crate::fsio::read(&args.out.join(&name))?);
+        info.parts.insert(name, crc);
+    }
     let json = args.out.join(format!("{}.json", out.name));
     crate::fsio::write(&json, serde_json::to_string_pretty(&info)?)?;
     println!(
@@ -500,7 +566,7 @@ struct Outputs<'a> {
 impl Outputs<'_> {
     fn save_record<M: Module>(&self, m: M) -> Result<()> {
         let p = self.dir.join(format!("{}.mpk", self.name));
-        m.save_file(&p).map_err(|e| anyhow::anyhow!("writing {}: {e}", p.display()))
+        crate::fsio::write_with(&p, |tmp| m.save_file(tmp).map_err(|e| anyhow::anyhow!("{e}")))
     }
 }
 
@@ -602,6 +668,7 @@ pub fn load_on(dir: &Path, name: &str, device: Device) -> Result<TrainedModel> {
         json.display()
     );
     let record_path = dir.join(&info.files.record);
+    info.check_part(dir, &info.files.record)?;
     let record = burn::store::ModuleRecord::load(&record_path)
         .map_err(|e| anyhow::anyhow!("cannot read {}: {e}", record_path.display()))?;
     let net = match info.model {
@@ -621,6 +688,9 @@ pub fn load_on(dir: &Path, name: &str, device: Device) -> Result<TrainedModel> {
 
 /// The error statistics saved beside a model.
 pub fn load_stats(dir: &Path, info: &ModelInfo) -> Result<ErrorStats> {
+    for name in info.part_names() {
+        info.check_part(dir, name)?;
+    }
     let (h, w, mu) = calibrate::read_npy(&dir.join(&info.files.mu))?;
     let (h2, w2, sigma) = calibrate::read_npy(&dir.join(&info.files.sigma))?;
     ensure!(

@@ -6,10 +6,11 @@ use plotters::prelude::*;
 use std::path::Path;
 
 pub fn loss_png(h: &History, title: &str, path: &Path) -> Result<()> {
-    match draw(h, title, path, true) {
+    // Through a temporary file and a rename, as every output.
+    crate::fsio::write_with(path, |tmp| match draw(h, title, tmp, true) {
         Ok(()) => Ok(()),
-        Err(_) => draw(h, title, path, false),
-    }
+        Err(_) => draw(h, title, tmp, false),
+    })
 }
 
 fn draw(h: &History, title: &str, path: &Path, text: bool) -> Result<()> {

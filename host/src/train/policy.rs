@@ -293,6 +293,7 @@ pub struct Applied {
 /// angles within +-`max_head` radians) with frames of `robot` ([`frames`]), and rewrites its
 /// `{name}.json` with the chosen settings.
 pub fn apply(dir: &Path, name: &str, robot: Robot, max_head: f32, seed: u64) -> Result<Applied> {
+    let _lock = super::lock_out(dir)?;
     let model = super::load(dir, name)?;
     let mut info = model.info()?.clone();
     let stats = super::load_stats(dir, &info)?;
