@@ -88,6 +88,7 @@ fn msr_run_streams_a_frame_folder_and_uploads_over_the_pty() {
         timeout_ms: 3000,
         frame_timeout_ms: 5000,
         json: true,
+        mcap: None,
     };
     msr_host::cmd::run::run(args).unwrap();
     let served = board.stop().unwrap();
