@@ -114,6 +114,7 @@ pub mod confirm;
 pub mod decoder;
 pub mod dynamixel;
 pub mod golden;
+pub mod light;
 pub mod link;
 pub mod model;
 pub mod motion;

@@ -59,6 +59,10 @@ pub struct DemoConfig {
     /// (`TrainConfig::pose_bins`; 0: one set for all poses, the paper).
     #[config(default = "train::calibrate::DEFAULT_POSE_BINS")]
     pub pose_bins: u8,
+    /// How the dataset is lit (`msr_sim::light::LightMode`): by default the training frames
+    /// each under a light of their own, the test frames under the fixed light.
+    #[config(default = "msr_sim::light::LightMode::VariedTrain")]
+    pub light: msr_sim::light::LightMode,
 }
 
 struct Progress {
@@ -122,6 +126,7 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
     let data = out.join("dataset");
     let mut dcfg = msr_sim::dataset::DatasetConfig::paper(a.robot, a.seed);
     dcfg.count = a.frames;
+    dcfg.light = a.light;
     let index = msr_sim::dataset::write_dataset(&dcfg, &data)?;
     p.done(
         "dataset_s",

@@ -17,6 +17,7 @@ pub mod serve;
 pub mod record;
 pub mod template;
 pub mod line_noise;
+pub mod light;
 
 use self::run as run_board;
 use anyhow::Result;
