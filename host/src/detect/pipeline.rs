@@ -238,12 +238,14 @@ mod tests {
         let eng = FloatEngine { mu: vec![0.0; w * h], sigma: vec![1.0; w * h], settings: own, region: Some(region), reach: None, face_w: w, pool: 0, pose: None };
         assert_eq!(eng.settings_at([0.005, -0.005]), Settings { threshold: 1.5, merge: region.merge, ..own });
         assert_eq!(eng.settings_at([0.0, 0.02]), own);
-        // A 2 x 2 patch 3 grey levels off the prediction: salient at 1.5, not at 4.0.
-        let mut face = vec![100u8; w * h];
+        // A 2 x 2 patch 3 grey levels off the prediction: salient at 1.5, not at 4.0. (A
+        // shaded face: a flat one shows the photometric fit no face.)
+        let shade = |i: usize| (60 + 12 * (i % w) + 7 * (i / w)) as u8;
+        let mut face: Vec<u8> = (0..w * h).map(shade).collect();
         for (y, x) in [(2, 3), (2, 4), (3, 3), (3, 4)] {
-            face[y * w + x] = 103;
+            face[y * w + x] += 3;
         }
-        let pred = vec![100.0 / 255.0; w * h];
+        let pred: Vec<f32> = (0..w * h).map(|i| shade(i) as f32 / 255.0).collect();
         let crop = CropBox { x: 0, y: 0, width: w as u32, height: h as u32 };
         assert_eq!(eng.detect(crop, &face, pred.clone(), [0.0, 0.0]).blob.map(|b| b.area), Some(4));
         assert_eq!(eng.detect(crop, &face, pred, [0.0, 0.02]).blob, None);
