@@ -8,8 +8,8 @@ pub enum DatasetLight {
     /// The calibrated light: the same bytes as before light was part of the sim
     #[default]
     Fixed,
-    /// A light of its own per frame: exposure +-30 %, key lamp 0.6..1.4 and turned, ambient
-    /// 0.3..0.6, colour temperature 4000..8000 K
+    /// A light of its own per frame: exposure +-30 %, key lamp 0.55..1.45 and turned a little,
+    /// ambient 0.4..0.5, colour temperature 5000..6500 K
     Varied,
     /// Varied on the training split, fixed on the test split (what `msr demo` trains on)
     VariedTrain,
