@@ -295,7 +295,8 @@ pub fn fit(frame: &[u8], pred: &[u16], w: usize) -> LightFit {
     let (dxx, dxy, dyy) = kept.centred();
     let corr = if dxx > 0 && dyy > 0 {
         let (a, b, c) = (dxy as f32, dxx as f32, dyy as f32);
-        a / (b * c).sqrt()
+        // libm on both targets: the same bits as the board.
+        a / libm::sqrtf(b * c)
     } else {
         0.0
     };
