@@ -207,15 +207,44 @@ impl Rig {
         }
     }
 
+    /// An upload as the host link defines it: the board answers `ModelBegin` once its flash slot
+    /// is erased, and drops chunks that arrive while its flash is busy, answering `UploadAck`
+    /// with the offset it wants; the host goes back there (as `msr run --upload` does).
     fn upload(&mut self, blob: &[u8]) -> u32 {
-        let bytes = self.port.encode_upload(blob);
-        self.outbox.extend(bytes);
-        let ms = 1000 + (blob.len() / HOST_BYTES_PER_TICK) as u64;
-        self.until(ms, |m| match m {
-            BoardToHost::ModelAccepted { crc32 } => Some(*crc32),
-            BoardToHost::Error { code: ErrorCode::BadUpload | ErrorCode::BadModel, detail } => {
-                panic!("upload refused: {m:?} ({detail})")
+        let ms = 3000 + (blob.len() / HOST_BYTES_PER_TICK) as u64;
+        self.send(&HostToBoard::ModelBegin { len: blob.len() as u32, crc32: CRC32.checksum(blob) });
+        let mut next = self.until(ms, |m| match m {
+            BoardToHost::UploadAck { next } => Some(*next as usize),
+            _ => None,
+        })
+        .0;
+        for _ in 0..16 {
+            for (i, c) in blob[next..].chunks(CHUNK).enumerate() {
+                self.send(&HostToBoard::ModelChunk { offset: (next + i * CHUNK) as u32, data: c });
             }
+            self.send(&HostToBoard::ModelCommit);
+            let got = self.until(ms, |m| match m {
+                BoardToHost::ModelAccepted { crc32 } => Some(Ok(*crc32)),
+                BoardToHost::UploadAck { next } => Some(Err(*next as usize)),
+                BoardToHost::Error { code: ErrorCode::BadUpload | ErrorCode::BadModel, detail } => {
+                    panic!("upload refused: {m:?} ({detail})")
+                }
+                _ => None,
+            });
+            match got.0 {
+                Ok(crc) => return crc,
+                Err(n) => next = n,
+            }
+        }
+        panic!("the upload got no further after 16 rounds");
+    }
+
+    /// Sends `ModelBegin` and waits for its answer (the board gives it once the slot is erased;
+    /// chunks sent before it would be dropped).
+    fn begin(&mut self, len: usize, crc32: u32) -> u32 {
+        self.send(&HostToBoard::ModelBegin { len: len as u32, crc32 });
+        self.until(3000, |m| match m {
+            BoardToHost::UploadAck { next } => Some(*next),
             _ => None,
         })
         .0
@@ -457,7 +486,7 @@ fn bad_upload_keeps_the_running_model() {
     let good = &m.blob[..2048];
     let mut damaged = good.to_vec();
     damaged[100] ^= 0x40;
-    host.send(&HostToBoard::ModelBegin { len: damaged.len() as u32, crc32: CRC32.checksum(good) });
+    assert_eq!(host.begin(damaged.len(), CRC32.checksum(good)), 0);
     for (i, c) in damaged.chunks(CHUNK).enumerate() {
         host.send(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data: c });
     }
@@ -470,7 +499,7 @@ fn bad_upload_keeps_the_running_model() {
     assert_eq!(code, ErrorCode::BadUpload);
     // 2. Intact transfer of a blob that fails validation (truncated: its header says longer).
     let (code, _) = {
-        host.send(&HostToBoard::ModelBegin { len: damaged.len() as u32, crc32: CRC32.checksum(&damaged) });
+        assert_eq!(host.begin(damaged.len(), CRC32.checksum(&damaged)), 0);
         for (i, c) in damaged.chunks(CHUNK).enumerate() {
             host.send(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data: c });
         }
@@ -484,11 +513,11 @@ fn bad_upload_keeps_the_running_model() {
     assert_eq!(code, ErrorCode::BadModel);
     // 3. A chunk past a gap is not stored: the board asks for the upload from its start, and a
     // commit now is refused the same way; the running model stays.
-    host.send(&HostToBoard::ModelBegin { len: m.blob.len() as u32, crc32: CRC32.checksum(&m.blob) });
+    assert_eq!(host.begin(m.blob.len(), CRC32.checksum(&m.blob)), 0);
     host.send(&HostToBoard::ModelChunk { offset: CHUNK as u32, data: &m.blob[CHUNK..2 * CHUNK] });
     host.send(&HostToBoard::ModelCommit);
-    // Three answers, all "from 0": the begin's, the gap's and the early commit's.
-    let mut acks = 0;
+    // Three answers, all "from 0": the begin's (above), the gap's and the early commit's.
+    let mut acks = 1;
     host.until(5000, |m| match m {
         BoardToHost::UploadAck { next: 0 } => {
             acks += 1;
