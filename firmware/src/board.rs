@@ -21,8 +21,9 @@ use msr_shared::joints::REACH_JOINTS;
 use msr_shared::msg::{
     BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameAck, FrameHeader,
     FrameState, HostToBoard, JointTarget, Mode, ServoBusKind, ServoBusReport,
-    GateUndecided, ModelSource, ServoToBoard, Status, StoreReport,
+    GateUndecided, ModelSource, NoDetection, ServoToBoard, Status, StoreReport,
 };
+use crate::light::Verdict;
 
 /// Most bytes taken from one link per poll, so a flood cannot starve the control loop.
 pub const MAX_BYTES_PER_POLL: usize = 4096;
@@ -78,6 +79,9 @@ struct Core<S: ModelStore> {
     detections: u32,
     reaches: u32,
     clamped_targets: u32,
+    /// Frames the photometric fit refused, by reason.
+    no_face: u32,
+    scene_changed: u32,
     /// The servo bus speaks Dynamixel Protocol 2.0 with this master (`None`: framed).
     dxl: Option<Master>,
     dxl_stopped: bool,
@@ -132,6 +136,8 @@ impl<S: ModelStore> Board<S> {
                 detections: 0,
                 reaches: 0,
                 clamped_targets: 0,
+                no_face: 0,
+                scene_changed: 0,
                 dxl: None,
                 dxl_stopped: false,
                 last_reach: None,
@@ -341,6 +347,8 @@ impl<S: ModelStore> Core<S> {
             frames_superseded: frame.superseded,
             chunks_ignored: frame.ignored,
             frame_crc_errors: frame.crc_errors,
+            no_face: self.no_face,
+            scene_changed: self.scene_changed,
         }
     }
 
@@ -717,6 +725,17 @@ impl<S: ModelStore> Core<S> {
         if det.blob.is_some() {
             self.detections = self.detections.saturating_add(1);
         }
+        let reason = match det.light.verdict {
+            Verdict::Face => None,
+            Verdict::NoFace => {
+                self.no_face = self.no_face.saturating_add(1);
+                Some(NoDetection::NoFace)
+            }
+            Verdict::SceneChanged => {
+                self.scene_changed = self.scene_changed.saturating_add(1);
+                Some(NoDetection::SceneChanged)
+            }
+        };
         if let Some(g) = self.gate.as_mut() {
             g.observe(h.position(), yaw, det.salient_pixels);
         }
@@ -755,6 +774,7 @@ impl<S: ModelStore> Core<S> {
             blob,
             confirmed,
             reach: det.reach,
+            reason,
         };
         if confirmed {
             self.last_reach = Some(d);
@@ -782,7 +802,7 @@ impl<S: ModelStore> Core<S> {
                     Some(t) if self.motion.reach(t) => {
                         self.reaches = self.reaches.saturating_add(1);
                         let head = [self.measured[0].unwrap_or(f32::NAN), self.measured[1].unwrap_or(f32::NAN)];
-                        let d = Detection { frame, head, blob: None, confirmed: true, reach: Some(t) };
+                        let d = Detection { frame, head, blob: None, confirmed: true, reach: Some(t), reason: None };
                         self.last_reach = Some(d);
                         self.host_tx.send(host, &BoardToHost::Detection(d));
                     }

@@ -2,8 +2,9 @@
 //!
 //! The frames are made from the model itself (its predicted face at a few head poses, plus
 //! deterministic noise and square marks), so any blob works and nothing has to be shipped.
-//! Every intermediate result that matters goes into a CRC-32: the predicted face, the mask,
-//! the winning blob, the centroid and reach bits. Run it on the host and on the board with the
+//! Every intermediate result that matters goes into a CRC-32: the predicted face, the
+//! photometric fit, the mask, the winning blob, the centroid and reach bits. Four frames are
+//! under another exposure and one is black, so that the fit and its verdict are compared too. Run it on the host and on the board with the
 //! same blob: equal digests mean bit-identical pipelines.
 
 use crate::pipeline::{detect, DetectError, Workspace};
@@ -79,6 +80,17 @@ pub fn run(
                 crop[y * w + x0..y * w + x0 + side].fill(grey);
             }
         }
+        // The light: frames 2, 6, 10 and 14 under another exposure and an offset (the
+        // photometric fit takes them back), the last one black (no face).
+        if i % 4 == 2 {
+            let (gain, off) = (192 + (i as i32) * 6, (i as i32) - 8);
+            for c in crop.iter_mut() {
+                *c = ((*c as i32 * gain) / 256 + off).clamp(0, 255) as u8;
+            }
+        }
+        if i == FRAMES - 1 {
+            crop.fill(0);
+        }
         let offset = [(i * 3) as u16, (i * 2) as u16];
         let det = detect(ws, model, &settings, crop, offset, head)?;
         for &m in ws.mask(n) {
@@ -107,10 +119,16 @@ pub fn run(
         {
             digest.update(&c.to_bits().to_le_bytes());
         }
+        let l = det.light;
         for v in [
             det.salient_pixels,
             det.blobs.components,
             det.blobs.overflow as u32,
+            l.gain as u32,
+            l.offset as u32,
+            l.samples as u32 | (l.inliers as u32) << 16,
+            l.correlation_milli as u32,
+            l.verdict as u32,
         ] {
             digest.update(&v.to_le_bytes());
         }

@@ -115,6 +115,7 @@ pub mod decoder;
 pub mod dynamixel;
 pub mod extent;
 pub mod golden;
+pub mod light;
 pub mod link;
 pub mod model;
 pub mod motion;

@@ -1,4 +1,5 @@
-//! One face frame through every detection stage: decoder, saliency, blobs, winner, reach.
+//! One face frame through every detection stage: decoder, photometric fit, saliency, blobs,
+//! winner, reach.
 //!
 //! [`Workspace`] is the big state (activation buffers, threshold table, labeller; the mask lives
 //! in the decoder's spare buffer). It has no heap and a `const` constructor, so a binary can put
@@ -7,6 +8,7 @@
 use crate::blobs::merge;
 use crate::blobs::{Blob, FaceLabeller, Summary};
 use crate::decoder::{DecodeError, Decoder};
+use crate::light::{self, LightFit, Verdict};
 use crate::reach;
 use crate::saliency::{self, Settings, Thresholds};
 use msr_shared::blob::{Model, Sided, MAX_FACE_H, REACH_OUT};
@@ -55,6 +57,8 @@ pub struct FaceDetection {
     pub salient_pixels: u32,
     /// All components found, and whether the labeller overflowed.
     pub blobs: Summary,
+    /// The frame's photometric fit and verdict: anything but [`Verdict::Face`] finds nothing.
+    pub light: LightFit,
 }
 
 /// Scratch and caches for [`detect`]; about 55 KiB.
@@ -71,6 +75,12 @@ pub struct Workspace {
     /// Salient pixels per row of the last mask, when its saliency counted them (the pooled
     /// one-sided test): the labeller skips the empty rows.
     row_counts: Option<[u16; MAX_FACE_H]>,
+    /// The last frame's photometric fit, and its table `v(I)`.
+    light: LightFit,
+    lut: [u16; 256],
+    /// Fit the light of each frame ([`light::fit`]; the default). Off: `v(I) = I << 8` and no
+    /// frame refused, the error as the paper defines it (for comparisons).
+    pub fit_light: bool,
 }
 
 impl Default for Workspace {
@@ -88,6 +98,9 @@ impl Workspace {
             labeller: FaceLabeller::new(),
             head: [f32::NAN; 2],
             row_counts: None,
+            light: LightFit::IDENTITY,
+            lut: light::IDENTITY_TABLE,
+            fit_light: true,
         }
     }
 
@@ -105,8 +118,10 @@ impl Workspace {
         self.decoder.predict(model, head)
     }
 
-    /// Stage 2: the saliency mask of `crop` against the last predicted face; returns the count
-    /// of salient pixels. Call [`decode`](Self::decode) first. The mask is [`mask`](Self::mask).
+    /// Stage 2: the photometric fit of `crop` to the last predicted face ([`light::fit`]), then
+    /// the saliency mask of the fitted crop against it; returns the count of salient pixels. A
+    /// frame the fit refuses ([`Workspace::light`]) gets an empty mask. Call
+    /// [`decode`](Self::decode) first. The mask is [`mask`](Self::mask).
     pub fn saliency(
         &mut self,
         model: &Model,
@@ -129,21 +144,39 @@ impl Workspace {
         let tn = self.thresholds.table();
         let (w, pool) = (model.face_w as usize, model.novelty.pool);
         self.row_counts = None;
+        if !self.fit_light {
+            self.light = LightFit::IDENTITY;
+            self.lut = light::IDENTITY_TABLE;
+        } else {
+            self.light = light::fit(crop, face, w);
+            if self.light.verdict != Verdict::Face {
+                mask[..crop.len()].fill(0);
+                self.row_counts = Some([0; MAX_FACE_H]);
+                return Ok(0);
+            }
+            self.light.table(&mut self.lut);
+        }
+        let lut = &self.lut;
         Ok(match (pool, s.sided) {
-            (0, _) => saliency::saliency(crop, face, mu, tn, s.sided, mask),
+            (0, _) => saliency::saliency(crop, face, lut, mu, tn, s.sided, mask),
             (_, Sided::One) => {
                 // The mask, then the ring of error rows behind it, in the decoder's spare buffer.
                 let (mask, rest) = mask.split_at_mut(crop.len());
                 let (_, ring, _) = bytemuck::pod_align_to_mut::<u8, i32>(rest);
                 let mut rows = [0u16; MAX_FACE_H];
-                let n = saliency::pool::pooled_one_sided(crop, face, tn, mask, ring, w, pool, &mut rows);
+                let n = saliency::pool::pooled_one_sided(crop, face, lut, tn, mask, ring, w, pool, &mut rows);
                 // The decision stays the pooled mask's; its extent is the mark's own pixels.
-                crate::extent::mark_spread(crop, face, tn, mask, w, &rows);
+                crate::extent::mark_spread(crop, face, lut, tn, mask, w, &rows);
                 self.row_counts = Some(rows);
                 n
             }
-            (_, Sided::Two) => saliency::pooled(crop, face, mu, tn, s.sided, mask, w, pool),
+            (_, Sided::Two) => saliency::pooled(crop, face, lut, mu, tn, s.sided, mask, w, pool),
         })
+    }
+
+    /// The photometric fit of the last [`saliency`](Self::saliency) call.
+    pub fn light(&self) -> LightFit {
+        self.light
     }
 
     /// The mask of the last [`saliency`](Self::saliency) call: 0 not salient, 1 salient,
@@ -195,6 +228,7 @@ pub fn detect(
         reach_clamped: clamped.map_or(0, |(_, n)| n),
         salient_pixels,
         blobs,
+        light: ws.light,
     })
 }
 

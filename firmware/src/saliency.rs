@@ -1,6 +1,8 @@
 //! Saliency: which pixels differ from the prediction more than the face normally does.
 //!
-//! Per pixel, with `e = |255 (I - I_hat)|` in grey levels and the model's statistics mu, sigma:
+//! Per pixel, with `e = |255 (I - I_hat)|` in grey levels (`I` brought to the prediction's
+//! light by the frame's photometric fit first, [`crate::light`]: the error is `v(I) - pred` in
+//! Q8.8, a 256-entry table, `I << 8` without a fit) and the model's statistics mu, sigma:
 //! salient when `(e - mu) / n > t` (one-sided) or `|e - mu| / n > t` (two-sided), where `n` is
 //! sigma ([`Normalisation::StdDev`]) or sigma^2 ([`Normalisation::Variance`]).
 //!
@@ -183,6 +185,7 @@ impl Thresholds {
 pub fn saliency(
     frame: &[u8],
     pred: &[u16],
+    lut: &[u16; 256],
     mu: U16Table,
     tn: &[u16],
     sided: Sided,
@@ -190,14 +193,14 @@ pub fn saliency(
 ) -> u32 {
     // Blobs in memory are 4-byte aligned, so mu is normally a u16 slice; else read bytes.
     match bytemuck::try_cast_slice::<u8, u16>(mu.0) {
-        Ok(mu) => run(frame, pred, mu.iter().copied(), tn, sided, mask),
-        Err(_) => run(frame, pred, mu.iter(), tn, sided, mask),
+        Ok(mu) => run(frame, pred, lut, mu.iter().copied(), tn, sided, mask),
+        Err(_) => run(frame, pred, lut, mu.iter(), tn, sided, mask),
     }
 }
 
 /// [`saliency`] on the pooled error (the blob's flag bit 4), with `mu` and `tn` apart, for the
 /// two-sided test (the one-sided one, the default, is [`pool::pooled_one_sided`]): `e = |mean
-/// of (I << 8) - pred over the (2 pool + 1)^2 window, clipped at the border|`, Q8.8, the mean
+/// of v(I) - pred over the (2 pool + 1)^2 window, clipped at the border|`, Q8.8, the mean
 /// truncated toward zero. `w` is the face's width; the rows are `frame.len() / w`. Row by row,
 /// in two passes that each keep few values live: `vertical` brings the running column sums to
 /// the row's window (one row in, one out), then `horizontal` slides the window sum along the
@@ -210,6 +213,7 @@ pub fn saliency(
 pub fn pooled(
     frame: &[u8],
     pred: &[u16],
+    lut: &[u16; 256],
     mu: U16Table,
     tn: &[u16],
     sided: Sided,
@@ -232,13 +236,13 @@ pub fn pooled(
     let mut cols = [0i32; MAX_FACE_W + 2 * PAD];
     let Some(c) = cols.get_mut(PAD..PAD + w) else { return 0 };
     for y in 0..r.min(h) {
-        vertical(c, row(y), None);
+        vertical(c, row(y), None, lut);
     }
     let mut count = 0u32;
     for y in 0..h {
         let gone = if y > r { row(y - r - 1) } else { None };
         if let Some(c) = cols.get_mut(PAD..PAD + w) {
-            vertical(c, row(y + r), gone);
+            vertical(c, row(y + r), gone, lut);
         }
         let rows = ((y + r).min(h - 1) + 1 - y.saturating_sub(r)) as u32;
         let mu_row: &[u16] = match aligned {
@@ -268,7 +272,8 @@ const PAD: usize = MAX_POOL as usize + 1;
 /// Adds the error of row `add` to the column sums and takes that of row `sub` off. Out of
 /// line, so that it keeps its own registers.
 #[inline(never)]
-fn vertical(c: &mut [i32], add: Option<(&[u8], &[u16])>, sub: Option<(&[u8], &[u16])>) {
+fn vertical(c: &mut [i32], add: Option<(&[u8], &[u16])>, sub: Option<(&[u8], &[u16])>, lut: &[u16; 256]) {
+    let err = |f: u8, p: u16| err(lut, f, p);
     match (add, sub) {
         (Some((a, b)), Some((e, g))) => {
             for ((((c, &a), &b), &e), &g) in c.iter_mut().zip(a).zip(b).zip(e).zip(g) {
@@ -343,10 +348,11 @@ fn mid<T>(s: &[T], a: usize, b: usize) -> &[T] {
     s.get(a..b).unwrap_or(&[])
 }
 
-/// The signed error of one pixel, Q8.8 grey levels.
+/// The signed error of one pixel, Q8.8 grey levels: the fitted frame `v(f)` minus the
+/// prediction.
 #[inline(always)]
-fn err(f: u8, p: u16) -> i32 {
-    ((f as i32) << 8) - p as i32
+fn err(lut: &[u16; 256], f: u8, p: u16) -> i32 {
+    lut[f as usize] as i32 - p as i32
 }
 
 /// Whether `floor(a / k)` (the pooled error) is salient against `mu` and `t` (Q8.8), in u32:
@@ -366,6 +372,7 @@ fn test(a: u32, k: u32, m: u16, t: u16, sided: Sided) -> u8 {
 fn run(
     frame: &[u8],
     pred: &[u16],
+    lut: &[u16; 256],
     mu: impl Iterator<Item = u16>,
     tn: &[u16],
     sided: Sided,
@@ -376,7 +383,7 @@ fn run(
     match sided {
         Sided::One => {
             for ((((&i, &p), m), &t), out) in px {
-                let e = (((i as i32) << 8) - p as i32).abs();
+                let e = err(lut, i, p).abs();
                 let s = (e - m as i32 > t as i32) as u8;
                 *out = s;
                 count += s as u32;
@@ -384,7 +391,7 @@ fn run(
         }
         Sided::Two => {
             for ((((&i, &p), m), &t), out) in px {
-                let e = (((i as i32) << 8) - p as i32).abs();
+                let e = err(lut, i, p).abs();
                 let s = ((e - m as i32).abs() > t as i32) as u8;
                 *out = s;
                 count += s as u32;
@@ -463,10 +470,10 @@ mod tests {
             let r = pool as i64;
             for sided in [Sided::One, Sided::Two] {
                 let mut mask = vec![7u8; n];
-                let count = pooled(&frame, &pred, U16Table(&mu_bytes), &tn, sided, &mut mask, w, pool);
+                let count = pooled(&frame, &pred, &crate::light::IDENTITY_TABLE, U16Table(&mu_bytes), &tn, sided, &mut mask, w, pool);
                 // An unaligned mu table gives the same mask.
                 let mut odd = vec![7u8; n];
-                pooled(&frame, &pred, U16Table(&shifted[1..]), &tn, sided, &mut odd, w, pool);
+                pooled(&frame, &pred, &crate::light::IDENTITY_TABLE, U16Table(&shifted[1..]), &tn, sided, &mut odd, w, pool);
                 assert_eq!(odd, mask, "unaligned mu, pool {pool} {sided:?} {w}x{h}");
                 let mut want = vec![0u8; n];
                 for y in 0..h as i64 {
@@ -490,15 +497,15 @@ mod tests {
                 if pool == 0 {
                     // Radius 0 is the per-pixel saliency.
                     let mut plain = vec![0u8; n];
-                    saliency(&frame, &pred, U16Table(&mu_bytes), &tn, sided, &mut plain);
+                    saliency(&frame, &pred, &crate::light::IDENTITY_TABLE, U16Table(&mu_bytes), &tn, sided, &mut plain);
                     assert_eq!(mask, plain);
                 }
             }
         }
         // A width past the board's limit or of zero finds nothing and writes nothing.
         let mut mask = vec![7u8; n];
-        assert_eq!(pooled(&frame, &pred, U16Table(&mu_bytes), &tn, Sided::One, &mut mask, 0, 2), 0);
-        assert_eq!(pooled(&frame, &pred, U16Table(&mu_bytes), &tn, Sided::One, &mut mask, MAX_FACE_W + 1, 2), 0);
+        assert_eq!(pooled(&frame, &pred, &crate::light::IDENTITY_TABLE, U16Table(&mu_bytes), &tn, Sided::One, &mut mask, 0, 2), 0);
+        assert_eq!(pooled(&frame, &pred, &crate::light::IDENTITY_TABLE, U16Table(&mu_bytes), &tn, Sided::One, &mut mask, MAX_FACE_W + 1, 2), 0);
         assert_eq!(mask, vec![7u8; n]);
     }
 
@@ -518,6 +525,7 @@ mod tests {
         let n = saliency(
             &frame,
             &pred,
+            &crate::light::IDENTITY_TABLE,
             U16Table(&mu_bytes),
             &tn,
             Sided::One,
@@ -527,6 +535,7 @@ mod tests {
         let n = saliency(
             &frame,
             &pred,
+            &crate::light::IDENTITY_TABLE,
             U16Table(&mu_bytes),
             &tn,
             Sided::Two,
@@ -539,6 +548,7 @@ mod tests {
         let n = saliency(
             &frame,
             &pred,
+            &crate::light::IDENTITY_TABLE,
             U16Table(&shifted[1..]),
             &tn,
             Sided::Two,

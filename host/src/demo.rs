@@ -64,6 +64,10 @@ pub struct DemoConfig {
     /// quantize`'s does; `false`: a confirmed mark is reached at once, as the paper.
     #[config(default = true)]
     pub self_gate: bool,
+    /// How the dataset is lit (`msr_sim::light::LightMode`): by default the training frames
+    /// each under a light of their own, the test frames under the fixed light.
+    #[config(default = "msr_sim::light::LightMode::VariedTrain")]
+    pub light: msr_sim::light::LightMode,
 }
 
 struct Progress {
@@ -127,6 +131,7 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
     let data = out.join("dataset");
     let mut dcfg = msr_sim::dataset::DatasetConfig::paper(a.robot, a.seed);
     dcfg.count = a.frames;
+    dcfg.light = a.light;
     let index = msr_sim::dataset::write_dataset(&dcfg, &data)?;
     p.done(
         "dataset_s",

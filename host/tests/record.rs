@@ -11,7 +11,7 @@ use std::path::Path;
 use std::process::Command;
 
 fn sim_camera(seed: u64) -> SourceConfig {
-    SourceConfig::Sim { robot: Robot::Red, count: None, seed, mark_from: None }
+    SourceConfig::Sim { robot: Robot::Red, count: None, seed, mark_from: None, light: Default::default() }
 }
 
 fn index(dir: &Path) -> DatasetIndex {

@@ -582,6 +582,18 @@ pub struct Detection {
     pub confirmed: bool,
     /// Reach targets for [`crate::joints::REACH_JOINTS`], after clamping.
     pub reach: Option<[f32; 5]>,
+    /// Why this frame could give no detection whatever it showed (`None`: the face was seen).
+    pub reason: Option<NoDetection>,
+}
+
+/// Why a frame yields no detection and no reach: the photometric fit of the face crop to the
+/// predicted face refused it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum NoDetection {
+    /// The crop does not follow the predicted face: black, white, covered, an empty room.
+    NoFace,
+    /// The light is outside what the fit explains, or changed while the frame was taken.
+    SceneChanged,
 }
 
 /// Counters and state, sent on request and when something goes wrong.
@@ -613,6 +625,10 @@ pub struct Status {
     pub chunks_ignored: u32,
     /// Reassembled images whose CRC-32 did not match (all chunks asked for again).
     pub frame_crc_errors: u32,
+    /// Frames refused as [`NoDetection::NoFace`].
+    pub no_face: u32,
+    /// Frames refused as [`NoDetection::SceneChanged`].
+    pub scene_changed: u32,
 }
 
 /// Why the board refused something.
@@ -836,6 +852,8 @@ mod tests {
             frames_superseded: u32::MAX,
             chunks_ignored: u32::MAX,
             frame_crc_errors: u32::MAX,
+            no_face: u32::MAX,
+            scene_changed: u32::MAX,
         };
         let mut buf = [0u8; MAX_PAYLOAD];
         round_trip(&BoardToHost::Status(status), &mut buf);
@@ -991,13 +1009,15 @@ mod tests {
             proptest::option::of((any::<u32>(), any::<[u16; 4]>(), any::<[f32; 2]>())),
             any::<bool>(),
             proptest::option::of(any::<[f32; 5]>()),
+            proptest::option::of(any::<bool>()),
         )
-            .prop_map(|(frame, head, blob, confirmed, reach)| Detection {
+            .prop_map(|(frame, head, blob, confirmed, reach, reason)| Detection {
                 frame,
                 head,
                 blob: blob.map(|(area, box_xyxy, centroid)| BlobReport { area, box_xyxy, centroid }),
                 confirmed,
                 reach,
+                reason: reason.map(|r| if r { NoDetection::NoFace } else { NoDetection::SceneChanged }),
             })
     }
 

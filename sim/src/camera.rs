@@ -2,6 +2,7 @@
 //! servos' current pose, cuts the face crop, and turns it into host-link messages
 //! (`FrameStart` then `FrameChunk`s), as the PC does for a real board.
 use crate::body;
+use crate::light::{LightPlan, LightSchedule};
 use crate::marks::Mark;
 use crate::render::{to_grey, Rendered, Renderer, Variation};
 use crate::world::World;
@@ -33,11 +34,21 @@ impl Capture {
 pub struct Camera {
     renderer: Renderer,
     rng: ChaCha8Rng,
+    /// The light over the run (fixed unless [`Camera::with_light`]).
+    pub light: LightSchedule,
 }
 
 impl Camera {
     pub fn new(robot: Robot, seed: u64) -> Camera {
-        Camera { renderer: Renderer::new(robot), rng: ChaCha8Rng::seed_from_u64(seed) }
+        let light = LightSchedule::new(LightPlan::Fixed, 1, &mut ChaCha8Rng::seed_from_u64(0));
+        Camera { renderer: Renderer::new(robot), rng: ChaCha8Rng::seed_from_u64(seed), light }
+    }
+
+    /// This camera under `plan` over a run of `duration_us` (drawn from `seed`, apart from the
+    /// camera's noise).
+    pub fn with_light(mut self, plan: LightPlan, duration_us: u64, seed: u64) -> Camera {
+        self.light = LightSchedule::new(plan, duration_us, &mut ChaCha8Rng::seed_from_u64(seed ^ 0x119E_7001));
+        self
     }
 
     pub fn renderer(&self) -> &Renderer {
@@ -49,8 +60,9 @@ impl Camera {
     /// pixels; see `marks::CROP_MARGIN_PX`).
     pub fn capture(&mut self, world: &World, mark: Option<&Mark>) -> Capture {
         let pose = world.body_pose();
-        let var = Variation::random(&mut self.rng);
+        let var = Variation::random(&mut self.rng).lit(self.light.at(world.now_us));
         let frame = self.renderer.render(&pose, mark, &var);
+        self.light.observed(&frame.rgb);
         let crop_origin = body::crop_origin(pose.head_yaw, pose.head_pitch);
         let crop = face_crop(&frame.rgb, crop_origin);
         Capture { frame, crop_origin, crop, head: [pose.head_yaw, pose.head_pitch] }
@@ -62,7 +74,7 @@ impl Camera {
     /// (about 15 times faster); the rest of the frame is plain background.
     pub fn capture_face(&mut self, world: &World, mark: Option<&Mark>) -> Capture {
         let pose = world.body_pose();
-        let var = Variation::random(&mut self.rng);
+        let var = Variation::random(&mut self.rng).lit(self.light.at(world.now_us));
         let crop_origin = body::crop_origin(pose.head_yaw, pose.head_pitch);
         let m = 8;
         let window = [
@@ -72,6 +84,7 @@ impl Camera {
             body::CROP_H + 2 * m,
         ];
         let frame = self.renderer.render_window(&pose, mark, &var, window);
+        self.light.observed(&frame.rgb);
         let crop = face_crop(&frame.rgb, crop_origin);
         Capture { frame, crop_origin, crop, head: [pose.head_yaw, pose.head_pitch] }
     }

@@ -3,6 +3,7 @@
 //! plus reach training pairs made by the IK. Deterministic: a seed gives the same bytes.
 use crate::body::{self, BodyPose};
 use crate::kin;
+use crate::light::LightMode;
 use crate::layout::{self, DatasetIndex, FrameRecord, MarkRecord, Split};
 use crate::marks::Mark;
 use crate::render::{Renderer, Variation};
@@ -50,6 +51,9 @@ pub struct DatasetConfig {
     /// unmarked ones are what false-alarm rates and image-level AUROC are measured on.
     pub unmarked_test_fraction: f64,
     pub scene: DatasetScene,
+    /// How the frames are lit: the calibrated light (the paper's session) or a light of
+    /// their own per frame (`crate::light::Light::varied`).
+    pub light: LightMode,
 }
 
 impl DatasetConfig {
@@ -64,6 +68,7 @@ impl DatasetConfig {
             reach_pairs: 100,
             unmarked_test_fraction: 0.2,
             scene: DatasetScene::Mirror,
+            light: LightMode::Fixed,
         }
     }
 
@@ -134,6 +139,12 @@ pub fn write_dataset_with(
             let pitch = if a > 0.0 { rng.gen_range(-a..=a) } else { 0.0 };
             let var = Variation::random(&mut rng);
             let rng_seed: u64 = rng.gen();
+            // From the frame's own seed: the fixed light's draws (and bytes) stay as they were.
+            let mut lrng = ChaCha8Rng::seed_from_u64(rng_seed ^ 0x119E_7000);
+            let var = match cfg.light.draw(split == Split::Train, &mut lrng) {
+                Some(l) => var.lit(l),
+                None => var,
+            };
             // From the frame's own seed, so that the main draws do not depend on this share.
             let keep_clean = ChaCha8Rng::seed_from_u64(rng_seed ^ 0x5EED_C1EA).gen::<f64>()
                 < cfg.unmarked_test_fraction;

@@ -3,7 +3,8 @@
 //! - [`body`]: the one geometric model (ellipsoid body, mirror plane, camera) that rendering,
 //!   mark placement and kinematics share.
 //! - [`kin`]: forward and inverse kinematics, the touch judge.
-//! - [`render`], [`looks`], [`marks`]: mirror-view frames of the `red` and `skin` robots, marks.
+//! - [`render`], [`looks`], [`marks`]: mirror-view frames of the `red` and `skin` robots, marks;
+//!   [`light`]: the room's lamps, exposure, white balance and the camera's auto-exposure.
 //! - [`dataset`]: datasets in the layout of [`layout`], reach training pairs.
 //! - [`servo`]: emulated servos on the servo bus, framed or (see [`dynamixel`]) as Dynamixel
 //!   X-series servos on Protocol 2.0; [`link`]: baud-paced links and a fault layer;
@@ -19,6 +20,7 @@ pub mod dataset;
 pub mod dynamixel;
 pub mod kin;
 pub mod layout;
+pub mod light;
 pub mod link;
 pub mod looks;
 pub mod marks;

@@ -6,6 +6,7 @@
 use crate::body::{self, BodyPose, Ellipsoid, Part, HEIGHT, WIDTH};
 use crate::kin;
 use crate::looks::{self, Robot};
+use crate::light::Light;
 use crate::marks::Mark;
 use image::{GrayImage, RgbImage};
 use nalgebra::{Point3, Vector3};
@@ -24,11 +25,14 @@ pub struct Variation {
     pub eye_led: f32,
     /// Seed of the camera noise; `None` renders without noise.
     pub noise_seed: Option<u64>,
+    /// The room's light and the camera's exposure and white balance ([`Light::FIXED`]: the
+    /// calibrated light).
+    pub light: Light,
 }
 
 impl Variation {
     /// No noise, nominal exposure and LEDs: for templates and tests.
-    pub const CLEAN: Variation = Variation { exposure: 1.0, eye_led: 0.8, noise_seed: None };
+    pub const CLEAN: Variation = Variation { exposure: 1.0, eye_led: 0.8, noise_seed: None, light: Light::FIXED };
 
     /// Normal variation: exposure within about +-2 %, flickering LEDs, fresh noise.
     pub fn random<R: Rng>(rng: &mut R) -> Variation {
@@ -36,7 +40,13 @@ impl Variation {
             exposure: 1.0 + rng.gen_range(-0.02..0.02),
             eye_led: rng.gen_range(0.55..1.0),
             noise_seed: Some(rng.next_u64()),
+            light: Light::FIXED,
         }
+    }
+
+    /// This variation under `light`.
+    pub fn lit(self, light: Light) -> Variation {
+        Variation { light, ..self }
     }
 }
 
@@ -115,7 +125,10 @@ impl Renderer {
         let origin = Point3::from(cam.translation.vector);
         let inv_frames: Vec<_> = prims.iter().map(|e| e.frame.inverse()).collect();
         let head_inv = inv_frames[0];
-        let light = looks::LIGHT.normalize();
+        let lit = var.light;
+        let fixed = lit == Light::FIXED;
+        let light = if fixed { looks::LIGHT.normalize() } else { lit.key_dir().normalize() };
+        let room = lit.room();
         let look = looks::Look::of(self.robot, var.eye_led);
 
         let mut rgb = RgbImage::new(WIDTH, HEIGHT);
@@ -126,6 +139,9 @@ impl Renderer {
         let mut noise_bits = 0u64;
         let mut noise_left = 0;
         let gain = var.exposure * 255.0;
+        // Per channel; exactly `gain` under the fixed light (x 1.0).
+        let gains = [0, 1, 2].map(|c| gain * (lit.exposure * lit.tint[c]));
+        let bg_out = [0, 1, 2].map(|c| lit.exposure * lit.tint[c] * room);
 
         // Per row: the primitives whose screen box spans it, and the columns they cover.
         let mut row_prims: Vec<usize> = Vec::with_capacity(prims.len());
@@ -134,7 +150,12 @@ impl Renderer {
         for (i, px) in rgb.pixels_mut().enumerate() {
             let (x, y) = ((i as u32) % WIDTH, (i as u32) / WIDTH);
             if x < wx0 || x >= wx1 || y < wy0 || y >= wy1 {
-                *px = image::Rgb(self.background[i].map(|c| (c * 255.0).round() as u8));
+                *px = if fixed {
+                    image::Rgb(self.background[i].map(|c| (c * 255.0).round() as u8))
+                } else {
+                    let b = self.background[i];
+                    image::Rgb([0, 1, 2].map(|c| (b[c] * bg_out[c] * 255.0).round().clamp(0.0, 255.0) as u8))
+                };
                 continue;
             }
             if y != row {
@@ -149,6 +170,9 @@ impl Renderer {
                 }
             }
             let mut colour = self.background[i];
+            if !fixed {
+                colour = colour.map(|c| c * room);
+            }
             let xi = x as i32;
             let r = self.rays[i];
             let d = if xi >= row_span.0 && xi <= row_span.1 {
@@ -185,13 +209,13 @@ impl Renderer {
                         let h = head_inv * p;
                         if m.covers(&h) {
                             on_mark = true;
-                            let plain = shade(&surf, &n, &light, &view);
+                            let plain = shade(&surf, &n, &light, &view, &lit);
                             surf = looks::Surface::paint(m.rgb);
-                            let marked = shade(&surf, &n, &light, &view);
+                            let marked = shade(&surf, &n, &light, &view, &lit);
                             mark_diff += (grey_f(marked) - grey_f(plain)).abs() * 255.0;
                         }
                     }
-                    colour = shade(&surf, &n, &light, &view);
+                    colour = shade(&surf, &n, &light, &view, &lit);
                     if on_mark {
                         mark_n += 1;
                         bbox = [bbox[0].min(x), bbox[1].min(y), bbox[2].max(x), bbox[3].max(y)];
@@ -201,8 +225,8 @@ impl Renderer {
                     }
                 }
             }
-            for (c, out) in colour.iter().zip(px.0.iter_mut()) {
-                let mut v = c * gain;
+            for ((c, out), g) in colour.iter().zip(px.0.iter_mut()).zip(gains) {
+                let mut v = c * g;
                 if let Some(rng) = noise.as_mut() {
                     if noise_left == 0 {
                         noise_bits = rng.next_u64();
@@ -235,11 +259,13 @@ impl Renderer {
     }
 }
 
-fn shade(s: &looks::Surface, n: &Vector3<f64>, l: &Vector3<f64>, v: &Vector3<f64>) -> [f32; 3] {
+/// Blinn-Phong under `lit`'s ambient share and key strength (x 1.0 and the same order of
+/// operations under the fixed light, so its frames keep their bytes).
+fn shade(s: &looks::Surface, n: &Vector3<f64>, l: &Vector3<f64>, v: &Vector3<f64>, lit: &Light) -> [f32; 3] {
     let diffuse = n.dot(l).max(0.0) as f32;
     let h = (l + v).normalize();
-    let spec = (n.dot(&h).max(0.0) as f32).powi(s.shininess) * s.specular;
-    let k = looks::AMBIENT + (1.0 - looks::AMBIENT) * diffuse;
+    let spec = (n.dot(&h).max(0.0) as f32).powi(s.shininess) * s.specular * lit.key;
+    let k = lit.ambient + (1.0 - lit.ambient) * diffuse * lit.key;
     [0, 1, 2].map(|c| s.albedo[c] * k + spec + s.emission[c])
 }
 

@@ -177,7 +177,7 @@ fn truncated_wrong_size_and_oversized_frames() {
                 }
                 // A truncated frame: its last chunk never comes; then a whole one.
                 200_000 => {
-                    let (_, face) = pc.camera.shoot(&w.body_pose(), None, &mut pc.rng).unwrap();
+                    let (_, face) = pc.camera.shoot(&w.body_pose(), None, &mut pc.rng, msr_sim::light::Light::FIXED).unwrap();
                     let mut b = pc.port.encode_face(face.crop.origin(), face.crop.size(), &face.grey).unwrap();
                     // Cut the wire bytes of the last chunk off (everything after the second-to-last delimiter).
                     let delims: Vec<usize> = b
@@ -192,7 +192,7 @@ fn truncated_wrong_size_and_oversized_frames() {
                 400_000 => pc.send_frame(w, None),
                 // A chunk past the end of the frame.
                 600_000 => {
-                    let (_, face) = pc.camera.shoot(&w.body_pose(), None, &mut pc.rng).unwrap();
+                    let (_, face) = pc.camera.shoot(&w.body_pose(), None, &mut pc.rng, msr_sim::light::Light::FIXED).unwrap();
                     let b = pc.port.encode_face(face.crop.origin(), face.crop.size(), &face.grey).unwrap();
                     w.host.send(&b);
                     let data = [1u8; 16];

@@ -89,6 +89,7 @@ fn msr_run_streams_a_frame_folder_and_uploads_over_the_pty() {
         frame_timeout_ms: 5000,
         json: true,
         mcap: None,
+        light: msr_host::cmd::light::RunLight::Fixed,
     };
     msr_host::cmd::run::run(args).unwrap();
     let served = board.stop().unwrap();

@@ -2,7 +2,7 @@
 //! assembly routine on the Cortex-M4, the same steps in Rust elsewhere.
 //!
 //! The test: pixel `x` is salient when the magnitude of the mean of the signed error
-//! `(I << 8) - pred` (Q8.8) over the `(2 r + 1)^2` window, clipped at the border, exceeds
+//! `v(I) - pred` (Q8.8; `v` the frame's photometric fit, [`crate::light`], `I << 8` unfitted) over the `(2 r + 1)^2` window, clipped at the border, exceeds
 //! `mu + tn`: `|s| > T k`, with `s` the window's sum, `k` its pixels and `T = min(mu + tn, 65535)` per
 //! pixel in the threshold table ([`combined_table`]; `tn` is `t` sigma in Q8.8, rounded down).
 //! The mean is not rounded, and a saturated `T` never fires.
@@ -13,8 +13,8 @@
 //! 2. the window sum slides along the row, a column in, a column out, and each pixel is tested.
 //!
 //! Both steps run in one pass, a column's update `r` pixels ahead of the test that first needs
-//! it: 19 instructions a pixel inside the row (the routine's comments count them), against 39
-//! for the two loops LLVM made of the Rust. The edges take the clipped window's `k`. The table
+//! it: 20 instructions a pixel inside the row (the routine's comments count them; the fit's
+//! table look-up is the 20th), against 39 for the two loops LLVM made of the Rust. The edges take the clipped window's `k`. The table
 //! is made again when the head changes pose cell: 5.5 instructions a pixel, two at a time.
 
 use msr_shared::blob::{Normalisation, MAX_FACE_W, MAX_POOL};
@@ -25,8 +25,8 @@ use super::threshold_q88;
 /// the column leaving the window at `x = 0` is one of them.
 pub const PAD: usize = MAX_POOL as usize + 1;
 
-/// Rows past the face's bottom: their error is zero (frame 0, prediction 0); read as bytes for
-/// the frame.
+/// Rows past the face's bottom, as frame bytes: their error is zero against a prediction row
+/// of `v(0)`.
 static ZERO_ROW: [u16; MAX_FACE_W] = [0; MAX_FACE_W];
 
 /// What the row routine reads (see its prologue).
@@ -50,6 +50,8 @@ struct RowJob {
     rows: u32,
     /// Non-zero: only take row `y + r` into the column sums (the rows above the first output).
     prime: u32,
+    /// The frame's fitted grey levels `v(I)`, 256 entries, Q8.8 ([`crate::light`]).
+    lut: *const u16,
 }
 
 /// One row; returns its salient pixels. The caller guarantees `w > 2 r`, `1 <= r <= MAX_POOL`,
@@ -68,15 +70,16 @@ extern "C" {
 
 // Registers in the row: r0 frame, r1 pred, r2 ring, r3 the column entering (x + r), r4 T,
 // r5 mask, r6 the column leaving (x - r - 1), r7 the window sum, r8 the count, r9 k, r10 and
-// r11 scratch, r12 the phase's end. On the stack: r, w, prime (then the end of the
+// r11 scratch, r12 the phase's end, lr the fit's table. On the stack: r, w, prime (then the end of the
 // inside), rows.
 #[cfg(target_arch = "arm")]
 core::arch::global_asm!(
-    // Column x + r takes row y + r in and row y - r - 1 out (10 instructions).
+    // Column x + r takes row y + r in and row y - r - 1 out (11 instructions).
     ".macro MSR_POOL_COLUMN",
     "ldrb r10, [r0], #1",
+    "ldrh r10, [lr, r10, lsl #1]",
     "ldrh r11, [r1], #2",
-    "rsb r10, r11, r10, lsl #8",
+    "sub r10, r10, r11",
     "ldr r11, [r2]",
     "str r10, [r2], #4",
     "sub r10, r10, r11",
@@ -94,7 +97,7 @@ core::arch::global_asm!(
     "strb r10, [r5], #1",
     "add r8, r8, r10",
     ".endm",
-    // A whole pixel: its column in, the window slid, the test (19 instructions).
+    // A whole pixel: its column in, the window slid, the test (20 instructions).
     ".macro MSR_POOL_PIXEL",
     "MSR_POOL_COLUMN",
     "add r7, r7, r11",
@@ -114,6 +117,7 @@ core::arch::global_asm!(
     "ldr r11, [r0, #36]",
     "ldr r12, [r0, #32]",
     "push {{r9-r12}}",
+    "ldr lr, [r0, #40]",
     "ldm r0, {{r0-r5}}",
     "movs r7, #0",
     "mov r8, #0",
@@ -241,7 +245,7 @@ unsafe fn run_row(job: &RowJob) -> u32 {
     let (w, r) = (job.w as usize, job.r as usize);
     // SAFETY: the caller's contract on `run_row` (w values behind each row pointer; PAD
     // columns either side of `cols`).
-    let (frame, pred, ring, thr, mask, cols) = unsafe {
+    let (frame, pred, ring, thr, mask, cols, lut) = unsafe {
         (
             core::slice::from_raw_parts(job.frame, w),
             core::slice::from_raw_parts(job.pred, w),
@@ -249,11 +253,12 @@ unsafe fn run_row(job: &RowJob) -> u32 {
             core::slice::from_raw_parts(job.thr, w),
             core::slice::from_raw_parts_mut(job.mask, w),
             core::slice::from_raw_parts_mut(job.cols.sub(PAD), w + 2 * PAD),
+            core::slice::from_raw_parts(job.lut, 256),
         )
     };
     // Column j takes row y + r in and row y - r - 1 out; returns its new sum.
     let column = |j: usize, cols: &mut [i32], ring: &mut [i32]| {
-        let e = ((frame[j] as i32) << 8) - pred[j] as i32;
+        let e = lut[frame[j] as usize] as i32 - pred[j] as i32;
         let c = &mut cols[PAD + j];
         *c = c.wrapping_add(e.wrapping_sub(ring[j]));
         ring[j] = e;
@@ -365,10 +370,13 @@ pub fn combined_table(sigma: &[u16], mu: &[u16], c: &Combine, out: &mut [u16]) {
 /// table `thr` ([`combined_table`]); returns the salient pixels and writes each row's
 /// count to `row_counts` (as many rows as it holds). `ring` needs `(2 pool + 1) w` words. A
 /// face no wider than the window, a radius of 0 or past [`MAX_POOL`], a width past
-/// [`MAX_FACE_W`] or a short ring take [`reference()`] (same result, slower).
+/// [`MAX_FACE_W`] or a short ring take [`reference()`] (same result, slower). `lut` is the
+/// frame's fitted grey levels ([`crate::light::LightFit::table`]).
+#[allow(clippy::too_many_arguments)]
 pub fn pooled_one_sided(
     frame: &[u8],
     pred: &[u16],
+    lut: &[u16; 256],
     thr: &[u16],
     mask: &mut [u8],
     ring: &mut [i32],
@@ -384,7 +392,7 @@ pub fn pooled_one_sided(
     let h = n / w;
     let slots = 2 * r + 1;
     if r == 0 || pool > MAX_POOL || w <= 2 * r || ring.len() < slots * w {
-        let count = reference(&frame[..n], &pred[..n], &thr[..n], &mut mask[..n], w, pool);
+        let count = reference(&frame[..n], &pred[..n], lut, &thr[..n], &mut mask[..n], w, pool);
         for (y, c) in row_counts.iter_mut().enumerate().take(h) {
             *c = mask[y * w..y * w + w].iter().filter(|&&m| m != 0).count() as u16;
         }
@@ -406,6 +414,7 @@ pub fn pooled_one_sided(
         r: r as u32,
         rows: 0,
         prime: 1,
+        lut: lut.as_ptr(),
     };
     // Both calls below: every pointer is at a row inside the slices checked above (h rows of
     // w, slots rows of w in the ring, ZERO_ROW's w), `cols` has PAD columns either side of w,
@@ -420,6 +429,8 @@ pub fn pooled_one_sided(
     }
     job.prime = 0;
     let zero = ZERO_ROW.as_ptr();
+    // Past the bottom: frame 0 against a prediction of v(0), an error of zero.
+    let below = [lut[0]; MAX_FACE_W];
     // Row y + r comes in; its slot, (y + r) mod slots, held row y - r - 1.
     let (mut slot, mut count) = (r, 0u32);
     for y in 0..h {
@@ -427,7 +438,7 @@ pub fn pooled_one_sided(
         (job.frame, job.pred) = if yin < h {
             (fp.wrapping_add(yin * w), pp.wrapping_add(yin * w))
         } else {
-            (zero as *const u8, zero)
+            (zero as *const u8, below.as_ptr())
         };
         job.ring = rp.wrapping_add(slot * w);
         job.thr = tp.wrapping_add(y * w);
@@ -446,7 +457,7 @@ pub fn pooled_one_sided(
 
 /// The same mask written out plainly: each pixel's clipped window summed, `|s| > T k`.
 #[inline(never)]
-pub fn reference(frame: &[u8], pred: &[u16], thr: &[u16], mask: &mut [u8], w: usize, pool: u8) -> u32 {
+pub fn reference(frame: &[u8], pred: &[u16], lut: &[u16; 256], thr: &[u16], mask: &mut [u8], w: usize, pool: u8) -> u32 {
     if w == 0 || pool > MAX_POOL {
         return 0;
     }
@@ -459,7 +470,7 @@ pub fn reference(frame: &[u8], pred: &[u16], thr: &[u16], mask: &mut [u8], w: us
             for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
                 for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
                     let i = yy * w + xx;
-                    s += ((frame[i] as i64) << 8) - pred[i] as i64;
+                    s += lut[frame[i] as usize] as i64 - pred[i] as i64;
                     k += 1;
                 }
             }
@@ -496,13 +507,23 @@ mod tests {
                             _ => rng.gen_range(0..24_000),
                         })
                         .collect();
+                    // Half the faces through a random photometric fit, half unfitted.
+                    let mut lut = crate::light::IDENTITY_TABLE;
+                    if rng.gen_bool(0.5) {
+                        let fit = crate::light::LightFit {
+                            gain: rng.gen_range(20_000..200_000),
+                            offset: rng.gen_range(-3_000_000..3_000_000),
+                            ..crate::light::LightFit::IDENTITY
+                        };
+                        fit.table(&mut lut);
+                    }
                     let mut want = vec![0u8; n];
-                    let count = reference(&frame, &pred, &thr, &mut want, w, pool);
+                    let count = reference(&frame, &pred, &lut, &thr, &mut want, w, pool);
                     // Leftovers from another frame in the mask and the ring change nothing.
                     let mut mask = vec![9u8; n];
                     let mut ring = vec![-5i32; 7 * w];
                     let mut rows = [0u16; 16];
-                    let got = pooled_one_sided(&frame, &pred, &thr, &mut mask, &mut ring, w, pool, &mut rows);
+                    let got = pooled_one_sided(&frame, &pred, &lut, &thr, &mut mask, &mut ring, w, pool, &mut rows);
                     assert_eq!(mask, want, "{w} x {h}, pool {pool}");
                     assert_eq!(got, count);
                     for y in 0..h {
@@ -516,6 +537,8 @@ mod tests {
 
     /// Salient exactly when the window mean exceeds `T` (not rounded); a saturated `T` never
     /// fires, not even at the largest error a u16 prediction allows.
+    const ID: [u16; 256] = crate::light::IDENTITY_TABLE;
+
     #[test]
     fn the_test_is_the_window_mean() {
         // 3 x 3 face, radius 1, every frame pixel 10 grey, prediction 0: the mean is 2560 (Q8.8).
@@ -523,21 +546,21 @@ mod tests {
         let pred = [0u16; 9];
         for (t, salient) in [(2559u16, true), (2560, false)] {
             let mut mask = [0u8; 9];
-            reference(&frame, &pred, &[t; 9], &mut mask, 3, 1);
+            reference(&frame, &pred, &ID, &[t; 9], &mut mask, 3, 1);
             assert_eq!(mask, [salient as u8; 9], "T = {t}");
         }
         // One Q8.8 step over 9 pixels: a mean of 1/9 exceeds T = 0, not T = 1.
         let mut pred = [0u16; 9];
         pred[4] = 1;
         let mut mask = [7u8; 9];
-        assert_eq!(reference(&[0; 9], &pred, &[0; 9], &mut mask, 3, 1), 9);
-        assert_eq!(reference(&[0; 9], &pred, &[1; 9], &mut mask, 3, 1), 0);
+        assert_eq!(reference(&[0; 9], &pred, &ID, &[0; 9], &mut mask, 3, 1), 9);
+        assert_eq!(reference(&[0; 9], &pred, &ID, &[1; 9], &mut mask, 3, 1), 0);
         let frame = [0u8; 25];
         let mut mask = [0u8; 25];
         let mut ring = [0i32; 25];
         let mut rows = [0u16; 5];
-        assert_eq!(pooled_one_sided(&frame, &[u16::MAX; 25], &[u16::MAX; 25], &mut mask, &mut ring, 5, 2, &mut rows), 0);
-        assert_eq!(pooled_one_sided(&frame, &[65280; 25], &[65279; 25], &mut mask, &mut ring, 5, 2, &mut rows), 25);
+        assert_eq!(pooled_one_sided(&frame, &[u16::MAX; 25], &ID, &[u16::MAX; 25], &mut mask, &mut ring, 5, 2, &mut rows), 0);
+        assert_eq!(pooled_one_sided(&frame, &[65280; 25], &ID, &[65279; 25], &mut mask, &mut ring, 5, 2, &mut rows), 25);
     }
 
     /// The table is `mu + t sigma` rounded down (within one Q8.8 step of the exact value, give

@@ -39,8 +39,9 @@ pub enum SourceConfig {
     Folder(PathBuf),
     /// The sim's renderer for `robot`: `count` frames (`None`: for ever) at the head pose last
     /// given with [`FrameSource::head_moved`] (home at first), each with fresh camera noise; a
-    /// random mark from frame `mark_from` on (`None`: never).
-    Sim { robot: Robot, count: Option<usize>, seed: u64, mark_from: Option<usize> },
+    /// random mark from frame `mark_from` on (`None`: never); lit as `light` plans, the frames
+    /// 100 ms apart.
+    Sim { robot: Robot, count: Option<usize>, seed: u64, mark_from: Option<usize>, light: msr_sim::light::LightPlan },
     /// A YUV4MPEG2 stream on standard input.
     Y4mStdin,
     /// A V4L2 camera, e.g. `/dev/video0` (needs the `v4l` feature).
@@ -84,8 +85,8 @@ impl Default for SourceOptions {
 pub fn open(cfg: &SourceConfig, opts: &SourceOptions) -> Result<Frames> {
     let inner: Box<dyn FrameSource> = match cfg {
         SourceConfig::Folder(dir) => Box::new(FolderSource::open(dir)?),
-        SourceConfig::Sim { robot, count, seed, mark_from } => {
-            Box::new(SimSource::new(*robot, *count, *seed, *mark_from))
+        SourceConfig::Sim { robot, count, seed, mark_from, light } => {
+            Box::new(SimSource::new(*robot, *count, *seed, *mark_from).with_light(*light))
         }
         SourceConfig::Y4mStdin => {
             Box::new(y4m::Y4mSource::spawn(std::io::stdin(), "stdin", opts.timeout))
@@ -208,9 +209,23 @@ pub struct SimSource {
     mark_from: usize,
     count: Option<usize>,
     next: usize,
+    light: msr_sim::light::LightSchedule,
 }
 
+/// Simulated time between two frames of the sim source, for its light.
+const SIM_FRAME_US: u64 = 100_000;
+
 impl SimSource {
+    /// This source lit as `plan` says over its frames (600 frames for an endless one).
+    pub fn with_light(mut self, plan: msr_sim::light::LightPlan) -> SimSource {
+        use rand::{Rng, SeedableRng};
+        let frames = self.count.unwrap_or(600).max(1) as u64;
+        // Drawn from the source's seed, apart from its noise.
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(self.rng.clone().gen::<u64>() ^ 0x119E_7002);
+        self.light = msr_sim::light::LightSchedule::new(plan, frames * SIM_FRAME_US, &mut rng);
+        self
+    }
+
     pub fn new(robot: Robot, count: Option<usize>, seed: u64, mark_from: Option<usize>) -> SimSource {
         use rand::SeedableRng;
         let renderer = msr_sim::render::Renderer::new(robot);
@@ -232,6 +247,7 @@ impl SimSource {
             mark_from: mark_from.unwrap_or(usize::MAX),
             count,
             next: 0,
+            light: msr_sim::light::LightSchedule::new(msr_sim::light::LightPlan::Fixed, 1, &mut rand_chacha::ChaCha8Rng::seed_from_u64(0)),
         }
     }
 }
@@ -244,8 +260,10 @@ impl FrameSource for SimSource {
         }
         self.next += 1;
         let m = self.mark.as_ref().filter(|_| i >= self.mark_from);
-        let var = msr_sim::render::Variation::random(&mut self.rng);
+        let light = self.light.at(i as u64 * SIM_FRAME_US);
+        let var = msr_sim::render::Variation::random(&mut self.rng).lit(light);
         let r = self.renderer.render(&self.pose, m, &var);
+        self.light.observed(&r.rgb);
         let name = format!(
             "sim-{i:03}{}",
             m.map_or(String::new(), |m| format!(" ({} {})", m.colour, m.kind))

@@ -37,6 +37,9 @@ pub struct Args {
     /// mirror-test --scene delayed`)
     #[arg(long, value_enum, default_value_t = Scene::Mirror)]
     pub scene: Scene,
+    /// How the frames are lit: fixed (the calibrated light) or varied (a light per frame)
+    #[arg(long, value_enum, default_value_t = super::light::DatasetLight::Fixed)]
+    pub light: super::light::DatasetLight,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -57,6 +60,7 @@ pub fn run(args: Args) -> Result<()> {
         reach_pairs: args.reach_pairs,
         unmarked_test_fraction: args.unmarked_test_fraction,
         scene,
+        light: args.light.into(),
     };
     // The folder before the banner: an --out that cannot be made is the one line said.
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create --out {}", args.out.display()))?;

@@ -55,6 +55,11 @@ pub struct Args {
     /// Only rewrite index.html from an earlier run's report.json, model.msrm and dataset in --out
     #[arg(long)]
     pub html_only: bool,
+    /// How the dataset is lit: varied-train (a light per training frame, so that the error
+    /// statistics cover what the photometric fit leaves; test frames under the fixed light),
+    /// fixed, varied, lamp
+    #[arg(long, value_enum, default_value_t = super::light::DatasetLight::VariedTrain)]
+    pub light: super::light::DatasetLight,
 }
 
 impl Args {
@@ -72,7 +77,8 @@ impl Args {
             .with_gate_trials(self.gate_trials)
             .with_pool(self.pool)
             .with_pose_bins(self.pose_bins)
-            .with_self_gate(!self.no_self_gate);
+            .with_self_gate(!self.no_self_gate)
+            .with_light(self.light.into());
         c.real = self.real.clone();
         c
     }

@@ -18,10 +18,14 @@ pub struct Args {
     /// Print JSON instead of markdown
     #[arg(long)]
     pub json: bool,
+    /// Multiply every test face by this exposure factor first (0.05..=20; rounded, clipped to
+    /// 0..=255): detection under a camera exposure the model was not calibrated at
+    #[arg(long, default_value_t = 1.0)]
+    pub exposure: f32,
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let report = eval::evaluate_with(&args.model, &args.data, args.manifest.as_deref())?;
+    let report = eval::evaluate_lit(&args.model, &args.data, args.manifest.as_deref(), args.exposure)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {

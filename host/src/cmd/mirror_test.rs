@@ -27,6 +27,10 @@ pub struct Args {
     /// (marks on its face), or the mirror image through a video delay of 0.3-2 s
     #[arg(long, value_enum, default_value_t = Scene::Mirror)]
     pub scene: Scene,
+    /// How the light changes over each trial: fixed, drift (exposure ramps), step (a lamp
+    /// switches), auto-exposure (the camera's own gain loop)
+    #[arg(long, value_enum, default_value_t = super::light::RunLight::Fixed)]
+    pub light: super::light::RunLight,
     /// The self gate: as the model blob has it, off (the paper's behaviour), or on (calibrated
     /// now for --robot), to compare the same model with and without it
     #[arg(long, value_enum, default_value_t = GateArg::Model)]
@@ -107,6 +111,7 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     c.no_mark_share = a.no_mark_share;
     c.servo_bus = a.servo_bus;
     c.scene = a.scene;
+    c.light = a.light.into();
     c.log_bus = a.bus_log.is_some();
     if a.bus_log.is_some() && a.backend != Backend::Inproc {
         return Err(super::usage("--bus-log needs --backend inproc"));

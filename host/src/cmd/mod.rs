@@ -19,6 +19,7 @@ pub mod template;
 pub mod line_noise;
 pub mod status;
 pub mod import_bag;
+pub mod light;
 
 use self::run as run_board;
 use anyhow::Result;

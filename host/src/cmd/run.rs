@@ -42,6 +42,9 @@ pub struct Args {
     /// Frames to render with --sim
     #[arg(long, default_value_t = 10)]
     pub count: usize,
+    /// How the light changes over the --sim frames (10 a second of sim time)
+    #[arg(long, value_enum, default_value_t = super::light::RunLight::Fixed, requires = "sim")]
+    pub light: super::light::RunLight,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Frames per second (0.1..=1000)
@@ -75,7 +78,7 @@ pub fn sim_frames(robot: Robot, count: usize, seed: u64) -> Vec<(String, GrayIma
 
 /// `msr run --sim`'s source: at home, a random mark from the 4th frame on.
 pub fn sim_source(robot: Robot, count: usize, seed: u64) -> SourceConfig {
-    SourceConfig::Sim { robot, count: Some(count), seed, mark_from: Some(3) }
+    SourceConfig::Sim { robot, count: Some(count), seed, mark_from: Some(3), light: Default::default() }
 }
 
 fn collect(cfg: &SourceConfig) -> Result<Vec<(String, GrayImage)>> {
@@ -91,7 +94,11 @@ fn collect(cfg: &SourceConfig) -> Result<Vec<(String, GrayImage)>> {
 pub fn describe(m: &BoardToHost) -> String {
     match m {
         BoardToHost::Detection(d) => {
-            let blob = d.blob.map_or("no mark".to_string(), |b| {
+            let none = match d.reason {
+                Some(r) => format!("no detection: {r:?}"),
+                None => "no mark".to_string(),
+            };
+            let blob = d.blob.map_or(none, |b| {
                 format!("mark at ({:.1}, {:.1}), {} px, box {:?}", b.centroid[0], b.centroid[1], b.area, b.box_xyxy)
             });
             let reach = match (d.confirmed, d.reach) {
@@ -103,7 +110,8 @@ pub fn describe(m: &BoardToHost) -> String {
         BoardToHost::Error { code, detail } => format!("error {code:?} (detail {detail})"),
         BoardToHost::Status(s) => format!(
             "status: {:?}, model crc {:08x}, {} frames, {} detections, {} reaches, host link {} CRC errors / {} resyncs, \
-             servo bus {} CRC errors / {} resyncs, watchdog trips face {} servo {}, clamped targets {}",
+             servo bus {} CRC errors / {} resyncs, watchdog trips face {} servo {}, clamped targets {}, \
+             frames refused NoFace {} SceneChanged {}",
             s.mode,
             s.model_crc,
             s.frames,
@@ -115,7 +123,9 @@ pub fn describe(m: &BoardToHost) -> String {
             s.servo_link.resyncs(),
             s.face_watchdog_trips,
             s.servo_watchdog_trips,
-            s.clamped_targets
+            s.clamped_targets,
+            s.no_face,
+            s.scene_changed
         ),
         BoardToHost::ModelAccepted { crc32 } => format!("model accepted, crc {crc32:08x}"),
         BoardToHost::Pong { nonce } => format!("pong {nonce}"),
@@ -175,7 +185,10 @@ pub fn run(a: Args) -> Result<()> {
     let source = match (&a.frames, &a.camera, a.sim) {
         (Some(p), _, _) => SourceConfig::frames_arg(p),
         (None, Some(dev), _) => SourceConfig::Camera(dev.clone()),
-        (None, None, Some(robot)) => sim_source(robot, a.count, a.seed),
+        (None, None, Some(robot)) => match sim_source(robot, a.count, a.seed) {
+            SourceConfig::Sim { robot, count, seed, mark_from, .. } => SourceConfig::Sim { robot, count, seed, mark_from, light: a.light.into() },
+            other => other,
+        },
         (None, None, None) => return Err(super::usage("give --frames DIR|-, --camera DEV or --sim red|skin")),
     };
     let opts = SourceOptions {

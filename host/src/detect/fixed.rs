@@ -60,5 +60,6 @@ pub fn detect_with(
         mask,
         blob: det.blob.map(|b| Blob::from(&b).offset(c.x, c.y)),
         joints: det.reach,
+        light: det.light,
     })
 }

@@ -134,6 +134,18 @@ pub fn to_json(d: &Detection) -> String {
         crop: CropBox,
         blob: Option<crate::detect::pipeline::Blob>,
         joints: Option<Joints>,
+        /// Why nothing can be detected in this frame: "NoFace", "SceneChanged", or null.
+        reason: Option<&'static str>,
+        /// The photometric fit: the prediction's grey per observed grey, and the offset.
+        light: Light,
+    }
+    #[derive(serde::Serialize)]
+    struct Light {
+        gain: f32,
+        offset: f32,
+        correlation: f32,
+        samples: u16,
+        inliers: u16,
     }
     #[derive(serde::Serialize)]
     #[allow(non_snake_case)]
@@ -154,13 +166,43 @@ pub fn to_json(d: &Detection) -> String {
             LShoulderRoll: j[3],
             LElbowRoll: j[4],
         }),
+        reason: reason(d),
+        light: Light {
+            gain: d.light.gain_f32(),
+            offset: d.light.offset_grey(),
+            correlation: d.light.correlation_milli as f32 / 1000.0,
+            samples: d.light.samples,
+            inliers: d.light.inliers,
+        },
     };
     // Plain structs and finite floats: serialising cannot fail.
     serde_json::to_string(&out).unwrap_or_default()
 }
 
+/// Why a frame yields no detection whatever it shows: `NoFace` (the crop does not follow the
+/// predicted face: black, white, covered, someone else), `SceneChanged` (a light the fit cannot
+/// explain, or one that changed while the frame was taken); `None` when the face was seen.
+pub fn reason(d: &Detection) -> Option<&'static str> {
+    use crate::detect::pipeline::Verdict;
+    match d.light.verdict {
+        Verdict::Face => None,
+        Verdict::NoFace => Some("NoFace"),
+        Verdict::SceneChanged => Some("SceneChanged"),
+    }
+}
+
 pub fn readable(d: &Detection) -> String {
     let c = d.crop;
+    if let Some(r) = reason(d) {
+        return format!(
+            "no detection: {r} (crop at ({}, {}); light fit gain {:.2}, offset {:.1}, correlation {:.2})",
+            c.x,
+            c.y,
+            d.light.gain_f32(),
+            d.light.offset_grey(),
+            d.light.correlation_milli as f32 / 1000.0
+        );
+    }
     let mut s = format!("face at ({}, {}) {}x{}: ", c.x, c.y, c.width, c.height);
     match d.blob {
         None => s += "no mark",

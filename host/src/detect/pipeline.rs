@@ -5,6 +5,7 @@ use crate::data::crop::CropBox;
 pub use crate::detect::blobs::Blob;
 use msr_shared::blob::{Normalisation, PoseGrid, PoseRegion, Reach, Sided, REACH_HIDDEN, REACH_OUT};
 use num_traits::Float;
+pub use msr_firmware::light::{LightFit, Verdict};
 
 /// Novelty settings of one evaluation row or one detection: the firmware's own type, and its
 /// [`Settings::in_region`] is the one rule for "the settings at this head pose".
@@ -47,12 +48,35 @@ pub fn saliency<T: Float>(
         .collect()
 }
 
-/// The error of a face against its prediction, grey levels: `e = |I - 255 I_hat|` with `I` in
-/// grey levels and `I_hat` (the prediction) in 0..1, pooled over the model's window
-/// ([`pooled_error`]; `pool` 0: per pixel). `w` is the face's width.
+/// The error of a face against its prediction, grey levels: `e = |v(I) - 255 I_hat|` with `I`
+/// in grey levels, `v` the frame's photometric fit ([`light_fit`]) and `I_hat` (the
+/// prediction) in 0..1, pooled over the model's window ([`pooled_error`]; `pool` 0: per pixel).
+/// `w` is the face's width.
 pub fn face_error(face: &[u8], predicted: &[f32], w: usize, pool: u8) -> Vec<f32> {
-    let signed: Vec<f32> = face.iter().zip(predicted).map(|(&i, &p)| i as f32 - 255.0 * p).collect();
-    pooled_error(&signed, w, pool)
+    face_error_fitted(face, predicted, w, pool).0
+}
+
+/// [`face_error`] and the fit it used.
+pub fn face_error_fitted(face: &[u8], predicted: &[f32], w: usize, pool: u8) -> (Vec<f32>, LightFit) {
+    let fit = light_fit(face, predicted, w);
+    let v = fitted_values(&fit);
+    let signed: Vec<f32> = face.iter().zip(predicted).map(|(&i, &p)| v[i as usize] - 255.0 * p).collect();
+    (pooled_error(&signed, w, pool), fit)
+}
+
+/// The photometric fit of a face to a prediction in 0..1: the board's fit
+/// ([`msr_firmware::light::fit`]) on the prediction in Q8.8, as the board holds it. The one
+/// definition the float engine, calibration and evaluation share with the board.
+pub fn light_fit(face: &[u8], predicted: &[f32], w: usize) -> LightFit {
+    let q: Vec<u16> = predicted.iter().map(|&p| (p * 65280.0).round().clamp(0.0, 65535.0) as u16).collect();
+    msr_firmware::light::fit(face, &q, w)
+}
+
+/// `v(I)` of a fit in grey levels, for each grey level `I` (the board's table over 256).
+pub fn fitted_values(fit: &LightFit) -> [f32; 256] {
+    let mut t = [0u16; 256];
+    fit.table(&mut t);
+    t.map(|v| v as f32 / 256.0)
 }
 
 /// `|mean of the signed error over the (2 pool + 1)^2 window|`, the window clipped at the
@@ -97,6 +121,8 @@ pub struct Detection {
     pub blob: Option<Blob>,
     /// HeadYaw, HeadPitch, LShoulderPitch, LShoulderRoll, LElbowRoll (radians).
     pub joints: Option<[f32; REACH_OUT]>,
+    /// The frame's photometric fit; a verdict other than [`Verdict::Face`] detects nothing.
+    pub light: LightFit,
 }
 
 /// The reach network in float: mark position in full-frame pixels -> 5 joint angles.
@@ -173,8 +199,10 @@ impl FloatEngine {
     pub fn detect(&self, crop: CropBox, face: &[u8], predicted: Vec<f32>, head: [f32; 2]) -> Detection {
         let s = &self.settings_at(head);
         let (mu, sigma) = self.stats_at(head);
-        let saliency = saliency(face_error(face, &predicted, self.face_w, self.pool), mu, sigma, 0.0, s.normalisation, s.sided);
-        let mask: Vec<bool> = saliency.iter().map(|&v| v > s.threshold).collect();
+        let (e, light) = face_error_fitted(face, &predicted, self.face_w, self.pool);
+        let saliency = saliency(e, mu, sigma, 0.0, s.normalisation, s.sided);
+        let face_seen = light.verdict == Verdict::Face;
+        let mask: Vec<bool> = saliency.iter().map(|&v| face_seen && v > s.threshold).collect();
         let h = mask.len() / self.face_w.max(1);
         // A face the labeller refuses (none the blob format allows) finds nothing.
         let blob = crate::detect::blobs::pick(&mask, self.face_w, h, s.min_area, s.merge)
@@ -200,6 +228,7 @@ impl FloatEngine {
             mask,
             blob,
             joints,
+            light,
         }
     }
 }
@@ -218,12 +247,14 @@ mod tests {
         let eng = FloatEngine { mu: vec![0.0; w * h], sigma: vec![1.0; w * h], settings: own, region: Some(region), reach: None, face_w: w, pool: 0, pose: None };
         assert_eq!(eng.settings_at([0.005, -0.005]), Settings { threshold: 1.5, merge: region.merge, ..own });
         assert_eq!(eng.settings_at([0.0, 0.02]), own);
-        // A 2 x 2 patch 3 grey levels off the prediction: salient at 1.5, not at 4.0.
-        let mut face = vec![100u8; w * h];
+        // A 2 x 2 patch 3 grey levels off the prediction: salient at 1.5, not at 4.0. (A
+        // shaded face: a flat one shows the photometric fit no face.)
+        let shade = |i: usize| (60 + 12 * (i % w) + 7 * (i / w)) as u8;
+        let mut face: Vec<u8> = (0..w * h).map(shade).collect();
         for (y, x) in [(2, 3), (2, 4), (3, 3), (3, 4)] {
-            face[y * w + x] = 103;
+            face[y * w + x] += 3;
         }
-        let pred = vec![100.0 / 255.0; w * h];
+        let pred: Vec<f32> = (0..w * h).map(|i| shade(i) as f32 / 255.0).collect();
         let crop = CropBox { x: 0, y: 0, width: w as u32, height: h as u32 };
         assert_eq!(eng.detect(crop, &face, pred.clone(), [0.0, 0.0]).blob.map(|b| b.area), Some(4));
         assert_eq!(eng.detect(crop, &face, pred, [0.0, 0.02]).blob, None);

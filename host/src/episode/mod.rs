@@ -35,6 +35,7 @@ use msr_shared::msg::{BoardToHost, Config, Detection, GateDecision, GateReport, 
 pub use scene::Scene;
 use scene::SceneState;
 use msr_sim::body::BodyPose;
+use msr_sim::light::{Light, LightPlan, LightSchedule};
 use msr_sim::link::{FaultConfig, LinkEnd};
 use msr_sim::render::{Renderer, Variation};
 use msr_sim::world::{self, Flow, World, WorldConfig};
@@ -145,6 +146,8 @@ pub struct EpisodeConfig {
     pub pace: Option<f64>,
     /// Log each trial for `--mcap` (its model draws the saliency image).
     pub mcap: Option<crate::rosbag::session::LogModel>,
+    /// How the light changes over each trial (`msr mirror-test --light`).
+    pub light: LightPlan,
 }
 
 impl EpisodeConfig {
@@ -167,6 +170,7 @@ impl EpisodeConfig {
                 .min(4),
             pace: None,
             mcap: None,
+            light: LightPlan::Fixed,
         }
     }
 
@@ -314,6 +318,12 @@ pub struct Trial {
     /// The trial as ROS 2 messages, when [`EpisodeConfig::mcap`].
     #[serde(skip)]
     pub log: Option<crate::rosbag::session::SessionLog>,
+    /// Frames the board answered with no detection because the photometric fit refused them
+    /// (`NoFace`, `SceneChanged`).
+    #[serde(default)]
+    pub no_face_frames: u32,
+    #[serde(default)]
+    pub scene_changed_frames: u32,
 }
 
 /// The summary `msr mirror-test --json` prints, exactly these keys.
@@ -351,6 +361,11 @@ pub struct Summary {
     pub retransmissions: u64,
     /// Face frames given up unfinished for a newer one.
     pub frames_superseded: u64,
+    /// Frames refused by the photometric fit, over all trials: `NoFace`, `SceneChanged`.
+    #[serde(default)]
+    pub no_face_frames: u64,
+    #[serde(default)]
+    pub scene_changed_frames: u64,
 }
 
 pub fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -406,6 +421,8 @@ pub fn summarise(backend: Backend, robot: Robot, bus: ServoBus, trials: &[Trial]
         },
         retransmissions: trials.iter().map(|t| t.link.chunks_resent).sum(),
         frames_superseded: trials.iter().map(|t| t.link.superseded as u64).sum(),
+        no_face_frames: sum(|t| t.no_face_frames),
+        scene_changed_frames: sum(|t| t.scene_changed_frames),
     }
 }
 
@@ -433,8 +450,9 @@ impl Camera<'_> {
         pose: &BodyPose,
         mark: Option<&msr_sim::marks::Mark>,
         rng: &mut ChaCha8Rng,
+        light: Light,
     ) -> Result<(GrayImage, crop::Face)> {
-        let var = Variation::random(rng);
+        let var = Variation::random(rng).lit(light);
         let r = self.renderer.render(pose, mark, &var);
         let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb));
         let face = self.cropper.crop(&grey)?;
@@ -449,8 +467,9 @@ impl Camera<'_> {
         seen: &BodyPose,
         mark: Option<&msr_sim::marks::Mark>,
         rng: &mut ChaCha8Rng,
+        light: Light,
     ) -> Result<(GrayImage, crop::Face)> {
-        let var = Variation::random(rng);
+        let var = Variation::random(rng).lit(light);
         let full = [0, 0, msr_sim::body::WIDTH, msr_sim::body::HEIGHT];
         let r = self.renderer.render_seen(camera, seen, mark, &var, full);
         let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb));
@@ -501,6 +520,8 @@ struct Scenario<'a> {
     /// Frames sent while the mark was on the face.
     frames_with_mark: usize,
     log: Option<crate::rosbag::session::SessionLog>,
+    /// The trial's light (and the camera's gain loop).
+    light: LightSchedule,
 }
 
 impl Scenario<'_> {
@@ -536,6 +557,11 @@ impl Scenario<'_> {
                     }
                     if d.blob.is_some() {
                         self.trial.detections += 1;
+                    }
+                    match d.reason {
+                        Some(msr_shared::msg::NoDetection::NoFace) => self.trial.no_face_frames += 1,
+                        Some(msr_shared::msg::NoDetection::SceneChanged) => self.trial.scene_changed_frames += 1,
+                        None => {}
                     }
                     if d.confirmed {
                         self.last_reach_frame = Some(d.frame);
@@ -582,13 +608,15 @@ impl Scenario<'_> {
         };
         if now >= self.next_frame_us && ready {
             let (grey, face, with_mark) = if self.scene.scene == Scene::Mirror {
-                let (grey, face) = self.camera.shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng)?;
+                let (grey, face) = self.camera.shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng, self.light.at(now))?;
+                self.light.observed_grey(&grey);
                 (grey, face, self.mark.is_some())
             } else {
                 let v = self.scene.view(now, &w.body_pose());
                 // A delayed picture shows the mark once it had appeared by then.
                 let mark = self.mark.as_ref().filter(|_| v.as_of_us >= self.cfg.mark_at_us);
-                let (grey, face) = self.camera.shoot_seen(v.camera, &v.seen, mark, &mut self.rng)?;
+                let (grey, face) = self.camera.shoot_seen(v.camera, &v.seen, mark, &mut self.rng, self.light.at(now))?;
+                self.light.observed_grey(&grey);
                 (grey, face, mark.is_some())
             };
             let logged = self.log.is_some().then(|| face.clone());
@@ -844,6 +872,10 @@ pub fn run_trial_with<F: world::Firmware>(
     scene_rng.set_stream(2);
     let scene = SceneState::new(cfg.scene, scene_rng);
     let (delay_us, babbles) = (scene.delay_us, scene.babbles);
+    // On a stream of its own: the fixed light's trials keep their draws.
+    let mut light_rng = ChaCha8Rng::seed_from_u64(seed);
+    light_rng.set_stream(3);
+    let light = LightSchedule::new(cfg.light, cfg.mark_at_us + cfg.watch_us, &mut light_rng);
     let mut sc = Scenario {
         cfg,
         camera,
@@ -872,6 +904,7 @@ pub fn run_trial_with<F: world::Firmware>(
         detections: Vec::new(),
         frames_with_mark: 0,
         log: cfg.mcap.as_ref().map(|m| crate::rosbag::session::SessionLog::with_saliency(&m.0)),
+        light,
     };
     let wcfg = cfg.world(seed);
     let (w, report) = world::run(

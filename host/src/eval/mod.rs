@@ -81,6 +81,26 @@ pub fn evaluate(blob_path: &Path, data: &Path) -> Result<Report> {
 
 /// [`evaluate`], with the float decoder taken from a published manifest when one is given.
 pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> Result<Report> {
+    evaluate_lit(blob_path, data, manifest, 1.0)
+}
+
+/// Multiplies each grey level by `exposure` (rounded, clipped to 0..=255): a camera's exposure
+/// change after the crop was found.
+pub fn expose(grey: &mut [u8], exposure: f32) {
+    if exposure != 1.0 {
+        for g in grey {
+            *g = (*g as f32 * exposure).round().clamp(0.0, 255.0) as u8;
+        }
+    }
+}
+
+/// [`evaluate_with`], every test face multiplied by `exposure` first ([`expose`]; 1: as
+/// recorded).
+pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, exposure: f32) -> Result<Report> {
+    ensure!(
+        exposure.is_finite() && (0.05..=20.0).contains(&exposure),
+        "exposure must be in 0.05..=20, got {exposure}"
+    );
     let bytes = read_blob(blob_path)?;
     let model = parse_blob(&bytes, blob_path)?;
     let published = match manifest {
@@ -93,8 +113,11 @@ pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> 
     let mut published = published;
     // Crop as the host would for this model.
     let crop = crate::detect::crop_mode_of(&model);
-    let ds = Dataset::load_split(data, Some(Split::Test), crop)
+    let mut ds = Dataset::load_split(data, Some(Split::Test), crop)
         .with_context(|| format!("cannot load dataset {}", data.display()))?;
+    for s in &mut ds.samples {
+        expose(&mut s.face.grey, exposure);
+    }
     let test: Vec<&Sample> = ds.split(Split::Test).collect();
     ensure!(
         !test.is_empty(),

@@ -123,10 +123,14 @@ pub fn error_stats_by_pose<'a>(
     Ok(PoseErrorStats { grid, mu, sigma, frames })
 }
 
-/// `e = |255 (I - I_hat)|` per pixel, or pooled over the model's window
-/// ([`crate::detect::pipeline::pooled_error`]); `w` is the face's width.
+/// `e = |v(I) - 255 I_hat|` per pixel, or pooled over the model's window
+/// ([`crate::detect::pipeline::pooled_error`]); `w` is the face's width; `v` is the frame's
+/// photometric fit ([`pipeline::light_fit`], the board's), so that the statistics measure what
+/// the fit leaves. `observed` is grey/255 (whole grey levels).
 pub fn error_map(observed: &[f32], predicted: &[f32], w: usize, pool: u8) -> Vec<f64> {
-    let signed: Vec<f64> = observed.iter().zip(predicted).map(|(&i, &p)| 255.0 * (i as f64 - p as f64)).collect();
+    let grey: Vec<u8> = observed.iter().map(|&i| (i * 255.0).round().clamp(0.0, 255.0) as u8).collect();
+    let v = pipeline::fitted_values(&pipeline::light_fit(&grey, predicted, w));
+    let signed: Vec<f64> = grey.iter().zip(predicted).map(|(&i, &p)| v[i as usize] as f64 - 255.0 * p as f64).collect();
     pipeline::pooled_error(&signed, w, pool)
 }
 

@@ -262,11 +262,16 @@ fn render_and_crop(
     };
     let mut rng = ChaCha8Rng::seed_from_u64(seed ^ salt);
     let mut out = Vec::with_capacity(normal + marked);
+    // Each frame under a light of its own (a stream apart, so the other draws stay): the
+    // policy holds over the lights the photometric fit must absorb.
+    let mut light_rng = ChaCha8Rng::seed_from_u64(seed ^ salt);
+    light_rng.set_stream(1);
     for i in 0..normal + marked {
         let head = poses.draw(&mut rng);
         let pose = BodyPose::head(head[0] as f64, head[1] as f64);
         let mark = (i >= normal).then(|| msr_sim::dataset::render_marked(&renderer, &pose, &Variation::CLEAN, &mut rng).0);
-        let r = renderer.render(&pose, mark.as_ref(), &Variation::random(&mut rng));
+        let var = Variation::random(&mut rng).lit(msr_sim::light::Light::varied(&mut light_rng));
+        let r = renderer.render(&pose, mark.as_ref(), &var);
         let grey = crate::data::crop::to_grey(&image::DynamicImage::ImageRgb8(r.rgb));
         let face = cropper.crop(&grey)?;
         let mark_box = r.mark.filter(|m| m.pixels > 0).map(|m| {

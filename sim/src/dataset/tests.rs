@@ -183,3 +183,50 @@ fn the_other_scene_keeps_the_mirror_draws_and_shows_a_face_that_does_not_follow(
     write_dataset(&DatasetConfig { scene: DatasetScene::Other, ..cfg }, again.path()).unwrap();
     assert_eq!(files(o.path()), files(again.path()));
 }
+
+/// FNV-1a 64 over every file of a dataset (names and bytes): a digest that does not depend
+/// on the Rust version.
+fn digest(dir: &Path) -> u64 {
+    let mut h = 0xcbf2_9ce4_8422_2325u64;
+    for (name, bytes) in files(dir) {
+        for b in name.bytes().chain(bytes) {
+            h = (h ^ b as u64).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+    h
+}
+
+/// The fixed light gives the bytes the renderer gave before light was part of the world
+/// (digests computed on main 624fbb0, before `light` existed).
+#[test]
+fn fixed_light_datasets_keep_their_bytes() {
+    for (robot, want) in [(Robot::Red, FIXED_RED), (Robot::Skin, FIXED_SKIN)] {
+        let d = tempfile::tempdir().unwrap();
+        write_dataset(&DatasetConfig { count: 10, reach_pairs: 2, ..DatasetConfig::paper(robot, 11) }, d.path()).unwrap();
+        assert_eq!(digest(d.path()), want, "{robot:?}: {:#x}", digest(d.path()));
+    }
+}
+const FIXED_RED: u64 = 0xe431_256e_5864_c53b;
+const FIXED_SKIN: u64 = 0xaf4a_48a5_e4bd_8b92;
+
+/// A varied-light dataset keeps the fixed one's poses, split and marks, and its frames differ
+/// in brightness by up to about a third.
+#[test]
+fn varied_light_keeps_the_draws_and_changes_the_brightness() {
+    let (a, b) = (tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap());
+    let cfg = DatasetConfig { count: 12, reach_pairs: 0, ..DatasetConfig::paper(Robot::Red, 3) };
+    let fa = write_dataset(&cfg, a.path()).unwrap();
+    let fb = write_dataset(&DatasetConfig { light: LightMode::Varied, ..cfg }, b.path()).unwrap();
+    let mean = |d: &Path, f: &str| {
+        let g = image::open(d.join(f)).unwrap().to_luma8();
+        g.as_raw().iter().map(|&v| v as f64).sum::<f64>() / g.as_raw().len() as f64
+    };
+    let mut ratios = Vec::new();
+    for (x, y) in fa.frames.iter().zip(&fb.frames) {
+        assert_eq!((x.head_yaw, x.head_pitch, x.split), (y.head_yaw, y.head_pitch, y.split));
+        assert_eq!(x.mark.as_ref().map(|m| &m.shape), y.mark.as_ref().map(|m| &m.shape));
+        ratios.push(mean(b.path(), &y.file) / mean(a.path(), &x.file));
+    }
+    let (lo, hi) = ratios.iter().fold((f64::MAX, 0f64), |(l, h), &r| (l.min(r), h.max(r)));
+    assert!(lo < 0.9 && hi > 1.1 && lo > 0.4, "{ratios:?}");
+}

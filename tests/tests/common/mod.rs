@@ -118,7 +118,7 @@ impl Pc<'_> {
     pub fn send_frame(&mut self, w: &mut World, mark: Option<&msr_sim::marks::Mark>) {
         let (_, face) = self
             .camera
-            .shoot(&w.body_pose(), mark, &mut self.rng)
+            .shoot(&w.body_pose(), mark, &mut self.rng, msr_sim::light::Light::FIXED)
             .unwrap();
         let bytes = self.port.encode_face(face.crop.origin(), face.crop.size(), &face.grey).unwrap();
         w.host.send(&bytes);

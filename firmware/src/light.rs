@@ -1,0 +1,344 @@
+//! The photometric fit: the observed face brought to the prediction's light before the error
+//! statistics are applied, and the frames the model cannot explain refused.
+//!
+//! Per frame, on a grid of sample pixels ([`STEP_X`] x [`STEP_Y`], pixels at 0 or 255 left out:
+//! they say nothing about the light), a straight line `P = g I + k` is fitted from the observed
+//! grey `I` to the predicted face `P` (Q8.8) by least squares, then twice again on the samples
+//! whose residual is within 2.5 RMS of the line before ([`TRIM_X4`], at least [`MIN_CUT_Q88`]):
+//! a mark, a highlight or the arm cannot pull the last fit (one trimming left a dark mark's
+//! pull on the slope at 4 %: its samples sit at the end of the grey range, where they tilt the
+//! first line towards themselves). The saliency then compares
+//! `v(I) = clamp(g I + k, 0, 65535)` (Q8.8, a 256-entry table, [`LightFit::table`]) with the
+//! prediction in place of `I << 8`. The identity fit ([`LightFit::IDENTITY`]) is `I << 8`.
+//!
+//! The same fit decides whether the frame shows the face in a light the model explains:
+//! [`Verdict::NoFace`] when the samples do not follow the prediction (their correlation under
+//! [`MIN_CORRELATION`], or no contrast at all: black, white, covered, an empty room);
+//! [`Verdict::SceneChanged`] when the fit is out of bounds (gain outside [`GAIN_RANGE`], fewer
+//! than [`MIN_INLIER_SHARE`] of the samples explained) or the top and bottom halves of the face
+//! disagree by more than [`MAX_HALF_SPLIT`] (a lamp switching while the frame was read out).
+//!
+//! Everything is integer arithmetic but one correlation test in `f32` (IEEE operations,
+//! correctly rounded on both targets): host and `thumbv7em` agree bit for bit.
+
+use msr_shared::blob::{MAX_FACE_H, MAX_FACE_W};
+
+/// Sample grid: every `STEP_X`-th column of every `STEP_Y`-th row, starting half a step in
+/// (208 samples of a 75 x 58 face); a face small enough takes every pixel, or every second or
+/// third, as long as the samples fit in [`MAX_SAMPLES`].
+pub const STEP_X: usize = 6;
+/// See [`STEP_X`].
+pub const STEP_Y: usize = 5;
+/// Most samples a face gives.
+pub const MAX_SAMPLES: usize = 256;
+const _: () = assert!(MAX_FACE_W.div_ceil(STEP_X) * MAX_FACE_H.div_ceil(STEP_Y) <= MAX_SAMPLES);
+
+/// The sample grid's steps for a `w` x `h` face: the finest that fits [`MAX_SAMPLES`].
+pub fn steps(w: usize, h: usize) -> (usize, usize) {
+    for s in 1..=3 {
+        if w.div_ceil(s) * h.div_ceil(s) <= MAX_SAMPLES {
+            return (s, s);
+        }
+    }
+    (STEP_X, STEP_Y)
+}
+/// Samples within this many RMS of the fit before (x 4: 10 = 2.5) make the next fit.
+pub const TRIM_X4: u64 = 10;
+/// The trimming cut is at least this, Q8.8 (4 grey levels): a frame that the first fit
+/// explains to the noise keeps its samples.
+pub const MIN_CUT_Q88: u64 = 4 * 256;
+/// The fitted gain's bounds (the prediction's grey per observed grey).
+pub const GAIN_RANGE: [f32; 2] = [0.4, 2.5];
+/// Least share of usable samples the second fit keeps, in 1/256 (150/256 = 0.59).
+pub const MIN_INLIER_SHARE: u32 = 150;
+/// Least correlation between observed and predicted samples (of the kept ones).
+pub const MIN_CORRELATION: f32 = 0.6;
+/// Largest difference of the halves' mean residuals, as a share of the mean predicted grey,
+/// in 1/256 (41/256 = 0.16; at 0.10 one of the 15 published real frames, at its own light, was
+/// refused).
+pub const MAX_HALF_SPLIT: u32 = 41;
+/// Least usable samples for a fit.
+pub const MIN_SAMPLES: u32 = 16;
+
+/// Whether a frame shows the face in a light the model explains.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Verdict {
+    /// It does: the saliency runs on the fitted frame.
+    Face,
+    /// The samples do not follow the predicted face (black, white, covered, someone else).
+    NoFace,
+    /// The light is outside the fit's bounds, or changed while the frame was taken.
+    SceneChanged,
+}
+
+/// One frame's fit: `v(I) = clamp((gain I + offset + 128) >> 8, 0, 65535)`, Q8.8.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LightFit {
+    /// Q8.8 of the prediction per observed grey level, x 256 (65536 = unit gain).
+    pub gain: i32,
+    /// Q8.8 x 256.
+    pub offset: i32,
+    /// Usable samples (not 0 or 255), and how many the second fit kept.
+    pub samples: u16,
+    /// See [`LightFit::samples`].
+    pub inliers: u16,
+    /// Correlation of the kept samples with the prediction, x 1000 (0 when undefined).
+    pub correlation_milli: i16,
+    /// Whether the frame shows the face in a light the model explains.
+    pub verdict: Verdict,
+}
+
+impl LightFit {
+    /// `v(I) = I << 8`: the error as it was before the fit existed.
+    pub const IDENTITY: LightFit = LightFit {
+        gain: 65536,
+        offset: 0,
+        samples: 0,
+        inliers: 0,
+        correlation_milli: 1000,
+        verdict: Verdict::Face,
+    };
+
+    /// The gain as a number (1 = the prediction's light).
+    pub fn gain_f32(&self) -> f32 {
+        self.gain as f32 / 65536.0
+    }
+
+    /// The offset in grey levels.
+    pub fn offset_grey(&self) -> f32 {
+        self.offset as f32 / 65536.0
+    }
+
+    /// `v(i)` for one grey level. A clipped pixel (255) was at least as bright as the camera
+    /// shows: it maps to full scale (255 grey) at least, where a bright face is predicted, so
+    /// that a frame brighter than the prediction's light does not make its clipped highlights
+    /// darker than predicted.
+    pub fn value(&self, i: u8) -> u16 {
+        let v = (self.gain as i64 * i as i64 + self.offset as i64 + 128) >> 8;
+        let v = v.clamp(0, 65535) as u16;
+        if i == 255 { v.max(255 << 8) } else { v }
+    }
+
+    /// The 256-entry table of [`LightFit::value`].
+    pub fn table(&self, out: &mut [u16; 256]) {
+        // Stepping by the gain: exact, the same sums as `value` (no rounding until the shift).
+        let mut acc = self.offset as i64 + 128;
+        for o in out.iter_mut() {
+            *o = (acc >> 8).clamp(0, 65535) as u16;
+            acc += self.gain as i64;
+        }
+        out[255] = out[255].max(255 << 8);
+    }
+}
+
+/// The identity fit's table: `I << 8`.
+pub const IDENTITY_TABLE: [u16; 256] = {
+    let mut t = [0u16; 256];
+    let mut i = 0;
+    while i < 256 {
+        t[i] = (i as u16) << 8;
+        i += 1;
+    }
+    t
+};
+
+/// Least-squares sums over samples (x: observed grey, y: prediction Q8.8).
+#[derive(Clone, Copy, Default)]
+struct Sums {
+    n: u32,
+    x: u32,
+    y: u32,
+    xx: u32,
+    xy: u64,
+    yy: u64,
+}
+
+impl Sums {
+    #[inline(always)]
+    fn add(&mut self, x: u32, y: u32) {
+        self.n += 1;
+        self.x += x;
+        self.y += y;
+        self.xx += x * x;
+        self.xy += (x * y) as u64;
+        self.yy += y as u64 * y as u64;
+    }
+
+    fn plus(&self, o: &Sums) -> Sums {
+        Sums {
+            n: self.n + o.n,
+            x: self.x + o.x,
+            y: self.y + o.y,
+            xx: self.xx + o.xx,
+            xy: self.xy + o.xy,
+            yy: self.yy + o.yy,
+        }
+    }
+
+    /// `n Sxx - Sx^2`, `n Sxy - Sx Sy`, `n Syy - Sy^2`.
+    fn centred(&self) -> (i64, i64, i64) {
+        let n = self.n as i64;
+        let (x, y) = (self.x as i64, self.y as i64);
+        (
+            n * self.xx as i64 - x * x,
+            n * self.xy as i64 - x * y,
+            n * self.yy as i64 - y * y,
+        )
+    }
+
+    /// The line's (gain, offset) in [`LightFit`]'s units, or `None` without contrast: least
+    /// squares with the origin (black stays black) as a pseudo-sample of the samples' own
+    /// weight, which halves the offset's pull on the gain.
+    fn line(&self) -> Option<(i32, i32)> {
+        if self.n < 2 {
+            return None;
+        }
+        let anchored = Sums { n: 2 * self.n, ..*self };
+        let (dxx, dxy, _) = anchored.centred();
+        if dxx <= 0 {
+            return None;
+        }
+        let n = anchored.n;
+        // gain = 256 dxy / dxx (rounded to nearest), clamped to 16 x unit.
+        let g = div_round(dxy * 256, dxx).clamp(-(1 << 20), 1 << 20);
+        // offset = 256 (Sy - slope Sx) / n = (256 Sy - g Sx) / n.
+        let k = div_round(256 * self.y as i64 - g * self.x as i64, n as i64).clamp(-(1 << 28), 1 << 28);
+        Some((g as i32, k as i32))
+    }
+}
+
+/// `a / b` rounded to nearest (ties away from zero), `b > 0`.
+fn div_round(a: i64, b: i64) -> i64 {
+    if a >= 0 { (a + b / 2) / b } else { -((-a + b / 2) / b) }
+}
+
+/// Q8.8 residual of one sample against a line.
+#[inline(always)]
+fn residual(x: u32, y: u32, g: i32, k: i32) -> i32 {
+    y as i32 - ((g * x as i32 + k + 128) >> 8)
+}
+
+/// The samples a pass keeps: those within `cut2` (squared Q8.8) of the line `(g, k)`; their
+/// sums and squared residuals.
+#[inline(always)]
+fn kept(xs: &[u8], ys: &[u16], g: i32, k: i32, cut2: u32) -> (Sums, u64) {
+    let (mut s, mut sse) = (Sums::default(), 0u64);
+    for (&x, &y) in xs.iter().zip(ys) {
+        let r = residual(x as u32, y as u32, g, k).unsigned_abs().min(65535);
+        let r2 = r * r;
+        if r2 <= cut2 {
+            s.add(x as u32, y as u32);
+            sse += r2 as u64;
+        }
+    }
+    (s, sse)
+}
+
+/// The squared cut ([`TRIM_X4`] times the RMS, at least [`MIN_CUT_Q88`]) for a sum of squared
+/// residuals `sse` over `n` samples, saturating.
+fn cut_of(sse: u64, n: u32) -> u32 {
+    let c = sse.saturating_mul(TRIM_X4 * TRIM_X4) / (16 * n.max(1) as u64);
+    c.max(MIN_CUT_Q88 * MIN_CUT_Q88).min(u32::MAX as u64) as u32
+}
+
+/// Fits the light of `frame` (grey, `w` wide) to `pred` (Q8.8, same size) and judges it:
+/// a least-squares line on every usable sample, then twice on the samples within the cut of
+/// the line before (the cut from those samples' residuals), the last time with the top and
+/// bottom halves of the face apart. Faces smaller than the sample grid needs, or without
+/// enough usable samples, are [`Verdict::NoFace`].
+pub fn fit(frame: &[u8], pred: &[u16], w: usize) -> LightFit {
+    let mut xs = [0u8; MAX_SAMPLES];
+    let mut ys = [0u16; MAX_SAMPLES];
+    let no_face = LightFit { verdict: Verdict::NoFace, correlation_milli: 0, ..LightFit::IDENTITY };
+    if w == 0 || w > MAX_FACE_W {
+        return no_face;
+    }
+    let h = (frame.len().min(pred.len()) / w).min(MAX_FACE_H);
+    let (step_x, step_y) = steps(w, h);
+    // Gather, and the first fit. `half`: the first sample of the bottom half's rows.
+    let (mut n, mut half) = (0usize, None);
+    let mut all = Sums::default();
+    let mut y = step_y / 2;
+    while y < h {
+        if half.is_none() && y >= h / 2 {
+            half = Some(n);
+        }
+        let (Some(fr), Some(pr)) = (frame.get(y * w..y * w + w), pred.get(y * w..y * w + w)) else { break };
+        let mut x = step_x / 2;
+        while x < w {
+            let i = fr[x];
+            if i != 0 && i != 255 && n < MAX_SAMPLES {
+                xs[n] = i;
+                ys[n] = pr[x];
+                all.add(i as u32, pr[x] as u32);
+                n += 1;
+            }
+            x += step_x;
+        }
+        y += step_y;
+    }
+    let half = half.unwrap_or(n);
+    let samples = n as u16;
+    let no_face = LightFit { samples, ..no_face };
+    if (n as u32) < MIN_SAMPLES {
+        return no_face;
+    }
+    let (xs, ys) = (&xs[..n], &ys[..n]);
+    let Some((g0, k0)) = all.line() else { return no_face };
+    let (_, sse0) = kept(xs, ys, g0, k0, u32::MAX);
+    let (s1, sse1) = kept(xs, ys, g0, k0, cut_of(sse0, n as u32));
+    let Some((g1, k1)) = s1.line() else { return no_face };
+    let cut2 = cut_of(sse1, s1.n);
+    let halves = [kept(&xs[..half], &ys[..half], g1, k1, cut2).0, kept(&xs[half..], &ys[half..], g1, k1, cut2).0];
+    let kept = halves[0].plus(&halves[1]);
+    let Some((gain, offset)) = kept.line() else { return no_face };
+    let (dxx, dxy, dyy) = kept.centred();
+    let corr = if dxx > 0 && dyy > 0 {
+        let (a, b, c) = (dxy as f32, dxx as f32, dyy as f32);
+        // libm on both targets: the same bits as the board.
+        a / libm::sqrtf(b * c)
+    } else {
+        0.0
+    };
+    let mut out = LightFit {
+        gain,
+        offset,
+        samples,
+        inliers: kept.n as u16,
+        correlation_milli: (corr * 1000.0) as i16,
+        verdict: Verdict::Face,
+    };
+    let gf = out.gain_f32();
+    out.verdict = if !(corr >= MIN_CORRELATION) {
+        Verdict::NoFace
+    } else if !(GAIN_RANGE[0]..=GAIN_RANGE[1]).contains(&gf)
+        || kept.n * 256 < MIN_INLIER_SHARE * n as u32
+        || halves_split(&halves, gain, offset) > MAX_HALF_SPLIT as i64
+    {
+        Verdict::SceneChanged
+    } else {
+        Verdict::Face
+    };
+    out
+}
+
+/// How far apart the halves' mean residuals under the fit are, in 1/256 of the mean predicted
+/// grey: what a lamp switching between the top and the bottom rows leaves.
+fn halves_split(h: &[Sums; 2], g: i32, k: i32) -> i64 {
+    // Mean residual of a half, Q8.8 x 256: (256 Sy - g Sx - k n) / n.
+    let mean_r = |s: &Sums| {
+        if s.n == 0 {
+            return 0;
+        }
+        div_round(256 * s.y as i64 - g as i64 * s.x as i64 - k as i64 * s.n as i64, s.n as i64)
+    };
+    let all = h[0].plus(&h[1]);
+    if all.n == 0 || h[0].n == 0 || h[1].n == 0 || all.y == 0 {
+        return 0;
+    }
+    let mean_y = div_round(256 * all.y as i64, all.n as i64).max(1);
+    (mean_r(&h[0]) - mean_r(&h[1])).abs() * 256 / mean_y
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,54 @@
+//! `--light` on the commands that render sim frames: the command-line names of the sim's light
+//! settings (`msr_sim::light`).
+use msr_sim::light::{LightMode, LightPlan};
+
+/// How a dataset's frames are lit.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DatasetLight {
+    /// The calibrated light: the same bytes as before light was part of the sim
+    #[default]
+    Fixed,
+    /// A light of its own per frame: exposure +-30 %, key lamp 0.55..1.45 and turned a little,
+    /// ambient 0.4..0.5, colour temperature 5000..6500 K
+    Varied,
+    /// Varied on the training split, fixed on the test split (what `msr demo` trains on)
+    VariedTrain,
+    /// Every frame with a lamp switched on or off (the key lamp 25..45 % stronger or weaker)
+    Lamp,
+}
+
+impl From<DatasetLight> for LightMode {
+    fn from(l: DatasetLight) -> LightMode {
+        match l {
+            DatasetLight::Fixed => LightMode::Fixed,
+            DatasetLight::Varied => LightMode::Varied,
+            DatasetLight::VariedTrain => LightMode::VariedTrain,
+            DatasetLight::Lamp => LightMode::Lamp,
+        }
+    }
+}
+
+/// How the light changes over a run of frames.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum RunLight {
+    /// The calibrated light throughout
+    #[default]
+    Fixed,
+    /// The exposure ramps by 10..30 % up or down over the trial
+    Drift,
+    /// A lamp switches on or off at a random moment: the key light jumps by 25..45 %
+    Step,
+    /// The room 0.65..1.5 times as bright; the camera's own gain loop follows with a lag
+    AutoExposure,
+}
+
+impl From<RunLight> for LightPlan {
+    fn from(l: RunLight) -> LightPlan {
+        match l {
+            RunLight::Fixed => LightPlan::Fixed,
+            RunLight::Drift => LightPlan::Drift,
+            RunLight::Step => LightPlan::Step,
+            RunLight::AutoExposure => LightPlan::AutoExposure,
+        }
+    }
+}
