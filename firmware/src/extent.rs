@@ -38,7 +38,7 @@ pub fn mark_spread(frame: &[u8], pred: &[u16], lut: &[u16; 256], thr: &[u16], ma
             for i in x..end {
                 if m[i] != 0 {
                     left -= 1;
-                    let e = lut[f[i] as usize] as i32 - p[i] as i32;
+                    let e = crate::light::error(lut, f[i], p[i]);
                     if e.unsigned_abs() > t[i] as u32 {
                         kept += 1;
                     } else {

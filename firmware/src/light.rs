@@ -9,7 +9,8 @@
 //! pull on the slope at 4 %: its samples sit at the end of the grey range, where they tilt the
 //! first line towards themselves). The saliency then compares
 //! `v(I) = clamp(g I + k, 0, 65535)` (Q8.8, a 256-entry table, [`LightFit::table`]) with the
-//! prediction in place of `I << 8`. The identity fit ([`LightFit::IDENTITY`]) is `I << 8`.
+//! prediction in place of `I << 8`, the error censored where the camera clipped ([`error`]).
+//! The identity fit ([`LightFit::IDENTITY`]) is `I << 8`.
 //!
 //! The same fit decides whether the frame shows the face in a light the model explains:
 //! [`Verdict::NoFace`] when the samples do not follow the prediction (their correlation under
@@ -109,14 +110,10 @@ impl LightFit {
         self.offset as f32 / 65536.0
     }
 
-    /// `v(i)` for one grey level. A clipped pixel (255) was at least as bright as the camera
-    /// shows: it maps to full scale (255 grey) at least, where a bright face is predicted, so
-    /// that a frame brighter than the prediction's light does not make its clipped highlights
-    /// darker than predicted.
+    /// `v(i)` for one grey level.
     pub fn value(&self, i: u8) -> u16 {
         let v = (self.gain as i64 * i as i64 + self.offset as i64 + 128) >> 8;
-        let v = v.clamp(0, 65535) as u16;
-        if i == 255 { v.max(255 << 8) } else { v }
+        v.clamp(0, 65535) as u16
     }
 
     /// The 256-entry table of [`LightFit::value`].
@@ -127,8 +124,44 @@ impl LightFit {
             *o = (acc >> 8).clamp(0, 65535) as u16;
             acc += self.gain as i64;
         }
-        out[255] = out[255].max(255 << 8);
     }
+}
+
+/// The signed error of one pixel, Q8.8: `v(f) - p`, censored where the camera clipped. A pixel
+/// at 255 was at least as bright as `v(255)`, so it differs from the prediction only by how far
+/// `v(255)` is above it (`max(v(255) - p, 0)`); a pixel at 0 only by how far `v(0)` is below
+/// (`min(v(0) - p, 0)`). Without this, a brighter exposure (the red robot's bright face clips
+/// at x1.2) made every clipped highlight look darker than predicted, and every unmarked frame
+/// fired. Every saliency path takes its error from here or from [`censor_row`].
+#[inline(always)]
+pub fn error(lut: &[u16; 256], f: u8, p: u16) -> i32 {
+    let e = lut[f as usize] as i32 - p as i32;
+    match f {
+        255 => e.max(0),
+        0 => e.min(0),
+        _ => e,
+    }
+}
+
+/// For the row routines, which compute `lut[f] - p` and nothing else: when `frame`'s row has a
+/// clipped pixel, writes to `out` the prediction with which that difference is [`error`]
+/// (`min(p, v(255))` under a 255, `max(p, v(0))` under a 0) and returns `true`; `false` (and
+/// `out` untouched) when nothing in the row is clipped.
+#[inline]
+pub fn censor_row(frame: &[u8], pred: &[u16], lut: &[u16; 256], out: &mut [u16]) -> bool {
+    // 0 and 255 are the two bytes that 1 added makes at most 1.
+    if !frame.iter().any(|&f| f.wrapping_add(1) <= 1) {
+        return false;
+    }
+    let (hi, lo) = (lut[255], lut[0]);
+    for ((o, &f), &p) in out.iter_mut().zip(frame).zip(pred) {
+        *o = match f {
+            255 => p.min(hi),
+            0 => p.max(lo),
+            _ => p,
+        };
+    }
+    true
 }
 
 /// The identity fit's table: `I << 8`.

@@ -349,10 +349,10 @@ fn mid<T>(s: &[T], a: usize, b: usize) -> &[T] {
 }
 
 /// The signed error of one pixel, Q8.8 grey levels: the fitted frame `v(f)` minus the
-/// prediction.
+/// prediction, censored where clipped ([`crate::light::error`]).
 #[inline(always)]
 fn err(lut: &[u16; 256], f: u8, p: u16) -> i32 {
-    lut[f as usize] as i32 - p as i32
+    crate::light::error(lut, f, p)
 }
 
 /// Whether `floor(a / k)` (the pooled error) is salient against `mu` and `t` (Q8.8), in u32:

@@ -126,7 +126,8 @@ impl LightMode {
     pub fn draw<R: Rng>(self, train: bool, rng: &mut R) -> Option<Light> {
         match (self, train) {
             (LightMode::Fixed, _) | (LightMode::VariedTrain, false) => None,
-            (LightMode::Varied, _) | (LightMode::VariedTrain, true) => Some(Light::varied(rng)),
+            (LightMode::Varied, _) => Some(Light::varied(rng)),
+            (LightMode::VariedTrain, true) => rng.gen_bool(0.5).then(|| Light::varied(rng)),
             (LightMode::Lamp, _) => Some(Light::lamp(rng)),
         }
     }

@@ -401,11 +401,11 @@ pub fn pooled_one_sided(
     let ring = &mut ring[..slots * w];
     ring.fill(0);
     let mut cols = [0i32; MAX_FACE_W + 2 * PAD];
-    let (fp, pp, rp) = (frame.as_ptr(), pred.as_ptr(), ring.as_mut_ptr());
+    let (fp, rp) = (frame.as_ptr(), ring.as_mut_ptr());
     let (tp, mp) = (thr.as_ptr(), mask.as_mut_ptr());
     let mut job = RowJob {
         frame: fp,
-        pred: pp,
+        pred: pred.as_ptr(),
         ring: rp,
         cols: cols[PAD..].as_mut_ptr(),
         thr: tp,
@@ -417,12 +417,14 @@ pub fn pooled_one_sided(
         lut: lut.as_ptr(),
     };
     // Both calls below: every pointer is at a row inside the slices checked above (h rows of
-    // w, slots rows of w in the ring, ZERO_ROW's w), `cols` has PAD columns either side of w,
+    // w, slots rows of w in the ring, ZERO_ROW's w, `censored`'s MAX_FACE_W >= w), `cols` has PAD columns either side of w,
     // 1 <= r <= MAX_POOL and w > 2 r: `run_row`'s contract.
     // Rows 0 .. r into the column sums and ring slots 0 .. r before the first output row.
+    // A row with clipped pixels reads its prediction censored ([`crate::light::censor_row`]).
+    let mut censored = [0u16; MAX_FACE_W];
     for y in 0..r.min(h) {
         job.frame = fp.wrapping_add(y * w);
-        job.pred = pp.wrapping_add(y * w);
+        job.pred = pred_row(frame, pred, lut, y, w, &mut censored);
         job.ring = rp.wrapping_add(y * w);
         // SAFETY: see above.
         unsafe { run_row(&job) };
@@ -436,7 +438,7 @@ pub fn pooled_one_sided(
     for y in 0..h {
         let yin = y + r;
         (job.frame, job.pred) = if yin < h {
-            (fp.wrapping_add(yin * w), pp.wrapping_add(yin * w))
+            (fp.wrapping_add(yin * w), pred_row(frame, pred, lut, yin, w, &mut censored))
         } else {
             (zero as *const u8, below.as_ptr())
         };
@@ -455,6 +457,17 @@ pub fn pooled_one_sided(
     count
 }
 
+/// Row `y` of the prediction, or its censored copy in `buf` when the frame's row is clipped.
+#[inline(always)]
+fn pred_row(frame: &[u8], pred: &[u16], lut: &[u16; 256], y: usize, w: usize, buf: &mut [u16; MAX_FACE_W]) -> *const u16 {
+    let (f, p) = (&frame[y * w..y * w + w], &pred[y * w..y * w + w]);
+    if crate::light::censor_row(f, p, lut, &mut buf[..w]) {
+        buf.as_ptr()
+    } else {
+        p.as_ptr()
+    }
+}
+
 /// The same mask written out plainly: each pixel's clipped window summed, `|s| > T k`.
 #[inline(never)]
 pub fn reference(frame: &[u8], pred: &[u16], lut: &[u16; 256], thr: &[u16], mask: &mut [u8], w: usize, pool: u8) -> u32 {
@@ -470,7 +483,7 @@ pub fn reference(frame: &[u8], pred: &[u16], lut: &[u16; 256], thr: &[u16], mask
             for yy in y.saturating_sub(r)..=(y + r).min(h - 1) {
                 for xx in x.saturating_sub(r)..=(x + r).min(w - 1) {
                     let i = yy * w + xx;
-                    s += lut[frame[i] as usize] as i64 - pred[i] as i64;
+                    s += crate::light::error(lut, frame[i], pred[i]) as i64;
                     k += 1;
                 }
             }

@@ -123,14 +123,14 @@ pub fn error_stats_by_pose<'a>(
     Ok(PoseErrorStats { grid, mu, sigma, frames })
 }
 
-/// `e = |v(I) - 255 I_hat|` per pixel, or pooled over the model's window
+/// `e = |v(I) - 255 I_hat|` per pixel (censored where clipped: [`pipeline::censored_error`]), or pooled over the model's window
 /// ([`crate::detect::pipeline::pooled_error`]); `w` is the face's width; `v` is the frame's
 /// photometric fit ([`pipeline::light_fit`], the board's), so that the statistics measure what
 /// the fit leaves. `observed` is grey/255 (whole grey levels).
 pub fn error_map(observed: &[f32], predicted: &[f32], w: usize, pool: u8) -> Vec<f64> {
     let grey: Vec<u8> = observed.iter().map(|&i| (i * 255.0).round().clamp(0.0, 255.0) as u8).collect();
     let v = pipeline::fitted_values(&pipeline::light_fit(&grey, predicted, w));
-    let signed: Vec<f64> = grey.iter().zip(predicted).map(|(&i, &p)| v[i as usize] as f64 - 255.0 * p as f64).collect();
+    let signed: Vec<f64> = grey.iter().zip(predicted).map(|(&i, &p)| pipeline::censored_error(&v, i, 255.0 * p as f64)).collect();
     pipeline::pooled_error(&signed, w, pool)
 }
 
@@ -342,8 +342,10 @@ mod tests {
     #[test]
     fn stats_by_hand() {
         // One pixel, errors 255*|0.1|, 255*|0.3|, 255*|0.2| = 25.5, 76.5, 51: mean 51, std (N-1) 25.5.
-        let obs = [[0.5f32], [0.5], [0.5]];
-        let pred = [[0.4f32], [0.8], [0.3]];
+        // The observed grey is a whole grey level (102 = 0.4 x 255), as a camera gives it; a
+        // single pixel is too few samples for a light fit, which leaves it as it is.
+        let obs = [[0.4f32], [0.4], [0.4]];
+        let pred = [[0.3f32], [0.7], [0.2]];
         let s = error_stats(1, 1, 0, obs.iter().zip(&pred).map(|(o, p)| (&o[..], &p[..]))).unwrap();
         assert!((s.mu[0] - 51.0).abs() < 1e-4, "{}", s.mu[0]);
         assert!((s.sigma[0] - 25.5).abs() < 1e-4, "{}", s.sigma[0]);
