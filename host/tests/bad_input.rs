@@ -367,8 +367,11 @@ fn run_refuses_frame_rates_and_line_rates_that_never_finish() {
 fn run_help_says_what_sim_takes() {
     let (code, out, _) = msr_code(&["run", "--help"]);
     assert_eq!(code, 0);
-    let line = out.lines().find(|l| l.contains("--sim")).unwrap();
-    assert!(line.contains("<ROBOT>") && line.contains("red or skin"), "{line}");
+    // The flag's line and its description (on the same line, or the next ones in clap's long
+    // layout) up to the next blank line.
+    let at = out.find("--sim <").unwrap();
+    let entry = out[at..].split("\n\n").next().unwrap();
+    assert!(entry.contains("<ROBOT>") && entry.contains("red or skin"), "{entry}");
 }
 
 #[test]
