@@ -118,3 +118,41 @@ fn odd_sizes_do_not_panic() {
     }
     assert_eq!(fit(&[], &[], W).verdict, Verdict::NoFace);
 }
+
+/// The word-at-a-time test agrees with the plain one on every position of a 0 or a 255 and on
+/// rows of every length, and finds nothing in rows of 1 ..= 254.
+#[test]
+fn any_clipped_finds_every_clipped_byte() {
+    for len in 0..20usize {
+        let quiet: Vec<u8> = (0..len).map(|i| [1u8, 254, 127, 128, 0x80, 0x7f, 0x01][i % 7]).collect();
+        assert!(!super::any_clipped(&quiet), "{quiet:?}");
+        for at in 0..len {
+            for v in [0u8, 255] {
+                let mut r = quiet.clone();
+                r[at] = v;
+                assert!(super::any_clipped(&r), "{r:?}");
+            }
+        }
+    }
+}
+
+/// The censored error: a clipped pixel differs from the prediction only past the fit's
+/// bound, and a row's censored prediction gives the same errors through `lut[f] - p`.
+#[test]
+fn clipped_pixels_are_censored() {
+    let fit = LightFit { gain: 52429, offset: 0, ..LightFit::IDENTITY }; // gain 0.8
+    let mut lut = [0u16; 256];
+    fit.table(&mut lut);
+    // v(255) = 204 grey: a prediction of 230 is consistent with a clipped pixel, 150 is not.
+    assert_eq!(super::error(&lut, 255, 230 << 8), 0);
+    assert_eq!(super::error(&lut, 255, 150 << 8), lut[255] as i32 - (150 << 8));
+    assert_eq!(super::error(&lut, 0, 20 << 8), -(20 << 8));
+    let frame = [255u8, 100, 0, 255];
+    let pred = [230u16 << 8, 90 << 8, 20 << 8, 150 << 8];
+    let mut out = [0u16; 4];
+    assert!(super::censor_row(&frame, &pred, &lut, &mut out));
+    for i in 0..4 {
+        assert_eq!(lut[frame[i] as usize] as i32 - out[i] as i32, super::error(&lut, frame[i], pred[i]), "{i}");
+    }
+    assert!(!super::censor_row(&[1, 2, 3], &pred[..3], &lut, &mut out));
+}
