@@ -64,8 +64,8 @@ pub struct DemoConfig {
     /// quantize`'s does; `false`: a confirmed mark is reached at once, as the paper.
     #[config(default = true)]
     pub self_gate: bool,
-    /// How the dataset is lit (`msr_sim::light::LightMode`): by default the training frames
-    /// each under a light of their own, the test frames under the fixed light.
+    /// How the dataset is lit (`msr_sim::light::LightMode`): by default half the training
+    /// frames each under a light of its own, the test frames under the fixed light.
     #[config(default = "msr_sim::light::LightMode::VariedTrain")]
     pub light: msr_sim::light::LightMode,
 }

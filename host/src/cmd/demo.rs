@@ -55,9 +55,9 @@ pub struct Args {
     /// Only rewrite index.html from an earlier run's report.json, model.msrm and dataset in --out
     #[arg(long)]
     pub html_only: bool,
-    /// How the dataset is lit: varied-train (a light per training frame, so that the error
-    /// statistics cover what the photometric fit leaves; test frames under the fixed light),
-    /// fixed, varied, lamp
+    /// How the dataset is lit: varied-train (half the training frames each under a light of
+    /// its own, so that the error statistics cover what the photometric fit leaves; test frames
+    /// under the fixed light), fixed, varied, lamp
     #[arg(long, value_enum, default_value_t = super::light::DatasetLight::VariedTrain)]
     pub light: super::light::DatasetLight,
 }

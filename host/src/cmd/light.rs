@@ -11,7 +11,7 @@ pub enum DatasetLight {
     /// A light of its own per frame: exposure +-30 %, key lamp 0.55..1.45 and turned a little,
     /// ambient 0.4..0.5, colour temperature 5000..6500 K
     Varied,
-    /// Varied on the training split, fixed on the test split (what `msr demo` trains on)
+    /// Half the training split varied, the test split fixed (what `msr demo` trains on)
     VariedTrain,
     /// Every frame with a lamp switched on or off (the key lamp 25..45 % stronger or weaker)
     Lamp,
