@@ -12,7 +12,7 @@ use crate::link::{
 use crate::model::{self, ModelStore, Upload, UploadError};
 use crate::motion::{HeadError, Motion, Phase, PERIOD_US};
 use crate::pipeline::{self, Workspace};
-use crate::saliency::Settings;
+use crate::saliency::{self, Settings};
 use crate::self_gate::{Gate, Step};
 use embedded_io::{Read, ReadReady, Write};
 use msr_shared::blob::{Merge, Model};
@@ -21,10 +21,13 @@ use msr_shared::joints::REACH_JOINTS;
 use msr_shared::msg::{
     BlobReport, BoardToHost, BoardToServo, Config, Detection, ErrorCode, FrameAck, FrameHeader,
     FrameState, HostToBoard, JointTarget, Mode, ServoBusKind, ServoBusReport,
-    GateUndecided, ModelSource, NoDetection, ServoToBoard, Status, StoreReport,
+    GateUndecided, ModelSource, NoDetection, RoomCommand, RoomReport, RoomState, ServoToBoard,
+    Status, StoreReport,
 };
 use crate::light::Verdict;
 
+/// The room's offsets ([`crate::room`]) are saved to the store this often while they change.
+pub const ROOM_SAVE_MS: u64 = 5 * 60 * 1000;
 /// Most bytes taken from one link per poll, so a flood cannot starve the control loop.
 pub const MAX_BYTES_PER_POLL: usize = 4096;
 /// Ask the servos for their state when none came for this long.
@@ -95,6 +98,13 @@ struct Core<S: ModelStore> {
     upload_ack_due: bool,
     /// `ModelCommit` came while the store was busy: it is carried out once it is done.
     commit_due: bool,
+    /// Board time the room's offsets were last saved (or loaded), ms; they are saved again
+    /// [`ROOM_SAVE_MS`] later if they changed.
+    room_saved_ms: u64,
+    /// The room's offsets changed since they were last saved.
+    room_unsaved: bool,
+    /// What `Status` says of the room (kept here: `status` does not see the workspace).
+    room: RoomReport,
 }
 
 /// The firmware. `S` holds the model blobs (see [`ModelStore`]).
@@ -145,6 +155,9 @@ impl<S: ModelStore> Board<S> {
                 head_move: None,
                 upload_ack_due: false,
                 commit_due: false,
+                room_saved_ms: 0,
+                room_unsaved: false,
+                room: RoomReport { state: RoomState::Off, frames: 0, updates: 0, largest_q88: 0, at_limit: 0 },
             },
         }
     }
@@ -310,7 +323,37 @@ impl<S: ModelStore> Core<S> {
             });
             self.settings = Some(Settings::of(&m));
         }
+        // What was learnt of the room belongs to the model it was learnt with.
+        ws.room.reset();
+        if let Some(l) = self.loaded {
+            if let Some(saved) = self.store.saved_stats(l.crc) {
+                ws.room.restore(saved);
+            }
+        }
+        self.room_saved_ms = self.last_poll_us / 1000;
+        self.room_unsaved = false;
+        self.room = ws.room.report(self.room_applies());
         self.confirm.reset();
+    }
+
+    /// Whether the running model's test takes the room's offsets.
+    fn room_applies(&self) -> bool {
+        match (self.settings, self.store.active().and_then(|b| Model::parse_trusted(b).ok())) {
+            (Some(s), Some(m)) => saliency::uses_room(&m, &s),
+            _ => false,
+        }
+    }
+
+    /// Saves the room's offsets for the running model; false if the store could not.
+    fn save_room(&mut self, ws: &Workspace, now_ms: u64) -> bool {
+        let Some(l) = self.loaded else { return false };
+        let mut bytes = [0u8; crate::room::SAVED_LEN];
+        ws.room.save(&mut bytes);
+        let ok = self.store.save_stats(l.crc, now_ms, &bytes);
+        // A store that keeps nothing (RAM) is not asked again at every frame.
+        self.room_saved_ms = now_ms;
+        self.room_unsaved &= !ok;
+        ok
     }
 
     fn mode(&self) -> Mode {
@@ -349,6 +392,7 @@ impl<S: ModelStore> Core<S> {
             frame_crc_errors: frame.crc_errors,
             no_face: self.no_face,
             scene_changed: self.scene_changed,
+            room: self.room,
         }
     }
 
@@ -479,11 +523,35 @@ impl<S: ModelStore> Core<S> {
             HostToBoard::MoveHead { yaw, pitch } => self.move_head(now_us, [yaw, pitch], host),
             HostToBoard::GetStore => self.store_report(now_us, host),
             HostToBoard::ResetStats => {
+                ws.room.reset();
+                self.room = ws.room.report(self.room_applies());
                 let crc = self.loaded.map_or(0, |l| l.crc);
                 if !self.store.reset_stats(crc) {
                     self.error(host, ErrorCode::StoreBusy, 0);
                 }
                 self.store_report(now_us, host);
+            }
+            HostToBoard::Room(cmd) => {
+                match cmd {
+                    RoomCommand::Freeze => ws.room.freeze(true),
+                    RoomCommand::Resume => ws.room.freeze(false),
+                    RoomCommand::Reset => {
+                        ws.room.reset();
+                        let crc = self.loaded.map_or(0, |l| l.crc);
+                        if self.store.saved_stats(crc).is_some() && !self.store.reset_stats(crc) {
+                            self.error(host, ErrorCode::StoreBusy, 0);
+                        }
+                    }
+                    RoomCommand::Save => {
+                        if !self.save_room(ws, now_us / 1000) {
+                            self.error(host, ErrorCode::StoreBusy, 0);
+                        }
+                        self.store_report(now_us, host);
+                        return;
+                    }
+                }
+                self.room = ws.room.report(self.room_applies());
+                self.status_pending = true;
             }
         }
     }
@@ -757,6 +825,24 @@ impl<S: ModelStore> Core<S> {
                     self.confirm.reset();
                 }
             }
+        }
+        // Online self-calibration, rule 1 of `crate::room`: only a face with nothing on it,
+        // no candidate being confirmed, observing with the head still.
+        if reason.is_none()
+            && det.blob.is_none()
+            && self.confirm.quiet()
+            && self.motion.phase() == Phase::Observe
+            && self.head_move.is_none()
+            && self.room.state == RoomState::Learning
+        {
+            if let Some(m) = self.store.active().and_then(|b| Model::parse_trusted(b).ok()) {
+                self.room_unsaved |= ws.learn(&m, pixels, now_us);
+                self.room = ws.room.report(true);
+            }
+        }
+        let now_ms = now_us / 1000;
+        if self.room_unsaved && now_ms.saturating_sub(self.room_saved_ms) >= ROOM_SAVE_MS {
+            self.save_room(ws, now_ms);
         }
         let blob = det.blob.zip(det.centroid).map(|(b, c)| BlobReport {
             area: b.area,

@@ -66,6 +66,11 @@ impl Confirm {
         self.history.count_ones() >= self.k as u32
     }
 
+    /// No frame of the window had a mark: no candidate is being confirmed.
+    pub fn quiet(&self) -> bool {
+        self.history == 0
+    }
+
     /// Forgets the window (after a reach, so the old mark does not trigger another at once).
     pub fn reset(&mut self) {
         self.history = 0;

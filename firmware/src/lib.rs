@@ -68,7 +68,9 @@
 //!
 //! # Stages (one module each)
 //! [`model`] validates and stages blobs; [`decoder`]; [`saliency`]; [`blobs`]; [`winner`];
-//! [`confirm`]; [`reach`]; [`motion`]; [`link`] (framing, reassembly, watchdogs); [`board`].
+//! [`confirm`]; [`reach`]; [`motion`]; [`link`] (framing, reassembly, watchdogs); [`board`];
+//! [`light`] (the per-frame photometric fit); [`room`] (online self-calibration: what the board
+//! learns of the room's light as it runs).
 //!
 //! # Memory
 //! [`Workspace`] (two `MAX_ACTIVATION_LEN` i16 activation buffers, the threshold table, the
@@ -121,6 +123,7 @@ pub mod model;
 pub mod motion;
 pub mod pipeline;
 pub mod reach;
+pub mod room;
 pub mod saliency;
 pub mod self_gate;
 pub mod store;

@@ -80,6 +80,17 @@ pub trait ModelStore {
         let _ = model_crc;
         true
     }
+    /// Saves statistics measured with model `model_crc` at board time `now_ms`, so that they
+    /// survive reset; `false` if they could not be saved now (or this store keeps nothing).
+    fn save_stats(&mut self, model_crc: u32, now_ms: u64, bytes: &[u8]) -> bool {
+        let _ = (model_crc, now_ms, bytes);
+        false
+    }
+    /// The newest statistics saved for model `model_crc`, if any.
+    fn saved_stats(&self, model_crc: u32) -> Option<&[u8]> {
+        let _ = model_crc;
+        None
+    }
 }
 
 /// Copies an upload chunk into a staging area: an offset that overflows is out of sequence, one

@@ -10,6 +10,7 @@ use crate::blobs::{Blob, FaceLabeller, Summary};
 use crate::decoder::{DecodeError, Decoder};
 use crate::light::{self, LightFit, Verdict};
 use crate::reach;
+use crate::room::Room;
 use crate::saliency::{self, Settings, Thresholds};
 use msr_shared::blob::{Model, Sided, MAX_FACE_H, REACH_OUT};
 
@@ -81,6 +82,9 @@ pub struct Workspace {
     /// Fit the light of each frame ([`light::fit`]; the default). Off: `v(I) = I << 8` and no
     /// frame refused, the error as the paper defines it (for comparisons).
     pub fit_light: bool,
+    /// What the board has learnt of the room's light ([`crate::room`]); the threshold table
+    /// takes it. [`Workspace::learn`] feeds it; a caller that never does keeps it at 0.
+    pub room: Room,
 }
 
 impl Default for Workspace {
@@ -101,6 +105,7 @@ impl Workspace {
             light: LightFit::IDENTITY,
             lut: light::IDENTITY_TABLE,
             fit_light: true,
+            room: Room::new(),
         }
     }
 
@@ -134,7 +139,7 @@ impl Workspace {
         if !s.is_valid() {
             return Err(DetectError::Settings);
         }
-        self.thresholds.prepare(model, s, self.head);
+        self.thresholds.prepare(model, s, self.head, &self.room);
         let (mu, _, _) = model.stats_at(self.head);
         let (face, mask) = self.decoder.face_and_scratch();
         let face = face.ok_or(DetectError::Decode(DecodeError::BadInput))?;
@@ -172,6 +177,20 @@ impl Workspace {
             }
             (_, Sided::Two) => saliency::pooled(crop, face, lut, mu, tn, s.sided, mask, w, pool),
         })
+    }
+
+    /// Online self-calibration ([`crate::room`], rules 2 and 3) from the last frame through
+    /// [`saliency`](Self::saliency), `crop`, taken at `now_us`: the caller has checked rule 1
+    /// (a face, no blob, no candidate, observing). Returns true when the offsets changed (the
+    /// next frame's threshold table is made again).
+    pub fn learn(&mut self, model: &Model, crop: &[u8], now_us: u64) -> bool {
+        if self.light.verdict != Verdict::Face || crop.len() != model.face_pixels() {
+            return false;
+        }
+        let (mu, _, _) = model.stats_at(self.head);
+        let (face, mask) = self.decoder.face_and_scratch();
+        let Some(face) = face else { return false };
+        self.room.learn(now_us, crop, face, &self.lut, mu, mask, model.face_w as usize)
     }
 
     /// The photometric fit of the last [`saliency`](Self::saliency) call.

@@ -782,6 +782,14 @@ impl<F: MappedFlash> ModelStore for FlashStore<F> {
     fn reset_stats(&mut self, model_crc: u32) -> bool {
         FlashStore::reset_stats(self, model_crc).is_ok()
     }
+
+    fn save_stats(&mut self, model_crc: u32, now_ms: u64, bytes: &[u8]) -> bool {
+        FlashStore::save_stats(self, model_crc, now_ms, bytes).is_ok()
+    }
+
+    fn saved_stats(&self, model_crc: u32) -> Option<&[u8]> {
+        self.load_stats(model_crc).map(|s| s.bytes)
+    }
 }
 
 /// Writes `data` at `at` in whole write units: a first or last partial unit is padded with

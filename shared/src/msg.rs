@@ -399,9 +399,52 @@ pub enum HostToBoard<'a> {
     MoveHead { yaw: f32, pitch: f32 },
     /// Asks for [`BoardToHost::Store`]: where the running model came from, the saved statistics.
     GetStore,
-    /// Back to the model's own statistics: the saved ones are dropped (in flash too); answered
-    /// by [`BoardToHost::Store`].
+    /// Back to the model's own statistics: the saved ones are dropped (in flash too), and what
+    /// the board learnt of the room ([`RoomCommand::Reset`]); answered by [`BoardToHost::Store`].
     ResetStats,
+    /// Controls the board's online self-calibration (what it learns of the room's light);
+    /// answered by [`BoardToHost::Status`], or by [`BoardToHost::Store`] for a save.
+    Room(RoomCommand),
+}
+
+/// What the host asks of the board's online self-calibration.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum RoomCommand {
+    /// Stop learning; what was learnt stays in use.
+    Freeze,
+    /// Learn again.
+    Resume,
+    /// Back to the model's calibrated statistics (offsets 0; the saved ones dropped too).
+    Reset,
+    /// Save what was learnt now (the board also saves every few minutes), in a store that
+    /// keeps it across reset; [`ErrorCode::StoreBusy`] when the store cannot take it now.
+    Save,
+}
+
+/// Whether the board is learning the room's light.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub enum RoomState {
+    /// Not used: no model, or its saliency test is not the pooled one-sided one.
+    Off,
+    /// Learning from frames without a detection.
+    Learning,
+    /// Stopped by the host; what was learnt stays in use.
+    Frozen,
+}
+
+/// The board's online self-calibration, in [`Status`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct RoomReport {
+    /// Learning, frozen or off.
+    pub state: RoomState,
+    /// Frames learnt from since the model was loaded (or the last reset).
+    pub frames: u32,
+    /// Updates of the offsets (one per batch of frames).
+    pub updates: u32,
+    /// The largest offset from the calibrated mean error, Q8.8 grey levels.
+    pub largest_q88: u16,
+    /// Cells whose offset is at the limit.
+    pub at_limit: u16,
 }
 
 /// Where the running model came from.
@@ -629,6 +672,8 @@ pub struct Status {
     pub no_face: u32,
     /// Frames refused as [`NoDetection::SceneChanged`].
     pub scene_changed: u32,
+    /// What the board has learnt of the room's light.
+    pub room: RoomReport,
 }
 
 /// Why the board refused something.
@@ -854,6 +899,13 @@ mod tests {
             frame_crc_errors: u32::MAX,
             no_face: u32::MAX,
             scene_changed: u32::MAX,
+            room: RoomReport {
+                state: RoomState::Frozen,
+                frames: u32::MAX,
+                updates: u32::MAX,
+                largest_q88: u16::MAX,
+                at_limit: u16::MAX,
+            },
         };
         let mut buf = [0u8; MAX_PAYLOAD];
         round_trip(&BoardToHost::Status(status), &mut buf);

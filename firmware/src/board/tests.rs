@@ -47,8 +47,8 @@ const STORE: usize = 32 * 1024;
 const FACE: (u16, u16) = (20, 24);
 
 /// A board, a host and a servo bus whose servos follow targets at once.
-struct Rig {
-    board: Box<Board<RamStore<STORE>>>,
+struct Rig<S: ModelStore = RamStore<STORE>> {
+    board: Box<Board<S>>,
     host: Pipe,
     servo: Pipe,
     now: u64,
@@ -67,8 +67,14 @@ struct Rig {
 
 impl Rig {
     fn new(builtin: Option<&'static [u8]>) -> Rig {
+        Rig::with_store(RamStore::new(builtin))
+    }
+}
+
+impl<S: ModelStore> Rig<S> {
+    fn with_store(store: S) -> Rig<S> {
         Rig {
-            board: Box::new(Board::new(RamStore::new(builtin))),
+            board: Box::new(Board::new(store)),
             host: Pipe::default(),
             servo: Pipe::default(),
             now: 1_000_000,
@@ -254,6 +260,17 @@ fn face(head: [f32; 2], mark: bool) -> Vec<u8> {
         }
     }
     f
+}
+
+/// As [`blob`], with the default test (pooled error, one-sided): the one that learns the room.
+fn pooled_blob() -> &'static [u8] {
+    static BLOB: std::sync::OnceLock<Vec<u8>> = std::sync::OnceLock::new();
+    BLOB.get_or_init(|| {
+        let mut s = mlp_spec(3, FACE.0, FACE.1);
+        s.novelty.pool = 2;
+        s.novelty.sided = msr_shared::blob::Sided::One;
+        s.to_bytes().unwrap()
+    })
 }
 
 fn head_answers(rig: &Rig) -> Vec<BoardToHost> {
@@ -850,6 +867,111 @@ proptest! {
         prop_assert!(!rig.targets.is_empty());
         prop_assert_eq!(rig.board.status().model_crc, Model::parse(blob()).unwrap().crc32);
     }
+}
+
+/// The room's report in the newest `Status` the board sent.
+fn last_room(replies: &[BoardToHost]) -> Option<RoomReport> {
+    replies.iter().rev().find_map(|r| match r {
+        BoardToHost::Status(s) => Some(s.room),
+        _ => None,
+    })
+}
+
+#[test]
+fn the_room_is_learnt_from_clean_frames_only_and_the_host_controls_it() {
+    let home = [HOME_POSTURE[0], HOME_POSTURE[1]];
+    // A two-sided model's test takes no offsets: off.
+    let mut rig = Rig::new(Some(blob()));
+    rig.run(100);
+    assert_eq!(rig.board.status().room.state, RoomState::Off);
+
+    let mut rig = Rig::new(Some(pooled_blob()));
+    rig.run(3000);
+    assert_eq!(rig.board.status().room.state, RoomState::Learning);
+    // Clean frames every 100 ms for 2 s: one learnt per 400 ms.
+    for i in 0..20 {
+        rig.frame(i, &face(home, false));
+        rig.run(100);
+    }
+    let learnt = rig.board.status().room.frames;
+    assert!((4..=6).contains(&learnt), "{learnt} frames learnt");
+    // A candidate in the confirmation window: nothing learnt while it is there.
+    for i in 20..22 {
+        rig.frame(i, &face(home, true));
+        rig.run(500);
+    }
+    assert!(rig.detections().iter().any(|d| d.blob.is_some()));
+    assert_eq!(rig.board.status().room.frames, learnt, "learnt from a frame with a mark");
+    // Freeze: a Status says so, and nothing more is learnt.
+    rig.host_send(&HostToBoard::Room(RoomCommand::Freeze));
+    rig.run(1);
+    assert_eq!(last_room(&rig.replies).map(|r| r.state), Some(RoomState::Frozen));
+    for i in 22..40 {
+        rig.frame(i, &face(home, false));
+        rig.run(250);
+    }
+    assert_eq!(rig.board.status().room.frames, learnt);
+    // Resume, then reset: back to nothing learnt, still learning.
+    rig.host_send(&HostToBoard::Room(RoomCommand::Resume));
+    rig.run(1);
+    for i in 40..60 {
+        rig.frame(i, &face(home, false));
+        rig.run(250);
+    }
+    let r = rig.board.status().room;
+    assert!(r.frames > learnt + 5 && r.updates >= 1, "{r:?}");
+    rig.host_send(&HostToBoard::Room(RoomCommand::Reset));
+    rig.run(1);
+    let r = last_room(&rig.replies).unwrap();
+    assert_eq!((r.state, r.frames, r.updates, r.largest_q88), (RoomState::Learning, 0, 0, 0));
+    // A RAM store keeps nothing: a save is refused as the store being unable.
+    rig.host_send(&HostToBoard::Room(RoomCommand::Save));
+    rig.run(1);
+    assert!(rig.errors().contains(&(ErrorCode::StoreBusy, 0)));
+    assert_eq!(rig.board.status().mode, Mode::Observe);
+}
+
+#[test]
+fn what_was_learnt_of_the_room_survives_a_reset_in_flash() {
+    use crate::store::emu::EmuFlash;
+    use crate::store::{FlashStore, F429_BANK2, F429_BANK_SECTORS};
+    let home = [HOME_POSTURE[0], HOME_POSTURE[1]];
+    let flash = EmuFlash::<Vec<u8>, 1>::new(vec![0xFF; F429_BANK2.len() as usize], &F429_BANK_SECTORS);
+    let mut rig = Rig::with_store(FlashStore::new(flash, F429_BANK2, Some(pooled_blob())));
+    rig.run(3000);
+    // Frames 2 grey levels brighter on the left than the model predicts.
+    let mut f = face(home, false);
+    for (i, p) in f.iter_mut().enumerate() {
+        if i % (FACE.1 as usize) < 12 {
+            *p = p.saturating_add(2);
+        }
+    }
+    for i in 0..200 {
+        rig.frame(i, &f);
+        rig.run(100);
+    }
+    let before = rig.board.status().room;
+    assert!(before.updates >= 5 && before.largest_q88 > 0, "{before:?}");
+    rig.host_send(&HostToBoard::Room(RoomCommand::Save));
+    rig.run(1);
+    let saved = rig.replies.iter().rev().find_map(|r| match r {
+        BoardToHost::Store(s) => Some(*s),
+        _ => None,
+    });
+    assert!(saved.and_then(|s| s.stats).is_some(), "{saved:?}");
+    // Power cycle: a new board on the same flash finds the offsets.
+    let flash = EmuFlash::<Vec<u8>, 1>::new(rig.board.store().flash().cells().clone(), &F429_BANK_SECTORS);
+    let mut again = Rig::with_store(FlashStore::new(flash, F429_BANK2, Some(pooled_blob())));
+    again.run(10);
+    let after = again.board.status().room;
+    assert_eq!(after.largest_q88, before.largest_q88, "{after:?}");
+    // Reset drops them, in flash too.
+    again.host_send(&HostToBoard::Room(RoomCommand::Reset));
+    again.run(10);
+    let flash = EmuFlash::<Vec<u8>, 1>::new(again.board.store().flash().cells().clone(), &F429_BANK_SECTORS);
+    let mut third = Rig::with_store(FlashStore::new(flash, F429_BANK2, Some(pooled_blob())));
+    third.run(10);
+    assert_eq!(third.board.status().room.largest_q88, 0);
 }
 
 #[test]

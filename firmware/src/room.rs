@@ -1,0 +1,250 @@
+//! Online self-calibration: what the board learns about the room's light while it runs.
+//!
+//! The per-frame fit ([`crate::light`]) takes back a gain and an offset. A lamp that turns or a
+//! light that warms also changes the face's shading: a smooth pattern of error that no gain and
+//! offset remove, and that statistics measured in the calibration room call salient. The board
+//! learns that pattern as it runs, as an offset to the model's mean error `mu`, one per cell of
+//! [`CELL`] x [`CELL`] pixels. The rules:
+//!
+//! 1. Learn only from a frame that shows the face (the fit's verdict is `Face`), has no blob and
+//!    no candidate in the confirmation window, in the observe posture with the head still (the
+//!    board decides and calls [`Room::learn`]), and at most one frame every [`MIN_GAP_US`].
+//! 2. Of such a frame, every second pixel of every second row that is neither salient nor in a
+//!    salient pixel's pooling window (the mask is not 0) nor clipped (0 or 255): its error
+//!    `v(I) - pred` less the model's `mu`, summed per cell. A mark's pixels are salient, so they
+//!    never teach the board that the mark belongs to the face.
+//! 3. After [`BATCH`] such frames, each cell with at least [`MIN_SAMPLES`] samples moves its
+//!    offset 1/2^[`RATE_SHIFT`] of the way to the batch's mean, and never further than
+//!    [`LIMIT`] from 0 (the calibrated statistics): a slow, bounded follower.
+//! 4. The offsets are added to the threshold table `mu + t sigma` of the default test (pooled,
+//!    one-sided; the other tests ignore them and report [`RoomState::Off`]).
+//! 5. Freeze stops rules 1-3 and keeps the offsets; reset returns them to 0. A new model starts
+//!    at 0, or at the offsets the store saved for it ([`Room::restore`]).
+//!
+//! Integers only, so the host and the board agree bit for bit. 96 cells: under 1 KiB of RAM.
+
+use msr_shared::blob::{U16Table, MAX_FACE_H, MAX_FACE_W};
+pub use msr_shared::msg::{RoomReport, RoomState};
+
+/// Side of a cell, pixels.
+pub const CELL: usize = 8;
+/// Cells across the widest face.
+pub const COLS: usize = MAX_FACE_W.div_ceil(CELL);
+/// Cells down the tallest face.
+pub const ROWS: usize = MAX_FACE_H.div_ceil(CELL);
+/// Cells in all.
+pub const CELLS: usize = COLS * ROWS;
+/// Least time between two frames learnt from (rule 1).
+pub const MIN_GAP_US: u64 = 400_000;
+/// Frames per update (rule 3).
+pub const BATCH: u16 = 8;
+/// Each update moves an offset `1 / 2^RATE_SHIFT` of the way (rule 3).
+pub const RATE_SHIFT: u32 = 3;
+/// Farthest an offset may move from the calibrated statistics: 12 grey levels, Q8.8.
+pub const LIMIT: i16 = 12 * 256;
+/// Samples a cell needs in a batch to be updated (a whole cell gives 16 a frame).
+pub const MIN_SAMPLES: u16 = 32;
+/// Bytes of [`Room::save`]: a version, the cell side, the columns and rows, then the offsets.
+pub const SAVED_LEN: usize = 4 + 2 * CELLS;
+const VERSION: u8 = 1;
+
+/// The learnt offsets and the batch being gathered.
+#[derive(Clone, Debug)]
+pub struct Room {
+    offset: [i16; CELLS],
+    sum: [i32; CELLS],
+    count: [u16; CELLS],
+    batch: u16,
+    frozen: bool,
+    last_us: Option<u64>,
+    frames: u32,
+    updates: u32,
+    generation: u32,
+}
+
+impl Default for Room {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl Room {
+    /// Offsets 0, learning.
+    pub const fn new() -> Self {
+        Room {
+            offset: [0; CELLS],
+            sum: [0; CELLS],
+            count: [0; CELLS],
+            batch: 0,
+            frozen: false,
+            last_us: None,
+            frames: 0,
+            updates: 0,
+            generation: 0,
+        }
+    }
+
+    /// Back to the calibrated statistics (offsets 0, counters 0); frozen or not stays.
+    pub fn reset(&mut self) {
+        let frozen = self.frozen;
+        let generation = self.generation.wrapping_add(1);
+        *self = Room::new();
+        self.frozen = frozen;
+        self.generation = generation;
+    }
+
+    /// Stops (`true`) or resumes learning; the offsets stay as they are.
+    pub fn freeze(&mut self, frozen: bool) {
+        self.frozen = frozen;
+        self.clear_batch();
+    }
+
+    /// Whether learning is stopped.
+    pub fn frozen(&self) -> bool {
+        self.frozen
+    }
+
+    /// Changes whenever the offsets do: part of the threshold table's cache key.
+    pub fn generation(&self) -> u32 {
+        self.generation
+    }
+
+    /// The offset of the cell holding pixel `(x, y)`, Q8.8 grey levels.
+    pub fn offset_at(&self, x: usize, y: usize) -> i16 {
+        self.offset.get((y / CELL) * COLS + x / CELL).copied().unwrap_or(0)
+    }
+
+    /// Every offset, row-major over [`COLS`] x [`ROWS`] cells.
+    pub fn offsets(&self) -> &[i16; CELLS] {
+        &self.offset
+    }
+
+    /// Rule 4: adds each pixel's cell offset to `table` (`w` pixels a row), saturating at 0 and
+    /// 65535. Nothing to do while every offset is 0.
+    pub fn apply(&self, table: &mut [u16], w: usize) {
+        if w == 0 || self.offset.iter().all(|&o| o == 0) {
+            return;
+        }
+        for (y, row) in table.chunks_mut(w).enumerate() {
+            let cells = self.offset.get((y / CELL) * COLS..).unwrap_or(&[]);
+            for (x, t) in row.iter_mut().enumerate() {
+                let o = cells.get(x / CELL).copied().unwrap_or(0) as i32;
+                *t = (*t as i32 + o).clamp(0, 0xFFFF) as u16;
+            }
+        }
+    }
+
+    /// Rules 1-3 for one frame the board may learn from, taken at `now_us`: `frame` the crop,
+    /// `pred` the prediction (Q8.8), `lut` the frame's fitted grey levels, `mu` the model's mean
+    /// error, `mask` the saliency mask, `w` the face's width. Returns true when the offsets
+    /// changed (the threshold table must be made again).
+    #[allow(clippy::too_many_arguments)]
+    pub fn learn(
+        &mut self,
+        now_us: u64,
+        frame: &[u8],
+        pred: &[u16],
+        lut: &[u16; 256],
+        mu: U16Table,
+        mask: &[u8],
+        w: usize,
+    ) -> bool {
+        if self.frozen || w == 0 || w > MAX_FACE_W {
+            return false;
+        }
+        if self.last_us.is_some_and(|t| now_us.saturating_sub(t) < MIN_GAP_US) {
+            return false;
+        }
+        self.last_us = Some(now_us);
+        let n = frame.len().min(pred.len()).min(mask.len()).min(mu.len());
+        for y in (0..n / w).step_by(2) {
+            let base = (y / CELL) * COLS;
+            for x in (0..w).step_by(2) {
+                let i = y * w + x;
+                let (f, m) = (frame[i], mask[i]);
+                if m != 0 || f == 0 || f == 255 {
+                    continue;
+                }
+                let e = lut[f as usize] as i32 - pred[i] as i32 - mu.get(i) as i32;
+                let c = base + x / CELL;
+                if let (Some(s), Some(k)) = (self.sum.get_mut(c), self.count.get_mut(c)) {
+                    *s = s.saturating_add(e);
+                    *k = k.saturating_add(1);
+                }
+            }
+        }
+        self.frames = self.frames.saturating_add(1);
+        self.batch += 1;
+        if self.batch < BATCH {
+            return false;
+        }
+        let mut changed = false;
+        for ((o, &s), &k) in self.offset.iter_mut().zip(&self.sum).zip(&self.count) {
+            if k < MIN_SAMPLES {
+                continue;
+            }
+            let mean = s / k as i32;
+            let step = (mean - *o as i32) >> RATE_SHIFT;
+            let next = (*o as i32 + step).clamp(-(LIMIT as i32), LIMIT as i32) as i16;
+            changed |= next != *o;
+            *o = next;
+        }
+        self.clear_batch();
+        self.updates = self.updates.saturating_add(1);
+        if changed {
+            self.generation = self.generation.wrapping_add(1);
+        }
+        changed
+    }
+
+    fn clear_batch(&mut self) {
+        self.sum = [0; CELLS];
+        self.count = [0; CELLS];
+        self.batch = 0;
+    }
+
+    /// The state for `Status`; `applies`: the model's test uses the offsets (rule 4).
+    pub fn report(&self, applies: bool) -> RoomReport {
+        let largest = self.offset.iter().map(|o| o.unsigned_abs()).max().unwrap_or(0);
+        RoomReport {
+            state: match (applies, self.frozen) {
+                (false, _) => RoomState::Off,
+                (true, false) => RoomState::Learning,
+                (true, true) => RoomState::Frozen,
+            },
+            frames: self.frames,
+            updates: self.updates,
+            largest_q88: largest,
+            at_limit: self.offset.iter().filter(|o| o.unsigned_abs() >= LIMIT as u16).count() as u16,
+        }
+    }
+
+    /// The offsets as the store keeps them ([`SAVED_LEN`] bytes).
+    pub fn save(&self, out: &mut [u8; SAVED_LEN]) {
+        out[..4].copy_from_slice(&[VERSION, CELL as u8, COLS as u8, ROWS as u8]);
+        for (o, b) in self.offset.iter().zip(out[4..].chunks_exact_mut(2)) {
+            b.copy_from_slice(&o.to_le_bytes());
+        }
+    }
+
+    /// Takes offsets saved by [`Room::save`]; anything else (another version or layout, a
+    /// length that differs, an offset past [`LIMIT`]) is refused whole and changes nothing.
+    pub fn restore(&mut self, bytes: &[u8]) -> bool {
+        if bytes.len() != SAVED_LEN || bytes[..4] != [VERSION, CELL as u8, COLS as u8, ROWS as u8] {
+            return false;
+        }
+        let mut offset = [0i16; CELLS];
+        for (o, b) in offset.iter_mut().zip(bytes[4..].chunks_exact(2)) {
+            *o = i16::from_le_bytes([b[0], b[1]]);
+            if o.unsigned_abs() > LIMIT as u16 {
+                return false;
+            }
+        }
+        self.reset();
+        self.offset = offset;
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests;
