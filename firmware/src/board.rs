@@ -12,7 +12,7 @@ use crate::link::{
 use crate::model::{self, ModelStore, Upload, UploadError};
 use crate::motion::{HeadError, Motion, Phase, PERIOD_US};
 use crate::pipeline::{self, Workspace};
-use crate::saliency::{self, Settings};
+use crate::saliency::Settings;
 use crate::self_gate::{Gate, Step};
 use embedded_io::{Read, ReadReady, Write};
 use msr_shared::blob::{Merge, Model};
@@ -296,6 +296,19 @@ impl<S: ModelStore> Board<S> {
         self.core.motion.commanded()
     }
 
+    /// What the board has learnt of the room's light ([`crate::room`]).
+    pub fn room(&self) -> &crate::room::Room {
+        &self.ws.room
+    }
+
+    /// Takes what another board learnt of the room with the running model, batch in progress
+    /// and all (a long simulated run carries it from trial to trial; call after the first
+    /// `poll`, which loads the model and so resets the room).
+    pub fn set_room(&mut self, room: crate::room::Room) {
+        self.ws.room = room;
+        self.core.room = self.ws.room.report(self.core.room_applies());
+    }
+
     /// The novelty settings in force (`None` without a model).
     pub fn settings(&self) -> Option<Settings> {
         self.core.settings
@@ -336,12 +349,9 @@ impl<S: ModelStore> Core<S> {
         self.confirm.reset();
     }
 
-    /// Whether the running model's test takes the room's offsets.
+    /// Whether the room's offsets are in use: a model is loaded.
     fn room_applies(&self) -> bool {
-        match (self.settings, self.store.active().and_then(|b| Model::parse_trusted(b).ok())) {
-            (Some(s), Some(m)) => saliency::uses_room(&m, &s),
-            _ => false,
-        }
+        self.loaded.is_some()
     }
 
     /// Saves the room's offsets for the running model; false if the store could not.

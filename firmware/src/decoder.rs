@@ -120,6 +120,26 @@ impl Decoder {
         Ok(self.face().unwrap_or(&[]))
     }
 
+    /// [`predict`](Self::predict), with `adjust` applied to the face each time the network
+    /// runs (the cached face keeps it).
+    pub fn predict_with(
+        &mut self,
+        model: &Model,
+        head: [f32; 2],
+        adjust: impl FnOnce(&mut [u16]),
+    ) -> Result<&[u16], DecodeError> {
+        let input = quantise_input(model, head)?;
+        let key = (model.crc32, input);
+        if self.key != Some(key) || self.face.is_none() {
+            self.run(model, input)?;
+            self.key = Some(key);
+            if let Some((k, n)) = self.face {
+                adjust(&mut bytemuck::cast_slice_mut(&mut self.act[k].0[..])[..n]);
+            }
+        }
+        Ok(self.face().unwrap_or(&[]))
+    }
+
     /// Like [`predict`](Self::predict) but always runs the whole network (for benchmarks).
     pub fn predict_uncached(
         &mut self,

@@ -85,6 +85,8 @@ pub struct Workspace {
     /// What the board has learnt of the room's light ([`crate::room`]); the threshold table
     /// takes it. [`Workspace::learn`] feeds it; a caller that never does keeps it at 0.
     pub room: Room,
+    /// The room generation the cached prediction has added.
+    room_applied: Option<u32>,
 }
 
 impl Default for Workspace {
@@ -106,6 +108,7 @@ impl Workspace {
             lut: light::IDENTITY_TABLE,
             fit_light: true,
             room: Room::new(),
+            room_applied: None,
         }
     }
 
@@ -116,11 +119,17 @@ impl Workspace {
         self.row_counts = None;
     }
 
-    /// Stage 1: the predicted face (cached per head pose).
+    /// Stage 1: the predicted face (cached per head pose), with what the board learnt of the
+    /// room added ([`Room::apply`]; the network runs again when that changes).
     pub fn decode(&mut self, model: &Model, head: [f32; 2]) -> Result<&[u16], DecodeError> {
         self.head = head;
         self.row_counts = None;
-        self.decoder.predict(model, head)
+        if self.room_applied != Some(self.room.generation()) {
+            self.decoder.invalidate();
+        }
+        self.room_applied = Some(self.room.generation());
+        let (room, w) = (&self.room, model.face_w as usize);
+        self.decoder.predict_with(model, head, |face| room.apply(face, w))
     }
 
     /// Stage 2: the photometric fit of `crop` to the last predicted face ([`light::fit`]), then
@@ -139,7 +148,7 @@ impl Workspace {
         if !s.is_valid() {
             return Err(DetectError::Settings);
         }
-        self.thresholds.prepare(model, s, self.head, &self.room);
+        self.thresholds.prepare(model, s, self.head);
         let (mu, _, _) = model.stats_at(self.head);
         let (face, mask) = self.decoder.face_and_scratch();
         let face = face.ok_or(DetectError::Decode(DecodeError::BadInput))?;
@@ -187,10 +196,9 @@ impl Workspace {
         if self.light.verdict != Verdict::Face || crop.len() != model.face_pixels() {
             return false;
         }
-        let (mu, _, _) = model.stats_at(self.head);
         let (face, mask) = self.decoder.face_and_scratch();
         let Some(face) = face else { return false };
-        self.room.learn(now_us, crop, face, &self.lut, mu, mask, model.face_w as usize)
+        self.room.learn(now_us, crop, face, &self.lut, mask, model.face_w as usize)
     }
 
     /// The photometric fit of the last [`saliency`](Self::saliency) call.

@@ -3,27 +3,32 @@
 //! The per-frame fit ([`crate::light`]) takes back a gain and an offset. A lamp that turns or a
 //! light that warms also changes the face's shading: a smooth pattern of error that no gain and
 //! offset remove, and that statistics measured in the calibration room call salient. The board
-//! learns that pattern as it runs, as an offset to the model's mean error `mu`, one per cell of
-//! [`CELL`] x [`CELL`] pixels. The rules:
+//! learns that pattern as it runs, as an offset to the predicted face, one per cell of
+//! [`CELL`] x [`CELL`] pixels; the error statistics stay the model's. The rules:
 //!
 //! 1. Learn only from a frame that shows the face (the fit's verdict is `Face`), has no blob and
 //!    no candidate in the confirmation window, in the observe posture with the head still (the
 //!    board decides and calls [`Room::learn`]), and at most one frame every [`MIN_GAP_US`].
 //! 2. Of such a frame, every second pixel of every second row that is neither salient nor in a
-//!    salient pixel's pooling window (the mask is not 0) nor clipped (0 or 255): its error
-//!    `v(I) - pred` less the model's `mu`, summed per cell. A mark's pixels are salient, so they
-//!    never teach the board that the mark belongs to the face.
+//!    salient pixel's pooling window (the mask is not 0) nor clipped (0 or 255): its signed
+//!    error `v(I) - pred` against the prediction with the offsets, summed per cell. A mark's
+//!    pixels are salient, so they never teach the board that the mark belongs to the face.
 //! 3. After [`BATCH`] such frames, each cell with at least [`MIN_SAMPLES`] samples moves its
-//!    offset 1/2^[`RATE_SHIFT`] of the way to the batch's mean, and never further than
-//!    [`LIMIT`] from 0 (the calibrated statistics): a slow, bounded follower.
-//! 4. The offsets are added to the threshold table `mu + t sigma` of the default test (pooled,
-//!    one-sided; the other tests ignore them and report [`RoomState::Off`]).
+//!    offset by 1/2^[`RATE_SHIFT`] of the batch's mean error. Then the part of these offsets
+//!    that a gain and an offset would make (a least-squares line in the cells' mean predicted
+//!    grey level) is taken out: the per-frame fit already takes that part each frame, so the
+//!    room would otherwise wander along it unchecked. No offset goes further than [`LIMIT`]
+//!    from 0 (the model as calibrated): a slow, bounded follower of the room's shading.
+//! 4. The offsets are added to the predicted face ([`Room::apply`]), before the photometric
+//!    fit and every saliency test: the error is taken against the face as this room shows it,
+//!    and judged by the model's own statistics.
 //! 5. Freeze stops rules 1-3 and keeps the offsets; reset returns them to 0. A new model starts
 //!    at 0, or at the offsets the store saved for it ([`Room::restore`]).
 //!
-//! Integers only, so the host and the board agree bit for bit. 96 cells: under 1 KiB of RAM.
+//! Integers only, so the host and the board agree bit for bit. 96 cells: about 1 KiB of RAM.
+//! Rule 4 costs about 3 instructions a pixel each time the network runs (a new head pose).
 
-use msr_shared::blob::{U16Table, MAX_FACE_H, MAX_FACE_W};
+use msr_shared::blob::{MAX_FACE_H, MAX_FACE_W};
 pub use msr_shared::msg::{RoomReport, RoomState};
 
 /// Side of a cell, pixels.
@@ -53,6 +58,8 @@ const VERSION: u8 = 1;
 pub struct Room {
     offset: [i16; CELLS],
     sum: [i32; CELLS],
+    /// The predicted grey levels of the batch's samples, per cell (for rule 3's line).
+    pred_sum: [i32; CELLS],
     count: [u16; CELLS],
     batch: u16,
     frozen: bool,
@@ -74,6 +81,7 @@ impl Room {
         Room {
             offset: [0; CELLS],
             sum: [0; CELLS],
+            pred_sum: [0; CELLS],
             count: [0; CELLS],
             batch: 0,
             frozen: false,
@@ -119,36 +127,26 @@ impl Room {
         &self.offset
     }
 
-    /// Rule 4: adds each pixel's cell offset to `table` (`w` pixels a row), saturating at 0 and
-    /// 65535. Nothing to do while every offset is 0.
-    pub fn apply(&self, table: &mut [u16], w: usize) {
+    /// Rule 4: adds each pixel's cell offset to the predicted face `pred` (Q8.8, `w` pixels a
+    /// row), within the grey range 0..=65280. Nothing to do while every offset is 0.
+    pub fn apply(&self, pred: &mut [u16], w: usize) {
         if w == 0 || self.offset.iter().all(|&o| o == 0) {
             return;
         }
-        for (y, row) in table.chunks_mut(w).enumerate() {
+        for (y, row) in pred.chunks_mut(w).enumerate() {
             let cells = self.offset.get((y / CELL) * COLS..).unwrap_or(&[]);
-            for (x, t) in row.iter_mut().enumerate() {
+            for (x, p) in row.iter_mut().enumerate() {
                 let o = cells.get(x / CELL).copied().unwrap_or(0) as i32;
-                *t = (*t as i32 + o).clamp(0, 0xFFFF) as u16;
+                *p = (*p as i32 + o).clamp(0, 255 << 8) as u16;
             }
         }
     }
 
     /// Rules 1-3 for one frame the board may learn from, taken at `now_us`: `frame` the crop,
-    /// `pred` the prediction (Q8.8), `lut` the frame's fitted grey levels, `mu` the model's mean
-    /// error, `mask` the saliency mask, `w` the face's width. Returns true when the offsets
-    /// changed (the threshold table must be made again).
-    #[allow(clippy::too_many_arguments)]
-    pub fn learn(
-        &mut self,
-        now_us: u64,
-        frame: &[u8],
-        pred: &[u16],
-        lut: &[u16; 256],
-        mu: U16Table,
-        mask: &[u8],
-        w: usize,
-    ) -> bool {
+    /// `pred` the prediction with the offsets (Q8.8), `lut` the frame's fitted grey levels,
+    /// `mask` the saliency mask, `w` the face's width. Returns true when the offsets changed
+    /// (the prediction must be made again).
+    pub fn learn(&mut self, now_us: u64, frame: &[u8], pred: &[u16], lut: &[u16; 256], mask: &[u8], w: usize) -> bool {
         if self.frozen || w == 0 || w > MAX_FACE_W {
             return false;
         }
@@ -156,7 +154,7 @@ impl Room {
             return false;
         }
         self.last_us = Some(now_us);
-        let n = frame.len().min(pred.len()).min(mask.len()).min(mu.len());
+        let n = frame.len().min(pred.len()).min(mask.len());
         for y in (0..n / w).step_by(2) {
             let base = (y / CELL) * COLS;
             for x in (0..w).step_by(2) {
@@ -165,10 +163,11 @@ impl Room {
                 if m != 0 || f == 0 || f == 255 {
                     continue;
                 }
-                let e = lut[f as usize] as i32 - pred[i] as i32 - mu.get(i) as i32;
+                let e = lut[f as usize] as i32 - pred[i] as i32;
                 let c = base + x / CELL;
-                if let (Some(s), Some(k)) = (self.sum.get_mut(c), self.count.get_mut(c)) {
+                if let (Some(s), Some(p), Some(k)) = (self.sum.get_mut(c), self.pred_sum.get_mut(c), self.count.get_mut(c)) {
                     *s = s.saturating_add(e);
+                    *p = p.saturating_add(pred[i] as i32);
                     *k = k.saturating_add(1);
                 }
             }
@@ -178,17 +177,38 @@ impl Room {
         if self.batch < BATCH {
             return false;
         }
-        let mut changed = false;
-        for ((o, &s), &k) in self.offset.iter_mut().zip(&self.sum).zip(&self.count) {
+        let before = self.offset;
+        // Moved offsets (not yet clamped), and the line through them in the cells' brightness.
+        let mut moved = [0i32; CELLS];
+        let (mut n, mut so, mut sp, mut sop, mut spp) = (0i128, 0i128, 0i128, 0i128, 0i128);
+        for c in 0..CELLS {
+            let k = self.count[c];
             if k < MIN_SAMPLES {
                 continue;
             }
-            let mean = s / k as i32;
-            let step = (mean - *o as i32) >> RATE_SHIFT;
-            let next = (*o as i32 + step).clamp(-(LIMIT as i32), LIMIT as i32) as i16;
-            changed |= next != *o;
-            *o = next;
+            let o = self.offset[c] as i32 + ((self.sum[c] / k as i32) >> RATE_SHIFT);
+            let p = (self.pred_sum[c] / k as i32) as i128;
+            moved[c] = o;
+            n += 1;
+            so += o as i128;
+            sp += p;
+            sop += o as i128 * p;
+            spp += p * p;
         }
+        let var = n * spp - sp * sp;
+        let cov = n * sop - so * sp;
+        for c in 0..CELLS {
+            let k = self.count[c];
+            if k < MIN_SAMPLES || n == 0 {
+                continue;
+            }
+            let p = (self.pred_sum[c] / k as i32) as i128;
+            // a + b p with b = cov / var, a = (so - b sp) / n: (so + cov (n p - sp) / var) / n.
+            let slope = if var > 0 { cov * (n * p - sp) / var } else { 0 };
+            let line = ((so + slope) / n) as i32;
+            self.offset[c] = (moved[c] - line).clamp(-(LIMIT as i32), LIMIT as i32) as i16;
+        }
+        let changed = self.offset != before;
         self.clear_batch();
         self.updates = self.updates.saturating_add(1);
         if changed {
@@ -199,11 +219,12 @@ impl Room {
 
     fn clear_batch(&mut self) {
         self.sum = [0; CELLS];
+        self.pred_sum = [0; CELLS];
         self.count = [0; CELLS];
         self.batch = 0;
     }
 
-    /// The state for `Status`; `applies`: the model's test uses the offsets (rule 4).
+    /// The state for `Status`; `applies`: a model is loaded (rule 4 has a face to add to).
     pub fn report(&self, applies: bool) -> RoomReport {
         let largest = self.offset.iter().map(|o| o.unsigned_abs()).max().unwrap_or(0);
         RoomReport {

@@ -21,8 +21,6 @@ use msr_shared::blob::{
 
 pub mod pool;
 
-use crate::room::Room;
-
 /// Novelty settings in force: the model's defaults, or what the host configured.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Settings {
@@ -92,21 +90,15 @@ impl Settings {
 pub struct Thresholds {
     tn: [u16; MAX_FACE_PIXELS],
     len: usize,
-    /// (model CRC, threshold bits, normalisation, statistics cell, combined, room generation)
-    /// the table was made for.
-    key: Option<(u32, u32, Normalisation, u8, bool, u32)>,
+    /// (model CRC, threshold bits, normalisation, statistics cell, combined) the table was made
+    /// for.
+    key: Option<(u32, u32, Normalisation, u8, bool)>,
 }
 
 impl Default for Thresholds {
     fn default() -> Self {
         Self::new()
     }
-}
-
-/// Whether `model`'s test under `s` is the pooled one-sided one, the test whose table takes the
-/// room's offsets ([`crate::room`]).
-pub fn uses_room(model: &Model, s: &Settings) -> bool {
-    model.novelty.pool > 0 && s.sided == Sided::One
 }
 
 /// One pixel's `t * n` in Q8.8, saturating.
@@ -136,14 +128,12 @@ impl Thresholds {
     /// Makes the table for `model` and `threshold`/`normalisation` at head pose `head` (the
     /// statistics of its pose cell, [`Model::stats_at`]), unless it is already made. A pooled
     /// model's one-sided test gets the combined table (`mu + tn`, [`pool::Combine`]), any
-    /// other test `tn` alone ([`threshold_q88`]). The combined table takes what the board
-    /// learnt of the room ([`Room::apply`]). Returns true when it was recomputed: with pose
-    /// statistics, once per change of cell; and after the room's offsets changed.
-    pub fn prepare(&mut self, model: &Model, s: &Settings, head: [f32; 2], room: &Room) -> bool {
+    /// other test `tn` alone ([`threshold_q88`]). Returns true when it was recomputed: with
+    /// pose statistics, once per change of cell.
+    pub fn prepare(&mut self, model: &Model, s: &Settings, head: [f32; 2]) -> bool {
         let (mu, sigma, cell) = model.stats_at(head);
-        let combined = uses_room(model, s);
-        let generation = if combined { room.generation() } else { 0 };
-        let key = (model.crc32, s.threshold.to_bits(), s.normalisation, cell, combined, generation);
+        let combined = model.novelty.pool > 0 && s.sided == Sided::One;
+        let key = (model.crc32, s.threshold.to_bits(), s.normalisation, cell, combined);
         let n = model.face_pixels().min(MAX_FACE_PIXELS).min(sigma.len()).min(mu.len());
         if self.key == Some(key) && self.len == n {
             return false;
@@ -171,9 +161,6 @@ impl Thresholds {
                     *t = threshold_q88(sigma, s.threshold, s.normalisation);
                 }
             }
-        }
-        if combined {
-            room.apply(out, model.face_w as usize);
         }
         self.len = n;
         self.key = Some(key);

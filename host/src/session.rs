@@ -8,7 +8,7 @@ use crate::data::crop;
 use anyhow::{bail, Context, Result};
 use msr_shared::deliver::{FaceLink, LinkStats};
 use msr_shared::host_port::HostPort;
-use msr_shared::msg::{BoardToHost, HostToBoard, Status, StoreReport, CHUNK};
+use msr_shared::msg::{BoardToHost, HostToBoard, RoomCommand, Status, StoreReport, CHUNK};
 use std::io::{Read, Write};
 use std::time::{Duration, Instant};
 
@@ -328,6 +328,23 @@ impl Session {
         match msgs.last() {
             Some(BoardToHost::Store(r)) if ok => Ok(*r),
             _ => bail!("no answer to GetStore from the board within {timeout:?} (its firmware may predate it)"),
+        }
+    }
+
+    /// Sends a command to the board's online self-calibration and waits for its answer (a
+    /// `Status`, or a `Store` report for a save); an `Error` the board sends first is returned
+    /// as the failure.
+    pub fn room(&mut self, cmd: RoomCommand, timeout: Duration) -> Result<()> {
+        self.send_message(&HostToBoard::Room(cmd))?;
+        let (msgs, ok) = self.wait_for(timeout, |m| {
+            matches!(m, BoardToHost::Status(_) | BoardToHost::Store(_) | BoardToHost::Error { .. })
+        })?;
+        match msgs.last() {
+            Some(BoardToHost::Error { code, detail }) => {
+                bail!("the board refused {cmd:?}: {code:?} (detail {detail}); its store keeps nothing, or is busy")
+            }
+            Some(_) if ok => Ok(()),
+            _ => bail!("no answer to Room({cmd:?}) from the board within {timeout:?} (its firmware may predate it)"),
         }
     }
 

@@ -424,7 +424,7 @@ pub enum RoomCommand {
 /// Whether the board is learning the room's light.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub enum RoomState {
-    /// Not used: no model, or its saliency test is not the pooled one-sided one.
+    /// No model.
     Off,
     /// Learning from frames without a detection.
     Learning,
@@ -441,7 +441,7 @@ pub struct RoomReport {
     pub frames: u32,
     /// Updates of the offsets (one per batch of frames).
     pub updates: u32,
-    /// The largest offset from the calibrated mean error, Q8.8 grey levels.
+    /// The largest offset from the model's predicted face, Q8.8 grey levels.
     pub largest_q88: u16,
     /// Cells whose offset is at the limit.
     pub at_limit: u16,

@@ -150,6 +150,11 @@ pub enum LightPlan {
     /// gain loop ([`AutoExposure`]) brings the picture back, with a lag, and moves when the arm
     /// enters the view.
     AutoExposure,
+    /// Slowly, over the whole schedule: the key lamp turns by 15..25 degrees about the vertical,
+    /// the light warms to 4000..4500 K or cools to 7000..7500 K, and the ambient share falls
+    /// from 0.45 to 0.35. Shading that no per-frame gain and offset take back; meant for a long
+    /// run on one board (`msr mirror-test --one-board`), where the board learns the room.
+    Turn,
 }
 
 impl LightPlan {
@@ -159,6 +164,7 @@ impl LightPlan {
             LightPlan::Drift => "drift",
             LightPlan::Step => "step",
             LightPlan::AutoExposure => "auto-exposure",
+            LightPlan::Turn => "turn",
         }
     }
 }
@@ -170,8 +176,10 @@ pub struct LightSchedule {
     pub plan: LightPlan,
     duration_us: u64,
     /// Drift: the exposure's change at the end. Step: the key lamp's factor after the switch.
-    /// Auto-exposure: the room's brightness.
+    /// Auto-exposure: the room's brightness. Turn: the lamp's turn at the end, radians.
     amount: f32,
+    /// Turn: the colour temperature at the end, K.
+    kelvin: f32,
     /// Step: when the lamp switches.
     at_us: u64,
     /// The camera's gain loop ([`LightPlan::AutoExposure`] only).
@@ -190,8 +198,14 @@ impl LightSchedule {
                 (1.0 + sign(rng) * rng.gen_range(0.25..0.45), at, None)
             }
             LightPlan::AutoExposure => (rng.gen_range(0.65..1.5), 0, Some(AutoExposure::new())),
+            LightPlan::Turn => (sign(rng) * rng.gen_range(15f32..25.0).to_radians(), 0, None),
         };
-        LightSchedule { plan, duration_us: duration_us.max(1), amount, at_us, auto }
+        let kelvin = match plan {
+            LightPlan::Turn if rng.gen_bool(0.5) => rng.gen_range(4000.0..4500.0),
+            LightPlan::Turn => rng.gen_range(7000.0..7500.0),
+            _ => 5500.0,
+        };
+        LightSchedule { plan, duration_us: duration_us.max(1), amount, kelvin, at_us, auto }
     }
 
     /// The light of a frame taken at `now_us` (before the camera's own gain).
@@ -210,6 +224,17 @@ impl LightSchedule {
                 let room = self.amount;
                 let gain = self.auto.as_ref().map_or(1.0, |a| a.gain);
                 Light { key: room, ambient: f.ambient * room, ..f }.exposed(gain)
+            }
+            LightPlan::Turn => {
+                let s = (now_us.min(self.duration_us) as f64 / self.duration_us as f64) as f32;
+                let (sin, cos) = ((self.amount * s) as f64).sin_cos();
+                let [x, y, z] = f.key_dir;
+                Light {
+                    key_dir: [x * cos - y * sin, x * sin + y * cos, z],
+                    ambient: f.ambient - 0.1 * s,
+                    tint: tint_of_kelvin(5500.0 + (self.kelvin - 5500.0) * s),
+                    ..f
+                }
             }
         }
     }

@@ -40,6 +40,9 @@ pub enum RunLight {
     Step,
     /// The room 0.65..1.5 times as bright; the camera's own gain loop follows with a lag
     AutoExposure,
+    /// Slowly over the whole run: the lamp turns by 15..25 degrees, the light warms or cools
+    /// by 1500..2000 K, the ambient share falls by a fifth (for --one-board)
+    Turn,
 }
 
 impl From<RunLight> for LightPlan {
@@ -49,6 +52,7 @@ impl From<RunLight> for LightPlan {
             RunLight::Drift => LightPlan::Drift,
             RunLight::Step => LightPlan::Step,
             RunLight::AutoExposure => LightPlan::AutoExposure,
+            RunLight::Turn => LightPlan::Turn,
         }
     }
 }

@@ -31,6 +31,15 @@ pub struct Args {
     /// switches), auto-exposure (the camera's own gain loop)
     #[arg(long, value_enum, default_value_t = super::light::RunLight::Fixed)]
     pub light: super::light::RunLight,
+    /// Run the trials one after another as one long run of robot time: the light's plan spans
+    /// the whole run (see --light turn) and each trial's board starts with what the previous
+    /// one learnt of the room, as a board restarted on its flash would (in-process only)
+    #[arg(long)]
+    pub one_board: bool,
+    /// Let the board learn the room's light as it runs (its online self-calibration); off: it
+    /// keeps the model's own statistics, for comparison
+    #[arg(long, value_enum, default_value_t = OnOff::On)]
+    pub learn_room: OnOff,
     /// The self gate: as the model blob has it, off (the paper's behaviour), or on (calibrated
     /// now for --robot), to compare the same model with and without it
     #[arg(long, value_enum, default_value_t = GateArg::Model)]
@@ -68,6 +77,13 @@ pub struct Args {
     /// annotations, joints, board status) for Foxglove or `ros2 bag play`
     #[arg(long, value_name = "FILE")]
     pub mcap: Option<PathBuf>,
+}
+
+/// A switch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum OnOff {
+    On,
+    Off,
 }
 
 /// Whose self gate the trials run with.
@@ -113,6 +129,10 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     c.scene = a.scene;
     c.light = a.light.into();
     c.log_bus = a.bus_log.is_some();
+    c.learn_room = a.learn_room == OnOff::On;
+    if a.one_board && a.backend != Backend::Inproc {
+        return Err(super::usage("--one-board needs --backend inproc"));
+    }
     if a.bus_log.is_some() && a.backend != Backend::Inproc {
         return Err(super::usage("--bus-log needs --backend inproc"));
     }
@@ -150,11 +170,16 @@ pub fn run(a: Args) -> Result<()> {
             eprintln!("{}", describe(t));
         }
     };
-    let trials = match a.backend {
-        Backend::Inproc => episode::run_inproc(&blob, &cfg, a.trials, a.seed, &progress)?,
-        Backend::Qemu => crate::episode::qemu::run_qemu(&blob, &cfg, a.trials, a.seed, &progress)?,
+    let (trials, room) = match a.backend {
+        Backend::Inproc if a.one_board => {
+            let (t, r) = episode::run_one_board(&blob, &cfg, a.trials, a.seed, &progress)?;
+            (t, Some(r))
+        }
+        Backend::Inproc => (episode::run_inproc(&blob, &cfg, a.trials, a.seed, &progress)?, None),
+        Backend::Qemu => (crate::episode::qemu::run_qemu(&blob, &cfg, a.trials, a.seed, &progress)?, None),
     };
-    let s = episode::summarise(a.backend, a.robot, a.servo_bus, &trials);
+    let mut s = episode::summarise(a.backend, a.robot, a.servo_bus, &trials);
+    s.room = room;
     // The summary first: a failing --trials-out or --bus-log write (checked up front, but a disk
     // can fill) must not lose it.
     if a.json {
@@ -239,5 +264,7 @@ pub fn readable(s: &Summary) -> String {
         s.goodput_bytes_per_s,
         s.retransmissions,
         s.frames_superseded
-    )
+    ) + &s.room.map_or(String::new(), |r| {
+        format!("; {:.1} min of robot time on one board, {}", s.sim_s / 60.0, super::status::describe_room(&r))
+    })
 }

@@ -111,7 +111,7 @@ pub fn describe(m: &BoardToHost) -> String {
         BoardToHost::Status(s) => format!(
             "status: {:?}, model crc {:08x}, {} frames, {} detections, {} reaches, host link {} CRC errors / {} resyncs, \
              servo bus {} CRC errors / {} resyncs, watchdog trips face {} servo {}, clamped targets {}, \
-             frames refused NoFace {} SceneChanged {}",
+             frames refused NoFace {} SceneChanged {}; {}",
             s.mode,
             s.model_crc,
             s.frames,
@@ -125,7 +125,8 @@ pub fn describe(m: &BoardToHost) -> String {
             s.servo_watchdog_trips,
             s.clamped_targets,
             s.no_face,
-            s.scene_changed
+            s.scene_changed,
+            crate::cmd::status::describe_room(&s.room)
         ),
         BoardToHost::ModelAccepted { crc32 } => format!("model accepted, crc {crc32:08x}"),
         BoardToHost::Pong { nonce } => format!("pong {nonce}"),

@@ -3,7 +3,7 @@
 //! statistics and their age, and the board's counters.
 use crate::session::Session;
 use anyhow::{bail, Result};
-use msr_shared::msg::{BoardToHost, ModelSource, StoreReport};
+use msr_shared::msg::{BoardToHost, ModelSource, RoomCommand, RoomReport, RoomState, StoreReport};
 use std::path::Path;
 use std::time::Duration;
 
@@ -21,6 +21,46 @@ pub struct Args {
     /// One JSON object: `{"store": ..., "status": ...}`
     #[arg(long)]
     pub json: bool,
+    /// First tell the board's online self-calibration (what it learns of the room's light):
+    /// freeze (stop learning, keep what was learnt), resume, reset (back to the model's own
+    /// statistics, the saved ones dropped), save (into its flash store now)
+    #[arg(long, value_name = "ACTION")]
+    pub room: Option<RoomAction>,
+}
+
+/// What `--room` asks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum RoomAction {
+    Freeze,
+    Resume,
+    Reset,
+    Save,
+}
+
+impl RoomAction {
+    pub fn command(self) -> RoomCommand {
+        match self {
+            RoomAction::Freeze => RoomCommand::Freeze,
+            RoomAction::Resume => RoomCommand::Resume,
+            RoomAction::Reset => RoomCommand::Reset,
+            RoomAction::Save => RoomCommand::Save,
+        }
+    }
+}
+
+/// One line for the room's state.
+pub fn describe_room(r: &RoomReport) -> String {
+    match r.state {
+        RoomState::Off => "room: not learnt (no model, or its test is not the pooled one-sided one)".into(),
+        st => format!(
+            "room: {}, {} frames learnt from, {} updates, largest offset {:.2} grey levels, {} cells at the limit",
+            if st == RoomState::Frozen { "frozen" } else { "learning" },
+            r.frames,
+            r.updates,
+            r.largest_q88 as f64 / 256.0,
+            r.at_limit
+        ),
+    }
 }
 
 /// One line for a store report.
@@ -63,6 +103,9 @@ pub fn check_model(runs: u32, want: u32, path: &Path) -> Result<()> {
 pub fn run(a: Args) -> Result<()> {
     let timeout = Duration::from_millis(a.timeout_ms);
     let mut s = Session::open(&a.port, a.baud)?;
+    if let Some(r) = a.room {
+        s.room(r.command(), timeout)?;
+    }
     let store = s.store(timeout)?;
     let status = s.status(timeout)?;
     if a.json {
@@ -70,6 +113,7 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         println!("{}", describe_store(&store));
         println!("{}", super::run::describe(&BoardToHost::Status(status)));
+        println!("{}", describe_room(&status.room));
     }
     Ok(())
 }

@@ -148,6 +148,22 @@ pub struct EpisodeConfig {
     pub mcap: Option<crate::rosbag::session::LogModel>,
     /// How the light changes over each trial (`msr mirror-test --light`).
     pub light: LightPlan,
+    /// The light's plan spans a run of trials rather than each trial ([`run_one_board`]).
+    pub light_span: Option<LightSpan>,
+    /// Let the board learn the room's light (its online self-calibration); off: the PC tells
+    /// it to freeze at the start of each trial, so it keeps the model's own statistics.
+    pub learn_room: bool,
+}
+
+/// A light plan drawn once for a run of trials, and where in it a trial starts.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LightSpan {
+    /// Seed of the plan's draws.
+    pub seed: u64,
+    /// The plan's whole duration, simulated microseconds.
+    pub span_us: u64,
+    /// The trial's start in it.
+    pub offset_us: u64,
 }
 
 impl EpisodeConfig {
@@ -171,6 +187,8 @@ impl EpisodeConfig {
             pace: None,
             mcap: None,
             light: LightPlan::Fixed,
+            light_span: None,
+            learn_room: true,
         }
     }
 
@@ -366,6 +384,12 @@ pub struct Summary {
     pub no_face_frames: u64,
     #[serde(default)]
     pub scene_changed_frames: u64,
+    /// Robot time of all trials, seconds.
+    #[serde(default)]
+    pub sim_s: f64,
+    /// What the board had learnt of the room at the end of a run on one board (`--one-board`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub room: Option<msr_shared::msg::RoomReport>,
 }
 
 pub fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -423,6 +447,8 @@ pub fn summarise(backend: Backend, robot: Robot, bus: ServoBus, trials: &[Trial]
         frames_superseded: trials.iter().map(|t| t.link.superseded as u64).sum(),
         no_face_frames: sum(|t| t.no_face_frames),
         scene_changed_frames: sum(|t| t.scene_changed_frames),
+        sim_s: trials.iter().map(|t| t.sim_s).sum(),
+        room: None,
     }
 }
 
@@ -522,6 +548,8 @@ struct Scenario<'a> {
     log: Option<crate::rosbag::session::SessionLog>,
     /// The trial's light (and the camera's gain loop).
     light: LightSchedule,
+    /// Where the trial starts in `light` (a plan that spans a run of trials).
+    light_offset_us: u64,
 }
 
 impl Scenario<'_> {
@@ -540,6 +568,10 @@ impl Scenario<'_> {
             }
             if let Some(c) = self.cfg.board_config {
                 let bytes = self.port.encode(&HostToBoard::Configure(c));
+                w.host.send(&bytes);
+            }
+            if !self.cfg.learn_room {
+                let bytes = self.port.encode(&HostToBoard::Room(msr_shared::msg::RoomCommand::Freeze));
                 w.host.send(&bytes);
             }
         }
@@ -608,14 +640,14 @@ impl Scenario<'_> {
         };
         if now >= self.next_frame_us && ready {
             let (grey, face, with_mark) = if self.scene.scene == Scene::Mirror {
-                let (grey, face) = self.camera.shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng, self.light.at(now))?;
+                let (grey, face) = self.camera.shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng, self.light.at(now + self.light_offset_us))?;
                 self.light.observed_grey(&grey);
                 (grey, face, self.mark.is_some())
             } else {
                 let v = self.scene.view(now, &w.body_pose());
                 // A delayed picture shows the mark once it had appeared by then.
                 let mark = self.mark.as_ref().filter(|_| v.as_of_us >= self.cfg.mark_at_us);
-                let (grey, face) = self.camera.shoot_seen(v.camera, &v.seen, mark, &mut self.rng, self.light.at(now))?;
+                let (grey, face) = self.camera.shoot_seen(v.camera, &v.seen, mark, &mut self.rng, self.light.at(now + self.light_offset_us))?;
                 self.light.observed_grey(&grey);
                 (grey, face, mark.is_some())
             };
@@ -875,7 +907,10 @@ pub fn run_trial_with<F: world::Firmware>(
     // On a stream of its own: the fixed light's trials keep their draws.
     let mut light_rng = ChaCha8Rng::seed_from_u64(seed);
     light_rng.set_stream(3);
-    let light = LightSchedule::new(cfg.light, cfg.mark_at_us + cfg.watch_us, &mut light_rng);
+    let (light, light_offset_us) = match cfg.light_span {
+        Some(r) => (LightSchedule::new(cfg.light, r.span_us, &mut ChaCha8Rng::seed_from_u64(r.seed)), r.offset_us),
+        None => (LightSchedule::new(cfg.light, cfg.mark_at_us + cfg.watch_us, &mut light_rng), 0),
+    };
     let mut sc = Scenario {
         cfg,
         camera,
@@ -905,6 +940,7 @@ pub fn run_trial_with<F: world::Firmware>(
         frames_with_mark: 0,
         log: cfg.mcap.as_ref().map(|m| crate::rosbag::session::SessionLog::with_saliency(&m.0)),
         light,
+        light_offset_us,
     };
     let wcfg = cfg.world(seed);
     let (w, report) = world::run(
@@ -999,6 +1035,57 @@ pub fn run_inproc(
     let mut v = results.into_inner().unwrap();
     v.sort_by_key(|t| t.index);
     Ok(v)
+}
+
+/// Runs `n` in-process trials one after another as one long run of robot time: the light's
+/// plan spans the run (`cfg.light` over `n` trials of `mark_at + watch`, each trial starting
+/// where the last ended), and each trial's board takes over what the previous one learnt of
+/// the room and its clock (the world and the links are fresh each trial). Returns the trials
+/// and the room's state at the end.
+pub fn run_one_board(
+    blob: &[u8],
+    cfg: &EpisodeConfig,
+    n: usize,
+    seed: u64,
+    progress: &(dyn Fn(&Trial) + Sync),
+) -> Result<(Vec<Trial>, msr_shared::msg::RoomReport)> {
+    let model = Model::parse(blob).map_err(|e| anyhow!("model blob: {e}"))?;
+    let cropper = crate::detect::cropper_of(&model)?;
+    let renderer = Renderer::new(cfg.robot);
+    let span_us = n as u64 * (cfg.mark_at_us + cfg.watch_us);
+    let mut carried: Option<msr_firmware::room::Room> = None;
+    let mut offset_us = 0u64;
+    let mut trials = Vec::with_capacity(n.min(1024));
+    let mut room = None;
+    for i in 0..n {
+        let mut c = cfg.clone();
+        c.light_span = Some(LightSpan { seed, span_us, offset_us });
+        let mut board = inproc_board(blob);
+        let mut room_in = carried.take();
+        // The board's clock runs on across trials, so what it learnt keeps its times.
+        let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| {
+            board.poll(offset_us + now, h, s);
+            // After the first poll: the board has loaded its model (which resets the room).
+            if let Some(r) = room_in.take() {
+                board.set_room(r);
+            }
+        };
+        let camera = Camera { renderer: &renderer, cropper: &cropper };
+        let (mut trial, _) = run_trial_with(&mut fw, camera, &c, i, trial_seed(seed, i))?;
+        let s = board.status();
+        add_board_counters(&mut trial, &s);
+        carried = Some(board.room().clone());
+        if std::env::var_os("MSR_ROOM_DEBUG").is_some() {
+            for r in board.room().offsets().chunks(msr_firmware::room::COLS) {
+                eprintln!("{}", r.iter().map(|o| format!("{:6.1}", *o as f32 / 256.0)).collect::<Vec<_>>().join(""));
+            }
+        }
+        room = Some(s.room);
+        offset_us += (trial.sim_s * 1e6) as u64;
+        progress(&trial);
+        trials.push(trial);
+    }
+    Ok((trials, room.unwrap_or(msr_firmware::room::Room::new().report(false))))
 }
 
 /// Reads a model blob and checks it parses.
