@@ -158,6 +158,12 @@ impl Decoder {
         Some(&bytemuck::cast_slice(&self.act[k].0[..])[..n])
     }
 
+    /// The last predicted face, to change in place (the cache keeps the change).
+    pub fn face_mut(&mut self) -> Option<&mut [u16]> {
+        let (k, n) = self.face?;
+        Some(&mut bytemuck::cast_slice_mut(&mut self.act[k].0[..])[..n])
+    }
+
     /// The buffer that does not hold the face, as bytes: scratch space for the saliency mask.
     /// Its contents are lost at the next decoder run.
     pub fn scratch(&mut self) -> &mut [u8] {

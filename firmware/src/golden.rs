@@ -139,3 +139,72 @@ pub fn run(
         digest: digest.finalize(),
     })
 }
+
+/// What [`room`] gave: its cost (from the caller's counter) and the offsets' digest.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RoomReport {
+    /// Counter units (instructions on the board) per frame learnt from, the batch's update
+    /// excepted.
+    pub learn: u64,
+    /// Per frame that ends a batch (its samples and the update of every offset).
+    pub update: u64,
+    /// Adding the offsets to one predicted face.
+    pub apply: u64,
+    /// CRC-32 of the offsets at the end (i16 little-endian): the host and the board compare it.
+    pub digest: u32,
+}
+
+/// Online self-calibration ([`crate::room`]) on a fixed sequence: 32 frames of the face at
+/// [`head_pose`]`(0)`, 2 grey levels brighter on its left half than predicted, with noise and
+/// a mark on every fourth, each through saliency and then learnt from (a second apart); then
+/// the offsets added to a prediction. `counter` reads a clock (instructions on the board; the
+/// host may return 0). The room is reset first and left as learnt.
+pub fn room(
+    ws: &mut Workspace,
+    model: &Model,
+    crop: &mut [u8],
+    mut counter: impl FnMut() -> u64,
+) -> Result<RoomReport, DetectError> {
+    let (h, w) = (model.face_h as usize, model.face_w as usize);
+    let crop = crop.get_mut(..h * w).ok_or(DetectError::CropSize)?;
+    let settings = Settings::of(model).at(model, head_pose(0));
+    ws.room.reset();
+    ws.room.freeze(false);
+    let mut r = RoomReport::default();
+    let mut rng = XorShift(0x2545_F491);
+    for i in 0..32u64 {
+        let face = ws.decode(model, head_pose(0))?;
+        for (k, (c, &p)) in crop.iter_mut().zip(face).enumerate() {
+            let shade = if k % w < w / 2 { 2 } else { 0 };
+            let noise = (rng.next() % 7) as i32 - 3;
+            *c = (((p as i32 + 128) >> 8) + shade + noise).clamp(0, 255) as u8;
+        }
+        if i % 4 == 3 {
+            let side = 7.min(h).min(w);
+            for y in 0..side {
+                crop[y * w..y * w + side].fill(255);
+            }
+        }
+        ws.saliency(model, &settings, crop)?;
+        let t0 = counter();
+        ws.learn(model, crop, i * 1_000_000);
+        let dt = counter().wrapping_sub(t0);
+        if i % 8 == 7 {
+            r.update += dt / 4;
+        } else {
+            r.learn += dt / 28;
+        }
+    }
+    if let Some(face) = ws.decoder.face_mut() {
+        let t0 = counter();
+        ws.room.apply(face, w);
+        r.apply = counter().wrapping_sub(t0);
+    }
+    let mut digest = CRC32.digest();
+    for o in ws.room.offsets() {
+        digest.update(&o.to_le_bytes());
+    }
+    r.digest = digest.finalize();
+    Ok(r)
+}
+

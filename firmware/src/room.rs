@@ -25,7 +25,8 @@
 //! 5. Freeze stops rules 1-3 and keeps the offsets; reset returns them to 0. A new model starts
 //!    at 0, or at the offsets the store saved for it ([`Room::restore`]).
 //!
-//! Integers only, so the host and the board agree bit for bit. 96 cells: about 1 KiB of RAM.
+//! Integers, and one line fit in f32 per update, so the host and the board agree bit for bit
+//! (`msr bench --backend qemu` checks it). 96 cells: about 1 KiB of RAM.
 //! Rule 4 costs about 3 instructions a pixel each time the network runs (a new head pose).
 
 use msr_shared::blob::{MAX_FACE_H, MAX_FACE_W};
@@ -48,19 +49,30 @@ pub const RATE_SHIFT: u32 = 3;
 /// Farthest an offset may move from the calibrated statistics: 12 grey levels, Q8.8.
 pub const LIMIT: i16 = 12 * 256;
 /// Samples a cell needs in a batch to be updated (a whole cell gives 16 a frame).
-pub const MIN_SAMPLES: u16 = 32;
+pub const MIN_SAMPLES: u32 = 32;
 /// Bytes of [`Room::save`]: a version, the cell side, the columns and rows, then the offsets.
 pub const SAVED_LEN: usize = 4 + 2 * CELLS;
 const VERSION: u8 = 1;
+
+/// One cell's samples in the batch being gathered.
+#[derive(Clone, Copy, Debug, Default)]
+struct Acc {
+    /// Their errors, Q8.8.
+    sum: i32,
+    /// Their predicted grey levels, Q8.8 (for rule 3's line).
+    pred: i32,
+    count: u32,
+}
+
+impl Acc {
+    const ZERO: Acc = Acc { sum: 0, pred: 0, count: 0 };
+}
 
 /// The learnt offsets and the batch being gathered.
 #[derive(Clone, Debug)]
 pub struct Room {
     offset: [i16; CELLS],
-    sum: [i32; CELLS],
-    /// The predicted grey levels of the batch's samples, per cell (for rule 3's line).
-    pred_sum: [i32; CELLS],
-    count: [u16; CELLS],
+    acc: [Acc; CELLS],
     batch: u16,
     frozen: bool,
     last_us: Option<u64>,
@@ -80,9 +92,7 @@ impl Room {
     pub const fn new() -> Self {
         Room {
             offset: [0; CELLS],
-            sum: [0; CELLS],
-            pred_sum: [0; CELLS],
-            count: [0; CELLS],
+            acc: [Acc::ZERO; CELLS],
             batch: 0,
             frozen: false,
             last_us: None,
@@ -134,10 +144,12 @@ impl Room {
             return;
         }
         for (y, row) in pred.chunks_mut(w).enumerate() {
-            let cells = self.offset.get((y / CELL) * COLS..).unwrap_or(&[]);
-            for (x, p) in row.iter_mut().enumerate() {
-                let o = cells.get(x / CELL).copied().unwrap_or(0) as i32;
-                *p = (*p as i32 + o).clamp(0, 255 << 8) as u16;
+            let Some(cells) = self.offset.get((y / CELL) * COLS..) else { break };
+            for (run, &o) in row.chunks_mut(CELL).zip(cells) {
+                let o = o as i32;
+                for p in run {
+                    *p = (*p as i32 + o).clamp(0, 255 << 8) as u16;
+                }
             }
         }
     }
@@ -155,21 +167,33 @@ impl Room {
         }
         self.last_us = Some(now_us);
         let n = frame.len().min(pred.len()).min(mask.len());
+        // No sum can overflow: a cell takes at most (CELL / 2)^2 samples a frame, BATCH frames.
         for y in (0..n / w).step_by(2) {
-            let base = (y / CELL) * COLS;
-            for x in (0..w).step_by(2) {
-                let i = y * w + x;
-                let (f, m) = (frame[i], mask[i]);
-                if m != 0 || f == 0 || f == 255 {
-                    continue;
+            let at = y * w;
+            let (Some(f), Some(p), Some(m), Some(acc)) = (
+                frame.get(at..at + w),
+                pred.get(at..at + w),
+                mask.get(at..at + w),
+                self.acc.get_mut((y / CELL) * COLS..),
+            ) else {
+                break;
+            };
+            for (cx, a) in acc.iter_mut().enumerate().take(w.div_ceil(CELL)) {
+                let (mut s, mut ps, mut k) = (0i32, 0i32, 0u32);
+                let mut x = cx * CELL;
+                let end = (x + CELL).min(w);
+                while x < end {
+                    let (fx, px) = (f[x], p[x] as i32);
+                    if m[x] == 0 && fx != 0 && fx != 255 {
+                        s += lut[fx as usize] as i32 - px;
+                        ps += px;
+                        k += 1;
+                    }
+                    x += 2;
                 }
-                let e = lut[f as usize] as i32 - pred[i] as i32;
-                let c = base + x / CELL;
-                if let (Some(s), Some(p), Some(k)) = (self.sum.get_mut(c), self.pred_sum.get_mut(c), self.count.get_mut(c)) {
-                    *s = s.saturating_add(e);
-                    *p = p.saturating_add(pred[i] as i32);
-                    *k = k.saturating_add(1);
-                }
+                a.sum += s;
+                a.pred += ps;
+                a.count += k;
             }
         }
         self.frames = self.frames.saturating_add(1);
@@ -178,34 +202,35 @@ impl Room {
             return false;
         }
         let before = self.offset;
-        // Moved offsets (not yet clamped), and the line through them in the cells' brightness.
+        // Moved offsets (not yet clamped), and the least-squares line through them in the
+        // cells' mean predicted grey level. In f32: IEEE single on the host and the board
+        // alike (no fused operations), so the result is the same bit for bit.
         let mut moved = [0i32; CELLS];
-        let (mut n, mut so, mut sp, mut sop, mut spp) = (0i128, 0i128, 0i128, 0i128, 0i128);
+        let mut level = [0f32; CELLS];
+        let (mut n, mut so, mut sp, mut sop, mut spp) = (0f32, 0f32, 0f32, 0f32, 0f32);
         for c in 0..CELLS {
-            let k = self.count[c];
+            let Acc { sum, pred, count: k } = self.acc[c];
             if k < MIN_SAMPLES {
                 continue;
             }
-            let o = self.offset[c] as i32 + ((self.sum[c] / k as i32) >> RATE_SHIFT);
-            let p = (self.pred_sum[c] / k as i32) as i128;
+            let o = self.offset[c] as i32 + ((sum / k as i32) >> RATE_SHIFT);
+            let p = (pred / k as i32) as f32 / 256.0;
             moved[c] = o;
-            n += 1;
-            so += o as i128;
+            level[c] = p;
+            n += 1.0;
+            so += o as f32;
             sp += p;
-            sop += o as i128 * p;
+            sop += o as f32 * p;
             spp += p * p;
         }
-        let var = n * spp - sp * sp;
-        let cov = n * sop - so * sp;
+        let (var, cov) = (n * spp - sp * sp, n * sop - so * sp);
+        let b = if var > 0.0 { cov / var } else { 0.0 };
+        let a = if n > 0.0 { (so - b * sp) / n } else { 0.0 };
         for c in 0..CELLS {
-            let k = self.count[c];
-            if k < MIN_SAMPLES || n == 0 {
+            if self.acc[c].count < MIN_SAMPLES {
                 continue;
             }
-            let p = (self.pred_sum[c] / k as i32) as i128;
-            // a + b p with b = cov / var, a = (so - b sp) / n: (so + cov (n p - sp) / var) / n.
-            let slope = if var > 0 { cov * (n * p - sp) / var } else { 0 };
-            let line = ((so + slope) / n) as i32;
+            let line = (a + b * level[c]) as i32;
             self.offset[c] = (moved[c] - line).clamp(-(LIMIT as i32), LIMIT as i32) as i16;
         }
         let changed = self.offset != before;
@@ -218,9 +243,7 @@ impl Room {
     }
 
     fn clear_batch(&mut self) {
-        self.sum = [0; CELLS];
-        self.pred_sum = [0; CELLS];
-        self.count = [0; CELLS];
+        self.acc = [Acc::ZERO; CELLS];
         self.batch = 0;
     }
 

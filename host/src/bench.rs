@@ -390,6 +390,14 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
         r["golden_digest"],
         host_golden.digest
     );
+    let host_room = host_room(&model)?;
+    ensure!(
+        r["room"]["digest"].as_u64() == Some(host_room.digest as u64),
+        "the board's online self-calibration learnt other offsets than the host build's (digest {} vs {})",
+        r["room"]["digest"],
+        host_room.digest
+    );
+    let room = |k: &str| r["room"][k].as_u64().unwrap_or(0);
     let stage = |k: &str| r["stages"][k].as_u64().unwrap_or(0);
     let stages = [stage("decoder"), stage("saliency"), stage("blobs"), stage("reach")];
     let total: u64 = stages.iter().sum();
@@ -400,6 +408,9 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
     let flash = code + board.data_init + m.blob.len() as u64;
     let per_mac = stages[0] as f64 / macs.max(1) as f64;
     let post = (stages[1] + stages[2] + stages[3]) as f64 / pixels;
+    // The worst frame for the room: a new head pose (the offsets added to the new prediction)
+    // and learnt from (at most one frame in 400 ms is).
+    let with_room = post + (room("apply") + room("learn")) as f64 / pixels;
     let stack = r["stack_peak_bytes"].as_u64().unwrap_or(0);
     Ok(json!({
         "backend": "qemu",
@@ -412,6 +423,13 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
         "total_instructions": total,
         "instructions_per_mac": round3(per_mac),
         "post_decoder_instructions_per_pixel": round3(post),
+        "room": {
+            "learn_instructions": room("learn"),
+            "update_instructions": room("update"),
+            "apply_instructions": room("apply"),
+            "matches_host": true,
+            "post_decoder_with_room_instructions_per_pixel": round3(with_room),
+        },
         "static_ram_bytes": board.ram,
         "flash_bytes": flash,
         "code_bytes": code,
@@ -439,6 +457,13 @@ pub fn host_golden(model: &Model) -> Result<msr_firmware::golden::GoldenReport> 
     let mut ws = Box::new(Workspace::new());
     let mut crop = vec![0u8; model.face_pixels()];
     msr_firmware::golden::run(&mut ws, model, &mut crop).map_err(|e| anyhow::anyhow!("host golden frames: {e}"))
+}
+
+/// The room's fixed sequence ([`msr_firmware::golden::room`]) on the host build.
+pub fn host_room(model: &Model) -> Result<msr_firmware::golden::RoomReport> {
+    let mut ws = Box::new(Workspace::new());
+    let mut crop = vec![0u8; model.face_pixels()];
+    msr_firmware::golden::room(&mut ws, model, &mut crop, || 0).map_err(|e| anyhow::anyhow!("host room: {e}"))
 }
 
 /// CRC-32 of the host build's predicted face (u16 little-endian) for each of [`POSES`], as the

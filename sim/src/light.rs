@@ -150,9 +150,9 @@ pub enum LightPlan {
     /// gain loop ([`AutoExposure`]) brings the picture back, with a lag, and moves when the arm
     /// enters the view.
     AutoExposure,
-    /// Slowly, over the whole schedule: the key lamp turns by 15..25 degrees about the vertical,
-    /// the light warms to 4000..4500 K or cools to 7000..7500 K, and the ambient share falls
-    /// from 0.45 to 0.35. Shading that no per-frame gain and offset take back; meant for a long
+    /// Slowly, over the whole schedule: the key lamp turns by 8..12 degrees about the vertical,
+    /// the light warms to 4500..5000 K or cools to 6500..7000 K, and the ambient share falls
+    /// from 0.45 to 0.40. Shading that no per-frame gain and offset take back; meant for a long
     /// run on one board (`msr mirror-test --one-board`), where the board learns the room.
     Turn,
 }
@@ -198,11 +198,11 @@ impl LightSchedule {
                 (1.0 + sign(rng) * rng.gen_range(0.25..0.45), at, None)
             }
             LightPlan::AutoExposure => (rng.gen_range(0.65..1.5), 0, Some(AutoExposure::new())),
-            LightPlan::Turn => (sign(rng) * rng.gen_range(15f32..25.0).to_radians(), 0, None),
+            LightPlan::Turn => (sign(rng) * rng.gen_range(8f32..12.0).to_radians(), 0, None),
         };
         let kelvin = match plan {
-            LightPlan::Turn if rng.gen_bool(0.5) => rng.gen_range(4000.0..4500.0),
-            LightPlan::Turn => rng.gen_range(7000.0..7500.0),
+            LightPlan::Turn if rng.gen_bool(0.5) => rng.gen_range(4500.0..5000.0),
+            LightPlan::Turn => rng.gen_range(6500.0..7000.0),
             _ => 5500.0,
         };
         LightSchedule { plan, duration_us: duration_us.max(1), amount, kelvin, at_us, auto }
@@ -231,7 +231,7 @@ impl LightSchedule {
                 let [x, y, z] = f.key_dir;
                 Light {
                     key_dir: [x * cos - y * sin, x * sin + y * cos, z],
-                    ambient: f.ambient - 0.1 * s,
+                    ambient: f.ambient - 0.05 * s,
                     tint: tint_of_kelvin(5500.0 + (self.kelvin - 5500.0) * s),
                     ..f
                 }

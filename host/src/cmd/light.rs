@@ -40,8 +40,8 @@ pub enum RunLight {
     Step,
     /// The room 0.65..1.5 times as bright; the camera's own gain loop follows with a lag
     AutoExposure,
-    /// Slowly over the whole run: the lamp turns by 15..25 degrees, the light warms or cools
-    /// by 1500..2000 K, the ambient share falls by a fifth (for --one-board)
+    /// Slowly over the whole run: the lamp turns by 8..12 degrees, the light warms or cools by
+    /// 500..1500 K, the ambient share falls by a ninth (for --one-board)
     Turn,
 }
 

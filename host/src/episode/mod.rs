@@ -1075,11 +1075,6 @@ pub fn run_one_board(
         let s = board.status();
         add_board_counters(&mut trial, &s);
         carried = Some(board.room().clone());
-        if std::env::var_os("MSR_ROOM_DEBUG").is_some() {
-            for r in board.room().offsets().chunks(msr_firmware::room::COLS) {
-                eprintln!("{}", r.iter().map(|o| format!("{:6.1}", *o as f32 / 256.0)).collect::<Vec<_>>().join(""));
-            }
-        }
         room = Some(s.room);
         offset_us += (trial.sim_s * 1e6) as u64;
         progress(&trial);

@@ -175,6 +175,13 @@ fn main() -> ! {
             exit(1);
         }
     };
+    let room = match msr_firmware::golden::room(ws, &model, frame, || clock.instructions()) {
+        Ok(r) => r,
+        Err(e) => {
+            hprintln!("MSR-BENCH-ERROR room: {}", e);
+            exit(1);
+        }
+    };
     let mut sum = Stages::default();
     for (k, l) in lines.iter().enumerate() {
         let s = l.stages;
@@ -190,7 +197,7 @@ fn main() -> ! {
     let f = POSES.len() as u64;
     let sizes = memory::sizes();
     hprintln!(
-        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}],\"golden_digest\":{},\"golden_detections\":{}}}",
+        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}],\"golden_digest\":{},\"golden_detections\":{},\"room\":{{\"learn\":{},\"update\":{},\"apply\":{},\"digest\":{}}}}}",
         f,
         found,
         model.decoder_macs(),
@@ -209,7 +216,11 @@ fn main() -> ! {
         lines[2].face_crc,
         lines[3].face_crc,
         golden.digest,
-        golden.detections
+        golden.detections,
+        room.learn,
+        room.update,
+        room.apply,
+        room.digest
     );
     exit(0)
 }
