@@ -87,6 +87,9 @@ struct Core<S: ModelStore> {
     /// The servo bus's protocol is known (see [`Board::await_servo_bus`]): until then nothing
     /// is sent on it and what arrives there is dropped.
     bus_known: bool,
+    /// Bytes were dropped mid-frame before the bus was known: the framed receiver joins the
+    /// bus at the next delimiter (the rest of that frame is not an error of the link).
+    servo_mid_frame: bool,
     dxl_stopped: bool,
     /// The detection that started the reach in progress, repeated while the arm is up so
     /// that a host that lost it still learns of the reach.
@@ -143,6 +146,7 @@ impl<S: ModelStore> Board<S> {
                 scene_changed: 0,
                 dxl: None,
                 bus_known: true,
+                servo_mid_frame: false,
                 dxl_stopped: false,
                 last_reach: None,
                 last_poll_us: 0,
@@ -214,6 +218,7 @@ impl<S: ModelStore> Board<S> {
                     break;
                 }
                 taken += n;
+                core.servo_mid_frame = buf[n - 1] != 0;
             }
         }
         while taken < MAX_BYTES_PER_POLL {
@@ -223,6 +228,10 @@ impl<S: ModelStore> Board<S> {
             }
             taken += n;
             for &b in &buf[..n] {
+                if core.servo_mid_frame {
+                    core.servo_mid_frame = b != 0;
+                    continue;
+                }
                 if let Some(Ok(f)) = self.servo_rx.push(b) {
                     match f.message::<ServoToBoard>() {
                         Ok(ServoToBoard::States { states, .. }) => {

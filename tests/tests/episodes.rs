@@ -68,22 +68,28 @@ fn the_dynamixel_bus_touches_as_the_framed_bus_does() {
     assert!(b.touched + 1 >= a.touched, "framed {a:?}\ndynamixel {b:?}");
     assert_eq!((b.limit_violations, b.false_reaches), (0, 0));
     assert_eq!((b.crc_errors, b.resyncs, b.watchdog_trips), (0, 0, 0), "clean links");
-    // What the board sent is Protocol 2.0: it starts with the e-Manual's Ping of ID 1, and a
-    // Sync Write of goals and a Sync Read of positions follow every period.
-    let log = &trials[0].bus_bytes;
+    // What the board sent is Protocol 2.0 and nothing else, in every trial: it starts with the
+    // e-Manual's Ping of ID 1 (no framed byte before the board learnt its bus), every byte is
+    // part of a packet, and a Sync Write of goals and a Sync Read of positions follow every
+    // period.
     let ping = [0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x03, 0x00, 0x01, 0x19, 0x4E];
-    let start = log.windows(ping.len()).position(|w| w == ping).expect("a Ping of ID 1");
-    let mut rx = msr_shared::dynamixel::Receiver::<256>::new();
-    let (mut writes, mut reads) = (0, 0);
-    for &byte in &log[start..] {
-        rx.push(byte);
-        while let Some(p) = rx.next_packet() {
-            writes += (p.instruction == msr_shared::dynamixel::inst::SYNC_WRITE) as u32;
-            reads += (p.instruction == msr_shared::dynamixel::inst::SYNC_READ) as u32;
+    for t in &trials {
+        let log = &t.bus_bytes;
+        assert_eq!(log[..ping.len()], ping, "trial {}: {:02x?}", t.index, &log[..log.len().min(16)]);
+        let mut rx = msr_shared::dynamixel::Receiver::<256>::new();
+        let (mut writes, mut reads) = (0, 0);
+        for &byte in log {
+            rx.push(byte);
+            while let Some(p) = rx.next_packet() {
+                writes += (p.instruction == msr_shared::dynamixel::inst::SYNC_WRITE) as u32;
+                reads += (p.instruction == msr_shared::dynamixel::inst::SYNC_READ) as u32;
+            }
         }
+        let c = rx.counters();
+        assert_eq!((c.noise_bytes, c.errors(), rx.buffered()), (0, 0, 0), "trial {}: {c:?}", t.index);
+        let periods = (t.sim_s * 100.0) as u32;
+        assert!(reads + 10 >= periods && writes + 10 >= periods, "{reads} reads, {writes} writes in {periods} periods");
     }
-    let periods = (trials[0].sim_s * 100.0) as u32;
-    assert!(reads + 10 >= periods && writes + 10 >= periods, "{reads} reads, {writes} writes in {periods} periods");
 }
 
 #[test]
