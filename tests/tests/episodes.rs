@@ -176,3 +176,16 @@ fn bad_models_are_clear_errors() {
     assert!(format!("{e:#}").contains("model"), "{e:#}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn mirror_test_refuses_a_model_made_for_the_other_robot() {
+    use msr_host::cmd::mirror_test::check_robot;
+    let (red, skin) = (common::trained_model(Robot::Red), common::trained_model(Robot::Skin));
+    check_robot(&red, Robot::Red).unwrap();
+    check_robot(&skin, Robot::Skin).unwrap();
+    // Run anyway, every frame of the red robot would be refused as no face by the skin model.
+    let e = check_robot(&skin, Robot::Red).unwrap_err().to_string();
+    assert!(e.contains("made for robot skin") && e.contains("--robot skin"), "{e}");
+    let e = check_robot(&red, Robot::Skin).unwrap_err().to_string();
+    assert!(e.contains("made for robot red") && e.contains("--robot red"), "{e}");
+}
