@@ -87,6 +87,12 @@ struct Core<S: ModelStore> {
     scene_changed: u32,
     /// The servo bus speaks Dynamixel Protocol 2.0 with this master (`None`: framed).
     dxl: Option<Master>,
+    /// The servo bus's protocol is known (see [`Board::await_servo_bus`]): until then nothing
+    /// is sent on it and what arrives there is dropped.
+    bus_known: bool,
+    /// Bytes were dropped mid-frame before the bus was known: the framed receiver joins the
+    /// bus at the next delimiter (the rest of that frame is not an error of the link).
+    servo_mid_frame: bool,
     dxl_stopped: bool,
     /// The detection that started the reach in progress, repeated while the arm is up so
     /// that a host that lost it still learns of the reach.
@@ -149,6 +155,8 @@ impl<S: ModelStore> Board<S> {
                 no_face: 0,
                 scene_changed: 0,
                 dxl: None,
+                bus_known: true,
+                servo_mid_frame: false,
                 dxl_stopped: false,
                 last_reach: None,
                 last_poll_us: 0,
@@ -163,8 +171,21 @@ impl<S: ModelStore> Board<S> {
     }
 
     /// Chooses the servo bus: framed (`None`) or Dynamixel Protocol 2.0 with this master.
+    /// A board built for one bus calls it at start-up; [`Board::new`] starts framed.
     pub fn set_servo_bus(&mut self, master: Option<Master>) {
         self.core.dxl = master;
+        self.core.bus_known = true;
+        self.core.dxl_stopped = false;
+    }
+
+    /// Leaves the servo bus's protocol to the host, for a board wired to either bus (QEMU, the
+    /// sim's trials): nothing is sent on the servo bus until the host's `UseServoBus` (or
+    /// `SetServoMap`: Dynamixel). A host that starts with anything but those or a query
+    /// (`Ping`, `GetStatus`, `GetServoBus`, `GetStore`) gets the framed bus, the protocol's
+    /// default. Call it at start-up, before the first poll.
+    pub fn await_servo_bus(&mut self) {
+        self.core.dxl = None;
+        self.core.bus_known = false;
         self.core.dxl_stopped = false;
     }
 
@@ -202,6 +223,16 @@ impl<S: ModelStore> Board<S> {
             let polled = m.poll(now_us, servo);
             core.on_positions(now_us, polled, host);
             taken = MAX_BYTES_PER_POLL; // The master has read the bus.
+        } else if !core.bus_known {
+            // Nobody was asked: whatever is there is not ours to parse (nor to count as errors).
+            while taken < MAX_BYTES_PER_POLL {
+                let n = read_ready(servo, &mut buf);
+                if n == 0 {
+                    break;
+                }
+                taken += n;
+                core.servo_mid_frame = buf[n - 1] != 0;
+            }
         }
         while taken < MAX_BYTES_PER_POLL {
             let n = read_ready(servo, &mut buf);
@@ -210,6 +241,10 @@ impl<S: ModelStore> Board<S> {
             }
             taken += n;
             for &b in &buf[..n] {
+                if core.servo_mid_frame {
+                    core.servo_mid_frame = b != 0;
+                    continue;
+                }
                 if let Some(Ok(f)) = self.servo_rx.push(b) {
                     match f.message::<ServoToBoard>() {
                         Ok(ServoToBoard::States { states, .. }) => {
@@ -454,6 +489,19 @@ impl<S: ModelStore> Core<S> {
         frame: &mut Assembly,
         host: &mut H,
     ) {
+        let chooses_nothing = matches!(
+            msg,
+            HostToBoard::Ping { .. }
+                | HostToBoard::GetStatus
+                | HostToBoard::GetServoBus
+                | HostToBoard::GetStore
+                | HostToBoard::UseServoBus(_)
+                | HostToBoard::SetServoMap(_)
+        );
+        if !self.bus_known && !chooses_nothing {
+            // A host that does not choose: the framed bus, as before the choice existed.
+            self.bus_known = true;
+        }
         match msg {
             HostToBoard::Ping { nonce } => {
                 self.host_tx.send(host, &BoardToHost::Pong { nonce });
@@ -517,9 +565,11 @@ impl<S: ModelStore> Core<S> {
                     ServoBusKind::Framed => None,
                     ServoBusKind::Dynamixel => Some(Master::new()),
                 };
+                self.bus_known = true;
                 self.dxl_stopped = false;
             }
             HostToBoard::SetServoMap(map) => {
+                self.bus_known = true;
                 let m = self.dxl.get_or_insert_with(Master::new);
                 if let Err(e) = m.set_map(map) {
                     let at = map.iter().position(|j| Some(j.joint) == map_error_joint(e));
@@ -661,6 +711,7 @@ impl<S: ModelStore> Core<S> {
             rx_errors: 0,
             busy_periods: 0,
         };
+        // Before the host chose (see `Board::await_servo_bus`): framed, not running.
         if let Some(m) = &self.dxl {
             r.kind = ServoBusKind::Dynamixel;
             r.running = m.stage() == crate::dynamixel::Stage::Running;
@@ -933,6 +984,11 @@ impl<S: ModelStore> Core<S> {
 
     /// One control period.
     fn tick<V: Write>(&mut self, now_us: u64, servo: &mut V) {
+        if !self.bus_known {
+            // Not a byte on a bus whose protocol is not known. The servo watchdog is armed by
+            // the first positions only, so this silence trips nothing.
+            return;
+        }
         if self.dxl.is_some() {
             return self.tick_dynamixel(now_us, servo);
         }

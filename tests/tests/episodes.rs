@@ -68,22 +68,28 @@ fn the_dynamixel_bus_touches_as_the_framed_bus_does() {
     assert!(b.touched + 1 >= a.touched, "framed {a:?}\ndynamixel {b:?}");
     assert_eq!((b.limit_violations, b.false_reaches), (0, 0));
     assert_eq!((b.crc_errors, b.resyncs, b.watchdog_trips), (0, 0, 0), "clean links");
-    // What the board sent is Protocol 2.0: it starts with the e-Manual's Ping of ID 1, and a
-    // Sync Write of goals and a Sync Read of positions follow every period.
-    let log = &trials[0].bus_bytes;
+    // What the board sent is Protocol 2.0 and nothing else, in every trial: it starts with the
+    // e-Manual's Ping of ID 1 (no framed byte before the board learnt its bus), every byte is
+    // part of a packet, and a Sync Write of goals and a Sync Read of positions follow every
+    // period.
     let ping = [0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x03, 0x00, 0x01, 0x19, 0x4E];
-    let start = log.windows(ping.len()).position(|w| w == ping).expect("a Ping of ID 1");
-    let mut rx = msr_shared::dynamixel::Receiver::<256>::new();
-    let (mut writes, mut reads) = (0, 0);
-    for &byte in &log[start..] {
-        rx.push(byte);
-        while let Some(p) = rx.next_packet() {
-            writes += (p.instruction == msr_shared::dynamixel::inst::SYNC_WRITE) as u32;
-            reads += (p.instruction == msr_shared::dynamixel::inst::SYNC_READ) as u32;
+    for t in &trials {
+        let log = &t.bus_bytes;
+        assert_eq!(log[..ping.len()], ping, "trial {}: {:02x?}", t.index, &log[..log.len().min(16)]);
+        let mut rx = msr_shared::dynamixel::Receiver::<256>::new();
+        let (mut writes, mut reads) = (0, 0);
+        for &byte in log {
+            rx.push(byte);
+            while let Some(p) = rx.next_packet() {
+                writes += (p.instruction == msr_shared::dynamixel::inst::SYNC_WRITE) as u32;
+                reads += (p.instruction == msr_shared::dynamixel::inst::SYNC_READ) as u32;
+            }
         }
+        let c = rx.counters();
+        assert_eq!((c.noise_bytes, c.errors(), rx.buffered()), (0, 0, 0), "trial {}: {c:?}", t.index);
+        let periods = (t.sim_s * 100.0) as u32;
+        assert!(reads + 10 >= periods && writes + 10 >= periods, "{reads} reads, {writes} writes in {periods} periods");
     }
-    let periods = (trials[0].sim_s * 100.0) as u32;
-    assert!(reads + 10 >= periods && writes + 10 >= periods, "{reads} reads, {writes} writes in {periods} periods");
 }
 
 #[test]
@@ -169,4 +175,17 @@ fn bad_models_are_clear_errors() {
         episode::run_inproc(b"junk", &EpisodeConfig::new(Robot::Red), 1, 0, &|_| {}).unwrap_err();
     assert!(format!("{e:#}").contains("model"), "{e:#}");
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn mirror_test_refuses_a_model_made_for_the_other_robot() {
+    use msr_host::cmd::mirror_test::check_robot;
+    let (red, skin) = (common::trained_model(Robot::Red), common::trained_model(Robot::Skin));
+    check_robot(&red, Robot::Red).unwrap();
+    check_robot(&skin, Robot::Skin).unwrap();
+    // Run anyway, every frame of the red robot would be refused as no face by the skin model.
+    let e = check_robot(&skin, Robot::Red).unwrap_err().to_string();
+    assert!(e.contains("made for robot skin") && e.contains("--robot skin"), "{e}");
+    let e = check_robot(&red, Robot::Skin).unwrap_err().to_string();
+    assert!(e.contains("made for robot red") && e.contains("--robot red"), "{e}");
 }

@@ -153,7 +153,7 @@ impl Rig {
     fn start(img: &std::path::Path) -> (Rig, u32) {
         let (mut ls, _) = Lockstep::start(img).unwrap();
         let crc = ls.reset(Some(TICK_US)).unwrap();
-        let rig = Rig {
+        let mut rig = Rig {
             ls,
             servos: Servos::new(),
             outbox: VecDeque::new(),
@@ -162,6 +162,8 @@ impl Rig {
             port: HostPort::default(),
             inbox: VecDeque::new(),
         };
+        // The image waits for the host to choose its servo bus; these servos are framed.
+        rig.send(&HostToBoard::UseServoBus(msr_shared::msg::ServoBusKind::Framed));
         (rig, crc)
     }
 

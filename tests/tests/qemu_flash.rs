@@ -8,7 +8,7 @@
 use msr_shared::frame::{encode_message_vec, FrameAccumulator, MAX_WIRE_FRAME};
 use msr_shared::host_port::HostPort;
 use msr_shared::joints::{HOME_POSTURE, REACH_JOINTS};
-use msr_shared::msg::{BoardToHost, BoardToServo, HostToBoard, JointState, ModelSource, ServoToBoard};
+use msr_shared::msg::{BoardToHost, BoardToServo, HostToBoard, JointState, ModelSource, ServoBusKind, ServoToBoard};
 use msr_sim::qemu::{self, Lockstep};
 use std::io::{ErrorKind, Read, Write};
 use std::os::unix::net::UnixStream;
@@ -81,14 +81,16 @@ fn servo_targets_keep_their_period_while_a_model_is_written_to_flash() {
     let stop = Arc::new(AtomicBool::new(false));
     let times = Arc::new(Mutex::new(Vec::new()));
     let t = servos(ls.servo_link().try_clone().unwrap(), stop.clone(), times.clone());
+    // The image waits for the host to choose its servo bus.
+    let mut host = ls.host_link().try_clone().unwrap();
+    let mut port = HostPort::default();
+    host.write_all(&port.encode(&HostToBoard::UseServoBus(ServoBusKind::Framed))).unwrap();
     // Streaming first.
     let t0 = Instant::now();
     while times.lock().unwrap().len() < 20 {
         assert!(t0.elapsed() < Duration::from_secs(30), "the board streams no targets");
         std::thread::sleep(Duration::from_millis(10));
     }
-    let mut host = ls.host_link().try_clone().unwrap();
-    let mut port = HostPort::default();
     let before = times.lock().unwrap().len();
     // The upload, as `msr run --upload` sends it: begin, wait for the ack (after the erase),
     // the chunks and the commit.

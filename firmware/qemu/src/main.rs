@@ -12,6 +12,9 @@
 //!   board then share one time base whatever the host's load, exactly as the in-process firmware
 //!   does.
 //!
+//! The servo bus is the host's choice (`UseServoBus`; see `Board::await_servo_bus`): the image
+//! says nothing on UART1 until then, and a host that starts without choosing gets the framed bus.
+//!
 //! The model is the built-in one (`MSR_MODEL_BLOB` at build time), whatever the host uploads
 //! (`ModelBegin` / `ModelChunk` / `ModelCommit`) into the store's two flash slots, or the one
 //! committed there before a reset (`R` on UART2). A model preloaded into PSRAM with QEMU's generic loader
@@ -246,6 +249,9 @@ fn main() -> ! {
     uart::enable_rx_irqs();
     // SAFETY: the only reference to BOARD, taken once in this single-threaded image.
     let board = unsafe { &mut *core::ptr::addr_of_mut!(BOARD) };
+    // Wired to either bus: the host chooses (see `Board::await_servo_bus`), so a Dynamixel
+    // bus never carries a framed byte.
+    board.await_servo_bus();
     // The store finds its committed model (if any) before anything asks for it.
     board.store_mut().start();
     report_preload(model_area::take_preload(board.store_mut()));

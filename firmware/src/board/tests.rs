@@ -982,3 +982,79 @@ fn the_big_state_fits_the_ram_budget() {
     println!("Board {board} bytes, of which Workspace {ws}");
     assert!(board <= 60 * 1024, "Board takes {board} bytes");
 }
+
+/// Polls `ms` milliseconds (framed servo states arriving unasked every 10 ms); returns what the
+/// board wrote on the servo bus.
+fn run_raw(rig: &mut Rig, ms: u64) -> Vec<u8> {
+    for _ in 0..ms {
+        rig.now += 1000;
+        if (rig.now / 1000).is_multiple_of(10) {
+            rig.states();
+        }
+        rig.board.poll(rig.now, &mut rig.host, &mut rig.servo);
+        for b in std::mem::take(&mut rig.host.tx) {
+            if let Some(Ok(f)) = rig.host_acc.push(b) {
+                rig.replies.push(f.message::<BoardToHost>().unwrap());
+            }
+        }
+    }
+    std::mem::take(&mut rig.servo.tx)
+}
+
+#[test]
+fn a_board_waiting_for_its_bus_says_nothing_on_it_then_speaks_only_dynamixel() {
+    let mut rig = Rig::new(Some(blob()));
+    rig.board.await_servo_bus();
+    // Queries choose nothing: still silent, and the bytes heard meanwhile count as nothing.
+    rig.host_send(&HostToBoard::Ping { nonce: 1 });
+    rig.host_send(&HostToBoard::GetServoBus);
+    let before = run_raw(&mut rig, 300);
+    assert_eq!(before, [], "bytes on a bus of unknown protocol");
+    let s = rig.board.status();
+    assert_eq!((s.servo_watchdog_trips, s.servo_link.crc_errors, s.servo_link.resyncs()), (0, 0, 0), "{s:?}");
+    assert!(rig.errors().is_empty(), "{:?}", rig.errors());
+    // The host's choice: from the first byte on, Protocol 2.0 packets and nothing else; first
+    // the e-Manual's Ping of ID 1 (no servo answers here, so the start-up pings again each
+    // second).
+    rig.host_send(&HostToBoard::UseServoBus(ServoBusKind::Dynamixel));
+    let after = run_raw(&mut rig, 3000);
+    let ping = [0xFF, 0xFF, 0xFD, 0x00, 0x01, 0x03, 0x00, 0x01, 0x19, 0x4E];
+    assert_eq!(after[..ping.len()], ping, "{:02x?}", &after[..after.len().min(16)]);
+    let mut rx = msr_shared::dynamixel::Receiver::<256>::new();
+    let mut packets = 0;
+    for &b in &after {
+        rx.push(b);
+        while rx.next_packet().is_some() {
+            packets += 1;
+        }
+    }
+    let c = rx.counters();
+    assert_eq!((c.noise_bytes, c.errors(), rx.buffered()), (0, 0, 0), "{c:?}");
+    assert!(packets >= 3, "{packets} packets in 3 s");
+    assert_eq!(rig.board.status().servo_watchdog_trips, 0);
+}
+
+#[test]
+fn a_board_waiting_for_its_bus_takes_framed_from_a_host_that_does_not_choose() {
+    let mut rig = Rig::new(None);
+    rig.board.await_servo_bus();
+    rig.host_send(&HostToBoard::GetStatus);
+    rig.run(100);
+    assert!(rig.targets.is_empty() && !rig.stiffness, "streamed before the bus was known");
+    // Half a state report is heard before the choice: the board joins the bus at the next
+    // frame, without counting the rest as an error.
+    rig.states();
+    let report: Vec<u8> = rig.servo.rx.drain(..).collect();
+    rig.servo.rx.extend(&report[..report.len() / 2]);
+    rig.run(1);
+    // Anything but a choice or a query: the framed bus, the protocol's default.
+    rig.frame(1, &face([0.0, 0.0], false));
+    rig.run(1);
+    rig.servo.rx.extend(&report[report.len() / 2..]);
+    rig.run(100);
+    let s = rig.board.status();
+    assert_eq!((s.servo_link.resyncs(), s.servo_link.crc_errors), (0, 0), "{:?}", s.servo_link);
+    assert!(rig.errors().contains(&(ErrorCode::NoModel, 0)));
+    assert!(rig.stiffness && rig.targets.len() >= 8, "{} targets", rig.targets.len());
+    assert_eq!(rig.board.status().servo_watchdog_trips, 0);
+}

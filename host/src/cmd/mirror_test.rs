@@ -111,6 +111,48 @@ pub fn gated_blob(blob: Vec<u8>, g: GateArg, robot: Robot) -> Result<Vec<u8>> {
     })
 }
 
+/// Refuses a model made for another robot's face, which the trials would run silently: the board
+/// refuses every frame as no face (nothing is ever reached for), or finds a mark all over the
+/// clean face (every trial a false reach). The test: one clean frame of each robot without a
+/// mark, at the home posture, through the firmware's pipeline. No face on `robot`'s: refused. A
+/// mark on `robot`'s clean face: refused when another robot's clean face fits the model, else a
+/// warning (a weak model, or one of a real robot, may find one).
+pub fn check_robot(blob: &[u8], robot: Robot) -> Result<()> {
+    use crate::detect::pipeline::Verdict;
+    let model = msr_shared::blob::Model::parse(blob).map_err(|e| anyhow::anyhow!("model blob: {e}"))?;
+    // `None`: it fits; otherwise what the board makes of the robot's clean face, and whether
+    // that is the face refused.
+    let misfit = |r: Robot| -> Option<(&'static str, bool)> {
+        let head = [msr_shared::joints::HOME_POSTURE[0], msr_shared::joints::HOME_POSTURE[1]];
+        let pose = msr_sim::body::BodyPose::head(head[0] as f64, head[1] as f64);
+        let frame = msr_sim::render::Renderer::new(r).render(&pose, None, &msr_sim::render::Variation::CLEAN);
+        let grey = crate::data::crop::to_grey(&image::DynamicImage::ImageRgb8(frame.rgb));
+        let det = crate::detect::cropper_of(&model)
+            .and_then(|c| c.crop(&grey))
+            .and_then(|face| crate::detect::fixed::detect(&model, &face, head));
+        match det {
+            Err(_) => Some(("its face is not found in the frame", true)),
+            Ok(d) if d.light.verdict != Verdict::Face => Some(("the board would refuse every frame as no face", true)),
+            Ok(d) if d.blob.is_some() => Some(("the board finds a mark on its clean face", false)),
+            Ok(_) => None,
+        }
+    };
+    let Some((why, no_face)) = misfit(robot) else { return Ok(()) };
+    let fits: Vec<&str> = Robot::ALL.iter().filter(|&&r| r != robot && misfit(r).is_none()).map(|r| r.name()).collect();
+    match fits.first() {
+        Some(other) => bail!(
+            "the model was made for robot {} (on robot {}'s face {why}): pass --robot {other}",
+            fits.join(" or "),
+            robot.name()
+        ),
+        None if no_face => bail!("the model does not fit robot {}'s face: {why}", robot.name()),
+        None => {
+            eprintln!("warning: {why} (robot {}, home posture): expect false reaches", robot.name());
+            Ok(())
+        }
+    }
+}
+
 pub fn config(a: &Args) -> Result<EpisodeConfig> {
     if !(0.0..=1.0).contains(&a.no_mark_share) {
         bail!("--no-mark-share must be in 0..=1, got {}", a.no_mark_share);
@@ -147,7 +189,9 @@ pub fn run(a: Args) -> Result<()> {
         bail!("--trials must be at least 1");
     }
     let cfg = config(&a)?;
-    let blob = gated_blob(episode::read_model(&a.model)?, a.self_gate, a.robot)?;
+    let raw = episode::read_model(&a.model)?;
+    check_robot(&raw, a.robot)?;
+    let blob = gated_blob(raw, a.self_gate, a.robot)?;
     let mut cfg = cfg;
     if a.mcap.is_some() {
         cfg.mcap = Some(crate::rosbag::session::LogModel(blob.clone().into()));

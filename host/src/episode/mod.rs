@@ -561,11 +561,9 @@ impl Scenario<'_> {
         let now = w.now_us;
         self.scene.step(now, &w.body_pose());
         if now == 0 {
-            // The bus first: a board starts framed (its Dynamixel master then starts up).
-            if self.cfg.servo_bus != ServoBus::Framed {
-                let bytes = self.port.encode(&HostToBoard::UseServoBus(self.cfg.servo_bus.kind()));
-                w.host.send(&bytes);
-            }
+            // The bus first: the board (in-process or QEMU) says nothing on it until told.
+            let bytes = self.port.encode(&HostToBoard::UseServoBus(self.cfg.servo_bus.kind()));
+            w.host.send(&bytes);
             if let Some(c) = self.cfg.board_config {
                 let bytes = self.port.encode(&HostToBoard::Configure(c));
                 w.host.send(&bytes);
@@ -826,6 +824,8 @@ pub fn run_trial_inproc(
     seed: u64,
 ) -> Result<Trial> {
     let mut board = inproc_board(blob);
+    // As the QEMU image: wired to either bus, the trial's host chooses.
+    board.await_servo_bus();
     let mut log = Vec::new();
     let log_bus = cfg.log_bus;
     let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| {
