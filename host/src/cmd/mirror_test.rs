@@ -32,8 +32,8 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = super::light::RunLight::Fixed)]
     pub light: super::light::RunLight,
     /// Run the trials one after another as one long run of robot time: the light's plan spans
-    /// the whole run (see --light turn) and each trial's board starts with what the previous
-    /// one learnt of the room, as a board restarted on its flash would (in-process only)
+    /// the whole run (see --light turn) and each trial's board takes over the previous one's
+    /// clock and what it learnt of the room; the world is fresh each trial (in-process only)
     #[arg(long)]
     pub one_board: bool,
     /// Let the board learn the room's light as it runs (its online self-calibration); off: it

@@ -1061,6 +1061,7 @@ pub fn run_one_board(
         let mut c = cfg.clone();
         c.light_span = Some(LightSpan { seed, span_us, offset_us });
         let mut board = inproc_board(blob);
+        board.await_servo_bus();
         let mut room_in = carried.take();
         // The board's clock runs on across trials, so what it learnt keeps its times.
         let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| {
