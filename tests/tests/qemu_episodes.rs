@@ -64,9 +64,15 @@ fn qemu_episodes_touch_marks_and_match_in_process() {
     // carries Protocol 2.0 to the emulated servos.
     let mut dxl = marked.clone();
     dxl.servo_bus = episode::ServoBus::Dynamixel;
+    // Under changing light: a lamp switched and the exposure drifting (the photometric fit and
+    // the room's learning run on the board as in-process).
+    let mut step = marked.clone();
+    step.light = msr_sim::light::LightPlan::Step;
+    let mut drift = unmarked.clone();
+    drift.light = msr_sim::light::LightPlan::Drift;
     // Three clean marked trials, one without a mark and one with the cut, on one QEMU (a reset
     // between trials).
-    let plan = [(&marked, 0usize), (&marked, 1), (&unmarked, 2), (&cut, 3), (&marked, 4), (&dxl, 5)];
+    let plan = [(&marked, 0usize), (&marked, 1), (&unmarked, 2), (&cut, 3), (&marked, 4), (&dxl, 5), (&step, 6), (&drift, 7)];
 
     let mut board = QemuBoard::start(&blob).unwrap();
     eprintln!("model upload ({} bytes): {:.1} s", blob.len(), board.upload_s);
