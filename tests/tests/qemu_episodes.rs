@@ -210,7 +210,7 @@ fn qemu_self_gate_refuses_another_robot_and_a_delayed_picture() {
     plan.extend(trials_where(Scene::Delayed, 1, short).into_iter().map(|(i, s)| (&delayed, i, s)));
     assert_eq!(plan.len(), 2);
 
-    let mut board = QemuBoard::start(&blob).unwrap();
+    let mut board = QemuBoard::start_preloaded(&blob).unwrap();
     let mut qemu_trials = Vec::new();
     for &(cfg, i, seed) in &plan {
         let camera = Camera { renderer: &renderer, cropper: &cropper };

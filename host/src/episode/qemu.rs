@@ -27,9 +27,10 @@ use std::time::{Duration, Instant};
 /// The world's tick (`msr_sim::world::WorldConfig::default`), which the board's clock follows.
 const TICK_US: u32 = 1000;
 
-/// QEMU's emulated UART takes one byte per turn of QEMU's event loop: about 15 to 40 KB/s here.
-/// The upload may take this long per KB before it is called stuck.
-const UPLOAD_MS_PER_KB: u64 = 500;
+/// QEMU's emulated UART takes one byte per turn of QEMU's event loop: about 15 to 40 KB/s on an
+/// idle machine, a tenth of that when other QEMUs share two cores. So the upload is called stuck
+/// only when it makes no progress for this long (no byte taken, or no verdict after the last).
+const UPLOAD_STALL: Duration = Duration::from_secs(60);
 
 fn debug() -> bool {
     std::env::var_os("MSR_QEMU_DEBUG").is_some()
@@ -39,23 +40,41 @@ fn debug() -> bool {
 /// (and thrown away) meanwhile: an unread UART stalls the board (see
 /// [`Lockstep::drain_servo`]).
 fn upload(ls: &mut Lockstep, blob: &[u8]) -> Result<u32> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::Arc;
     let mut port = HostPort::default();
     let bytes = port.encode_upload(blob);
-    let limit = Duration::from_secs(30) + Duration::from_millis(UPLOAD_MS_PER_KB * bytes.len() as u64 / 1024);
+    let total = bytes.len();
     let t0 = Instant::now();
-    // The writer runs on its own thread so that the board's answers are read while it writes.
+    // The writer runs on its own thread so that the board's answers are read while it writes; it
+    // counts what the link took, so that a slow upload is told from a stuck one.
+    let written = Arc::new(AtomicUsize::new(0));
     let mut w = ls.host_link().try_clone()?;
-    w.set_write_timeout(Some(limit))?;
-    let writer = std::thread::spawn(move || w.write_all(&bytes));
+    w.set_write_timeout(Some(UPLOAD_STALL))?;
+    let counter = Arc::clone(&written);
+    let writer = std::thread::spawn(move || -> std::io::Result<()> {
+        for chunk in bytes.chunks(1024) {
+            w.write_all(chunk)?;
+            counter.fetch_add(chunk.len(), Ordering::Relaxed);
+        }
+        Ok(())
+    });
     let mut r = ls.host_link().try_clone()?;
     r.set_read_timeout(Some(Duration::from_millis(50)))?;
     let mut buf = [0u8; 1024];
+    let (mut seen, mut progress_at) = (0usize, Instant::now());
     let verdict = loop {
         ls.drain_servo()?;
-        if t0.elapsed() > limit {
+        let now_written = written.load(Ordering::Relaxed);
+        if now_written != seen {
+            (seen, progress_at) = (now_written, Instant::now());
+        }
+        if progress_at.elapsed() > UPLOAD_STALL {
             bail!(
-                "the QEMU board did not answer a {} byte model upload within {limit:?}; it printed:\n{}",
+                "the QEMU board took {seen} of {total} upload bytes of a {} byte model in {:.0} s and \
+                 then nothing for {UPLOAD_STALL:?} (no verdict); it printed:\n{}",
                 blob.len(),
+                t0.elapsed().as_secs_f64(),
                 ls.qemu().output_so_far()
             );
         }
