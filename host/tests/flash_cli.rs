@@ -1,7 +1,8 @@
 //! `msr serve --flash FILE`: what the emulated board learns, it keeps. An uploaded model is there
 //! after the server is killed and started again (`msr status` shows it), and a server killed at
 //! any moment of an upload comes back with the old model or the new one, never none (the new
-//! one whenever the board had accepted it).
+//! one whenever the board had accepted it). The same for the firmware image under QEMU, whose
+//! flash file either board reads.
 mod common;
 
 use msr_host::session::Session;
@@ -16,8 +17,13 @@ const T: Duration = Duration::from_secs(3);
 
 /// `msr serve --flash flash` as a child process, and the PTY path it printed.
 fn serve(flash: &Path) -> (Child, String) {
+    serve_on("inproc", flash)
+}
+
+/// `msr serve --backend backend --flash flash`, as [`serve`].
+fn serve_on(backend: &str, flash: &Path) -> (Child, String) {
     let mut child = Command::new(env!("CARGO_BIN_EXE_msr"))
-        .args(["serve", "--flash", flash.to_str().unwrap()])
+        .args(["serve", "--backend", backend, "--flash", flash.to_str().unwrap()])
         .stdout(Stdio::piped())
         .stderr(Stdio::null())
         .spawn()
@@ -120,4 +126,84 @@ fn a_flash_file_of_the_wrong_size_is_refused_in_one_line() {
     assert!(!ok);
     assert!(err.contains("is 100 bytes, an emulated board's flash is"), "{err}");
     assert_eq!(std::fs::read(&flash).unwrap(), [0xFFu8; 100], "the file is left alone");
+}
+
+/// The QEMU board's flash is the file too: it reads what the in-process board wrote, keeps an
+/// upload across a killed server (SIGKILL to `msr serve`; QEMU dies with it), and a server killed
+/// at random moments of five uploads comes back with the old model or the new one. The
+/// in-process board then reads what the QEMU board wrote.
+#[test]
+fn the_qemu_board_keeps_its_flash_in_the_same_file() {
+    if !msr_sim::qemu::qemu_available() || msr_sim::qemu::find_image(msr_sim::qemu::BOARD_IMAGE).is_err() {
+        eprintln!("SKIPPED: qemu-system-arm or the board image is missing (`cargo xtask test` sets both up)");
+        return;
+    }
+    let tmp = tempfile::tempdir().unwrap();
+    let flash = tmp.path().join("board.flash");
+    let first = msr_host::bench::synthetic_with(msr_host::models::ArchKind::Conv, false).unwrap().blob;
+    let second = msr_host::bench::synthetic_with(msr_host::models::ArchKind::Conv, true).unwrap().blob;
+
+    // The in-process board writes the first model.
+    let (server, port) = serve(&flash);
+    let line = |b: &[u8]| Duration::from_secs_f64(b.len() as f64 * 11.0 / 921_600.0);
+    let mut s = Session::open(&port, 921_600).unwrap();
+    assert_eq!(s.upload(&first, T + line(&first)).unwrap() as u64, crc(&first));
+    drop(s);
+    kill(server);
+
+    // The QEMU board finds it, takes the second, and keeps it across a kill.
+    let (server, port) = serve_on("qemu", &flash);
+    let st = store(&port);
+    assert_eq!((st["model_crc"].as_u64(), &st["source"]["Flash"]["slot"]), (Some(crc(&first)), &Value::from(0)), "{st}");
+    // QEMU's emulated UART carries tens of KB/s against the line's 92: the board is slower
+    // than real time, and the upload may take it a minute.
+    let slow = Duration::from_secs(120);
+    let t0 = std::time::Instant::now();
+    let mut s = Session::open(&port, 921_600).unwrap();
+    assert_eq!(s.upload(&second, slow).unwrap() as u64, crc(&second));
+    let took = t0.elapsed();
+    drop(s);
+    eprintln!("upload of {} bytes to the QEMU board: {:.1} s", second.len(), took.as_secs_f64());
+    kill(server);
+    let (server, port) = serve_on("qemu", &flash);
+    let st = store(&port);
+    assert_eq!((st["model_crc"].as_u64(), &st["source"]["Flash"]["slot"]), (Some(crc(&second)), &Value::from(1)), "{st}");
+    kill(server);
+
+    // Five uploads, each killed at a moment of its expected time.
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(29);
+    let mut running = crc(&second);
+    let mut seen = [0; 2];
+    for i in 0..5 {
+        let (server, port) = serve_on("qemu", &flash);
+        let next = if running == crc(&first) { &second } else { &first };
+        let blob = next.clone();
+        let uploader = std::thread::spawn(move || {
+            let mut s = Session::open(&port, 921_600).ok()?;
+            s.upload(&blob, slow).ok()
+        });
+        // Spread over the upload and past its end (so that some kills come after the commit),
+        // each moved at random by up to a tenth of the upload.
+        let at = took.mul_f64([0.3, 0.6, 0.9, 1.4, 2.0][i] + rng.gen_range(-0.1..0.1));
+        std::thread::sleep(at);
+        kill(server);
+        let finished = uploader.join().unwrap().is_some();
+        let (server, port) = serve_on("qemu", &flash);
+        let st = store(&port);
+        let got = st["model_crc"].as_u64().unwrap();
+        eprintln!("QEMU upload {i} of {:08x}: killed after {:.1} s (finished: {finished}): runs {got:08x}", crc(next), at.as_secs_f64());
+        assert!(got == crc(&first) || got == crc(&second), "upload {i}: {st}");
+        if finished {
+            assert_eq!(got, crc(next), "upload {i}: accepted, then lost: {st}");
+        }
+        seen[usize::from(got == crc(&second))] += 1;
+        running = got;
+        kill(server);
+    }
+    eprintln!("after the five kills: {} times the first model ran, {} times the second", seen[0], seen[1]);
+
+    // And the in-process board reads what the QEMU board wrote.
+    let (server, port) = serve(&flash);
+    assert_eq!(store(&port)["model_crc"].as_u64(), Some(running));
+    kill(server);
 }

@@ -51,7 +51,8 @@ impl FaultConfig {
         Ok(())
     }
 
-    fn is_clean(&self) -> bool {
+    /// Whether nothing goes wrong (`burst_len` alone, with no bursts, is clean).
+    pub fn is_clean(&self) -> bool {
         self.bit_error_rate == 0.0 && self.drop_rate == 0.0 && self.burst_rate == 0.0 && self.disconnects.is_empty()
     }
 }

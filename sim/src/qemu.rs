@@ -52,6 +52,37 @@ pub fn preload_bytes(blob: &[u8]) -> Vec<u8> {
     out
 }
 
+/// How QEMU starts, beyond the image.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Options<'a> {
+    /// Put into the board's PSRAM by QEMU's generic loader (see [`preload_bytes`]).
+    pub preload: Option<&'a [u8]>,
+    /// The board's flash, kept in this file (it must exist, with the emulated flash's size; see
+    /// `firmware/qemu/src/flash_file.rs`): read at start-up, every program and erase written
+    /// through.
+    pub flash_file: Option<&'a Path>,
+}
+
+/// QEMU is killed when the thread that started it ends: a `msr serve` killed with SIGKILL takes
+/// its board down with it instead of leaving a QEMU that holds the flash file.
+fn die_with_parent(cmd: &mut Command) {
+    #[cfg(target_os = "linux")]
+    {
+        use std::os::unix::process::CommandExt;
+        // SAFETY: only prctl, which is async-signal-safe, runs between fork and exec.
+        unsafe {
+            cmd.pre_exec(|| {
+                if libc::prctl(libc::PR_SET_PDEATHSIG, libc::SIGKILL) != 0 {
+                    return Err(io::Error::last_os_error());
+                }
+                Ok(())
+            });
+        }
+    }
+    #[cfg(not(target_os = "linux"))]
+    let _ = cmd;
+}
+
 /// How long QEMU gets to connect its UART sockets.
 const CONNECT_TIMEOUT: Duration = Duration::from_secs(10);
 /// UART sockets: host link, servo bus, clock channel.
@@ -151,6 +182,12 @@ impl Qemu {
     /// Starts `image` with `preload` (see [`preload_bytes`]) loaded at [`PRELOAD_ADDR`] by
     /// QEMU's generic loader, if given: the board image finds it there at start-up.
     pub fn start_with(image: &Path, preload: Option<&[u8]>) -> Result<Qemu> {
+        Qemu::start_opts(image, &Options { preload, flash_file: None })
+    }
+
+    /// Starts `image` as `opts` say.
+    pub fn start_opts(image: &Path, opts: &Options) -> Result<Qemu> {
+        let preload = opts.preload;
         let dir = std::env::temp_dir().join(format!(
             "msr-qemu-{}-{}",
             std::process::id(),
@@ -169,9 +206,18 @@ impl Qemu {
             .collect::<Result<Vec<_>>>()?;
 
         let mut cmd = Command::new(qemu_binary());
+        let mut semihosting = String::from("enable=on,target=native");
+        if let Some(f) = opts.flash_file {
+            let f = std::path::absolute(f).with_context(|| format!("the flash file {}", f.display()))?;
+            let f = f.to_str().ok_or_else(|| anyhow!("the flash file's path {} is not UTF-8", f.display()))?;
+            // The image's command line becomes `msr-qemu flash=PATH` (QEMU doubles a comma
+            // inside an option's value).
+            semihosting += &format!(",arg=msr-qemu,arg=flash={}", f.replace(',', ",,"));
+        }
         cmd.args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-nographic", "-monitor", "none"])
-            .args(["-semihosting-config", "enable=on,target=native"])
+            .args(["-semihosting-config", &semihosting])
             .args(["-icount", "shift=0"]);
+        die_with_parent(&mut cmd);
         for (i, p) in paths.iter().enumerate() {
             cmd.arg("-chardev")
                 .arg(format!("socket,id=uart{i},path={}", p.display()))
@@ -356,7 +402,12 @@ impl Lockstep {
 
     /// As [`Lockstep::start`], with `preload` (see [`preload_bytes`]) in the board's PSRAM.
     pub fn start_with(image: &Path, preload: Option<&[u8]>) -> Result<(Lockstep, u32)> {
-        let qemu = Qemu::start_with(image, preload)?;
+        Lockstep::start_opts(image, &Options { preload, flash_file: None })
+    }
+
+    /// As [`Lockstep::start`], as `opts` say.
+    pub fn start_opts(image: &Path, opts: &Options) -> Result<(Lockstep, u32)> {
+        let qemu = Qemu::start_opts(image, opts)?;
         let mut ls = Lockstep {
             host: qemu.host.try_clone()?,
             servo: qemu.servo.try_clone()?,
@@ -418,6 +469,11 @@ impl Lockstep {
             self.clock.read_exact(&mut b[1..])
         });
         if let Err(e) = r {
+            if e.kind() == io::ErrorKind::UnexpectedEof {
+                // QEMU ended; what the image printed last may still be in the pipe.
+                std::thread::sleep(Duration::from_millis(200));
+                bail!("the board image ended before answering {what}; it printed:\n{}", self.qemu.output_so_far());
+            }
             bail!("the board image did not answer {what} within {:?} ({e}); it printed:\n{}", self.timeout, self.qemu.output_so_far());
         }
         if b[0] == b'E' {

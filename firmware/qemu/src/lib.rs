@@ -1,10 +1,11 @@
 //! Board support for QEMU's mps2-an386 (Cortex-M4): CMSDK UARTs, a SysTick time base that counts
-//! emulated instructions under `-icount shift=0`, stack painting, semihosting exit, and the
-//! model's place in flash.
+//! emulated instructions under `-icount shift=0`, stack painting, semihosting exit, the
+//! model's place in flash, and that flash kept in a host file.
 #![no_std]
 
 pub mod clock;
 pub mod exit;
+pub mod flash_file;
 pub mod memory;
 pub mod model_area;
 pub mod uart;

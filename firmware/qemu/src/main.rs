@@ -19,7 +19,8 @@
 //! (`ModelBegin` / `ModelChunk` / `ModelCommit`) into the store's two flash slots, or the one
 //! committed there before a reset (`R` on UART2). A model preloaded into PSRAM with QEMU's generic loader
 //! ([`model_area::take_preload`]) goes into the slots at a start that finds them empty, checked
-//! as an upload is.
+//! as an upload is. Given a host file (`msr-qemu flash=PATH` on the semihosting command line,
+//! [`msr_qemu::flash_file`]), the flash is that file, read at start and written through.
 //!
 //! For tests, [`EXIT_SEQUENCE`] on UART0 (or `X` on UART2) ends the run: the image prints its
 //! status, stack peak and sizes on the semihosting console and exits with code 0. The sequence
@@ -252,6 +253,8 @@ fn main() -> ! {
     // Wired to either bus: the host chooses (see `Board::await_servo_bus`), so a Dynamixel
     // bus never carries a framed byte.
     board.await_servo_bus();
+    // The host's flash file, when it gave one, is the flash from here on.
+    report_flash_file(model_area::attach_flash_file());
     // The store finds its committed model (if any) before anything asks for it.
     board.store_mut().start();
     report_preload(model_area::take_preload(board.store_mut()));
@@ -352,6 +355,20 @@ fn announce(board: &Board<FlashStore>) -> u32 {
     crc
 }
 
+/// Says whether the flash is a host file; a file that cannot be the flash ends the run (code 4):
+/// a board that would forget what the host asked it to keep must not start.
+#[inline(never)]
+fn report_flash_file(a: msr_qemu::flash_file::Attach) {
+    match a {
+        msr_qemu::flash_file::Attach::None => {}
+        msr_qemu::flash_file::Attach::Attached => hprintln!("msr-qemu: flash kept in the host's file"),
+        msr_qemu::flash_file::Attach::Failed(why) => {
+            hprintln!("msr-qemu: flash file: {}", why);
+            exit(4)
+        }
+    }
+}
+
 /// Says what became of a preloaded model (nothing when there was none). Out of line, as
 /// [`announce`].
 #[inline(never)]
@@ -424,6 +441,10 @@ fn finish(board: &Board<FlashStore>, why: &str) -> ! {
         s.frame_crc_errors
     );
     hprintln!("msr-qemu: stack peak {} bytes", memory::stack_peak());
+    let errors = msr_qemu::flash_file::write_errors();
+    if errors > 0 {
+        hprintln!("msr-qemu: flash file: {} writes failed", errors);
+    }
     exit(0)
 }
 

@@ -3,7 +3,8 @@
 //! the PSRAM ([`FLASH_ADDR`]), which QEMU keeps across a reset (`SYSRESETREQ` does not clear
 //! memory): a reset comes back with the uploaded model, so a host can restart the board between
 //! trials without uploading again. A fresh QEMU starts with the region zeroed: nothing
-//! committed, the built-in model (or none).
+//! committed, the built-in model (or none); or with a host file's bytes, kept written through
+//! ([`crate::flash_file`]).
 //!
 //! Built in: set `MSR_MODEL_BLOB=/path/to/model.msrm` when building the image; `build.rs` copies
 //! it into the build and [`BUILT_IN`] holds it (4-byte aligned, as the decoder's fast paths
@@ -48,6 +49,15 @@ impl Cells for Psram {
         // SAFETY: as above; `&mut self` is the store's exclusive access.
         unsafe { core::slice::from_raw_parts_mut(FLASH_ADDR as *mut u8, EMULATED_LEN) }
     }
+    fn changed(&mut self, from: usize, to: usize) {
+        crate::flash_file::write_through(from, &self.bytes()[from..to]);
+    }
+}
+
+/// Makes the host's flash file (if QEMU was given one, see [`crate::flash_file`]) the flash.
+/// Call once at start-up, before the store reads the flash.
+pub fn attach_flash_file() -> crate::flash_file::Attach {
+    crate::flash_file::attach(Psram.bytes_mut())
 }
 
 const EMULATED_LEN: usize = 3584 * 1024;

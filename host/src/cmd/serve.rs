@@ -31,7 +31,8 @@ pub struct Args {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Keep the board's flash in this file (created when missing): an uploaded model and the
-    /// saved statistics are there again after a restart (in-process board)
+    /// saved statistics are there again after a restart. Either backend reads the other's file;
+    /// a model committed there runs instead of --model
     #[arg(long, value_name = "FILE")]
     pub flash: Option<PathBuf>,
 }
@@ -56,6 +57,12 @@ pub fn run(a: Args) -> Result<()> {
         board.path(),
         msr_shared::frame::PROTOCOL_VERSION
     );
+    if a.backend == Backend::Qemu {
+        eprintln!(
+            "the QEMU board runs slower than real time while bytes flow (its emulated UART carries tens of KB/s, \
+             the line 92): give an upload time, `msr run --upload --timeout-ms 60000`"
+        );
+    }
     let t0 = Instant::now();
     let limit = a.seconds.map(Duration::from_secs_f64);
     while !board.finished() && limit.is_none_or(|l| t0.elapsed() < l) {
@@ -63,8 +70,9 @@ pub fn run(a: Args) -> Result<()> {
     }
     let served = board.stop()?;
     eprintln!(
-        "served {:.1} s: {} bytes in, {} bytes out, {} limit violations; board: {:?}",
+        "served {:.1} s ({:.1} s of the board's clock): {} bytes in, {} bytes out, {} limit violations; board: {:?}",
         t0.elapsed().as_secs_f64(),
+        served.board_s,
         served.to_board_bytes,
         served.from_board_bytes,
         served.limit_violations,

@@ -116,27 +116,38 @@ fn status(ls: &mut Lockstep) -> Result<Status> {
     bail!("the QEMU board's status did not decode")
 }
 
-/// Starts the board image in QEMU, uploads `blob` (if given; checked by the board), and resets
-/// it into lockstep with 1 ms ticks, for `msr serve`.
-pub fn start_lockstep(blob: Option<&[u8]>) -> Result<Lockstep> {
+/// Starts the board image in QEMU for `msr serve`, in lockstep with 1 ms ticks. `blob` (if
+/// given) is preloaded and checked by the board as an upload is; with `flash_file` (which must
+/// exist with the emulated flash's size: [`crate::flash_file::FileCells::open`] makes one) the
+/// board's flash is that file, and a model committed there runs instead of `blob`, as a board
+/// keeps what was uploaded to it. Returns the lockstep and the CRC of the model it runs (0: none).
+pub fn start_lockstep(blob: Option<&[u8]>, flash_file: Option<&std::path::Path>) -> Result<(Lockstep, u32)> {
     if !qemu::qemu_available() {
         bail!("{} is not installed (Debian: apt-get install qemu-system-arm)", qemu::qemu_binary());
     }
     let image = qemu::find_image(qemu::BOARD_IMAGE)?;
-    let (mut ls, _) = Lockstep::start(&image)?;
-    let want = match blob {
+    let preload = match blob {
         Some(b) => {
-            let model = msr_shared::blob::Model::parse(b).map_err(|e| anyhow!("model blob: {e}"))?;
-            upload(&mut ls, b)?;
-            model.crc32
+            msr_shared::blob::Model::parse(b).map_err(|e| anyhow!("model blob: {e}"))?;
+            Some(qemu::preload_bytes(b))
         }
-        None => 0,
+        None => None,
     };
+    let opts = qemu::Options { preload: preload.as_deref(), flash_file };
+    let (mut ls, _) = Lockstep::start_opts(&image, &opts)?;
     let got = ls.reset(Some(TICK_US))?;
-    if blob.is_some() && got != want {
-        bail!("after its reset the QEMU board runs model {got:#010x}, not the uploaded {want:#010x}");
+    if let (Some(b), None) = (blob, flash_file) {
+        let want = msr_shared::blob::Model::parse(b).map_err(|e| anyhow!("model blob: {e}"))?.crc32;
+        if got != want {
+            // What the image printed before its start-up message may still be on its way.
+            std::thread::sleep(Duration::from_millis(200));
+            bail!(
+                "the QEMU board runs model {got:#010x}, not the preloaded {want:#010x}; it printed:\n{}",
+                ls.qemu().output_so_far()
+            );
+        }
     }
-    Ok(ls)
+    Ok((ls, got))
 }
 
 /// The board's counters, read out of band.

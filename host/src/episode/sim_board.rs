@@ -25,6 +25,9 @@ pub struct Served {
     pub limit_violations: u32,
     pub to_board_bytes: u64,
     pub from_board_bytes: u64,
+    /// Seconds of the board's clock (the world's): behind the wall clock when the board cannot
+    /// keep up (QEMU's emulated UARTs move tens of KB/s; the link's 921600 baud is 92 KB/s).
+    pub board_s: f64,
 }
 
 pub struct SimBoard {
@@ -68,20 +71,29 @@ impl SimBoard {
                 None => SimBoard::start_with(cfg.model, cfg.host_faults, cfg.seed),
             },
             Backend::Qemu => {
-                if cfg.flash.is_some() {
-                    bail!("--flash keeps the in-process board's flash (--backend inproc); the QEMU board's is not kept in a file yet");
-                }
-                if cfg.host_faults != FaultConfig::default() {
+                // `msr serve`'s flags give a burst length even without bursts: ask what they do.
+                if !cfg.host_faults.is_clean() {
                     bail!("host-link faults are emulated for the in-process board only (--backend inproc)");
                 }
-                SimBoard::start_qemu(cfg.model.as_deref())
+                if let Some(path) = &cfg.flash {
+                    // Checked (or created, erased) here, so that a wrong file is refused in one
+                    // line before QEMU starts; the image then reads it and writes through.
+                    crate::flash_file::FileCells::open(path, msr_firmware::store::EMULATED.len() as usize)?;
+                }
+                SimBoard::start_qemu_with(cfg.model.as_deref(), cfg.flash.as_deref())
             }
         }
     }
 
-    /// Starts the firmware image in QEMU (after uploading `blob`, if given) behind a new PTY.
+    /// Starts the firmware image in QEMU (with `blob` preloaded, if given) behind a new PTY.
     pub fn start_qemu(blob: Option<&[u8]>) -> Result<SimBoard> {
-        let mut ls = crate::episode::qemu::start_lockstep(blob)?;
+        SimBoard::start_qemu_with(blob, None)
+    }
+
+    /// As [`SimBoard::start_qemu`], with the board's flash in `flash_file` (see
+    /// [`crate::episode::qemu::start_lockstep`]).
+    pub fn start_qemu_with(blob: Option<&[u8]>, flash_file: Option<&std::path::Path>) -> Result<SimBoard> {
+        let (mut ls, _) = crate::episode::qemu::start_lockstep(blob, flash_file)?;
         let pty = Pty::open()?;
         let path = pty.path().to_string();
         let stop = Arc::new(AtomicBool::new(false));
@@ -141,6 +153,7 @@ impl SimBoard {
                     limit_violations: w.servos.counters().limit_violations,
                     to_board_bytes: bridge.to_link,
                     from_board_bytes: bridge.to_pty,
+                    board_s: w.now_us as f64 / 1e6,
                 })
             },
         )?;
@@ -207,6 +220,7 @@ impl SimBoard {
                     limit_violations: w.servos.counters().limit_violations,
                     to_board_bytes: bridge.to_link,
                     from_board_bytes: bridge.to_pty,
+                    board_s: w.now_us as f64 / 1e6,
                 })
             },
         )?;
