@@ -368,7 +368,7 @@ pub fn record(cfg: &RecordConfig) -> Result<Recorded> {
         l.close()?;
         crate::rosbag::session::write_logs(p, [&l])?;
     }
-    finish(cfg, &frames)?;
+    finish(cfg, &frames, src.camera_controls())?;
     Ok(rec)
 }
 
@@ -427,7 +427,8 @@ fn grab(src: &mut Frames, head: [f64; 2]) -> Result<camera::Frame> {
 }
 
 /// Writes the index and the angle table: the recording is then finished.
-fn finish(cfg: &RecordConfig, frames: &[(String, [f64; 2])]) -> Result<()> {
+/// `controls`: the camera's held controls, stored with the recording (`camera_controls`).
+fn finish(cfg: &RecordConfig, frames: &[(String, [f64; 2])], controls: Option<std::collections::BTreeMap<String, i32>>) -> Result<()> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5e11_7e57);
     let n_test = (frames.len() as f64 * cfg.test_fraction).round() as usize;
     let mut order: Vec<usize> = (0..frames.len()).collect();
@@ -454,6 +455,7 @@ fn finish(cfg: &RecordConfig, frames: &[(String, [f64; 2])]) -> Result<()> {
         height: msr_sim::body::HEIGHT,
         template: layout::TEMPLATE_FILE.into(),
         frames: records,
+        camera_controls: controls,
     };
     fsio::write(&cfg.out.join(layout::ANGLES_FILE), angles)?;
     fsio::write(&cfg.out.join(layout::INDEX_FILE), serde_json::to_vec_pretty(&index)?)
