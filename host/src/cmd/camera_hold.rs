@@ -9,7 +9,7 @@ use std::path::{Path, PathBuf};
 #[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum HoldMode {
     /// Let them run for --settle-frames frames, then switch them to manual at the values they
-    /// reached (or at --camera-controls')
+    /// reached (or at those of --camera-controls)
     #[default]
     Settle,
     /// Leave them as they are
