@@ -352,6 +352,24 @@ mod tests {
         assert_eq!(Ctl::ALL.map(id), spec);
     }
 
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_missing_device_or_a_file_that_is_not_one_is_named_in_one_line() {
+        use std::path::Path;
+        use std::time::Duration;
+        let open = |p: &str| {
+            V4lSource::open(Path::new(p), [320, 240], 10.0, Duration::from_millis(100), &crate::camera::Hold::default())
+                .err()
+                .map(|e| format!("{e:#}"))
+                .unwrap()
+        };
+        let e = open("/nonexistent/video0");
+        assert!(e.starts_with("opening camera /nonexistent/video0: ") && !e.contains('\n'), "{e}");
+        // /dev/null opens but answers no V4L2 ioctl (VIDIOC_QUERYCAP: ENOTTY).
+        let e = open("/dev/null");
+        assert!(e.starts_with("opening camera /dev/null: ") && !e.contains('\n'), "{e}");
+    }
+
     #[test]
     fn fourccs() {
         assert_eq!(PixelFormat::from_fourcc(b"YUYV"), Some(PixelFormat::Yuyv));
