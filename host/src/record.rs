@@ -466,6 +466,25 @@ mod tests {
     use super::*;
 
     #[test]
+    fn the_held_camera_controls_are_stored_in_dataset_json_and_older_ones_load_without() {
+        let d = tempfile::tempdir().unwrap();
+        let cfg = RecordConfig::new("-", SourceConfig::Y4mStdin, 1, d.path());
+        let frames = [("frames/000000.png".to_string(), [0.01, -0.02])];
+        let held: std::collections::BTreeMap<String, i32> = [("exposure_absolute".into(), 156), ("gain".into(), 64)].into();
+        finish(&cfg, &frames, Some(held.clone())).unwrap();
+        let text = std::fs::read_to_string(d.path().join(layout::INDEX_FILE)).unwrap();
+        let ix: DatasetIndex = serde_json::from_str(&text).unwrap();
+        assert_eq!(ix.camera_controls, Some(held));
+        assert!(text.contains("\"camera_controls\""), "{text}");
+        // Without a held camera the field is left out, and a dataset.json without it loads.
+        finish(&cfg, &frames, None).unwrap();
+        let text = std::fs::read_to_string(d.path().join(layout::INDEX_FILE)).unwrap();
+        assert!(!text.contains("camera_controls"), "{text}");
+        let ix: DatasetIndex = serde_json::from_str(&text).unwrap();
+        assert_eq!((ix.camera_controls, ix.frames.len()), (None, 1));
+    }
+
+    #[test]
     fn correlation_is_one_for_the_same_image_and_low_for_noise() {
         let a: Vec<u8> = (0..200u32).map(|i| (i * 7 % 251) as u8).collect();
         assert!((correlation(&a, &a) - 1.0).abs() < 1e-12);
