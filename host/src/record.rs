@@ -368,7 +368,7 @@ pub fn record(cfg: &RecordConfig) -> Result<Recorded> {
         l.close()?;
         crate::rosbag::session::write_logs(p, [&l])?;
     }
-    finish(cfg, &frames)?;
+    finish(cfg, &frames, src.camera_controls())?;
     Ok(rec)
 }
 
@@ -427,7 +427,8 @@ fn grab(src: &mut Frames, head: [f64; 2]) -> Result<camera::Frame> {
 }
 
 /// Writes the index and the angle table: the recording is then finished.
-fn finish(cfg: &RecordConfig, frames: &[(String, [f64; 2])]) -> Result<()> {
+/// `controls`: the camera's held controls, stored with the recording (`camera_controls`).
+fn finish(cfg: &RecordConfig, frames: &[(String, [f64; 2])], controls: Option<std::collections::BTreeMap<String, i32>>) -> Result<()> {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x5e11_7e57);
     let n_test = (frames.len() as f64 * cfg.test_fraction).round() as usize;
     let mut order: Vec<usize> = (0..frames.len()).collect();
@@ -454,6 +455,7 @@ fn finish(cfg: &RecordConfig, frames: &[(String, [f64; 2])]) -> Result<()> {
         height: msr_sim::body::HEIGHT,
         template: layout::TEMPLATE_FILE.into(),
         frames: records,
+        camera_controls: controls,
     };
     fsio::write(&cfg.out.join(layout::ANGLES_FILE), angles)?;
     fsio::write(&cfg.out.join(layout::INDEX_FILE), serde_json::to_vec_pretty(&index)?)
@@ -462,6 +464,25 @@ fn finish(cfg: &RecordConfig, frames: &[(String, [f64; 2])]) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_held_camera_controls_are_stored_in_dataset_json_and_older_ones_load_without() {
+        let d = tempfile::tempdir().unwrap();
+        let cfg = RecordConfig::new("-", SourceConfig::Y4mStdin, 1, d.path());
+        let frames = [("frames/000000.png".to_string(), [0.01, -0.02])];
+        let held: std::collections::BTreeMap<String, i32> = [("exposure_absolute".into(), 156), ("gain".into(), 64)].into();
+        finish(&cfg, &frames, Some(held.clone())).unwrap();
+        let text = std::fs::read_to_string(d.path().join(layout::INDEX_FILE)).unwrap();
+        let ix: DatasetIndex = serde_json::from_str(&text).unwrap();
+        assert_eq!(ix.camera_controls, Some(held));
+        assert!(text.contains("\"camera_controls\""), "{text}");
+        // Without a held camera the field is left out, and a dataset.json without it loads.
+        finish(&cfg, &frames, None).unwrap();
+        let text = std::fs::read_to_string(d.path().join(layout::INDEX_FILE)).unwrap();
+        assert!(!text.contains("camera_controls"), "{text}");
+        let ix: DatasetIndex = serde_json::from_str(&text).unwrap();
+        assert_eq!((ix.camera_controls, ix.frames.len()), (None, 1));
+    }
 
     #[test]
     fn correlation_is_one_for_the_same_image_and_low_for_noise() {

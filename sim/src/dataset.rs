@@ -218,6 +218,7 @@ pub fn write_dataset_with(
         height: body::HEIGHT,
         template: layout::TEMPLATE_FILE.to_string(),
         frames,
+        camera_controls: None,
     };
     let json = serde_json::to_vec_pretty(&index)?;
     std::fs::write(out.join(layout::INDEX_FILE), json)?;

@@ -76,6 +76,10 @@ pub struct DatasetIndex {
     /// Path of the face template, relative to the dataset folder.
     pub template: String,
     pub frames: Vec<FrameRecord>,
+    /// The V4L2 camera controls a recording was held at (`msr record --camera`), by name
+    /// (`exposure_absolute`, `gain`, `white_balance_temperature`); absent for other datasets.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub camera_controls: Option<std::collections::BTreeMap<String, i32>>,
 }
 
 impl DatasetIndex {

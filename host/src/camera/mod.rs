@@ -2,6 +2,7 @@
 //! (standard input, so that any camera tool can feed `msr`), or a V4L2 camera. Every source is a
 //! [`FrameSource`]; [`open`] makes one from a [`SourceConfig`] and wraps it so that every frame
 //! comes out grey at the size the model's template was made for ([`Frames`]).
+pub mod hold;
 pub mod v4l2;
 pub mod y4m;
 
@@ -9,6 +10,7 @@ use crate::data::crop;
 use anyhow::{bail, Context, Result};
 use image::GrayImage;
 use msr_sim::Robot;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
@@ -30,6 +32,30 @@ pub trait FrameSource {
     /// Drops frames read ahead and not yet taken, so that the next one is shot after this call
     /// (a live source buffers).
     fn discard_buffered(&mut self) {}
+    /// The camera controls held (V4L2 values by [`hold::Ctl::name`]), for a camera that holds
+    /// them; `None` for any other source.
+    fn camera_controls(&self) -> Option<BTreeMap<String, i32>> {
+        None
+    }
+}
+
+/// What a V4L2 camera does with its automatic exposure, gain and white balance.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Hold {
+    /// Leaves them as they are.
+    Off,
+    /// Lets them run for `frames` frames, then switches them to manual ([`hold::plan`]) at the
+    /// values they reached, or at `values` (a recording's `camera_controls`).
+    Settle { frames: u32, values: Option<BTreeMap<String, i32>> },
+}
+
+/// Frames the automatics run for before the camera is held: about 1 s at 30 fps.
+pub const SETTLE_FRAMES: u32 = 30;
+
+impl Default for Hold {
+    fn default() -> Hold {
+        Hold::Settle { frames: SETTLE_FRAMES, values: None }
+    }
 }
 
 /// Where frames come from.
@@ -44,8 +70,8 @@ pub enum SourceConfig {
     Sim { robot: Robot, count: Option<usize>, seed: u64, mark_from: Option<usize>, light: msr_sim::light::LightPlan },
     /// A YUV4MPEG2 stream on standard input.
     Y4mStdin,
-    /// A V4L2 camera, e.g. `/dev/video0` (needs the `v4l` feature).
-    Camera(PathBuf),
+    /// A V4L2 camera, e.g. `/dev/video0` (Linux), held still as `hold` says.
+    Camera { dev: PathBuf, hold: Hold },
 }
 
 impl SourceConfig {
@@ -91,23 +117,22 @@ pub fn open(cfg: &SourceConfig, opts: &SourceOptions) -> Result<Frames> {
         SourceConfig::Y4mStdin => {
             Box::new(y4m::Y4mSource::spawn(std::io::stdin(), "stdin", opts.timeout))
         }
-        SourceConfig::Camera(dev) => open_camera(dev, opts)?,
+        SourceConfig::Camera { dev, hold } => open_camera(dev, hold, opts)?,
     };
     Ok(Frames { inner, size: opts.size, scaled: 0 })
 }
 
-#[cfg(feature = "v4l")]
-fn open_camera(dev: &Path, opts: &SourceOptions) -> Result<Box<dyn FrameSource>> {
-    Ok(Box::new(v4l2::V4lSource::open(dev, opts.size, opts.fps, opts.timeout)?))
+#[cfg(target_os = "linux")]
+fn open_camera(dev: &Path, hold: &Hold, opts: &SourceOptions) -> Result<Box<dyn FrameSource>> {
+    Ok(Box::new(v4l2::V4lSource::open(dev, opts.size, opts.fps, opts.timeout, hold)?))
 }
 
-#[cfg(not(feature = "v4l"))]
-fn open_camera(dev: &Path, opts: &SourceOptions) -> Result<Box<dyn FrameSource>> {
+#[cfg(not(target_os = "linux"))]
+fn open_camera(dev: &Path, _hold: &Hold, opts: &SourceOptions) -> Result<Box<dyn FrameSource>> {
     let [w, h] = opts.size;
     bail!(
-        "this msr is built without V4L2 cameras (cargo build --release -p msr-host --features v4l; \
-         it needs libclang); or stream the camera through ffmpeg: ffmpeg -f v4l2 -i {} -f \
-         yuv4mpegpipe -pix_fmt gray -s {w}x{h} - | msr ... --frames -",
+        "--camera {} needs Linux (V4L2); elsewhere stream the camera through ffmpeg: ffmpeg -i \
+         CAMERA -f yuv4mpegpipe -pix_fmt gray -s {w}x{h} - | msr ... --frames -",
         dev.display()
     )
 }
@@ -140,6 +165,10 @@ impl Frames {
 
     pub fn discard_buffered(&mut self) {
         self.inner.discard_buffered();
+    }
+
+    pub fn camera_controls(&self) -> Option<BTreeMap<String, i32>> {
+        self.inner.camera_controls()
     }
 }
 

@@ -1,5 +1,5 @@
 //! V4L2 cameras (`--camera /dev/videoN`): the capture formats this takes and their conversion
-//! to grey, and (with the `v4l` feature, Linux) a [`FrameSource`] on the `v4l` crate.
+//! to grey, and (Linux) a `FrameSource` on the pure-Rust `linuxvideo` crate.
 //!
 //! Formats, as the V4L2 specification lays them out: `GREY` (one byte per pixel, rows of
 //! `bytesperline`), `YUYV` (4:2:2 packed, `Y0 Cb Y1 Cr` per two pixels: the Y bytes are the
@@ -34,7 +34,7 @@ impl PixelFormat {
         }
     }
 
-    fn bytes_per_pixel(self) -> usize {
+    pub fn bytes_per_pixel(self) -> usize {
         match self {
             PixelFormat::Grey => 1,
             PixelFormat::Yuyv | PixelFormat::Uyvy => 2,
@@ -75,73 +75,228 @@ pub fn to_grey(buf: &[u8], format: PixelFormat, width: u32, height: u32, stride:
     Ok(GrayImage::from_raw(width, height, out).expect("w * h bytes"))
 }
 
-#[cfg(feature = "v4l")]
+#[cfg(target_os = "linux")]
 pub use device::V4lSource;
 
-#[cfg(feature = "v4l")]
+/// The device side, on the pure-Rust `linuxvideo` crate (plain V4L2 ioctls, no C library).
+#[cfg(target_os = "linux")]
 mod device {
     use super::{to_grey, PixelFormat};
-    use crate::camera::{Frame, FrameSource};
+    use crate::camera::hold::{self, Control, Ctl, Kind};
+    use crate::camera::{Frame, FrameSource, Hold};
     use anyhow::{anyhow, bail, Context, Result};
+    use linuxvideo::controls::{Cid, ControlFlags, CtrlType};
+    use linuxvideo::format::{PixFormat, PixelFormat as FourCc};
+    use linuxvideo::stream::ReadStream;
+    use linuxvideo::{BufType, Device, Fract};
+    use std::collections::BTreeMap;
+    use std::os::fd::AsRawFd;
     use std::path::Path;
-    use std::time::Duration;
-    use v4l::buffer::Type;
-    use v4l::io::mmap::Stream;
-    use v4l::io::traits::CaptureStream;
-    use v4l::video::Capture;
+    use std::time::{Duration, Instant};
 
-    /// A V4L2 camera, memory-mapped streaming, asked for grey (or YUYV/UYVY) at a size and rate.
+    pub(crate) fn cid(c: Ctl) -> Cid {
+        match c {
+            Ctl::ExposureAuto => Cid::EXPOSURE_AUTO,
+            Ctl::ExposureAbsolute => Cid::EXPOSURE_ABSOLUTE,
+            Ctl::Autogain => Cid::AUTOGAIN,
+            Ctl::Gain => Cid::GAIN,
+            Ctl::AutoWhiteBalance => Cid::AUTO_WHITE_BALANCE,
+            Ctl::WhiteBalanceTemperature => Cid::WHITE_BALANCE_TEMPERATURE,
+        }
+    }
+
+    pub(crate) fn ctl_of(id: Cid) -> Option<Ctl> {
+        Ctl::ALL.into_iter().find(|c| cid(*c) == id)
+    }
+
+    /// A V4L2 camera: memory-mapped streaming, grey (or YUYV/UYVY) at a size and rate, a frame
+    /// timeout, and its automatics held once the picture settled ([`Hold`]).
     pub struct V4lSource {
-        stream: Stream<'static>,
+        stream: ReadStream,
+        /// A second handle on the device, for its controls (the first became the stream).
+        controls: Device,
         format: PixelFormat,
         width: u32,
         height: u32,
         stride: u32,
         name: String,
         n: u64,
+        timeout: Duration,
+        held: Option<BTreeMap<String, i32>>,
     }
 
     impl V4lSource {
-        pub fn open(path: &Path, size: [u32; 2], fps: f64, timeout: Duration) -> Result<V4lSource> {
+        pub fn open(path: &Path, size: [u32; 2], fps: f64, timeout: Duration, hold: &Hold) -> Result<V4lSource> {
             let name = path.display().to_string();
-            let dev = v4l::Device::with_path(path).with_context(|| format!("opening camera {name}"))?;
-            let mut got = None;
-            for want in [PixelFormat::Grey, PixelFormat::Yuyv, PixelFormat::Uyvy] {
-                let mut f = dev.format().with_context(|| format!("{name}: reading its format"))?;
-                f.width = size[0];
-                f.height = size[1];
-                f.fourcc = v4l::FourCC::new(&want.fourcc());
-                let f = dev.set_format(&f).with_context(|| format!("{name}: setting its format"))?;
-                if let Some(p) = PixelFormat::from_fourcc(&f.fourcc.repr) {
-                    got = Some((p, f));
-                    break;
+            let dev = Device::open(path).with_context(|| format!("opening camera {name}"))?;
+            let controls = Device::open(path).with_context(|| format!("opening camera {name} for its controls"))?;
+            let offered = dev
+                .formats(BufType::VIDEO_CAPTURE)
+                .map(|f| f.map(|f| f.pixel_format().as_fourcc()))
+                .collect::<std::io::Result<Vec<_>>>()
+                .with_context(|| format!("{name}: listing its capture formats"))?;
+            let want = [PixelFormat::Grey, PixelFormat::Yuyv, PixelFormat::Uyvy]
+                .into_iter()
+                .find(|p| offered.contains(&p.fourcc()))
+                .ok_or_else(|| {
+                    let list: Vec<String> = offered.iter().map(|f| String::from_utf8_lossy(f).into_owned()).collect();
+                    anyhow!(
+                        "{name} offers none of GREY, YUYV, UYVY (it offers {}): stream it through ffmpeg \
+                         into --frames - instead",
+                        list.join(", ")
+                    )
+                })?;
+            let [w, h] = size;
+            let cap = dev
+                .video_capture(PixFormat::new(w, h, FourCc::from_fourcc(want.fourcc())))
+                .with_context(|| format!("{name}: setting the format {w}x{h} {want:?}"))?;
+            let f = cap.format();
+            let got = f.pixel_format().as_fourcc();
+            if PixelFormat::from_fourcc(&got) != Some(want) {
+                bail!("{name}: asked for {want:?}, the driver set {}", String::from_utf8_lossy(&got));
+            }
+            let (width, height, bpl) = (f.width(), f.height(), f.bytes_per_line());
+            if width == 0 || height == 0 {
+                bail!("{name}: the driver set an empty {width}x{height} format");
+            }
+            if fps > 0.0 {
+                // A camera of a fixed rate keeps its own: said, not an error.
+                if let Err(e) = cap.set_frame_interval(Fract::new(1000, (fps * 1000.0).round().max(1.0) as u32)) {
+                    eprintln!("camera {name}: keeps its own frame rate ({fps} fps refused: {e})");
                 }
             }
-            let (format, f) = got.ok_or_else(|| anyhow!("{name} offers none of GREY, YUYV, UYVY"))?;
-            if fps > 0.0 {
-                let p = v4l::video::capture::Parameters::with_fps(fps.round().max(1.0) as u32);
-                let _ = dev.set_params(&p); // a camera of a fixed rate keeps its own
-            }
-            let mut stream = Stream::with_buffers(&dev, Type::VideoCapture, 4)
-                .with_context(|| format!("{name}: starting to stream"))?;
-            stream.set_timeout(timeout);
-            if f.width == 0 || f.height == 0 {
-                bail!("{name}: the driver set an empty format");
-            }
-            Ok(V4lSource { stream, format, width: f.width, height: f.height, stride: f.stride, name, n: 0 })
+            let stride = match bpl {
+                0 => width * want.bytes_per_pixel() as u32,
+                s => s,
+            };
+            let stream = cap.into_stream().with_context(|| format!("{name}: starting to stream"))?;
+            let mut s = V4lSource { stream, controls, format: want, width, height, stride, name, n: 0, timeout, held: None };
+            s.hold(hold)?;
+            Ok(s)
         }
+
+        /// Lets the automatics run for the settle frames, then holds exposure, gain and white
+        /// balance (see [`hold::plan`]). Nothing here stops the capture: a control the driver
+        /// lacks or refuses is one line on stderr.
+        fn hold(&mut self, hold: &Hold) -> Result<()> {
+            let Hold::Settle { frames, values } = hold else { return Ok(()) };
+            for _ in 0..*frames {
+                self.next_frame().context("letting the camera's automatic exposure settle")?;
+            }
+            let say = |line: String| eprintln!("camera {}: {line}", self.name);
+            let driver = describe(&self.controls).unwrap_or_else(|e| {
+                say(format!("listing its controls failed ({e}): left as they are"));
+                Vec::new()
+            });
+            let values = match values {
+                Some(v) => v.clone(),
+                None => hold::values_to_read(&driver)
+                    .into_iter()
+                    .filter_map(|c| match self.controls.read_control_raw(cid(c)) {
+                        Ok(v) => Some((c.name().to_string(), v)),
+                        Err(e) => {
+                            say(format!("reading {} failed ({e})", c.name()));
+                            None
+                        }
+                    })
+                    .collect(),
+            };
+            let plan = hold::plan(&driver, &values);
+            for n in &plan.notes {
+                say(n.clone());
+            }
+            let mut held = plan.held.clone();
+            for step in &plan.steps {
+                for &(c, v) in &step.writes {
+                    if let Err(e) = self.controls.write_control_raw(cid(c), v) {
+                        say(format!("the driver refused {} = {v} ({e}): {} left as it is", c.name(), step.what));
+                        if let Some((last, _)) = step.writes.last() {
+                            held.remove(last.name());
+                        }
+                        break;
+                    }
+                }
+            }
+            let list: Vec<String> = held.iter().map(|(k, v)| format!("{k} {v}")).collect();
+            say(format!("held after {frames} frames: {}", if list.is_empty() { "nothing".into() } else { list.join(", ") }));
+            self.held = Some(held);
+            Ok(())
+        }
+
+        /// Whether a frame is ready within `wait` (poll(2) on the stream).
+        fn ready(&self, wait: Duration) -> std::io::Result<bool> {
+            let deadline = Instant::now() + wait;
+            loop {
+                let mut fd = libc::pollfd { fd: self.stream.as_raw_fd(), events: libc::POLLIN, revents: 0 };
+                let ms = deadline.saturating_duration_since(Instant::now()).as_millis().min(i32::MAX as u128) as i32;
+                // SAFETY: one valid pollfd, for the length given.
+                let r = unsafe { libc::poll(&mut fd, 1, ms) };
+                if r >= 0 {
+                    return Ok(r > 0);
+                }
+                let e = std::io::Error::last_os_error();
+                if e.kind() != std::io::ErrorKind::Interrupted {
+                    return Err(e);
+                }
+            }
+        }
+    }
+
+    /// The driver's controls among those [`hold`] cares about.
+    fn describe(dev: &Device) -> std::io::Result<Vec<Control>> {
+        let mut out = Vec::new();
+        for d in dev.controls() {
+            let d = d?;
+            let Some(ctl) = ctl_of(d.id()) else { continue };
+            let t = d.control_type();
+            let kind = if t == CtrlType::MENU {
+                Kind::Menu(dev.enumerate_menu(&d).filter_map(|m| m.ok().map(|m| m.index() as i32)).collect())
+            } else if t == CtrlType::BOOLEAN {
+                Kind::Boolean
+            } else if t == CtrlType::INTEGER {
+                Kind::Integer
+            } else {
+                continue;
+            };
+            let read_only = d.flags().contains(ControlFlags::READ_ONLY);
+            out.push(Control { ctl, kind, min: d.minimum(), max: d.maximum(), read_only });
+        }
+        Ok(out)
     }
 
     impl FrameSource for V4lSource {
         fn next_frame(&mut self) -> Result<Option<Frame>> {
-            let (buf, meta) = CaptureStream::next(&mut self.stream)
-                .with_context(|| format!("{}: no frame (the camera stopped delivering?)", self.name))?;
-            let used = (meta.bytesused as usize).min(buf.len());
-            let grey = to_grey(&buf[..used], self.format, self.width, self.height, self.stride)
-                .with_context(|| format!("{} frame {}", self.name, self.n))?;
-            let name = format!("{}-{:06}", self.name, self.n);
-            self.n += 1;
-            Ok(Some(Frame { name, grey }))
+            loop {
+                let ready = self.ready(self.timeout).with_context(|| format!("{}: waiting for a frame", self.name))?;
+                if !ready {
+                    bail!("{}: no frame within {:?} (the camera stopped delivering?)", self.name, self.timeout);
+                }
+                let (format, w, h, stride) = (self.format, self.width, self.height, self.stride);
+                let (bad, grey) = self
+                    .stream
+                    .dequeue(|b| Ok((b.is_error(), to_grey(&b, format, w, h, stride))))
+                    .with_context(|| format!("{}: taking a frame", self.name))?;
+                if bad {
+                    // The driver flagged the buffer as corrupt: the next frame is taken.
+                    continue;
+                }
+                let grey = grey.with_context(|| format!("{} frame {}", self.name, self.n))?;
+                let name = format!("{}-{:06}", self.name, self.n);
+                self.n += 1;
+                return Ok(Some(Frame { name, grey }));
+            }
+        }
+
+        fn discard_buffered(&mut self) {
+            while matches!(self.ready(Duration::ZERO), Ok(true)) {
+                if self.stream.dequeue(|_| Ok(())).is_err() {
+                    break;
+                }
+            }
+        }
+
+        fn camera_controls(&self) -> Option<BTreeMap<String, i32>> {
+            self.held.clone()
         }
     }
 }
@@ -178,6 +333,41 @@ mod tests {
         assert!(to_grey(&buf, PixelFormat::Yuyv, 2, 2, 3).is_err(), "stride under a row");
         assert!(to_grey(&buf, PixelFormat::Yuyv, 3, 1, 6).is_err(), "odd 4:2:2 width");
         assert!(to_grey(&[], PixelFormat::Grey, 0, 0, 0).is_err());
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn each_held_control_has_its_own_v4l2_id() {
+        use crate::camera::hold::Ctl;
+        for c in Ctl::ALL {
+            assert_eq!(device::ctl_of(device::cid(c)), Some(c), "{c:?}");
+        }
+        assert_eq!(device::ctl_of(linuxvideo::controls::Cid::BRIGHTNESS), None);
+        // The crate's ids are the specification's (v4l2-controls.h), as hold.rs lists them.
+        let id = |c: Ctl| -> u32 {
+            // SAFETY: `Cid` is a #[repr(transparent)] u32.
+            unsafe { std::mem::transmute::<linuxvideo::controls::Cid, u32>(device::cid(c)) }
+        };
+        let spec = [0x009a_0901, 0x009a_0902, 0x0098_0912, 0x0098_0913, 0x0098_090c, 0x0098_091a];
+        assert_eq!(Ctl::ALL.map(id), spec);
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn a_missing_device_or_a_file_that_is_not_one_is_named_in_one_line() {
+        use std::path::Path;
+        use std::time::Duration;
+        let open = |p: &str| {
+            V4lSource::open(Path::new(p), [320, 240], 10.0, Duration::from_millis(100), &crate::camera::Hold::default())
+                .err()
+                .map(|e| format!("{e:#}"))
+                .unwrap()
+        };
+        let e = open("/nonexistent/video0");
+        assert!(e.starts_with("opening camera /nonexistent/video0: ") && !e.contains('\n'), "{e}");
+        // /dev/null opens but answers no V4L2 ioctl (VIDIOC_QUERYCAP: ENOTTY).
+        let e = open("/dev/null");
+        assert!(e.starts_with("opening camera /dev/null: ") && !e.contains('\n'), "{e}");
     }
 
     #[test]

@@ -26,9 +26,12 @@ pub struct Args {
     /// -f yuv4mpegpipe -pix_fmt gray -`)
     #[arg(long, value_name = "-", conflicts_with = "camera")]
     pub frames: Option<PathBuf>,
-    /// The camera: a V4L2 device (e.g. /dev/video0; builds with the `v4l` feature)
+    /// The camera: a V4L2 device (e.g. /dev/video0; Linux), held still once its picture settled
+    /// (--camera-hold); the values are stored in dataset.json
     #[arg(long, value_name = "DEV", conflicts_with = "sim")]
     pub camera: Option<PathBuf>,
+    #[command(flatten)]
+    pub hold: super::camera_hold::HoldArgs,
     /// Frames to keep
     #[arg(long)]
     pub count: usize,
@@ -66,10 +69,13 @@ pub struct Args {
 }
 
 pub fn config(a: &Args) -> Result<RecordConfig> {
+    if a.camera.is_none() {
+        a.hold.check_unused()?;
+    }
     let source = match (&a.frames, &a.camera, a.sim) {
         (Some(p), _, _) if p.as_os_str() == "-" => SourceConfig::Y4mStdin,
         (Some(p), _, _) => return Err(super::usage(format!("--frames takes `-` (a Y4M stream on standard input), got {}", p.display()))),
-        (None, Some(dev), _) => SourceConfig::Camera(dev.clone()),
+        (None, Some(dev), _) => SourceConfig::Camera { dev: dev.clone(), hold: a.hold.hold()? },
         (None, None, Some(robot)) => SourceConfig::Sim { robot, count: None, seed: a.seed, mark_from: None, light: a.light.into() },
         (None, None, None) => return Err(super::usage("give a camera: --sim red|skin, --frames - or --camera DEV")),
     };

@@ -32,9 +32,12 @@ pub struct Args {
     /// Camera frames: a folder of PNGs in name order, or `-`: a Y4M stream on standard input
     #[arg(long, conflicts_with_all = ["sim", "camera"], value_name = "DIR|-")]
     pub frames: Option<PathBuf>,
-    /// A V4L2 camera, e.g. /dev/video0 (with the `v4l` feature)
+    /// A V4L2 camera, e.g. /dev/video0 (Linux), held still once its picture settled
+    /// (--camera-hold)
     #[arg(long, conflicts_with = "sim", value_name = "DEV")]
     pub camera: Option<PathBuf>,
+    #[command(flatten)]
+    pub hold: super::camera_hold::HoldArgs,
     /// Render frames from the sim instead, of this robot (red or skin): at home, a random mark
     /// from the 4th frame on
     #[arg(long, value_name = "ROBOT")]
@@ -183,9 +186,12 @@ pub fn run(a: Args) -> Result<()> {
             a.fps
         );
     }
+    if a.camera.is_none() {
+        a.hold.check_unused()?;
+    }
     let source = match (&a.frames, &a.camera, a.sim) {
         (Some(p), _, _) => SourceConfig::frames_arg(p),
-        (None, Some(dev), _) => SourceConfig::Camera(dev.clone()),
+        (None, Some(dev), _) => SourceConfig::Camera { dev: dev.clone(), hold: a.hold.hold()? },
         (None, None, Some(robot)) => match sim_source(robot, a.count, a.seed) {
             SourceConfig::Sim { robot, count, seed, mark_from, .. } => SourceConfig::Sim { robot, count, seed, mark_from, light: a.light.into() },
             other => other,
