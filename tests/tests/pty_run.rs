@@ -81,6 +81,7 @@ fn msr_run_streams_a_frame_folder_and_uploads_over_the_pty() {
         upload: true,
         frames: Some(frames.clone()),
         camera: None,
+        hold: Default::default(),
         sim: None,
         count: 0,
         seed: 0,

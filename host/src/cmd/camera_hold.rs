@@ -16,7 +16,7 @@ pub enum HoldMode {
     Off,
 }
 
-#[derive(clap::Args, Debug, Clone)]
+#[derive(clap::Args, Debug, Clone, Default)]
 pub struct HoldArgs {
     /// With --camera: what to do with the camera's automatic exposure, gain and white balance
     /// [default: settle]
