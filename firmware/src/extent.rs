@@ -55,6 +55,40 @@ pub fn mark_spread(frame: &[u8], pred: &[u16], lut: &[u16; 256], thr: &[u16], ma
     kept
 }
 
+/// [`mark_spread`] of one row whose own errors are at hand: `err` is the row of `v(I) - pred`,
+/// censored ([`crate::light::error`]), as the pooled routine's ring holds it while the row is
+/// tested (one load a salient pixel instead of the frame, the fit's table and the prediction);
+/// `salient` of the row's `mask` bytes are non-zero (the scan stops after the last). Returns
+/// the salient pixels left at 1.
+pub fn spread_row(err: &[i32], thr: &[u16], mask: &mut [u8], salient: u32) -> u32 {
+    if salient == 0 {
+        return 0;
+    }
+    let n = err.len().min(thr.len()).min(mask.len());
+    // Empty words before the first salient pixel, four bytes at a time (one load on the board).
+    let start = mask[..n]
+        .chunks_exact(4)
+        .position(|c| u32::from_ne_bytes([c[0], c[1], c[2], c[3]]) != 0)
+        .map_or(n / 4 * 4, |i| i * 4);
+    let (mut left, mut kept) = (salient, 0u32);
+    // From there a pixel at a time (a mark's salient pixels run together), up to the last.
+    for ((m, &e), &t) in mask[start..n].iter_mut().zip(&err[start..n]).zip(&thr[start..n]) {
+        if *m == 0 {
+            continue;
+        }
+        if e.unsigned_abs() > t as u32 {
+            kept += 1;
+        } else {
+            *m = SPREAD;
+        }
+        left -= 1;
+        if left == 0 {
+            break;
+        }
+    }
+    kept
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -78,7 +112,7 @@ mod tests {
         let mut mask = vec![0u8; w * h];
         let mut ring = vec![0i32; (2 * r as usize + 1) * w];
         let mut rows = [0u16; 24];
-        let pooled = pooled_one_sided(&frame, &pred, &crate::light::IDENTITY_TABLE, &thr, &mut mask, &mut ring, w, r, &mut rows);
+        let pooled = pooled_one_sided(&frame, &pred, &crate::light::IDENTITY_TABLE, &thr, &mut mask, &mut ring, w, r, &mut rows, false);
         let before = mask.clone();
         assert!(pooled > 49, "the window spreads the 7 x 7 mark: {pooled}");
         let kept = mark_spread(&frame, &pred, &crate::light::IDENTITY_TABLE, &thr, &mut mask, w, &rows);

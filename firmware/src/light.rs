@@ -33,6 +33,7 @@ pub const STEP_Y: usize = 5;
 /// Most samples a face gives.
 pub const MAX_SAMPLES: usize = 256;
 const _: () = assert!(MAX_FACE_W.div_ceil(STEP_X) * MAX_FACE_H.div_ceil(STEP_Y) <= MAX_SAMPLES);
+const _: () = assert!(254 * 65535 * MAX_SAMPLES as u64 <= u32::MAX as u64);
 
 /// The sample grid's steps for a `w` x `h` face: the finest that fits [`MAX_SAMPLES`].
 pub fn steps(w: usize, h: usize) -> (usize, usize) {
@@ -119,7 +120,18 @@ impl LightFit {
     /// The 256-entry table of [`LightFit::value`].
     pub fn table(&self, out: &mut [u16; 256]) {
         // Stepping by the gain: exact, the same sums as `value` (no rounding until the shift).
-        let mut acc = self.offset as i64 + 128;
+        // In i32 when both ends of the ramp fit (every fit [`fit`] makes: |gain| <= 2^20,
+        // |offset| <= 2^28), a quarter of the i64 loop's instructions on the board.
+        let (first, last) = (self.offset as i64 + 128, self.offset as i64 + 128 + 255 * self.gain as i64);
+        if first.abs() < 1 << 30 && last.abs() < 1 << 30 {
+            let mut acc = first as i32;
+            for o in out.iter_mut() {
+                *o = (acc >> 8).clamp(0, 65535) as u16;
+                acc += self.gain;
+            }
+            return;
+        }
+        let mut acc = first;
         for o in out.iter_mut() {
             *o = (acc >> 8).clamp(0, 65535) as u16;
             acc += self.gain as i64;
@@ -144,7 +156,68 @@ pub fn error(lut: &[u16; 256], f: u8, p: u16) -> i32 {
 }
 
 /// Whether a byte of `row` is 0 or 255, four at a time (most rows have none, and every row is
-/// asked: a byte at a time took 7 instructions a pixel on the board).
+/// asked: a byte at a time took 7 instructions a pixel on the board, the word test below in
+/// Rust 2.9, the board's routine 1.3).
+#[cfg(target_arch = "arm")]
+#[inline]
+pub fn any_clipped(row: &[u8]) -> bool {
+    let words = row.len() / 4;
+    // SAFETY: `words` whole words lie behind the pointer (word loads, which the Cortex-M4
+    // takes unaligned); the routine reads nothing else and keeps AAPCS.
+    let unclipped = unsafe { msr_unclipped_words(row.as_ptr(), words as u32) };
+    unclipped != u32::MAX || row[words * 4..].iter().any(|&f| f == 0 || f == 255)
+}
+
+#[cfg(target_arch = "arm")]
+extern "C" {
+    fn msr_unclipped_words(row: *const u8, words: u32) -> u32;
+}
+
+// Per word: each byte + 1 (UADD8, wrapping), then - 2 (USUB8 sets a byte's GE flag when no
+// borrow: the byte was neither 0 nor 255), and SEL keeps the accumulator's byte where GE is
+// set and takes 0 where not (4 instructions a word). All ones back: nothing clipped. Two words
+// a turn, an odd one first. r0 the row, r1 words, r2 ones, r3 twos, r12 the accumulator.
+#[cfg(target_arch = "arm")]
+core::arch::global_asm!(
+    ".macro MSR_UNCLIPPED_WORD",
+    "ldr r4, [r0], #4",
+    "uadd8 r4, r4, r2",
+    "usub8 r4, r4, r3",
+    "sel r12, r12, r5",
+    ".endm",
+    ".section .text.msr_unclipped_words,\"ax\",%progbits",
+    ".global msr_unclipped_words",
+    ".type msr_unclipped_words,%function",
+    ".p2align 2",
+    ".thumb_func",
+    "msr_unclipped_words:",
+    "push {{r4, r5}}",
+    "mov r2, #0x01010101",
+    "mov r3, #0x02020202",
+    "mov r12, #0xFFFFFFFF",
+    "movs r5, #0",
+    "tst r1, #1",
+    "add r1, r0, r1, lsl #2",
+    "beq 2f",
+    "MSR_UNCLIPPED_WORD",
+    "2:",
+    "cmp r0, r1",
+    "beq 9f",
+    "1:",
+    "MSR_UNCLIPPED_WORD",
+    "MSR_UNCLIPPED_WORD",
+    "cmp r0, r1",
+    "bne 1b",
+    "9:",
+    "mov r0, r12",
+    "pop {{r4, r5}}",
+    "bx lr",
+    ".size msr_unclipped_words, . - msr_unclipped_words",
+    ".purgem MSR_UNCLIPPED_WORD",
+);
+
+/// The same test, for builds that are not the board's.
+#[cfg(not(target_arch = "arm"))]
 #[inline]
 pub fn any_clipped(row: &[u8]) -> bool {
     const ONES: u32 = 0x0101_0101;
@@ -199,19 +272,23 @@ struct Sums {
     x: u32,
     y: u32,
     xx: u32,
-    xy: u64,
+    /// At most [`MAX_SAMPLES`] of x y <= 254 x 65535 (0 and 255 are not samples): u32 holds it.
+    xy: u32,
     yy: u64,
 }
 
 impl Sums {
+    /// One sample; `YY`: its square too (only the correlation, at the end, needs it).
     #[inline(always)]
-    fn add(&mut self, x: u32, y: u32) {
+    fn add<const YY: bool>(&mut self, x: u32, y: u32) {
         self.n += 1;
         self.x += x;
         self.y += y;
         self.xx += x * x;
-        self.xy += (x * y) as u64;
-        self.yy += y as u64 * y as u64;
+        self.xy += x * y;
+        if YY {
+            self.yy += y as u64 * y as u64;
+        }
     }
 
     fn plus(&self, o: &Sums) -> Sums {
@@ -277,11 +354,52 @@ fn kept(xs: &[u8], ys: &[u16], g: i32, k: i32, cut2: u32) -> (Sums, u64) {
         let r = residual(x as u32, y as u32, g, k).unsigned_abs().min(65535);
         let r2 = r * r;
         if r2 <= cut2 {
-            s.add(x as u32, y as u32);
+            s.add::<false>(x as u32, y as u32);
             sse += r2 as u64;
         }
     }
     (s, sse)
+}
+
+/// The squared residuals of every sample against the line `(g, k)` (what [`kept`] sums with
+/// no cut, without the sums it has no use for).
+fn sse(xs: &[u8], ys: &[u16], g: i32, k: i32) -> u64 {
+    let mut sse = 0u64;
+    for (&x, &y) in xs.iter().zip(ys) {
+        let r = residual(x as u32, y as u32, g, k).unsigned_abs().min(65535);
+        sse += (r * r) as u64;
+    }
+    sse
+}
+
+/// The samples within `cut2` of the line `(g, k)`, as [`kept`] takes them, with their squares
+/// (for the correlation) and without the squared residuals: `min(r, 65535)^2 <= cut2` is
+/// `r <= floor(sqrt(cut2))`, or every sample once `cut2 >= 65535^2`.
+#[inline(always)]
+fn kept_sums(xs: &[u8], ys: &[u16], g: i32, k: i32, cut2: u32) -> Sums {
+    let cut = if cut2 >= 65535 * 65535 { u32::MAX } else { isqrt(cut2) };
+    let mut s = Sums::default();
+    for (&x, &y) in xs.iter().zip(ys) {
+        if residual(x as u32, y as u32, g, k).unsigned_abs() <= cut {
+            s.add::<true>(x as u32, y as u32);
+        }
+    }
+    s
+}
+
+/// `floor(sqrt(n))`, exactly (bisection: 16 steps).
+fn isqrt(n: u32) -> u32 {
+    // lo^2 <= n < hi^2
+    let (mut lo, mut hi) = (0u64, 1u64 << 16);
+    while hi - lo > 1 {
+        let mid = (lo + hi) / 2;
+        if mid * mid <= n as u64 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo as u32
 }
 
 /// The squared cut ([`TRIM_X4`] times the RMS, at least [`MIN_CUT_Q88`]) for a sum of squared
@@ -320,7 +438,7 @@ pub fn fit(frame: &[u8], pred: &[u16], w: usize) -> LightFit {
             if i != 0 && i != 255 && n < MAX_SAMPLES {
                 xs[n] = i;
                 ys[n] = pr[x];
-                all.add(i as u32, pr[x] as u32);
+                all.add::<false>(i as u32, pr[x] as u32);
                 n += 1;
             }
             x += step_x;
@@ -335,11 +453,11 @@ pub fn fit(frame: &[u8], pred: &[u16], w: usize) -> LightFit {
     }
     let (xs, ys) = (&xs[..n], &ys[..n]);
     let Some((g0, k0)) = all.line() else { return no_face };
-    let (_, sse0) = kept(xs, ys, g0, k0, u32::MAX);
+    let sse0 = sse(xs, ys, g0, k0);
     let (s1, sse1) = kept(xs, ys, g0, k0, cut_of(sse0, n as u32));
     let Some((g1, k1)) = s1.line() else { return no_face };
     let cut2 = cut_of(sse1, s1.n);
-    let halves = [kept(&xs[..half], &ys[..half], g1, k1, cut2).0, kept(&xs[half..], &ys[half..], g1, k1, cut2).0];
+    let halves = [kept_sums(&xs[..half], &ys[..half], g1, k1, cut2), kept_sums(&xs[half..], &ys[half..], g1, k1, cut2)];
     let kept = halves[0].plus(&halves[1]);
     let Some((gain, offset)) = kept.line() else { return no_face };
     let (dxx, dxy, dyy) = kept.centred();

@@ -178,9 +178,8 @@ impl Workspace {
                 let (mask, rest) = mask.split_at_mut(crop.len());
                 let (_, ring, _) = bytemuck::pod_align_to_mut::<u8, i32>(rest);
                 let mut rows = [0u16; MAX_FACE_H];
-                let n = saliency::pool::pooled_one_sided(crop, face, lut, tn, mask, ring, w, pool, &mut rows);
                 // The decision stays the pooled mask's; its extent is the mark's own pixels.
-                crate::extent::mark_spread(crop, face, lut, tn, mask, w, &rows);
+                let n = saliency::pool::pooled_one_sided(crop, face, lut, tn, mask, ring, w, pool, &mut rows, true);
                 self.row_counts = Some(rows);
                 n
             }

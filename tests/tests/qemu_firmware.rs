@@ -469,6 +469,24 @@ fn qemu_and_host_builds_agree_bit_for_bit() {
     }
 }
 
+/// The benchmark image's own checks (the board's pooled-saliency row routine and clip test
+/// against their plain versions on random faces), then its predicted faces, golden frames and
+/// online self-calibration against the host build's: `bench_qemu` fails on any difference.
+/// With the pooled synthetic model (radius 2, the row routine's pair loop, pose cells).
+#[test]
+fn benchmark_image_checks_pass_and_match_the_host_build() {
+    let Some(_) = image("msr-qemu-bench") else { return };
+    let m = msr_host::bench::synthetic_pooled(ArchKind::Conv, false).unwrap();
+    let v = msr_host::bench::bench_qemu(&m).unwrap();
+    for k in ["faces_match_host", "golden_matches_host"] {
+        assert_eq!(v[k], true, "{k}");
+    }
+    assert_eq!(v["room"]["matches_host"], true);
+    // The stages ran: a decoder and a saliency of real size.
+    assert!(v["stages"]["decoder"].as_u64().unwrap() > 100_000, "{v}");
+    assert!(v["stages"]["saliency"].as_u64().unwrap() > 50_000, "{v}");
+}
+
 /// A bad upload is refused with the reason, and the model in use stays: same CRC, same results.
 #[test]
 fn bad_upload_keeps_the_running_model() {

@@ -101,7 +101,17 @@ fn the_table_is_the_value_and_the_identity_is_a_shift() {
     let mut t = [0u16; 256];
     LightFit::IDENTITY.table(&mut t);
     assert_eq!(t, IDENTITY_TABLE);
-    for (gain, offset) in [(65536, 0), (93_000, -1_234_567), (40_000, 9_000_000), (300_000, 5)] {
+    // The last four: the ends of what a fit gives, and past them (the i64 loop).
+    for (gain, offset) in [
+        (65536, 0),
+        (93_000, -1_234_567),
+        (40_000, 9_000_000),
+        (300_000, 5),
+        (1 << 20, 1 << 28),
+        (-(1 << 20), -(1 << 28)),
+        (i32::MAX, i32::MIN),
+        (5_000_000, 2_000_000_000),
+    ] {
         let f = LightFit { gain, offset, ..LightFit::IDENTITY };
         f.table(&mut t);
         for i in 0..=255u8 {
@@ -155,4 +165,47 @@ fn clipped_pixels_are_censored() {
         assert_eq!(lut[frame[i] as usize] as i32 - out[i] as i32, super::error(&lut, frame[i], pred[i]), "{i}");
     }
     assert!(!super::censor_row(&[1, 2, 3], &pred[..3], &lut, &mut out));
+}
+
+/// The last pass's test without squares is the squared test: `isqrt` is the floor of the root
+/// at and around every square, and the samples kept (with their sums) are the same for cuts
+/// at, under and over each residual, the saturated ones included.
+#[test]
+fn the_cut_without_squares_keeps_the_same_samples() {
+    for r in (0u64..=65535).step_by(97).chain([1, 2, 3, 255, 256, 65534, 65535]) {
+        for n in [r * r, (r * r).saturating_sub(1), r * r + 1, r * r + 2 * r] {
+            if n > u32::MAX as u64 {
+                continue;
+            }
+            let s = isqrt(n as u32) as u64;
+            assert!(s * s <= n && (s + 1) * (s + 1) > n, "isqrt({n}) = {s}");
+        }
+    }
+    assert_eq!(isqrt(u32::MAX), 65535);
+    let mut rng = 0x2545_f491u32;
+    let mut next = || {
+        rng ^= rng << 13;
+        rng ^= rng >> 17;
+        rng ^= rng << 5;
+        rng
+    };
+    let xs: Vec<u8> = (0..256).map(|_| (next() % 254 + 1) as u8).collect();
+    let ys: Vec<u16> = (0..256).map(|_| next() as u16).collect();
+    for (g, k) in [(65536, 0), (-(1 << 20), 1 << 28), (1 << 20, -(1 << 28)), (90_000, -3_000_000)] {
+        let mut cuts: Vec<u32> = vec![0, 1, 65534 * 65534, 65535 * 65535 - 1, 65535 * 65535, u32::MAX];
+        for (&x, &y) in xs.iter().zip(&ys).take(40) {
+            let r = residual(x as u32, y as u32, g, k).unsigned_abs().min(65535);
+            cuts.extend([r * r, (r * r).saturating_sub(1), r * r + 1]);
+        }
+        for cut2 in cuts {
+            let (want, _) = kept(&xs, &ys, g, k, cut2);
+            let got = kept_sums(&xs, &ys, g, k, cut2);
+            assert_eq!((got.n, got.x, got.y, got.xx, got.xy), (want.n, want.x, want.y, want.xx, want.xy), "{g} {k} {cut2}");
+            let yy: u64 = xs.iter().zip(&ys).filter(|&(&x, &y)| {
+                let r = residual(x as u32, y as u32, g, k).unsigned_abs().min(65535);
+                r * r <= cut2
+            }).map(|(_, &y)| y as u64 * y as u64).sum();
+            assert_eq!(got.yy, yy);
+        }
+    }
 }

@@ -138,3 +138,61 @@ fn saved_offsets_come_back_and_anything_else_is_refused() {
     assert!(!other.restore(&far));
     assert!(other.offsets().iter().all(|&o| o == 0));
 }
+
+/// Every offset a cell may hold, at its sign's ends and around 0, on predictions over the whole
+/// u16 range (past the grey range too): `apply` is `(p + o).clamp(0, 255 << 8)`.
+#[test]
+fn apply_is_the_clamped_sum() {
+    let mut room = Room::new();
+    let offsets = [-LIMIT, -1000, -1, 0, 1, 1000, LIMIT];
+    for (c, o) in room.offset.iter_mut().enumerate() {
+        *o = offsets[c % offsets.len()];
+    }
+    let w = MAX_FACE_W;
+    let mut pred: Vec<u16> = (0..w * MAX_FACE_H).map(|i| (i as u32 * 7919 % 65536) as u16).collect();
+    pred[3] = 65535;
+    pred[4] = 65280;
+    pred[5] = 0;
+    let before = pred.clone();
+    room.apply(&mut pred, w);
+    for (i, (&p, &q)) in before.iter().zip(&pred).enumerate() {
+        let o = room.offset_at(i % w, i / w) as i32;
+        assert_eq!(q as i32, (p as i32 + o).clamp(0, 255 << 8), "pixel {i}, offset {o}");
+    }
+}
+
+/// Rule 2's samples are the pixels at even x and even y (the cells are 8 wide), on a face of odd
+/// width whose last cells are 3 pixels wide: one frame's sums per cell against that plain rule.
+#[test]
+fn a_frame_teaches_every_second_pixel_of_every_second_row() {
+    let (w, h) = (75usize, 58usize);
+    let mut rng = 0x1234_5677u32;
+    let mut next = move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 17;
+        rng ^= rng << 5;
+        rng
+    };
+    let f: Vec<u8> = (0..w * h).map(|_| next() as u8).collect();
+    let p: Vec<u16> = (0..w * h).map(|_| next() as u16).collect();
+    let m: Vec<u8> = (0..w * h).map(|_| (next() % 5 == 0) as u8).collect();
+    let mut lut = [0u16; 256];
+    lut.iter_mut().enumerate().for_each(|(i, v)| *v = (i as u16) << 8);
+    let mut room = Room::new();
+    room.learn(0, &f, &p, &lut, &m, w);
+    let mut want = [(0i32, 0i32, 0u32); CELLS];
+    for y in (0..h).step_by(2) {
+        for x in (0..w).step_by(2) {
+            let i = y * w + x;
+            if m[i] == 0 && f[i] != 0 && f[i] != 255 {
+                let c = &mut want[(y / CELL) * COLS + x / CELL];
+                c.0 += lut[f[i] as usize] as i32 - p[i] as i32;
+                c.1 += p[i] as i32;
+                c.2 += 1;
+            }
+        }
+    }
+    let got: Vec<(i32, i32, u32)> = room.acc.iter().map(|a| (a.sum, a.pred, a.count)).collect();
+    assert_eq!(got, want.to_vec());
+    assert!(want.iter().filter(|c| c.2 > 0).count() > 50, "the frame taught most cells");
+}

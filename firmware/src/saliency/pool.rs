@@ -13,9 +13,13 @@
 //! 2. the window sum slides along the row, a column in, a column out, and each pixel is tested.
 //!
 //! Both steps run in one pass, a column's update `r` pixels ahead of the test that first needs
-//! it: 20 instructions a pixel inside the row (the routine's comments count them; the fit's
-//! table look-up is the 20th), against 39 for the two loops LLVM made of the Rust. The edges take the clipped window's `k`. The table
-//! is made again when the head changes pose cell: 5.5 instructions a pixel, two at a time.
+//! it: 19 instructions a pixel inside the row, 16.5 for the default radius of 2, whose pixels
+//! go in pairs with the ring and the column sums read and written two words at a time (the
+//! routine's comments count them), against 39 for the two loops LLVM made of the Rust; the
+//! row's salient pixels are counted at its end, four mask bytes an instruction. The edges take
+//! the clipped window's `k`. The table is made again when the head changes pose cell: 5.5
+//! instructions a pixel, two at a time. The benchmark image checks the routine against
+//! [`reference()`] on random faces of every radius before it times anything.
 
 use msr_shared::blob::{Normalisation, MAX_FACE_W, MAX_POOL};
 
@@ -69,8 +73,8 @@ extern "C" {
 }
 
 // Registers in the row: r0 frame, r1 pred, r2 ring, r3 the column entering (x + r), r4 T,
-// r5 mask, r6 the column leaving (x - r - 1), r7 the window sum, r8 the count, r9 k, r10 and
-// r11 scratch, r12 the phase's end, lr the fit's table. On the stack: r, w, prime (then the end of the
+// r5 mask, r6 the column leaving (x - r - 1), r7 the window sum, r8 the count (at the end; a
+// scratch register in the pairs), r9 k, r10 and r11 scratch, r12 the phase's end, lr the fit's table. On the stack: r, w, prime (then the end of the
 // inside), rows.
 #[cfg(target_arch = "arm")]
 core::arch::global_asm!(
@@ -87,7 +91,8 @@ core::arch::global_asm!(
     "add r11, r11, r10",
     "str r11, [r3], #4",
     ".endm",
-    // The test of pixel x once the window sum is in r7: T k - |s| < 0 (7 instructions).
+    // The test of pixel x once the window sum is in r7: T k - |s| < 0 (6 instructions; the
+    // row's salient pixels are counted at its end).
     ".macro MSR_POOL_TEST",
     "eor r10, r7, r7, asr #31",
     "rsb r10, r10, r7, asr #31",
@@ -95,14 +100,43 @@ core::arch::global_asm!(
     "mla r10, r11, r9, r10",
     "lsr r10, r10, #31",
     "strb r10, [r5], #1",
-    "add r8, r8, r10",
     ".endm",
-    // A whole pixel: its column in, the window slid, the test (20 instructions).
+    // A whole pixel: its column in, the window slid, the test (19 instructions).
     ".macro MSR_POOL_PIXEL",
     "MSR_POOL_COLUMN",
     "add r7, r7, r11",
     "ldr r11, [r6], #4",
     "sub r7, r7, r11",
+    "MSR_POOL_TEST",
+    ".endm",
+    // Two pixels x, x + 1 inside the row for a radius of 2 (33 instructions): columns x + 2
+    // and x + 3 in, their ring words and sums read and written as pairs (LDRD/STRD); r3 then
+    // points at column x + 4, so the columns leaving, x - 3 and x - 2, are 28 and 24 bytes
+    // back. r6 and r8 are scratch here.
+    ".macro MSR_POOL_PAIR2",
+    "ldrb r10, [r0], #1",
+    "ldrb r11, [r0], #1",
+    "ldrh r10, [lr, r10, lsl #1]",
+    "ldrh r11, [lr, r11, lsl #1]",
+    "ldrh r6, [r1], #2",
+    "sub r10, r10, r6",
+    "ldrh r6, [r1], #2",
+    "sub r11, r11, r6",
+    "ldrd r6, r8, [r2]",
+    "strd r10, r11, [r2], #8",
+    "sub r10, r10, r6",
+    "sub r11, r11, r8",
+    "ldrd r6, r8, [r3]",
+    "add r6, r6, r10",
+    "add r8, r8, r11",
+    "strd r6, r8, [r3], #8",
+    "add r7, r7, r6",
+    "ldr r10, [r3, #-28]",
+    "sub r7, r7, r10",
+    "MSR_POOL_TEST",
+    "add r7, r7, r8",
+    "ldr r10, [r3, #-24]",
+    "sub r7, r7, r10",
     "MSR_POOL_TEST",
     ".endm",
     ".section .text.msr_pool_row,\"ax\",%progbits",
@@ -150,12 +184,29 @@ core::arch::global_asm!(
     "add r9, r9, r10",
     "cmp r5, r12",
     "bne 2b",
-    // 3. The inside, k = rows (2 r + 1): w - 2 r pixels, (w - 2 r) % 4 single ones first,
-    //    then fours.
+    // 3. The inside, k = rows (2 r + 1): w - 2 r pixels. A radius of 2 (the default pool):
+    //    an odd one first, then pairs; any other: (w - 2 r) % 4 single ones first, then fours.
     "ldr r10, [sp, #4]",
     "ldr r11, [sp]",
     "sub r10, r10, r11, lsl #1",
     "add r12, r5, r10",
+    "cmp r11, #2",
+    "bne 20f",
+    "ands r10, r10, #1",
+    "beq 21f",
+    "MSR_POOL_PIXEL",
+    "21:",
+    "cmp r5, r12",
+    "beq 22f",
+    "23:",
+    "MSR_POOL_PAIR2",
+    "cmp r5, r12",
+    "bne 23b",
+    "22:",
+    // The columns leaving for the right edge: x - 3 for r3 at x + 2.
+    "sub r6, r3, #20",
+    "b 4f",
+    "20:",
     "ands r10, r10, #3",
     "beq 3f",
     "str r12, [sp, #8]",
@@ -187,6 +238,26 @@ core::arch::global_asm!(
     "MSR_POOL_TEST",
     "cmp r5, r12",
     "bne 6b",
+    // 5. The row's salient pixels (its mask bytes are 0 or 1): USADA8 adds four bytes a word.
+    "ldr r10, [sp, #4]",
+    "sub r0, r5, r10",
+    "movs r6, #0",
+    "mov r8, #0",
+    "lsrs r1, r10, #2",
+    "beq 7f",
+    "12:",
+    "ldr r11, [r0], #4",
+    "usada8 r8, r11, r6, r8",
+    "subs r1, r1, #1",
+    "bne 12b",
+    "7:",
+    "cmp r0, r5",
+    "beq 9f",
+    "13:",
+    "ldrb r11, [r0], #1",
+    "add r8, r8, r11",
+    "cmp r0, r5",
+    "bne 13b",
     "9:",
     "mov r0, r8",
     "add sp, sp, #16",
@@ -236,6 +307,7 @@ core::arch::global_asm!(
     ".purgem MSR_POOL_COLUMN",
     ".purgem MSR_POOL_TEST",
     ".purgem MSR_POOL_PIXEL",
+    ".purgem MSR_POOL_PAIR2",
     ".purgem MSR_POOL_T2",
 );
 
@@ -371,7 +443,10 @@ pub fn combined_table(sigma: &[u16], mu: &[u16], c: &Combine, out: &mut [u16]) {
 /// count to `row_counts` (as many rows as it holds). `ring` needs `(2 pool + 1) w` words. A
 /// face no wider than the window, a radius of 0 or past [`MAX_POOL`], a width past
 /// [`MAX_FACE_W`] or a short ring take [`reference()`] (same result, slower). `lut` is the
-/// frame's fitted grey levels ([`crate::light::LightFit::table`]).
+/// frame's fitted grey levels ([`crate::light::LightFit::table`]). With `extent`, each row's
+/// salient pixels whose own error fails the test are marked [`crate::extent::SPREAD`] as the
+/// row is done ([`crate::extent::spread_row`], from the ring: the same mask as
+/// [`crate::extent::mark_spread`] after).
 #[allow(clippy::too_many_arguments)]
 pub fn pooled_one_sided(
     frame: &[u8],
@@ -383,6 +458,7 @@ pub fn pooled_one_sided(
     w: usize,
     pool: u8,
     row_counts: &mut [u16],
+    extent: bool,
 ) -> u32 {
     let r = pool as usize;
     if w == 0 || w > MAX_FACE_W {
@@ -395,6 +471,9 @@ pub fn pooled_one_sided(
         let count = reference(&frame[..n], &pred[..n], lut, &thr[..n], &mut mask[..n], w, pool);
         for (y, c) in row_counts.iter_mut().enumerate().take(h) {
             *c = mask[y * w..y * w + w].iter().filter(|&&m| m != 0).count() as u16;
+        }
+        if extent {
+            crate::extent::mark_spread(&frame[..n], &pred[..n], lut, &thr[..n], &mut mask[..n], w, row_counts);
         }
         return count;
     }
@@ -422,9 +501,15 @@ pub fn pooled_one_sided(
     // Rows 0 .. r into the column sums and ring slots 0 .. r before the first output row.
     // A row with clipped pixels reads its prediction censored ([`crate::light::censor_row`]).
     let mut censored = [0u16; MAX_FACE_W];
+    // Most frames have no clipped pixel at all: one test of the whole frame spares each row's.
+    let clipped = crate::light::any_clipped(&frame[..n]);
+    let pred_row = |y: usize, buf: &mut [u16; MAX_FACE_W]| match clipped {
+        true => pred_row(frame, pred, lut, y, w, buf),
+        false => pred[y * w..].as_ptr(),
+    };
     for y in 0..r.min(h) {
         job.frame = fp.wrapping_add(y * w);
-        job.pred = pred_row(frame, pred, lut, y, w, &mut censored);
+        job.pred = pred_row(y, &mut censored);
         job.ring = rp.wrapping_add(y * w);
         // SAFETY: see above.
         unsafe { run_row(&job) };
@@ -438,7 +523,7 @@ pub fn pooled_one_sided(
     for y in 0..h {
         let yin = y + r;
         (job.frame, job.pred) = if yin < h {
-            (fp.wrapping_add(yin * w), pred_row(frame, pred, lut, yin, w, &mut censored))
+            (fp.wrapping_add(yin * w), pred_row(yin, &mut censored))
         } else {
             (zero as *const u8, below.as_ptr())
         };
@@ -450,6 +535,20 @@ pub fn pooled_one_sided(
         let c = unsafe { run_row(&job) };
         if let Some(rc) = row_counts.get_mut(y) {
             *rc = c as u16;
+        }
+        if extent && c > 0 {
+            // Row y's own errors are still in the ring (slot y mod slots; they leave when row
+            // y + r + 1 comes in).
+            // SAFETY: slot (y mod slots) of the ring and row y of thr and mask, w values each
+            // (see above); the routine that wrote them has returned, nothing else holds them.
+            let (e, t, m) = unsafe {
+                (
+                    core::slice::from_raw_parts(rp.wrapping_add((y % slots) * w), w),
+                    core::slice::from_raw_parts(tp.wrapping_add(y * w), w),
+                    core::slice::from_raw_parts_mut(mp.wrapping_add(y * w), w),
+                )
+            };
+            crate::extent::spread_row(e, t, m, c);
         }
         count += c;
         slot = if slot + 1 == slots { 0 } else { slot + 1 };
@@ -536,13 +635,21 @@ mod tests {
                     let mut mask = vec![9u8; n];
                     let mut ring = vec![-5i32; 7 * w];
                     let mut rows = [0u16; 16];
-                    let got = pooled_one_sided(&frame, &pred, &lut, &thr, &mut mask, &mut ring, w, pool, &mut rows);
+                    let got = pooled_one_sided(&frame, &pred, &lut, &thr, &mut mask, &mut ring, w, pool, &mut rows, false);
                     assert_eq!(mask, want, "{w} x {h}, pool {pool}");
                     assert_eq!(got, count);
                     for y in 0..h {
                         let c = want[y * w..y * w + w].iter().filter(|&&m| m == 1).count();
                         assert_eq!(rows[y] as usize, c, "row {y} of {w} x {h}, pool {pool}");
                     }
+                    // The extent done row by row from the ring is the extent done after.
+                    let mut spread = want.clone();
+                    crate::extent::mark_spread(&frame, &pred, &lut, &thr, &mut spread, w, &[]);
+                    let mut mask = vec![9u8; n];
+                    let mut ring = vec![-5i32; 7 * w];
+                    let got = pooled_one_sided(&frame, &pred, &lut, &thr, &mut mask, &mut ring, w, pool, &mut rows, true);
+                    assert_eq!(mask, spread, "{w} x {h}, pool {pool}, with the extent");
+                    assert_eq!(got, count);
                 }
             }
         }
@@ -572,8 +679,8 @@ mod tests {
         let mut mask = [0u8; 25];
         let mut ring = [0i32; 25];
         let mut rows = [0u16; 5];
-        assert_eq!(pooled_one_sided(&frame, &[u16::MAX; 25], &ID, &[u16::MAX; 25], &mut mask, &mut ring, 5, 2, &mut rows), 0);
-        assert_eq!(pooled_one_sided(&frame, &[65280; 25], &ID, &[65279; 25], &mut mask, &mut ring, 5, 2, &mut rows), 25);
+        assert_eq!(pooled_one_sided(&frame, &[u16::MAX; 25], &ID, &[u16::MAX; 25], &mut mask, &mut ring, 5, 2, &mut rows, false), 0);
+        assert_eq!(pooled_one_sided(&frame, &[65280; 25], &ID, &[65279; 25], &mut mask, &mut ring, 5, 2, &mut rows, false), 25);
     }
 
     /// The table is `mu + t sigma` rounded down (within one Q8.8 step of the exact value, give

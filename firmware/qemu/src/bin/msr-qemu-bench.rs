@@ -39,6 +39,7 @@ static mut FRAME: [u8; MAX_FACE_PIXELS] = [0; MAX_FACE_PIXELS];
 #[derive(Default, Clone, Copy)]
 struct Stages {
     decoder: u64,
+    table: u64,
     saliency: u64,
     blobs: u64,
     reach: u64,
@@ -91,6 +92,119 @@ fn noise(state: &mut u32) -> i32 {
     ((*state >> 24) % 5) as i32 - 2
 }
 
+/// Buffers of [`pool_agrees`]: faces up to 75 x 7.
+const CHECK_PIXELS: usize = 75 * 7;
+static mut CHECK: Check = Check {
+    frame: [0; CHECK_PIXELS],
+    pred: [0; CHECK_PIXELS],
+    thr: [0; CHECK_PIXELS],
+    mask: [0; CHECK_PIXELS],
+    want: [0; CHECK_PIXELS],
+    ring: [0; 7 * 75],
+};
+struct Check {
+    frame: [u8; CHECK_PIXELS],
+    pred: [u16; CHECK_PIXELS],
+    thr: [u16; CHECK_PIXELS],
+    mask: [u8; CHECK_PIXELS],
+    want: [u8; CHECK_PIXELS],
+    ring: [i32; 7 * 75],
+}
+
+/// The board's pooled saliency (the assembly row routine) against the window written out
+/// ([`pool::reference`], and [`msr_firmware::extent::mark_spread`] for the extent), on random
+/// faces of 16 widths, 5 heights and every radius, with clipped pixels, thresholds from 0 to
+/// the saturated 65535, predictions over the whole u16 range, half of them through a random
+/// photometric fit: the mask, its count and each row's count must be the same.
+fn pool_agrees() -> Result<(), &'static str> {
+    use msr_firmware::saliency::pool;
+    // SAFETY: the only reference to this static, taken once in this single-threaded image.
+    let c = unsafe { &mut *core::ptr::addr_of_mut!(CHECK) };
+    let mut rng = 0x9e37_79b9u32;
+    let mut next = move || {
+        rng ^= rng << 13;
+        rng ^= rng >> 17;
+        rng ^= rng << 5;
+        rng
+    };
+    for w in [1usize, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 17, 24, 33, 74, 75] {
+        for h in [1usize, 2, 4, 5, 7] {
+            for r in 0..=msr_shared::blob::MAX_POOL {
+                let n = w * h;
+                for i in 0..n {
+                    c.frame[i] = next() as u8;
+                    c.pred[i] = next() as u16;
+                    c.thr[i] = match next() % 8 {
+                        0 => 0,
+                        1 => u16::MAX,
+                        _ => (next() % 24_000) as u16,
+                    };
+                }
+                let mut lut = msr_firmware::light::IDENTITY_TABLE;
+                if next() % 2 == 0 {
+                    let fit = msr_firmware::light::LightFit {
+                        gain: 20_000 + (next() % 180_000) as i32,
+                        offset: (next() % 6_000_000) as i32 - 3_000_000,
+                        ..msr_firmware::light::LightFit::IDENTITY
+                    };
+                    fit.table(&mut lut);
+                }
+                let (f, p, t) = (&c.frame[..n], &c.pred[..n], &c.thr[..n]);
+                let count = pool::reference(f, p, &lut, t, &mut c.want[..n], w, r);
+                for extent in [false, true] {
+                    c.mask[..n].fill(9);
+                    c.ring.fill(-5);
+                    let mut rows = [0u16; 8];
+                    let got = pool::pooled_one_sided(f, p, &lut, t, &mut c.mask[..n], &mut c.ring, w, r, &mut rows, extent);
+                    if got != count {
+                        return Err("the pooled count differs");
+                    }
+                    for y in 0..h {
+                        let k = c.want[y * w..y * w + w].iter().filter(|&&m| m != 0).count();
+                        if rows[y] as usize != k {
+                            return Err("a row's count differs");
+                        }
+                    }
+                    if extent {
+                        let mut rows = [u16::MAX; 8];
+                        rows.iter_mut().zip(c.want[..n].chunks(w)).for_each(|(r, m)| *r = m.iter().filter(|&&b| b != 0).count() as u16);
+                        msr_firmware::extent::mark_spread(f, p, &lut, t, &mut c.want[..n], w, &rows);
+                    }
+                    if c.mask[..n] != c.want[..n] {
+                        return Err(if extent { "the extent differs" } else { "the pooled mask differs" });
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The board's clip test ([`msr_firmware::light::any_clipped`], an assembly routine here) against
+/// the plain one, on rows of 0 to 19 bytes at every offset from a word, each byte in turn set to
+/// each of 0, 1, 254 and 255 among bytes of 1 to 254.
+fn clip_test_agrees() -> Result<(), &'static str> {
+    let mut buf = [7u8; 24];
+    for len in 0..20 {
+        for start in 0..4 {
+            for at in 0..len.max(1) {
+                for v in [0u8, 1, 254, 255] {
+                    buf.fill(((len * 37 + at * 11) % 254 + 1) as u8);
+                    let row = &mut buf[start..start + len];
+                    if let Some(b) = row.get_mut(at) {
+                        *b = v;
+                    }
+                    let want = row.iter().any(|&f| f == 0 || f == 255);
+                    if msr_firmware::light::any_clipped(row) != want {
+                        return Err(if want { "a clipped byte missed" } else { "a clipped byte seen where none is" });
+                    }
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 #[entry]
 fn main() -> ! {
     memory::paint_stack();
@@ -106,6 +220,14 @@ fn main() -> ! {
     };
     // SAFETY: the only references to these statics, taken once in this single-threaded image.
     let (ws, frame) = unsafe { (&mut *core::ptr::addr_of_mut!(WS), &mut *core::ptr::addr_of_mut!(FRAME)) };
+    if let Err(e) = pool_agrees() {
+        hprintln!("MSR-BENCH-ERROR the pooled saliency: {}", e);
+        exit(1);
+    }
+    if let Err(e) = clip_test_agrees() {
+        hprintln!("MSR-BENCH-ERROR the clip test: {}", e);
+        exit(1);
+    }
     let settings = Settings::of(&model);
     let (h, w) = (model.face_h as usize, model.face_w as usize);
     let n = h * w;
@@ -138,7 +260,12 @@ fn main() -> ! {
 
         let t0 = clock.instructions();
         let decoded = ws.decoder.predict_uncached(&model, *head).is_ok();
+        // The threshold table of the pose's cell (cached until the head changes cell; each of
+        // these poses is in another one), then the frame's own work.
         let t1 = clock.instructions();
+        ws.thresholds.invalidate();
+        ws.thresholds.prepare(&model, &settings, *head);
+        let t1t = clock.instructions();
         let salient = ws.saliency(&model, &settings, frame);
         let t2 = clock.instructions();
         let (blob, summary) = ws.blobs(&model, &settings);
@@ -158,7 +285,7 @@ fn main() -> ! {
             d.finalize()
         });
         lines[k] = Line {
-            stages: Stages { decoder: t1 - t0, saliency: t2 - t1, blobs: t3 - t2, reach: t4 - t3 },
+            stages: Stages { decoder: t1 - t0, table: t1t - t1, saliency: t2 - t1t, blobs: t3 - t2, reach: t4 - t3 },
             salient: salient.unwrap_or(0),
             components: summary.components,
             blob: blob.map(|b| (b.area, [b.x0, b.y0, b.x1, b.y1])),
@@ -186,10 +313,11 @@ fn main() -> ! {
     for (k, l) in lines.iter().enumerate() {
         let s = l.stages;
         hprintln!(
-            "frame {}: decoder {} saliency {} blobs {} reach {} (instructions); salient {} components {} blob {:?} reach {:?}",
-            k, s.decoder, s.saliency, s.blobs, s.reach, l.salient, l.components, l.blob, l.reach
+            "frame {}: decoder {} table {} saliency {} blobs {} reach {} (instructions); salient {} components {} blob {:?} reach {:?}",
+            k, s.decoder, s.table, s.saliency, s.blobs, s.reach, l.salient, l.components, l.blob, l.reach
         );
         sum.decoder += s.decoder;
+        sum.table += s.table;
         sum.saliency += s.saliency;
         sum.blobs += s.blobs;
         sum.reach += s.reach;
@@ -197,11 +325,12 @@ fn main() -> ! {
     let f = POSES.len() as u64;
     let sizes = memory::sizes();
     hprintln!(
-        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}],\"golden_digest\":{},\"golden_detections\":{},\"room\":{{\"learn\":{},\"update\":{},\"apply\":{},\"digest\":{}}}}}",
+        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"table\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}],\"golden_digest\":{},\"golden_detections\":{},\"room\":{{\"learn\":{},\"update\":{},\"apply\":{},\"digest\":{}}}}}",
         f,
         found,
         model.decoder_macs(),
         sum.decoder / f,
+        sum.table / f,
         sum.saliency / f,
         sum.blobs / f,
         sum.reach / f,
