@@ -29,8 +29,29 @@ const TICK_US: u32 = 1000;
 
 /// QEMU's emulated UART takes one byte per turn of QEMU's event loop: about 15 to 40 KB/s on an
 /// idle machine, a tenth of that when other QEMUs share two cores. So the upload is called stuck
-/// only when it makes no progress for this long (no byte taken, or no verdict after the last).
+/// only when it makes no progress for this long: QEMU reads nothing more from the link (what the
+/// socket took, less what it still holds: [`unread`]), or no verdict comes after the last byte.
 const UPLOAD_STALL: Duration = Duration::from_secs(60);
+
+/// What the socket `s` holds that its peer has not read yet (Linux `SIOCOUTQ`: for a Unix
+/// stream socket the send buffers not yet consumed, in the kernel's accounting, which includes
+/// each buffer's overhead; it falls as the peer reads). A socket's buffers hold a few hundred KB,
+/// so what `write` took says nothing of what QEMU read: at 3 KB/s, a loaded machine's rate,
+/// the last 200 KB take a minute after the last `write`. 0 where it cannot be asked.
+#[cfg(target_os = "linux")]
+fn unread(s: &std::os::unix::net::UnixStream) -> usize {
+    use std::os::fd::AsRawFd;
+    let mut n: libc::c_int = 0;
+    // SAFETY: SIOCOUTQ (= TIOCOUTQ) writes one int through the pointer, which is valid for the
+    // call; the descriptor is open while `s` lives.
+    let r = unsafe { libc::ioctl(s.as_raw_fd(), libc::TIOCOUTQ, &mut n) };
+    if r == 0 { n.max(0) as usize } else { 0 }
+}
+
+#[cfg(not(target_os = "linux"))]
+fn unread(_: &std::os::unix::net::UnixStream) -> usize {
+    0
+}
 
 fn debug() -> bool {
     std::env::var_os("MSR_QEMU_DEBUG").is_some()
@@ -62,19 +83,21 @@ fn upload(ls: &mut Lockstep, blob: &[u8]) -> Result<u32> {
     let mut r = ls.host_link().try_clone()?;
     r.set_read_timeout(Some(Duration::from_millis(50)))?;
     let mut buf = [0u8; 1024];
-    let (mut seen, mut progress_at) = (0usize, Instant::now());
+    let (mut seen, mut progress_at) = ((0usize, 0usize), Instant::now());
     let verdict = loop {
         ls.drain_servo()?;
-        let now_written = written.load(Ordering::Relaxed);
-        if now_written != seen {
-            (seen, progress_at) = (now_written, Instant::now());
+        let now = (written.load(Ordering::Relaxed), unread(&r));
+        if now != seen {
+            (seen, progress_at) = (now, Instant::now());
         }
         if progress_at.elapsed() > UPLOAD_STALL {
             bail!(
-                "the QEMU board took {seen} of {total} upload bytes of a {} byte model in {:.0} s and \
-                 then nothing for {UPLOAD_STALL:?} (no verdict); it printed:\n{}",
-                blob.len(),
+                "the QEMU board stopped reading its model upload: {} of {total} bytes written to the \
+                 link in {:.0} s, the link still holding about {} of them, then nothing moved for \
+                 {UPLOAD_STALL:?} (no verdict); it printed:\n{}",
+                seen.0,
                 t0.elapsed().as_secs_f64(),
+                seen.1,
                 ls.qemu().output_so_far()
             );
         }
@@ -274,4 +297,29 @@ pub fn run_qemu(blob: &[u8], cfg: &EpisodeConfig, n: usize, seed: u64, progress:
         eprintln!("{output}");
     }
     Ok(out)
+}
+
+#[cfg(all(test, target_os = "linux"))]
+mod tests {
+    use super::unread;
+    use std::io::{Read, Write};
+
+    /// The upload's progress is what the peer read: the socket reports what it still holds,
+    /// less as the peer reads, and nothing once all is read.
+    #[test]
+    fn unread_falls_as_the_peer_reads() {
+        let (mut a, mut b) = std::os::unix::net::UnixStream::pair().unwrap();
+        assert_eq!(unread(&a), 0);
+        for _ in 0..8 {
+            a.write_all(&[7u8; 1024]).unwrap();
+        }
+        let full = unread(&a);
+        assert!(full >= 8 * 1024, "{full}");
+        let mut buf = [0u8; 4096];
+        b.read_exact(&mut buf).unwrap();
+        let half = unread(&a);
+        assert!(half < full && half >= 4 * 1024, "{half} of {full}");
+        b.read_exact(&mut buf).unwrap();
+        assert_eq!(unread(&a), 0);
+    }
 }
