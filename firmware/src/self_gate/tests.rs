@@ -12,6 +12,7 @@ fn params() -> SelfGate {
         rest_tol: 1.5,
         hold_tol: 1.5,
         level_tol: 1.5,
+        line_tol: None,
         latency_ms: 100,
         timeout_ms: 2000,
         min_frames: 2,

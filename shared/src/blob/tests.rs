@@ -676,6 +676,7 @@ fn gate() -> SelfGate {
         rest_tol: 1.5,
         hold_tol: 0.5,
         level_tol: 0.25,
+        line_tol: None,
         latency_ms: 100,
         timeout_ms: 2000,
         min_frames: 2,
