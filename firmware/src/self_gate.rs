@@ -25,7 +25,11 @@
 //!   `line_px` carries only the template match's noise. Another robot that stands still at a
 //!   pose whose camera-only gain happens to match the own image's, or that moved a little
 //!   between the rest and the probe, lies off the line by a few tenths of a pixel (issue 29:
-//!   such babblers passed the red gate 4 times in 200).
+//!   such babblers passed the red gate 4 times in 200). The same gate also wants the face the
+//!   model predicts at every probe frame: the pipeline's light fit finds it ([`crate::light`]'s
+//!   verdict `Face`). The own image turns with the head as the decoder predicts; another robot's
+//!   face does not, and at a pose where it matches the prediction too badly the fit refuses it
+//!   (`unlike` counts those frames; its salient pixels read 0).
 //!
 //! Pass when `|gain_ratio - 1| <= gain_tol`, `rest_px <= rest_tol`, `hold_px <= hold_tol` and
 //! `level_px <= level_tol` (and `line_px <= line_tol` with a return stage): the own image lies on its line at every frame of the probe, to the
@@ -63,10 +67,13 @@ struct Acc {
     yaw: f32,
     salient: f32,
     n: u8,
+    /// Frames in which the pipeline did not find the predicted face.
+    unlike: u8,
 }
 
 impl Acc {
-    fn push(&mut self, x: f32, y: f32, yaw: f32, salient: u32) {
+    fn push(&mut self, x: f32, y: f32, yaw: f32, salient: u32, face: bool) {
+        self.unlike = self.unlike.saturating_add(!face as u8);
         if self.n == 0 {
             (self.x_min, self.x_max) = (x, x);
         }
@@ -215,8 +222,16 @@ impl Gate {
         }
     }
 
-    /// A face frame arrived during the probe, with the head's reported yaw.
+    /// A face frame arrived during the probe, with the head's reported yaw; the pipeline found
+    /// the face it predicts (see [`Gate::on_probe_frame`]).
     pub fn on_frame(&mut self, now_us: u64, frame: u16, pos: [f32; 2], yaw: f32, salient: u32) -> Step {
+        self.on_probe_frame(now_us, frame, pos, yaw, salient, true)
+    }
+
+    /// As [`Gate::on_frame`]; `face`: the pipeline found the face the model predicts at this
+    /// head pose (the light fit's verdict). A gate with a return stage passes only when it did
+    /// at every probe frame.
+    pub fn on_probe_frame(&mut self, now_us: u64, frame: u16, pos: [f32; 2], yaw: f32, salient: u32, face: bool) -> Step {
         let latency = self.p.latency_ms as u64 * 1000;
         let min = self.p.min_frames;
         let stages = self.stages();
@@ -226,7 +241,7 @@ impl Gate {
         if now_us < since.saturating_add(latency) {
             return Step::Wait;
         }
-        pr.acc[pr.stage].push(pos[0], pos[1], yaw, salient);
+        pr.acc[pr.stage].push(pos[0], pos[1], yaw, salient, face);
         if pr.acc[pr.stage].n < min {
             return Step::Wait;
         }
@@ -274,6 +289,7 @@ impl Gate {
                 hold_px: f32::NAN,
                 level_px: f32::NAN,
                 line_px: f32::NAN,
+                unlike: 0,
                 salient: [f32::NAN; 3],
                 frames: [0; 2],
                 elapsed_ms: elapsed_ms(started_us, now_us),
@@ -293,6 +309,7 @@ impl Gate {
             hold_px: f32::NAN,
             level_px: f32::NAN,
             line_px: f32::NAN,
+            unlike: 0,
             salient: [pr.rest.2, pr.acc[0].salient(), pr.acc[1].salient()],
             frames: [pr.acc[0].n, pr.acc[1].n],
             elapsed_ms: elapsed_ms(pr.started_us, now_us),
@@ -323,6 +340,8 @@ impl Gate {
         let line_px = back.map_or(f32::NAN, |(xb, _)| (xb - line).abs());
         report.gain_ratio = ratio;
         report.line_px = line_px;
+        let unlike = used.iter().fold(0u8, |n, a| n.saturating_add(a.unlike));
+        report.unlike = unlike;
         report.rest_px = rest_px;
         report.hold_px = hold_px;
         report.level_px = level_px;
@@ -332,7 +351,7 @@ impl Gate {
             && rest_px <= p.rest_tol
             && hold_px <= p.hold_tol
             && level_px <= p.level_tol
-            && p.line_tol.is_none_or(|t| line_px <= t);
+            && p.line_tol.is_none_or(|t| line_px <= t && unlike == 0);
         report.decision = if pass { GateDecision::Pass } else { GateDecision::Reject };
         Step::Done(report, pass.then_some(pr.target))
     }

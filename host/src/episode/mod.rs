@@ -265,6 +265,9 @@ pub struct GateRecord {
     /// line, pixels.
     #[serde(default)]
     pub line_px: Option<f32>,
+    /// Probe frames that did not show the face the model predicts there (return stage only).
+    #[serde(default)]
+    pub unlike: u8,
     /// Mean salient pixels at rest and at the two probe poses.
     pub salient: [Option<f32>; 3],
     pub frames: [u8; 2],
@@ -286,6 +289,7 @@ impl GateRecord {
             hold_px: finite(g.hold_px),
             level_px: finite(g.level_px),
             line_px: finite(g.line_px),
+            unlike: g.unlike,
             salient: g.salient.map(finite),
             frames: g.frames,
             elapsed_ms: g.elapsed_ms,
