@@ -31,8 +31,9 @@ use serde::{Deserialize, Serialize};
 /// the self gate (`Mode::SelfTest`, `BoardToHost::SelfGate`) and
 /// head poses on request (`MoveHead`, `HeadAt`, `HeadRefused`, `HeadNotSettled`). Version 4:
 /// the crop position's sub-pixel part (`FrameHeader::crop_sub`) and the self gate's hold and
-/// level statistics (`GateReport::hold_px`, `level_px`).
-pub const PROTOCOL_VERSION: u8 = 4;
+/// level statistics (`GateReport::hold_px`, `level_px`). Version 5: the self gate's return
+/// stage (`GateReport::line_px`, `unlike`).
+pub const PROTOCOL_VERSION: u8 = 5;
 /// Largest postcard payload in one frame.
 pub const MAX_PAYLOAD: usize = 256;
 /// Version byte and sequence number.
