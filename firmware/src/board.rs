@@ -804,9 +804,10 @@ impl<S: ModelStore> Core<S> {
                         }),
                         _ => None,
                     };
+                    let face = salient.as_ref().is_some_and(|d| d.light.verdict == Verdict::Face);
                     let salient = salient.map_or(u32::MAX, |d| d.salient_pixels);
                     match self.gate.as_mut() {
-                        Some(g) => g.on_frame(now_us, h.frame, h.position(), yaw, salient),
+                        Some(g) => g.on_probe_frame(now_us, h.frame, h.position(), yaw, salient, face),
                         None => Step::Wait,
                     }
                 }

@@ -17,10 +17,22 @@
 //! - `hold_px`: the largest range of x over the resting frames and over each pose's frames
 //!   (the head holds still then; so does its image, and a robot babbling its head does not);
 //! - `level_px`: how far the face's y moved at a pose from its rest (a yaw probe does not move
-//!   the own image up or down; a babbling robot's pitch does).
+//!   the own image up or down; a babbling robot's pitch does);
+//! - `line_px` (a gate with [`SelfGate::line_tol`], blob layout 2): the probe ends with a third
+//!   stage back at the resting yaw the encoder reported, the poses' exact midpoint (the servo
+//!   goes where it is sent), and the face there must lie on the poses' line. `rest_px` carries
+//!   the encoder's rounding of the resting yaw (up to half a pixel), so it cannot be tight;
+//!   `line_px` carries only the template match's noise. Another robot that stands still at a
+//!   pose whose camera-only gain happens to match the own image's, or that moved a little
+//!   between the rest and the probe, lies off the line by a few tenths of a pixel (issue 29:
+//!   such babblers passed the red gate 4 times in 200). The same gate also wants the face the
+//!   model predicts at every probe frame: the pipeline's light fit finds it ([`crate::light`]'s
+//!   verdict `Face`). The own image turns with the head as the decoder predicts; another robot's
+//!   face does not, and at a pose where it matches the prediction too badly the fit refuses it
+//!   (`unlike` counts those frames; its salient pixels read 0).
 //!
 //! Pass when `|gain_ratio - 1| <= gain_tol`, `rest_px <= rest_tol`, `hold_px <= hold_tol` and
-//! `level_px <= level_tol`: the own image lies on its line at every frame of the probe, to the
+//! `level_px <= level_tol` (and `line_px <= line_tol` with a return stage): the own image lies on its line at every frame of the probe, to the
 //! precision calibration measured for each statistic (a layout-0 blob has one tolerance for
 //! all three). A probe starts only after the head has rested
 //! [`REST_BEFORE_PROBE_US`] since the last one: a delayed picture of the last probe must not
@@ -55,10 +67,13 @@ struct Acc {
     yaw: f32,
     salient: f32,
     n: u8,
+    /// Frames in which the pipeline did not find the predicted face.
+    unlike: u8,
 }
 
 impl Acc {
-    fn push(&mut self, x: f32, y: f32, yaw: f32, salient: u32) {
+    fn push(&mut self, x: f32, y: f32, yaw: f32, salient: u32, face: bool) {
+        self.unlike = self.unlike.saturating_add(!face as u8);
         if self.n == 0 {
             (self.x_min, self.x_max) = (x, x);
         }
@@ -92,10 +107,10 @@ struct Probe {
     rest_y: f32,
     rest_spread: f32,
     pitch: f32,
-    /// 0: the `+amplitude` pose, 1: the `-amplitude` pose.
+    /// 0: the `+amplitude` pose, 1: the `-amplitude` pose, 2: back at the rest (return stage).
     stage: usize,
     settled_since: Option<u64>,
-    acc: [Acc; 2],
+    acc: [Acc; 3],
     last_frame: u16,
 }
 
@@ -146,8 +161,17 @@ impl Gate {
     }
 
     fn goal(&self, pr: &Probe) -> [f32; 2] {
-        let a = if pr.stage == 0 { self.p.amplitude } else { -self.p.amplitude };
+        let a = match pr.stage {
+            0 => self.p.amplitude,
+            1 => -self.p.amplitude,
+            _ => 0.0,
+        };
         [pr.rest.1 + a, pr.pitch]
+    }
+
+    /// Probe stages: the two poses, and the return to the rest when the gate has a line test.
+    fn stages(&self) -> usize {
+        if self.p.line_tol.is_some() { 3 } else { 2 }
     }
 
     /// A mark was confirmed at `now_us` with the head at `[yaw, pitch]`: the probe starts
@@ -175,7 +199,7 @@ impl Gate {
             pitch: head[1],
             stage: 0,
             settled_since: None,
-            acc: [Acc::default(); 2],
+            acc: [Acc::default(); 3],
             last_frame: frame,
         };
         let g = self.goal(&pr);
@@ -198,22 +222,31 @@ impl Gate {
         }
     }
 
-    /// A face frame arrived during the probe, with the head's reported yaw.
+    /// A face frame arrived during the probe, with the head's reported yaw; the pipeline found
+    /// the face it predicts (see [`Gate::on_probe_frame`]).
     pub fn on_frame(&mut self, now_us: u64, frame: u16, pos: [f32; 2], yaw: f32, salient: u32) -> Step {
+        self.on_probe_frame(now_us, frame, pos, yaw, salient, true)
+    }
+
+    /// As [`Gate::on_frame`]; `face`: the pipeline found the face the model predicts at this
+    /// head pose (the light fit's verdict). A gate with a return stage passes only when it did
+    /// at every probe frame.
+    pub fn on_probe_frame(&mut self, now_us: u64, frame: u16, pos: [f32; 2], yaw: f32, salient: u32, face: bool) -> Step {
         let latency = self.p.latency_ms as u64 * 1000;
         let min = self.p.min_frames;
+        let stages = self.stages();
         let Some(pr) = self.probe.as_mut() else { return Step::Wait };
         pr.last_frame = frame;
         let Some(since) = pr.settled_since else { return Step::Wait };
         if now_us < since.saturating_add(latency) {
             return Step::Wait;
         }
-        pr.acc[pr.stage].push(pos[0], pos[1], yaw, salient);
+        pr.acc[pr.stage].push(pos[0], pos[1], yaw, salient, face);
         if pr.acc[pr.stage].n < min {
             return Step::Wait;
         }
-        if pr.stage == 0 {
-            pr.stage = 1;
+        if pr.stage + 1 < stages {
+            pr.stage += 1;
             pr.settled_since = None;
             let pr = *pr;
             return Step::Head(self.goal(&pr));
@@ -255,6 +288,8 @@ impl Gate {
                 rest_px: f32::NAN,
                 hold_px: f32::NAN,
                 level_px: f32::NAN,
+                line_px: f32::NAN,
+                unlike: 0,
                 salient: [f32::NAN; 3],
                 frames: [0; 2],
                 elapsed_ms: elapsed_ms(started_us, now_us),
@@ -273,6 +308,8 @@ impl Gate {
             rest_px: f32::NAN,
             hold_px: f32::NAN,
             level_px: f32::NAN,
+            line_px: f32::NAN,
+            unlike: 0,
             salient: [pr.rest.2, pr.acc[0].salient(), pr.acc[1].salient()],
             frames: [pr.acc[0].n, pr.acc[1].n],
             elapsed_ms: elapsed_ms(pr.started_us, now_us),
@@ -280,7 +317,11 @@ impl Gate {
         // The head must be at the poses it was sent to, as far as the servos can tell, or the
         // probe's geometry is not the commanded one: undecided.
         let a = self.p.amplitude;
-        let there = (yp - (pr.rest.1 + a)).abs() <= POSE_TOL_RAD && (ym - (pr.rest.1 - a)).abs() <= POSE_TOL_RAD;
+        let used = &pr.acc[..self.stages()];
+        let back = (self.stages() == 3).then(|| pr.acc[2].mean());
+        let there = (yp - (pr.rest.1 + a)).abs() <= POSE_TOL_RAD
+            && (ym - (pr.rest.1 - a)).abs() <= POSE_TOL_RAD
+            && back.is_none_or(|(_, yb)| (yb - pr.rest.1).abs() <= POSE_TOL_RAD);
         if !(dy.is_finite() && there) {
             return Step::Done(report, None);
         }
@@ -293,9 +334,14 @@ impl Gate {
         let line = (xp + xm) / 2.0;
         let rest_px = (pr.rest.0 - line).abs();
         // Still at rest and at each pose, and level during a yaw probe.
-        let hold_px = pr.acc.iter().fold(pr.rest_spread, |m, a| m.max(a.x_max - a.x_min));
-        let level_px = pr.acc.iter().fold(0.0f32, |m, a| m.max((a.y() - pr.rest_y).abs()));
+        let hold_px = used.iter().fold(pr.rest_spread, |m, a| m.max(a.x_max - a.x_min));
+        let level_px = used.iter().fold(0.0f32, |m, a| m.max((a.y() - pr.rest_y).abs()));
+        // Back at the midpoint the servo was sent to: the face on the line, to the match's noise.
+        let line_px = back.map_or(f32::NAN, |(xb, _)| (xb - line).abs());
         report.gain_ratio = ratio;
+        report.line_px = line_px;
+        let unlike = used.iter().fold(0u8, |n, a| n.saturating_add(a.unlike));
+        report.unlike = unlike;
         report.rest_px = rest_px;
         report.hold_px = hold_px;
         report.level_px = level_px;
@@ -304,7 +350,8 @@ impl Gate {
         let pass = (ratio - 1.0).abs() <= p.gain_tol
             && rest_px <= p.rest_tol
             && hold_px <= p.hold_tol
-            && level_px <= p.level_tol;
+            && level_px <= p.level_tol
+            && p.line_tol.is_none_or(|t| line_px <= t && unlike == 0);
         report.decision = if pass { GateDecision::Pass } else { GateDecision::Reject };
         Step::Done(report, pass.then_some(pr.target))
     }

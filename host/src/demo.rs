@@ -438,6 +438,7 @@ fn self_gate_episodes(blob: &[u8], cfg: &EpisodeConfig, a: &DemoConfig) -> Resul
         rest_tol_px: g.rest_tol_px,
         hold_tol_px: g.hold_tol_px,
         level_tol_px: g.level_tol_px,
+        line_tol_px: g.line_tol_px,
         scenes,
     })
 }

@@ -54,6 +54,9 @@ pub struct SelfGateReport {
     pub hold_tol_px: f32,
     #[serde(default)]
     pub level_tol_px: f32,
+    /// The return stage's line tolerance (`None`: a two-stage gate, or a report from before).
+    #[serde(default)]
+    pub line_tol_px: Option<f32>,
     pub scenes: Vec<SceneReport>,
 }
 
@@ -336,6 +339,9 @@ fn self_gate_section(h: &mut String, g: &SelfGateReport) {
     let _ = write!(h, "</svg><p class=cap>Gain ratio (the face's shift per radian of head yaw over the calibrated one) of every decision, per scene; green: the band the gate passes (1 &plusmn; {:.3}).</p>", g.gain_tol);
     if g.hold_tol_px > 0.0 {
         let _ = write!(h, "<p>Besides the gain, a pass needs the resting face within {:.2} px of the line between the probe's poses, the face's x within {:.2} px while the head holds still, and its y within {:.2} px of its rest at each pose (each calibrated from the own image's spread).</p>", g.rest_tol_px, g.hold_tol_px, g.level_tol_px);
+        if let Some(t) = g.line_tol_px {
+            let _ = write!(h, "<p>The probe ends back at the resting yaw, where the face must lie within {t:.2} px of the probe's line.</p>");
+        }
     }
 }
 

@@ -112,11 +112,11 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     // The gate by default, calibrated on the dataset's robot and reported; --no-self-gate is
     // the same blob without it, byte for byte.
     assert!(gate.is_some() && r["self_gate"]["gate"]["gain_px_per_rad"].is_number(), "{report}");
-    // Each of the rest, hold and level statistics has its own tolerance: 1.5 times its largest
+    // Each of the rest, hold, level and (return stage) line statistics has its own tolerance: 1.5 times its largest
     // value over the calibration's draws, at least two 1/64 px steps; the blob stores them.
     let g = gate.unwrap();
     let sg = &r["self_gate"];
-    for (stat, tol, stored) in [("rest_px", "rest_tol_px", g.rest_tol), ("hold_px", "hold_tol_px", g.hold_tol), ("level_px", "level_tol_px", g.level_tol)] {
+    for (stat, tol, stored) in [("rest_px", "rest_tol_px", g.rest_tol), ("hold_px", "hold_tol_px", g.hold_tol), ("level_px", "level_tol_px", g.level_tol), ("line_px", "line_tol_px", g.line_tol.unwrap())] {
         let max = sg[stat].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).fold(0.0, f64::max);
         let want = (1.5 * max).max(2.0 / 64.0) as f32;
         assert_eq!(sg["gate"][tol].as_f64().unwrap() as f32, want, "{stat}: {report}");

@@ -28,7 +28,8 @@
 //!   bins_yaw + yaw index) mu then sigma, face_h*face_w u16 each, Q8.8 (each padded to 4)
 //! self gate (if flags bit 3): amplitude f32, gain f32, gain_tol f32, rest_tol f32,
 //!   latency_ms u16, timeout_ms u16, min_frames u8, layout u8, reserved u8 x2 (0),
-//!   then for layout 1: hold_tol f32, level_tol f32
+//!   then for layout 1: hold_tol f32, level_tol f32; for layout 2: hold_tol f32, level_tol f32,
+//!   line_tol f32
 //! ```
 //!
 //! Fixed point: a layer's input is i16 with `in_shift` fraction bits, its weights (i8 or i16) have
@@ -63,7 +64,9 @@
 //! `layout` byte (0 before): 0, one tolerance (`rest_tol`) bounds the rest, hold and level
 //! statistics; 1 (what the writer makes), `hold_tol` and `level_tol` of their own follow (each
 //! statistic has its own spread in the own image, and one tolerance sized by the largest let a
-//! babbling robot through on the others). Any other layout is refused.
+//! babbling robot through on the others); 2 (what the writer makes for a gate with a
+//! `line_tol`), `line_tol` follows too: the probe returns to the resting yaw and the face there
+//! must lie on the poses' line within it ([`SelfGate::line_tol`]). Any other layout is refused.
 //! Bit 4 (version 5): the error is pooled before its statistics and the threshold, `e = |mean
 //! of 255 (I - I_hat) over the (2 pool + 1)^2 window|` (clipped at the face's border), with
 //! `pool` (1..=[`MAX_POOL`]) in header byte 37; the blob's mu and sigma are of that error.
@@ -133,8 +136,10 @@ const FLAG_TEMPLATE: u16 = 1;
 const FLAG_SUBPIXEL: u16 = 2;
 const FLAG_REGION: u16 = 4;
 const FLAG_SELF_GATE: u16 = 8;
-/// Bytes of the self-gate section as the writer makes it (layout 1).
+/// Bytes of the self-gate section as the writer makes it without a return stage (layout 1).
 pub const SELF_GATE_LEN: usize = 32;
+/// Bytes of the self-gate section with a return stage (layout 2, [`SelfGate::line_tol`]).
+pub const SELF_GATE_LEN_V2: usize = 36;
 /// Bytes of a layout-0 self-gate section (one tolerance for the rest, hold and level).
 pub const SELF_GATE_LEN_V0: usize = 24;
 /// Largest [`SelfGate::amplitude`], radians (about 5.7 degrees: within the training poses).
@@ -575,6 +580,10 @@ pub struct SelfGate {
     pub hold_tol: f32,
     /// Largest vertical move (pixels) of the face at a probe pose from its rest.
     pub level_tol: f32,
+    /// With a return stage (layout 2): the probe ends back at the resting yaw the encoder
+    /// reported, the poses' exact midpoint, and the face there must lie this close (pixels) to
+    /// the poses' line. `None` (layouts 0 and 1): two stages, as before.
+    pub line_tol: Option<f32>,
     /// The robot's own latency from a head pose to a frame showing it on the board, ms.
     pub latency_ms: u16,
     /// A probe not decided within this is undecided (no reach), ms.
@@ -593,7 +602,7 @@ impl SelfGate {
             && self.gain.abs() <= 10_000.0
             && self.gain_tol > 0.0
             && self.gain_tol < 1.0
-            && [self.rest_tol, self.hold_tol, self.level_tol].iter().all(|t| *t > 0.0 && *t <= 64.0)
+            && [self.rest_tol, self.hold_tol, self.level_tol, self.line_tol.unwrap_or(1.0)].iter().all(|t| *t > 0.0 && *t <= 64.0)
             && (1..=1000).contains(&self.latency_ms)
             && (100..=MAX_GATE_TIMEOUT_MS).contains(&self.timeout_ms)
             && (1..=MAX_GATE_FRAMES).contains(&self.min_frames)
@@ -1103,12 +1112,13 @@ impl<'a> Model<'a> {
             if r.take(2)? != [0; 2] {
                 return Err(BlobError::BadHeader);
             }
-            let (hold_tol, level_tol) = match layout {
-                0 => (rest_tol, rest_tol),
-                1 => (r.f32()?, r.f32()?),
+            let (hold_tol, level_tol, line_tol) = match layout {
+                0 => (rest_tol, rest_tol, None),
+                1 => (r.f32()?, r.f32()?, None),
+                2 => (r.f32()?, r.f32()?, Some(r.f32()?)),
                 _ => return Err(BlobError::BadHeader),
             };
-            let g = SelfGate { amplitude, gain, gain_tol, rest_tol, hold_tol, level_tol, latency_ms, timeout_ms, min_frames };
+            let g = SelfGate { amplitude, gain, gain_tol, rest_tol, hold_tol, level_tol, line_tol, latency_ms, timeout_ms, min_frames };
             if !g.is_valid() {
                 return Err(BlobError::SelfGate);
             }
@@ -1539,8 +1549,8 @@ mod writer {
                 }
                 o.extend_from_slice(&g.latency_ms.to_le_bytes());
                 o.extend_from_slice(&g.timeout_ms.to_le_bytes());
-                o.extend_from_slice(&[g.min_frames, 1, 0, 0]);
-                for f in [g.hold_tol, g.level_tol] {
+                o.extend_from_slice(&[g.min_frames, if g.line_tol.is_some() { 2 } else { 1 }, 0, 0]);
+                for f in [g.hold_tol, g.level_tol].into_iter().chain(g.line_tol) {
                     o.extend_from_slice(&f.to_le_bytes());
                 }
                 flags |= FLAG_SELF_GATE;

@@ -31,8 +31,9 @@ use serde::{Deserialize, Serialize};
 /// the self gate (`Mode::SelfTest`, `BoardToHost::SelfGate`) and
 /// head poses on request (`MoveHead`, `HeadAt`, `HeadRefused`, `HeadNotSettled`). Version 4:
 /// the crop position's sub-pixel part (`FrameHeader::crop_sub`) and the self gate's hold and
-/// level statistics (`GateReport::hold_px`, `level_px`).
-pub const PROTOCOL_VERSION: u8 = 4;
+/// level statistics (`GateReport::hold_px`, `level_px`). Version 5: the self gate's return
+/// stage (`GateReport::line_px`, `unlike`).
+pub const PROTOCOL_VERSION: u8 = 5;
 /// Largest postcard payload in one frame.
 pub const MAX_PAYLOAD: usize = 256;
 /// Version byte and sequence number.
@@ -336,10 +337,10 @@ mod tests {
 
     #[test]
     fn literal_frame() {
-        // version 4, seq 0x0102, payload [0x00, 0x2A]; CRC-16/UMTS of 04 02 01 00 2A.
-        let crc = CRC16.checksum(&[4, 2, 1, 0, 0x2A]).to_le_bytes();
+        // version 5, seq 0x0102, payload [0x00, 0x2A]; CRC-16/UMTS of 05 02 01 00 2A.
+        let crc = CRC16.checksum(&[5, 2, 1, 0, 0x2A]).to_le_bytes();
         let bytes = wire(0x0102, &[0x00, 0x2A]);
-        let mut expect = vec![0x04, 0x04, 0x02, 0x01, 0x04, 0x2A];
+        let mut expect = vec![0x04, 0x05, 0x02, 0x01, 0x04, 0x2A];
         expect.extend_from_slice(&crc);
         expect.push(0x00);
         // COBS: the zero inside the payload splits the frame into two runs.

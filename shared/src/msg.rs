@@ -592,6 +592,12 @@ pub struct GateReport {
     /// Largest vertical move of the face at a probe pose from its rest, pixels (NaN as above):
     /// a yaw probe does not move the own image up or down.
     pub level_px: f32,
+    /// With a return stage: distance of the face, back at the resting yaw, from the probe's
+    /// line, pixels (NaN without one, or as above).
+    pub line_px: f32,
+    /// With a return stage: probe frames in which the pipeline did not find the face the model
+    /// predicts at that head pose (a pass needs none); 0 otherwise.
+    pub unlike: u8,
     /// Mean salient pixels of the decoder's prediction error at rest and at the two probe
     /// poses (NaN as above): how well the face matches the one predicted for each head pose.
     pub salient: [f32; 3],

@@ -196,9 +196,10 @@ fn qemu_self_gate_refuses_another_robot_and_a_delayed_picture() {
         let mut c = EpisodeConfig::new(robot);
         c.no_mark_share = 0.0;
         c.scene = s;
-        // The mark, its confirmation (after the delay), one probe (each pose held 250 ms after
-        // the servos report it) and its refusal fit in 3 s.
-        c.watch_us = 3_000_000;
+        // The mark, its confirmation (after the delay), one probe (two poses and the return to
+        // the rest, each held 250 ms after the servos report it: 1.6 s) and its refusal fit in
+        // 3.5 s.
+        c.watch_us = 3_500_000;
         c
     };
     let (other, delayed) = (scene(Scene::Other), scene(Scene::Delayed));

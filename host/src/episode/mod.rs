@@ -261,6 +261,13 @@ pub struct GateRecord {
     /// Largest vertical move of the face at a pose from its rest, pixels.
     #[serde(default)]
     pub level_px: Option<f32>,
+    /// With a return stage: the face back at the resting yaw, its distance from the probe's
+    /// line, pixels.
+    #[serde(default)]
+    pub line_px: Option<f32>,
+    /// Probe frames that did not show the face the model predicts there (return stage only).
+    #[serde(default)]
+    pub unlike: u8,
     /// Mean salient pixels at rest and at the two probe poses.
     pub salient: [Option<f32>; 3],
     pub frames: [u8; 2],
@@ -281,6 +288,8 @@ impl GateRecord {
             rest_px: finite(g.rest_px),
             hold_px: finite(g.hold_px),
             level_px: finite(g.level_px),
+            line_px: finite(g.line_px),
+            unlike: g.unlike,
             salient: g.salient.map(finite),
             frames: g.frames,
             elapsed_ms: g.elapsed_ms,

@@ -40,6 +40,9 @@ pub struct GateCalibration {
     /// draws (each statistic is already a maximum over frames, and the encoder's rounding of the
     /// rest, a large part, is bounded: a half more covers what the draws missed).
     pub margin: f64,
+    /// End the probe back at the resting yaw and test the face's distance from the poses' line
+    /// there (blob layout 2, [`SelfGate::line_tol`]); false: the two-stage gate of layout 1.
+    pub return_stage: bool,
     /// Where the head rests before a probe, radians either way of home (drawn per probe): the
     /// encoder's rounding of the resting yaw and of the two poses then falls anywhere.
     pub rest_yaw: f64,
@@ -52,9 +55,11 @@ impl Default for GateCalibration {
             draws: 24,
             seed: 0,
             latency_ms: 250,
-            timeout_ms: 2000,
+            // Three stages take 1.65 s in the sim (1.1 s for two): room for a slower head.
+            timeout_ms: 2500,
             min_frames: 2,
             margin: 1.5,
+            return_stage: true,
             rest_yaw: 0.02,
         }
     }
@@ -70,6 +75,8 @@ pub struct GateCalibReport {
     pub rest_px: Vec<f64>,
     pub hold_px: Vec<f64>,
     pub level_px: Vec<f64>,
+    /// With a return stage: the face back at the rest, its distance from the poses' line (px).
+    pub line_px: Vec<f64>,
 }
 
 /// [`SelfGate`] for reports.
@@ -81,6 +88,8 @@ pub struct SelfGateJson {
     pub rest_tol_px: f32,
     pub hold_tol_px: f32,
     pub level_tol_px: f32,
+    /// `null`: no return stage.
+    pub line_tol_px: Option<f32>,
     pub latency_ms: u16,
     pub timeout_ms: u16,
     pub min_frames: u8,
@@ -95,6 +104,7 @@ impl From<&SelfGate> for SelfGateJson {
             rest_tol_px: g.rest_tol,
             hold_tol_px: g.hold_tol,
             level_tol_px: g.level_tol,
+            line_tol_px: g.line_tol,
             latency_ms: g.latency_ms,
             timeout_ms: g.timeout_ms,
             min_frames: g.min_frames,
@@ -105,8 +115,9 @@ impl From<&SelfGate> for SelfGateJson {
 /// One simulated probe: per frame the face position the frame header gives the board
 /// (whole pixels and the sub-pixel part in its steps).
 struct Probe {
-    /// `[rest, plus, minus]`, two frames each: (x, y).
-    frames: [[(f64, f64); 2]; 3],
+    /// `[rest, plus, minus, back]`, two frames each: (x, y); back is at the resting yaw the
+    /// encoder reported, where the board returns.
+    frames: [[(f64, f64); 2]; 4],
 }
 
 impl Probe {
@@ -118,12 +129,15 @@ impl Probe {
     fn gain(&self, amplitude: f64) -> f64 {
         (self.mean(1).0 - self.mean(2).0) / (2.0 * amplitude)
     }
-    /// The board's rest distance, hold range and level move (`msr_firmware::self_gate`).
-    fn stats(&self) -> (f64, f64, f64) {
-        let ((x0, y0), (xp, yp), (xm, ym)) = (self.mean(0), self.mean(1), self.mean(2));
-        let hold = self.frames.iter().map(|f| (f[0].0 - f[1].0).abs()).fold(0.0, f64::max);
-        let level = (yp - y0).abs().max((ym - y0).abs());
-        ((x0 - (xp + xm) / 2.0).abs(), hold, level)
+    /// The board's rest distance, hold range, level move and line distance
+    /// (`msr_firmware::self_gate`), over the first `stages` probe stages.
+    fn stats(&self, stages: usize) -> (f64, f64, f64, f64) {
+        let ((x0, y0), (xp, _), (xm, _), (xb, _)) = (self.mean(0), self.mean(1), self.mean(2), self.mean(3));
+        let used = &self.frames[..1 + stages];
+        let hold = used.iter().map(|f| (f[0].0 - f[1].0).abs()).fold(0.0, f64::max);
+        let level = (1..1 + stages).map(|i| (self.mean(i).1 - y0).abs()).fold(0.0, f64::max);
+        let line = (xp + xm) / 2.0;
+        ((x0 - line).abs(), hold, level, (xb - line).abs())
     }
 }
 
@@ -156,8 +170,8 @@ pub fn calibrate(robot: Robot, cropper: &Cropper, c: &GateCalibration) -> Result
         // The gate runs on a confirmed mark: a mark on the face moves the template's best match
         // a little, and differently as the face turns.
         let (mark, _) = render_marked(&renderer, &BodyPose::head(rest, 0.0), &Variation::CLEAN, &mut rng);
-        let mut frames = [[(0.0, 0.0); 2]; 3];
-        for (f, yaw) in frames.iter_mut().zip([rest, told + a, told - a]) {
+        let mut frames = [[(0.0, 0.0); 2]; 4];
+        for (f, yaw) in frames.iter_mut().zip([rest, told + a, told - a, told]) {
             *f = [frame_at(yaw, &mark, &mut rng)?, frame_at(yaw, &mark, &mut rng)?];
         }
         probes.push(Probe { frames });
@@ -165,7 +179,8 @@ pub fn calibrate(robot: Robot, cropper: &Cropper, c: &GateCalibration) -> Result
     let gains: Vec<f64> = probes.iter().map(|p| p.gain(a)).collect();
     let gain = gains.iter().sum::<f64>() / gains.len() as f64;
     ensure!(gain.abs() >= 10.0, "the face crop does not follow the head (gain {gain:.1} px/rad)");
-    let stats: Vec<(f64, f64, f64)> = probes.iter().map(Probe::stats).collect();
+    let stages = if c.return_stage { 3 } else { 2 };
+    let stats: Vec<(f64, f64, f64, f64)> = probes.iter().map(|p| p.stats(stages)).collect();
     let dev = gains.iter().map(|g| (g / gain - 1.0).abs()).fold(0.0, f64::max);
     // Floors: two steps of the header's sub-pixel position, over the probe's span for the gain.
     let step = 2.0 / sub;
@@ -174,8 +189,11 @@ pub fn calibrate(robot: Robot, cropper: &Cropper, c: &GateCalibration) -> Result
     // the resting yaw (up to half a pixel), the hold and the level only the template match's
     // noise (at most about half of that over the draws); one tolerance sized by the rest let
     // babbling robots through on the hold or the level (3 of 111, red, issue 17).
-    let tol = |f: fn(&(f64, f64, f64)) -> f64| (c.margin * stats.iter().map(f).fold(0.0, f64::max)).max(step) as f32;
+    // The line distance back at the rest has no encoder rounding in it (the servo goes to the
+    // reported yaw it is sent to): the match's noise only, like the hold and the level.
+    let tol = |f: fn(&(f64, f64, f64, f64)) -> f64| (c.margin * stats.iter().map(f).fold(0.0, f64::max)).max(step) as f32;
     let (rest_tol, hold_tol, level_tol) = (tol(|s| s.0), tol(|s| s.1), tol(|s| s.2));
+    let line_tol = c.return_stage.then(|| tol(|s| s.3));
     let gate = SelfGate {
         amplitude: c.amplitude,
         gain: gain as f32,
@@ -183,6 +201,7 @@ pub fn calibrate(robot: Robot, cropper: &Cropper, c: &GateCalibration) -> Result
         rest_tol,
         hold_tol,
         level_tol,
+        line_tol,
         latency_ms: c.latency_ms,
         timeout_ms: c.timeout_ms,
         min_frames: c.min_frames,
@@ -194,6 +213,7 @@ pub fn calibrate(robot: Robot, cropper: &Cropper, c: &GateCalibration) -> Result
         rest_px: stats.iter().map(|s| s.0).collect(),
         hold_px: stats.iter().map(|s| s.1).collect(),
         level_px: stats.iter().map(|s| s.2).collect(),
+        line_px: if c.return_stage { stats.iter().map(|s| s.3).collect() } else { Vec::new() },
     };
     Ok((gate, report))
 }

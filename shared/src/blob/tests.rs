@@ -676,6 +676,7 @@ fn gate() -> SelfGate {
         rest_tol: 1.5,
         hold_tol: 0.5,
         level_tol: 0.25,
+        line_tol: None,
         latency_ms: 100,
         timeout_ms: 2000,
         min_frames: 2,
@@ -745,7 +746,7 @@ fn self_gate_values_are_checked() {
     assert_eq!(edit(at + 18, &[0xB9, 0x0B]), Err(BlobError::SelfGate), "timeout 3001 ms");
     assert_eq!(edit(at + 20, &[0]), Err(BlobError::SelfGate), "no frames");
     assert_eq!(edit(at + 20, &[9]), Err(BlobError::SelfGate), "9 frames");
-    assert_eq!(edit(at + 21, &[2]), Err(BlobError::BadHeader), "layout 2");
+    assert_eq!(edit(at + 21, &[3]), Err(BlobError::BadHeader), "layout 3");
     assert_eq!(edit(at + 22, &[1]), Err(BlobError::BadHeader), "reserved");
     assert_eq!(edit(at + 23, &[1]), Err(BlobError::BadHeader), "reserved");
     // Layout 0 says the section ends at 24 bytes: 8 bytes too many.
@@ -922,5 +923,42 @@ fn a_layout_0_self_gate_has_one_tolerance_and_is_replaced_whole() {
         for cut in plain.len()..old.len() {
             assert!(Model::parse(&old[..cut]).is_err());
         }
+    }
+}
+
+#[test]
+fn a_layout_2_self_gate_carries_the_line_tolerance_and_older_layouts_still_read() {
+    let plain = mlp_spec().to_bytes().unwrap();
+    let three = SelfGate { line_tol: Some(0.25), ..gate() };
+    let gated = set_self_gate(&plain, Some(three)).unwrap();
+    assert_eq!(gated.len(), plain.len() + SELF_GATE_LEN_V2);
+    // The layout byte says 2 and the line tolerance (0.25 = 0x3E800000) follows the others.
+    assert_eq!(gated[plain.len() + 21], 2);
+    assert_eq!(&gated[plain.len() + 24..], &[0, 0, 0, 0x3F, 0, 0, 0x80, 0x3E, 0, 0, 0x80, 0x3E]);
+    assert_eq!(Model::parse(&gated).unwrap().self_gate, Some(three));
+    assert_eq!(set_self_gate(&gated, None).unwrap(), plain);
+    // A two-stage gate is still written as layout 1, and a layout 1 or 0 blob reads as before.
+    let one = set_self_gate(&plain, Some(gate())).unwrap();
+    assert_eq!((one.len(), one[plain.len() + 21]), (plain.len() + SELF_GATE_LEN, 1));
+    assert_eq!(Model::parse(&one).unwrap().self_gate.unwrap().line_tol, None);
+    assert_eq!(Model::parse(&layout0(&plain)).unwrap().self_gate.unwrap().line_tol, None);
+    // Replacing a layout-1 gate with a layout-2 one gives the same bytes as adding it.
+    assert_eq!(set_self_gate(&one, Some(three)).unwrap(), gated);
+    // Out of range or not finite: refused.
+    for bad in [0.0f32, -0.5, 65.0, f32::NAN, f32::INFINITY] {
+        let mut b = gated.clone();
+        let at = plain.len() + 32;
+        b[at..at + 4].copy_from_slice(&bad.to_le_bytes());
+        recrc(&mut b);
+        assert_eq!(Model::parse(&b).map(|m| m.self_gate), Err(BlobError::SelfGate), "{bad}");
+    }
+    assert_eq!(set_self_gate(&plain, Some(SelfGate { line_tol: Some(f32::NAN), ..gate() })), Err(BlobError::SelfGate));
+    // Layout 2 with only layout 1's 32 bytes: the line tolerance is missing.
+    let mut short = one.clone();
+    short[plain.len() + 21] = 2;
+    recrc(&mut short);
+    assert_eq!(Model::parse(&short), Err(BlobError::Truncated));
+    for cut in plain.len()..gated.len() {
+        assert!(Model::parse(&gated[..cut]).is_err());
     }
 }
