@@ -9,7 +9,7 @@
 //! Unlike the published recipe (10^4 iterations, no penalty), which over-fits 70 hand-guided
 //! pairs, the default adds an L2 penalty on the weights (not the biases) whose size is chosen by
 //! [`FOLDS`]-fold cross-validation over [`WEIGHT_DECAY_GRID`] on the pairs it is given, and trains
-//! 3000 iterations (the penalised fit has settled by then). The leave-one-out report therefore
+//! [`DEFAULT_ITERATIONS`] (8000: the penalised fit has settled by then). The leave-one-out report therefore
 //! chooses inside each fold, never from the pair it scores. `--weight-decay 0 --iterations 10000`
 //! is the published recipe.
 //!
@@ -37,13 +37,17 @@ pub const PUBLISHED_FIT_RMS: [f64; O] = [0.15, 0.11, 0.11, 0.07, 0.05];
 pub const WEIGHT_DECAY_GRID: [f64; 5] = [0.0, 3e-6, 1e-5, 3e-5, 1e-4];
 /// Folds of the cross-validation that chooses the weight decay.
 pub const FOLDS: usize = 5;
-/// Iterations by default: the penalised fit has settled by then (the paper's 10^4 over-fits).
-pub const DEFAULT_ITERATIONS: usize = 3000;
+/// Iterations by default: the penalised fit has settled by then. On the 70 real pairs (weight
+/// decay 1e-5, best of 3 restarts) the penalised loss is 1.1 % above its settled value (30 000
+/// iterations) at 3000, 0.08 % at 5000, under 0.01 % at 8000; stopped at 3000 the network was
+/// still tightening LElbowRoll (fit RMS 0.067 rad, 0.064 settled). The penalty, not the
+/// iteration count, keeps it from over-fitting (the paper's 10^4 without a penalty over-fits).
+pub const DEFAULT_ITERATIONS: usize = 8000;
 /// Restarts of the final training by default (the cross-validation runs one per candidate).
 pub const DEFAULT_RESTARTS: usize = 3;
 
 /// What [`run`] trains from and where it writes: `ReachConfig::new(inputs, targets, out)` gives
-/// the default (3000 iterations, lr 0.01, one run, the weight decay chosen by cross-validation,
+/// the default (8000 iterations, lr 0.01, best of 3 restarts, the weight decay chosen by cross-validation,
 /// the leave-one-out report).
 #[derive(burn::config::Config, Debug)]
 pub struct ReachConfig {
@@ -272,7 +276,7 @@ pub fn train_once(xs: &[[f64; I]], ys: &[[f64; O]], iterations: usize, lr: f64, 
     Ok((ReachModel { net, scaling }, loss))
 }
 
-/// How to train: by default 3000 iterations with the weight decay chosen by cross-validation;
+/// How to train: by default [`DEFAULT_ITERATIONS`] iterations with the weight decay chosen by cross-validation;
 /// `restarts` > 1 trains from that many seeds (`seed`, `seed + 1`, ...) and keeps the lowest
 /// (penalised) training loss. [`Opts::paper`] is the published recipe.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -512,9 +516,9 @@ pub fn load(weights: &Path) -> Result<ReachModel> {
     Ok(m)
 }
 
-/// Per-joint RMS errors in one line.
+/// Per-joint RMS errors in one line (to 0.1 mrad: the default and PyTorch differ by 0.2 on a joint).
 pub fn fmt_rms(v: &[f64; O]) -> String {
-    JOINTS.iter().zip(v).map(|(j, v)| format!("{j} {v:.3}")).collect::<Vec<_>>().join(", ")
+    JOINTS.iter().zip(v).map(|(j, v)| format!("{j} {v:.4}")).collect::<Vec<_>>().join(", ")
 }
 
 /// Trains the network on the CSV pairs and writes it with its sidecar (which it returns).
@@ -678,12 +682,12 @@ mod tests {
         // The weight decay is chosen inside every fold, from its 69 pairs.
         let loo = leave_one_out(&xs, &ys, &Opts::default()).unwrap();
         eprintln!("leave-one-out RMS {loo:?} (PyTorch's 3000 steps: {PYTORCH_LOO_RMS:?})");
-        // Better than the published recipe on every joint. Against PyTorch's figures it is
-        // better on four joints and level on LElbowRoll (0.0810 vs 0.081, docs/defaults.md):
-        // the guard is that it stays within 0.001 rad of them.
+        // Better than the published recipe and than PyTorch's figures (given to 3 decimals) on
+        // every joint: 0.1805 0.1604 0.1474 0.0928 0.0790 (docs/defaults.md). LShoulderRoll's
+        // margin is the thinnest (0.0002 rad).
         for k in 0..O {
             assert!(loo[k] < PUBLISHED_RECIPE_LOO_RMS[k], "{}: {:.3} vs {:.3}", JOINTS[k], loo[k], PUBLISHED_RECIPE_LOO_RMS[k]);
-            assert!(loo[k] < PYTORCH_LOO_RMS[k] + 0.001, "{}: {:.4} vs PyTorch's {:.3}", JOINTS[k], loo[k], PYTORCH_LOO_RMS[k]);
+            assert!(loo[k] < PYTORCH_LOO_RMS[k], "{}: {:.4} vs PyTorch's {:.3}", JOINTS[k], loo[k], PYTORCH_LOO_RMS[k]);
         }
     }
 
