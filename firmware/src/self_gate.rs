@@ -29,7 +29,9 @@
 //!   model predicts at every probe frame: the pipeline's light fit finds it ([`crate::light`]'s
 //!   verdict `Face`). The own image turns with the head as the decoder predicts; another robot's
 //!   face does not, and at a pose where it matches the prediction too badly the fit refuses it
-//!   (`unlike` counts those frames; its salient pixels read 0).
+//!   (`unlike` counts those frames; its salient pixels read 0). And the mark it is about to
+//!   reach for must turn with the face: salient pixels at one pose at least (the own image's
+//!   mark stays on its face; another robot's can leave the crop or its prediction).
 //!
 //! Pass when `|gain_ratio - 1| <= gain_tol`, `rest_px <= rest_tol`, `hold_px <= hold_tol` and
 //! `level_px <= level_tol` (and `line_px <= line_tol` with a return stage): the own image lies on its line at every frame of the probe, to the
@@ -342,6 +344,9 @@ impl Gate {
         report.line_px = line_px;
         let unlike = used.iter().fold(0u8, |n, a| n.saturating_add(a.unlike));
         report.unlike = unlike;
+        // The mark turns with the face: some of it is salient at a pose (a babbling robot whose
+        // mark vanished at both poses passed the red gate once in 200, issue 29).
+        let marked = pr.acc[0].salient() > 0.0 || pr.acc[1].salient() > 0.0;
         report.rest_px = rest_px;
         report.hold_px = hold_px;
         report.level_px = level_px;
@@ -351,7 +356,7 @@ impl Gate {
             && rest_px <= p.rest_tol
             && hold_px <= p.hold_tol
             && level_px <= p.level_tol
-            && p.line_tol.is_none_or(|t| line_px <= t && unlike == 0);
+            && p.line_tol.is_none_or(|t| line_px <= t && unlike == 0 && marked);
         report.decision = if pass { GateDecision::Pass } else { GateDecision::Reject };
         Step::Done(report, pass.then_some(pr.target))
     }

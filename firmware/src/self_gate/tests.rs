@@ -281,11 +281,12 @@ fn run_back(p: SelfGate, rest: [f32; 3], xp: [f32; 2], xm: [f32; 2], xb: [f32; 2
     }
     assert_eq!(g.start(0, 1, [0.0, 0.0], TARGET), Step::Head([0.07, 0.0]));
     g.on_servo(50 * MS, 0.07);
-    g.on_frame(200 * MS, 2, [xp[0], 50.0], 0.07, 0);
-    assert_eq!(g.on_frame(300 * MS, 3, [xp[1], 50.0], 0.07, 0), Step::Head([-0.07, 0.0]));
+    // The mark is salient at the poses (a return stage wants it at one of them at least).
+    g.on_frame(200 * MS, 2, [xp[0], 50.0], 0.07, 40);
+    assert_eq!(g.on_frame(300 * MS, 3, [xp[1], 50.0], 0.07, 40), Step::Head([-0.07, 0.0]));
     g.on_servo(350 * MS, -0.07);
-    g.on_frame(500 * MS, 4, [xm[0], 50.0], -0.07, 0);
-    let s = g.on_frame(600 * MS, 5, [xm[1], 50.0], -0.07, 0);
+    g.on_frame(500 * MS, 4, [xm[0], 50.0], -0.07, 40);
+    let s = g.on_frame(600 * MS, 5, [xm[1], 50.0], -0.07, 40);
     if p.line_tol.is_none() {
         return s;
     }
@@ -374,4 +375,40 @@ fn a_face_unlike_the_prediction_at_a_pose_fails_the_gate_with_a_return_stage() {
     assert_eq!((r.decision, t, r.unlike), (GateDecision::Reject, None, 1), "{r:?}");
     // A two-stage gate (blob layouts 0 and 1) decides on the positions alone, as before.
     assert_eq!(run(two, false).0.decision, GateDecision::Pass);
+}
+
+#[test]
+fn a_mark_that_is_salient_at_neither_pose_fails_the_gate_with_a_return_stage() {
+    // The own image's positions throughout, the mark salient at rest; `at` gives the salient
+    // pixels at the plus and the minus pose.
+    let run = |p: SelfGate, at: [u32; 2]| {
+        let mut g = Gate::new(p);
+        g.observe([120.25, 50.0], 0.0, 300);
+        g.start(0, 1, [0.0, 0.0], TARGET);
+        g.on_servo(50 * MS, 0.07);
+        g.on_frame(200 * MS, 2, [101.28, 50.0], 0.07, at[0]);
+        g.on_frame(300 * MS, 3, [101.28, 50.0], 0.07, at[0]);
+        g.on_servo(350 * MS, -0.07);
+        g.on_frame(500 * MS, 4, [139.22, 50.0], -0.07, at[1]);
+        let s = g.on_frame(600 * MS, 5, [139.22, 50.0], -0.07, at[1]);
+        if p.line_tol.is_none() {
+            return done(s);
+        }
+        g.on_servo(650 * MS, 0.0);
+        g.on_frame(800 * MS, 6, [120.25, 50.0], 0.0, 300);
+        done(g.on_frame(900 * MS, 7, [120.25, 50.0], 0.0, 300))
+    };
+    let two = SelfGate { gain_tol: 0.01, rest_tol: 0.2, hold_tol: 0.2, level_tol: 0.2, ..params() };
+    let three = SelfGate { line_tol: Some(0.2), ..two };
+    // The own image's mark can fade at one pose (a red mirror trial read 7 and 0): it passes.
+    let (r, t) = run(three, [7, 0]);
+    assert_eq!((r.decision, t), (GateDecision::Pass, Some(TARGET)), "{r:?}");
+    let (r, t) = run(three, [0, 3]);
+    assert_eq!((r.decision, t), (GateDecision::Pass, Some(TARGET)), "{r:?}");
+    // Gone at both (a babbling robot, seed 9001): rejected, the counts in the report.
+    let (r, t) = run(three, [0, 0]);
+    assert_eq!((r.decision, t), (GateDecision::Reject, None), "{r:?}");
+    assert_eq!(r.salient, [300.0, 0.0, 0.0]);
+    // A two-stage gate (blob layouts 0 and 1) decides on the positions alone, as before.
+    assert_eq!(run(two, [0, 0]).0.decision, GateDecision::Pass);
 }
