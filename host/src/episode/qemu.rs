@@ -17,7 +17,7 @@
 use crate::episode::{self, Camera, EpisodeConfig, Trial};
 use msr_shared::host_port::HostPort;
 use anyhow::{anyhow, bail, Context, Result};
-use msr_shared::msg::{BoardToHost, Status};
+use msr_shared::msg::{BoardToHost, HostToBoard, Status, CHUNK};
 use msr_sim::link::LinkEnd;
 use msr_sim::qemu::{self, Lockstep};
 use msr_sim::render::Renderer;
@@ -57,16 +57,64 @@ fn debug() -> bool {
     std::env::var_os("MSR_QEMU_DEBUG").is_some()
 }
 
+/// Passes of an upload: the first from byte 0, each next one from where the board said it
+/// stands.
+const UPLOAD_PASSES: usize = 8;
+
+/// This long after QEMU read a pass's last byte and after the board's latest `UploadAck`, with
+/// no verdict, the board is missing bytes: the next pass goes back to where that ack said. (Too
+/// early only costs chunks the board already holds, which it ignores.)
+const UPLOAD_QUIET: Duration = Duration::from_secs(2);
+
+/// What one pass of an upload ended with.
+enum Pass {
+    Verdict(BoardToHost),
+    /// The board wants this byte next.
+    GoBack(u32),
+}
+
 /// Uploads `blob` while the board runs free and waits for its verdict. The servo bus is read
 /// (and thrown away) meanwhile: an unread UART stalls the board (see
-/// [`Lockstep::drain_servo`]).
+/// [`Lockstep::drain_servo`]). As `Session::upload` does against a real board, it goes back to
+/// where the board stands: chunks that arrive while the board erases its staging slot are
+/// dropped and answered with `UploadAck` (`msr_shared::msg`, model uploads); how many depends on
+/// how fast QEMU reads the link against how fast the board erases, so on the machine's load
+/// (a blind upload of the whole blob once stalled in CI with every byte read and no verdict).
 fn upload(ls: &mut Lockstep, blob: &[u8]) -> Result<u32> {
+    let mut port = HostPort::default();
+    let t0 = Instant::now();
+    let mut bytes = port.encode_upload(blob);
+    for pass in 0..UPLOAD_PASSES {
+        match upload_pass(ls, &mut port, bytes, t0)? {
+            Pass::Verdict(BoardToHost::ModelAccepted { crc32 }) => {
+                if debug() {
+                    eprintln!("upload of {} bytes accepted after {:.1} s, {} passes", blob.len(), t0.elapsed().as_secs_f64(), pass + 1);
+                }
+                return Ok(crc32);
+            }
+            Pass::Verdict(other) => bail!("the QEMU board refused the model: {other:?}"),
+            Pass::GoBack(next) => {
+                let from = (next as usize).min(blob.len());
+                if debug() {
+                    eprintln!("upload: the board wants byte {from} next (pass {})", pass + 1);
+                }
+                bytes = Vec::new();
+                for (i, data) in blob[from..].chunks(CHUNK).enumerate() {
+                    bytes.extend(port.encode(&HostToBoard::ModelChunk { offset: (from + i * CHUNK) as u32, data }));
+                }
+                bytes.extend(port.encode(&HostToBoard::ModelCommit));
+            }
+        }
+    }
+    bail!("the QEMU board did not take its model in {UPLOAD_PASSES} passes ({:.0} s)", t0.elapsed().as_secs_f64())
+}
+
+/// Writes `bytes` and reads the board until its verdict, or until it says (after the last byte)
+/// where it stands.
+fn upload_pass(ls: &mut Lockstep, port: &mut HostPort, bytes: Vec<u8>, t0: Instant) -> Result<Pass> {
     use std::sync::atomic::{AtomicUsize, Ordering};
     use std::sync::Arc;
-    let mut port = HostPort::default();
-    let bytes = port.encode_upload(blob);
     let total = bytes.len();
-    let t0 = Instant::now();
     // The writer runs on its own thread so that the board's answers are read while it writes; it
     // counts what the link took, so that a slow upload is told from a stuck one.
     let written = Arc::new(AtomicUsize::new(0));
@@ -84,11 +132,20 @@ fn upload(ls: &mut Lockstep, blob: &[u8]) -> Result<u32> {
     r.set_read_timeout(Some(Duration::from_millis(50)))?;
     let mut buf = [0u8; 1024];
     let (mut seen, mut progress_at) = ((0usize, 0usize), Instant::now());
-    let verdict = loop {
+    // The board's latest UploadAck and when it came; since when QEMU has read the whole pass.
+    let mut ack: Option<(u32, Instant)> = None;
+    let mut all_read_since: Option<Instant> = None;
+    let outcome = loop {
         ls.drain_servo()?;
         let now = (written.load(Ordering::Relaxed), unread(&r));
         if now != seen {
             (seen, progress_at) = (now, Instant::now());
+        }
+        all_read_since = if seen == (total, 0) { all_read_since.or_else(|| Some(Instant::now())) } else { None };
+        if let (Some((next, at)), Some(since)) = (ack, all_read_since) {
+            if at.elapsed() >= UPLOAD_QUIET && since.elapsed() >= UPLOAD_QUIET {
+                break Pass::GoBack(next);
+            }
         }
         if progress_at.elapsed() > UPLOAD_STALL {
             bail!(
@@ -107,25 +164,24 @@ fn upload(ls: &mut Lockstep, blob: &[u8]) -> Result<u32> {
             Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => continue,
             Err(e) => return Err(e).context("reading QEMU's UART0"),
         };
-        if let Some(m) = port
-            .receive(&buf[..n])
-            .into_iter()
-            .find(|m| matches!(m, BoardToHost::ModelAccepted { .. } | BoardToHost::Error { .. }))
-        {
-            break m;
+        let mut verdict = None;
+        for m in port.receive(&buf[..n]) {
+            match m {
+                BoardToHost::ModelAccepted { .. } | BoardToHost::Error { .. } => verdict = Some(m),
+                BoardToHost::UploadAck { next } => ack = Some((next, Instant::now())),
+                _ => {}
+            }
+        }
+        if let Some(m) = verdict {
+            break Pass::Verdict(m);
         }
     };
+    // A pass that went back was read to its last byte: the writer has finished.
     writer
         .join()
         .map_err(|_| anyhow!("the upload writer panicked"))?
         .context("writing the model to QEMU's UART0")?;
-    if debug() {
-        eprintln!("upload of {} bytes: {verdict:?} after {:.1} s", blob.len(), t0.elapsed().as_secs_f64());
-    }
-    match verdict {
-        BoardToHost::ModelAccepted { crc32 } => Ok(crc32),
-        other => bail!("the QEMU board refused the model: {other:?}"),
-    }
+    Ok(outcome)
 }
 
 /// The board's counters, read beside the links (as the in-process trial reads its board's).
