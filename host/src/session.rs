@@ -8,7 +8,7 @@ use crate::data::crop;
 use anyhow::{bail, Context, Result};
 use msr_shared::deliver::{FaceLink, LinkStats};
 use msr_shared::host_port::HostPort;
-use msr_shared::msg::{BoardToHost, HostToBoard, RoomCommand, Status, StoreReport, CHUNK};
+use msr_shared::msg::{BoardToHost, HostToBoard, RoomCommand, Status, StoreReport};
 use std::io::{Read, Write};
 use std::time::{Duration, Instant};
 
@@ -208,12 +208,7 @@ impl Session {
                 (best, stalled) = (from, 0);
             }
             self.upload_resent += sent_to.saturating_sub(from) as u64;
-            let mut bytes = Vec::new();
-            for (i, data) in blob[from..].chunks(CHUNK).enumerate() {
-                let offset = (from + i * CHUNK) as u32;
-                bytes.extend(self.host.encode(&HostToBoard::ModelChunk { offset, data }));
-            }
-            bytes.extend(self.host.encode(&HostToBoard::ModelCommit));
+            let bytes = self.host.encode_upload_from(blob, from);
             self.send(&bytes)?;
             sent_to = blob.len();
             let (msgs, _) = self.wait_for(timeout, |m| {

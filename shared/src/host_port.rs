@@ -137,8 +137,17 @@ impl HostPort {
     /// The wire bytes of a model upload: begin (length and CRC-32), chunks, commit.
     pub fn encode_upload(&mut self, blob: &[u8]) -> Vec<u8> {
         let mut out = self.encode(&HostToBoard::ModelBegin { len: blob.len() as u32, crc32: CRC32.checksum(blob) });
-        for (i, data) in blob.chunks(CHUNK).enumerate() {
-            out.extend(self.encode(&HostToBoard::ModelChunk { offset: (i * CHUNK) as u32, data }));
+        out.extend(self.encode_upload_from(blob, 0));
+        out
+    }
+
+    /// The rest of an upload from byte `from` (where the board's `UploadAck` said it stands):
+    /// chunks, commit.
+    pub fn encode_upload_from(&mut self, blob: &[u8], from: usize) -> Vec<u8> {
+        let from = from.min(blob.len());
+        let mut out = Vec::new();
+        for (i, data) in blob[from..].chunks(CHUNK).enumerate() {
+            out.extend(self.encode(&HostToBoard::ModelChunk { offset: (from + i * CHUNK) as u32, data }));
         }
         out.extend(self.encode(&HostToBoard::ModelCommit));
         out

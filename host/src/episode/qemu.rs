@@ -17,7 +17,7 @@
 use crate::episode::{self, Camera, EpisodeConfig, Trial};
 use msr_shared::host_port::HostPort;
 use anyhow::{anyhow, bail, Context, Result};
-use msr_shared::msg::{BoardToHost, HostToBoard, Status, CHUNK};
+use msr_shared::msg::{BoardToHost, Status};
 use msr_sim::link::LinkEnd;
 use msr_sim::qemu::{self, Lockstep};
 use msr_sim::render::Renderer;
@@ -94,15 +94,10 @@ fn upload(ls: &mut Lockstep, blob: &[u8]) -> Result<u32> {
             }
             Pass::Verdict(other) => bail!("the QEMU board refused the model: {other:?}"),
             Pass::GoBack(next) => {
-                let from = (next as usize).min(blob.len());
                 if debug() {
-                    eprintln!("upload: the board wants byte {from} next (pass {})", pass + 1);
+                    eprintln!("upload: the board wants byte {next} next (pass {})", pass + 1);
                 }
-                bytes = Vec::new();
-                for (i, data) in blob[from..].chunks(CHUNK).enumerate() {
-                    bytes.extend(port.encode(&HostToBoard::ModelChunk { offset: (from + i * CHUNK) as u32, data }));
-                }
-                bytes.extend(port.encode(&HostToBoard::ModelCommit));
+                bytes = port.encode_upload_from(blob, next as usize);
             }
         }
     }
