@@ -13,7 +13,7 @@ pub const SPREAD: u8 = 2;
 /// `thr` the table of `T`);
 /// returns the salient pixels left at 1. Rows with a zero in `row_counts` are empty and not
 /// read; the others only up to their last salient pixel.
-pub fn mark_spread(frame: &[u8], pred: &[u16], lut: &[u16; 256], thr: &[u16], mask: &mut [u8], w: usize, row_counts: &[u16]) -> u32 {
+pub fn mark_spread(frame: &[u8], pred: &[u16], lut: &crate::light::Lut, thr: &[u16], mask: &mut [u8], w: usize, row_counts: &[u16]) -> u32 {
     if w == 0 {
         return 0;
     }
@@ -112,10 +112,10 @@ mod tests {
         let mut mask = vec![0u8; w * h];
         let mut ring = vec![0i32; (2 * r as usize + 1) * w];
         let mut rows = [0u16; 24];
-        let pooled = pooled_one_sided(&frame, &pred, &crate::light::IDENTITY_TABLE, &thr, &mut mask, &mut ring, w, r, &mut rows, false);
+        let pooled = pooled_one_sided(&frame, &pred, &crate::light::Lut::IDENTITY, &thr, &mut mask, &mut ring, w, r, &mut rows, false);
         let before = mask.clone();
         assert!(pooled > 49, "the window spreads the 7 x 7 mark: {pooled}");
-        let kept = mark_spread(&frame, &pred, &crate::light::IDENTITY_TABLE, &thr, &mut mask, w, &rows);
+        let kept = mark_spread(&frame, &pred, &crate::light::Lut::IDENTITY, &thr, &mut mask, w, &rows);
         assert_eq!(kept, 49);
         for i in 0..w * h {
             let on = (8..15).contains(&(i / w)) && (10..17).contains(&(i % w));
@@ -136,11 +136,11 @@ mod tests {
                 let pred: Vec<u16> = (0..n).map(|_| rng.gen()).collect();
                 let thr: Vec<u16> = (0..n).map(|_| if rng.gen_range(0..6) == 0 { u16::MAX } else { rng.gen_range(0..30_000) }).collect();
                 let mut mask = vec![0u8; n];
-                reference(&frame, &pred, &crate::light::IDENTITY_TABLE, &thr, &mut mask, w, 1);
+                reference(&frame, &pred, &crate::light::Lut::IDENTITY, &thr, &mut mask, w, 1);
                 let counts: Vec<u16> = mask.chunks(w).map(|r| r.iter().filter(|&&m| m != 0).count() as u16).collect();
                 for given in [&counts[..], &[][..]] {
                     let mut m = mask.clone();
-                    let kept = mark_spread(&frame, &pred, &crate::light::IDENTITY_TABLE, &thr, &mut m, w, given);
+                    let kept = mark_spread(&frame, &pred, &crate::light::Lut::IDENTITY, &thr, &mut m, w, given);
                     let mut want = 0;
                     for i in 0..n {
                         let own = (((frame[i] as i32) << 8) - pred[i] as i32).unsigned_abs() > thr[i] as u32;

@@ -78,7 +78,7 @@ pub struct Workspace {
     row_counts: Option<[u16; MAX_FACE_H]>,
     /// The last frame's photometric fit, and its table `v(I)`.
     light: LightFit,
-    lut: [u16; 256],
+    lut: light::Lut,
     /// Fit the light of each frame ([`light::fit`]; the default). Off: `v(I) = I << 8` and no
     /// frame refused, the error as the paper defines it (for comparisons).
     pub fit_light: bool,
@@ -105,7 +105,7 @@ impl Workspace {
             head: [f32::NAN; 2],
             row_counts: None,
             light: LightFit::IDENTITY,
-            lut: light::IDENTITY_TABLE,
+            lut: light::Lut::IDENTITY,
             fit_light: true,
             room: Room::new(),
             room_applied: None,
@@ -160,7 +160,7 @@ impl Workspace {
         self.row_counts = None;
         if !self.fit_light {
             self.light = LightFit::IDENTITY;
-            self.lut = light::IDENTITY_TABLE;
+            self.lut = light::Lut::IDENTITY;
         } else {
             self.light = light::fit(crop, face, w);
             if self.light.verdict != Verdict::Face {
@@ -168,7 +168,7 @@ impl Workspace {
                 self.row_counts = Some([0; MAX_FACE_H]);
                 return Ok(0);
             }
-            self.light.table(&mut self.lut);
+            self.light.lut(&mut self.lut);
         }
         let lut = &self.lut;
         Ok(match (pool, s.sided) {

@@ -10,7 +10,7 @@
 //!    no candidate in the confirmation window, in the observe posture with the head still (the
 //!    board decides and calls [`Room::learn`]), and at most one frame every [`MIN_GAP_US`].
 //! 2. Of such a frame, every second pixel of every second row that is neither salient nor in a
-//!    salient pixel's pooling window (the mask is not 0) nor clipped (0 or 255): its signed
+//!    salient pixel's pooling window (the mask is not 0) nor clipped (`Lut::lo`, `Lut::hi`): its signed
 //!    error `v(I) - pred` against the prediction with the offsets, summed per cell. A mark's
 //!    pixels are salient, so they never teach the board that the mark belongs to the face.
 //! 3. After [`BATCH`] such frames, each cell with at least [`MIN_SAMPLES`] samples moves its
@@ -158,7 +158,7 @@ impl Room {
     /// `pred` the prediction with the offsets (Q8.8), `lut` the frame's fitted grey levels,
     /// `mask` the saliency mask, `w` the face's width. Returns true when the offsets changed
     /// (the prediction must be made again).
-    pub fn learn(&mut self, now_us: u64, frame: &[u8], pred: &[u16], lut: &[u16; 256], mask: &[u8], w: usize) -> bool {
+    pub fn learn(&mut self, now_us: u64, frame: &[u8], pred: &[u16], lut: &crate::light::Lut, mask: &[u8], w: usize) -> bool {
         if self.frozen || w == 0 || w > MAX_FACE_W {
             return false;
         }
@@ -166,35 +166,14 @@ impl Room {
             return false;
         }
         self.last_us = Some(now_us);
-        let n = frame.len().min(pred.len()).min(mask.len());
-        // No sum can overflow: a cell takes at most (CELL / 2)^2 samples a frame, BATCH frames.
-        for y in (0..n / w).step_by(2) {
-            let at = y * w;
-            let (Some(f), Some(p), Some(m), Some(acc)) = (
-                frame.get(at..at + w),
-                pred.get(at..at + w),
-                mask.get(at..at + w),
-                self.acc.get_mut((y / CELL) * COLS..),
-            ) else {
-                break;
-            };
-            for (cx, a) in acc.iter_mut().enumerate().take(w.div_ceil(CELL)) {
-                let (mut s, mut ps, mut k) = (0i32, 0i32, 0u32);
-                let mut x = cx * CELL;
-                let end = (x + CELL).min(w);
-                while x < end {
-                    let (fx, px) = (f[x], p[x] as i32);
-                    if m[x] == 0 && fx != 0 && fx != 255 {
-                        s += lut[fx as usize] as i32 - px;
-                        ps += px;
-                        k += 1;
-                    }
-                    x += 2;
-                }
-                a.sum += s;
-                a.pred += ps;
-                a.count += k;
-            }
+        // Strictly between the clip levels: `f - (lo + 1) < hi - lo - 1` in bytes, one test;
+        // with constants when they are the camera's own 0 and 255 (most frames: 9 instructions
+        // a sample fewer on the board than with the levels in registers).
+        let (first, span) = (lut.lo.wrapping_add(1), lut.hi.saturating_sub(lut.lo).saturating_sub(1));
+        if (first, span) == (1, 254) {
+            self.gather(frame, pred, &lut.v, mask, w, 1, 254);
+        } else {
+            self.gather(frame, pred, &lut.v, mask, w, first, span);
         }
         self.frames = self.frames.saturating_add(1);
         self.batch += 1;
@@ -240,6 +219,42 @@ impl Room {
             self.generation = self.generation.wrapping_add(1);
         }
         changed
+    }
+
+    /// Rule 2's sums for one frame: the pixels whose grey level `f` has `f - first < span`.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn gather(&mut self, frame: &[u8], pred: &[u16], v: &[u16; 256], mask: &[u8], w: usize, first: u8, span: u8) {
+        let n = frame.len().min(pred.len()).min(mask.len());
+        // No sum can overflow: a cell takes at most (CELL / 2)^2 samples a frame, BATCH frames.
+        for y in (0..n / w).step_by(2) {
+            let at = y * w;
+            let (Some(f), Some(p), Some(m), Some(acc)) = (
+                frame.get(at..at + w),
+                pred.get(at..at + w),
+                mask.get(at..at + w),
+                self.acc.get_mut((y / CELL) * COLS..),
+            ) else {
+                break;
+            };
+            for (cx, a) in acc.iter_mut().enumerate().take(w.div_ceil(CELL)) {
+                let (mut s, mut ps, mut k) = (0i32, 0i32, 0u32);
+                let mut x = cx * CELL;
+                let end = (x + CELL).min(w);
+                while x < end {
+                    let (fx, px) = (f[x], p[x] as i32);
+                    if m[x] == 0 && fx.wrapping_sub(first) < span {
+                        s += v[fx as usize] as i32 - px;
+                        ps += px;
+                        k += 1;
+                    }
+                    x += 2;
+                }
+                a.sum += s;
+                a.pred += ps;
+                a.count += k;
+            }
+        }
     }
 
     fn clear_batch(&mut self) {

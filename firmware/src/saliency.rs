@@ -185,7 +185,7 @@ impl Thresholds {
 pub fn saliency(
     frame: &[u8],
     pred: &[u16],
-    lut: &[u16; 256],
+    lut: &crate::light::Lut,
     mu: U16Table,
     tn: &[u16],
     sided: Sided,
@@ -213,7 +213,7 @@ pub fn saliency(
 pub fn pooled(
     frame: &[u8],
     pred: &[u16],
-    lut: &[u16; 256],
+    lut: &crate::light::Lut,
     mu: U16Table,
     tn: &[u16],
     sided: Sided,
@@ -272,7 +272,7 @@ const PAD: usize = MAX_POOL as usize + 1;
 /// Adds the error of row `add` to the column sums and takes that of row `sub` off. Out of
 /// line, so that it keeps its own registers.
 #[inline(never)]
-fn vertical(c: &mut [i32], add: Option<(&[u8], &[u16])>, sub: Option<(&[u8], &[u16])>, lut: &[u16; 256]) {
+fn vertical(c: &mut [i32], add: Option<(&[u8], &[u16])>, sub: Option<(&[u8], &[u16])>, lut: &crate::light::Lut) {
     let err = |f: u8, p: u16| err(lut, f, p);
     match (add, sub) {
         (Some((a, b)), Some((e, g))) => {
@@ -351,7 +351,7 @@ fn mid<T>(s: &[T], a: usize, b: usize) -> &[T] {
 /// The signed error of one pixel, Q8.8 grey levels: the fitted frame `v(f)` minus the
 /// prediction, censored where clipped ([`crate::light::error`]).
 #[inline(always)]
-fn err(lut: &[u16; 256], f: u8, p: u16) -> i32 {
+fn err(lut: &crate::light::Lut, f: u8, p: u16) -> i32 {
     crate::light::error(lut, f, p)
 }
 
@@ -372,7 +372,7 @@ fn test(a: u32, k: u32, m: u16, t: u16, sided: Sided) -> u8 {
 fn run(
     frame: &[u8],
     pred: &[u16],
-    lut: &[u16; 256],
+    lut: &crate::light::Lut,
     mu: impl Iterator<Item = u16>,
     tn: &[u16],
     sided: Sided,
@@ -470,10 +470,10 @@ mod tests {
             let r = pool as i64;
             for sided in [Sided::One, Sided::Two] {
                 let mut mask = vec![7u8; n];
-                let count = pooled(&frame, &pred, &crate::light::IDENTITY_TABLE, U16Table(&mu_bytes), &tn, sided, &mut mask, w, pool);
+                let count = pooled(&frame, &pred, &crate::light::Lut::IDENTITY, U16Table(&mu_bytes), &tn, sided, &mut mask, w, pool);
                 // An unaligned mu table gives the same mask.
                 let mut odd = vec![7u8; n];
-                pooled(&frame, &pred, &crate::light::IDENTITY_TABLE, U16Table(&shifted[1..]), &tn, sided, &mut odd, w, pool);
+                pooled(&frame, &pred, &crate::light::Lut::IDENTITY, U16Table(&shifted[1..]), &tn, sided, &mut odd, w, pool);
                 assert_eq!(odd, mask, "unaligned mu, pool {pool} {sided:?} {w}x{h}");
                 let mut want = vec![0u8; n];
                 for y in 0..h as i64 {
@@ -497,15 +497,15 @@ mod tests {
                 if pool == 0 {
                     // Radius 0 is the per-pixel saliency.
                     let mut plain = vec![0u8; n];
-                    saliency(&frame, &pred, &crate::light::IDENTITY_TABLE, U16Table(&mu_bytes), &tn, sided, &mut plain);
+                    saliency(&frame, &pred, &crate::light::Lut::IDENTITY, U16Table(&mu_bytes), &tn, sided, &mut plain);
                     assert_eq!(mask, plain);
                 }
             }
         }
         // A width past the board's limit or of zero finds nothing and writes nothing.
         let mut mask = vec![7u8; n];
-        assert_eq!(pooled(&frame, &pred, &crate::light::IDENTITY_TABLE, U16Table(&mu_bytes), &tn, Sided::One, &mut mask, 0, 2), 0);
-        assert_eq!(pooled(&frame, &pred, &crate::light::IDENTITY_TABLE, U16Table(&mu_bytes), &tn, Sided::One, &mut mask, MAX_FACE_W + 1, 2), 0);
+        assert_eq!(pooled(&frame, &pred, &crate::light::Lut::IDENTITY, U16Table(&mu_bytes), &tn, Sided::One, &mut mask, 0, 2), 0);
+        assert_eq!(pooled(&frame, &pred, &crate::light::Lut::IDENTITY, U16Table(&mu_bytes), &tn, Sided::One, &mut mask, MAX_FACE_W + 1, 2), 0);
         assert_eq!(mask, vec![7u8; n]);
     }
 
@@ -525,7 +525,7 @@ mod tests {
         let n = saliency(
             &frame,
             &pred,
-            &crate::light::IDENTITY_TABLE,
+            &crate::light::Lut::IDENTITY,
             U16Table(&mu_bytes),
             &tn,
             Sided::One,
@@ -535,7 +535,7 @@ mod tests {
         let n = saliency(
             &frame,
             &pred,
-            &crate::light::IDENTITY_TABLE,
+            &crate::light::Lut::IDENTITY,
             U16Table(&mu_bytes),
             &tn,
             Sided::Two,
@@ -548,7 +548,7 @@ mod tests {
         let n = saliency(
             &frame,
             &pred,
-            &crate::light::IDENTITY_TABLE,
+            &crate::light::Lut::IDENTITY,
             U16Table(&shifted[1..]),
             &tn,
             Sided::Two,

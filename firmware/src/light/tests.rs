@@ -69,6 +69,46 @@ fn a_mark_does_not_pull_the_fit() {
     }
 }
 
+/// A plateau at the frame's brightest (darkest) level is where the camera clipped: those pixels
+/// leave the fit and their error is censored there, as at 255 (0).
+#[test]
+fn a_plateau_at_the_frames_extreme_is_where_the_camera_clipped() {
+    let p = face();
+    assert_eq!(fit(&seen(&p, 1.0, 0.0), &p, W).clip, [0, 255], "nothing clipped");
+    // Clipped at 255 by a bright exposure, then darkened after the clip (x 0.7): white at 179.
+    let bright = seen(&p, 1.3, 0.0);
+    assert!(bright.iter().filter(|&&v| v == 255).count() > W * H / 10);
+    assert_eq!(fit(&bright, &p, W).clip, [0, 255], "clipped at the camera's own 255");
+    let dark: Vec<u8> = bright.iter().map(|&v| (v as f32 * 0.7).round() as u8).collect();
+    let f = fit(&dark, &p, W);
+    assert_eq!(f.verdict, Verdict::Face, "{f:?}");
+    assert_eq!(f.clip, [0, 179]);
+    assert!((f.gain_f32() - 1.0 / 0.91).abs() < 0.02, "gain {}", f.gain_f32());
+    // With the plateau taken as grey, the fit bends towards it (the white that should be
+    // brighter than 179 counts as 179).
+    let mut no_plateau = dark.clone();
+    no_plateau.iter_mut().filter(|v| **v == 179).for_each(|v| *v = 255);
+    assert!((fit(&no_plateau, &p, W).gain - f.gain).abs() < f.gain / 200, "the plateau is what 255 was");
+    // Limited-range video: black at 16, white at 235, both clipped.
+    let limited: Vec<u8> = seen(&p, 2.0, -150.0).iter().map(|&v| (16.0 + v as f32 * 219.0 / 255.0).round() as u8).collect();
+    let f = fit(&limited, &p, W);
+    assert_eq!(f.clip, [16, 235], "{f:?}");
+    assert_eq!(f.verdict, Verdict::Face);
+    // A level that fewer than a tenth of the samples share is not a plateau.
+    let mut few = seen(&p, 1.0, 0.0);
+    let top = *few.iter().max().unwrap() + 1;
+    let (sx, sy) = steps(W, H);
+    // The grid starts half a step in.
+    let samples = (W - sx / 2).div_ceil(sx) * (H - sy / 2).div_ceil(sy);
+    for k in 0..samples / PLATEAU_SHARE as usize - 1 {
+        few[(sy / 2 + (k / 12) * sy) * W + sx / 2 + (k % 12) * sx] = top;
+    }
+    assert_eq!(fit(&few, &p, W).clip, [0, 255]);
+    few[(sy / 2 + 3 * sy) * W + sx / 2 + 5 * sx] = top;
+    few[(sy / 2 + 3 * sy) * W + sx / 2 + 6 * sx] = top;
+    assert_eq!(fit(&few, &p, W).clip, [0, top], "a tenth and more is");
+}
+
 #[test]
 fn frames_without_the_face_are_refused() {
     let p = face();
@@ -129,42 +169,72 @@ fn odd_sizes_do_not_panic() {
     assert_eq!(fit(&[], &[], W).verdict, Verdict::NoFace);
 }
 
-/// The word-at-a-time test agrees with the plain one on every position of a 0 or a 255 and on
-/// rows of every length, and finds nothing in rows of 1 ..= 254.
+/// The word-at-a-time test agrees with the plain one on every position of a clipped byte and on
+/// rows of every length, and finds nothing in rows strictly between the clip levels; for the
+/// camera's 0 and 255 and for plateaus' levels (the board's routine takes both as constants).
 #[test]
 fn any_clipped_finds_every_clipped_byte() {
-    for len in 0..20usize {
-        let quiet: Vec<u8> = (0..len).map(|i| [1u8, 254, 127, 128, 0x80, 0x7f, 0x01][i % 7]).collect();
-        assert!(!super::any_clipped(&quiet), "{quiet:?}");
-        for at in 0..len {
-            for v in [0u8, 255] {
-                let mut r = quiet.clone();
-                r[at] = v;
-                assert!(super::any_clipped(&r), "{r:?}");
+    for (lo, hi) in [(0u8, 255u8), (0, 178), (16, 235), (40, 255), (100, 102), (0, 1), (7, 7)] {
+        let lut = Lut { lo, hi, ..Lut::IDENTITY };
+        let inside: Vec<u8> = (lo as u16 + 1..hi as u16).map(|v| v as u8).collect();
+        for len in 0..20usize {
+            if inside.is_empty() {
+                // No level between the clip levels: every byte is clipped.
+                assert_eq!(super::any_clipped(&vec![lo; len], &lut), len > 0, "{lo} {hi} {len}");
+                continue;
+            }
+            // Both ends of the open range and a middle, in every byte position of a word.
+            let pick = [inside[0], *inside.last().unwrap(), inside[inside.len() / 2]];
+            let quiet: Vec<u8> = (0..len).map(|i| pick[i % 3]).collect();
+            assert!(!super::any_clipped(&quiet, &lut), "{lo} {hi} {quiet:?}");
+            for at in 0..len {
+                for v in [lo, hi, lo.saturating_sub(3), hi.saturating_add(3), 0, 255] {
+                    let mut r = quiet.clone();
+                    r[at] = v;
+                    assert!(super::any_clipped(&r, &lut), "{lo} {hi} {r:?}");
+                }
             }
         }
     }
 }
 
 /// The censored error: a clipped pixel differs from the prediction only past the fit's
-/// bound, and a row's censored prediction gives the same errors through `lut[f] - p`.
+/// bound, and a row's censored prediction gives the same errors through `v[f] - p`; at a
+/// plateau's levels as at 0 and 255.
 #[test]
 fn clipped_pixels_are_censored() {
     let fit = LightFit { gain: 52429, offset: 0, ..LightFit::IDENTITY }; // gain 0.8
-    let mut lut = [0u16; 256];
-    fit.table(&mut lut);
+    let mut lut = Lut::IDENTITY;
+    fit.lut(&mut lut);
     // v(255) = 204 grey: a prediction of 230 is consistent with a clipped pixel, 150 is not.
     assert_eq!(super::error(&lut, 255, 230 << 8), 0);
-    assert_eq!(super::error(&lut, 255, 150 << 8), lut[255] as i32 - (150 << 8));
+    assert_eq!(super::error(&lut, 255, 150 << 8), lut.v[255] as i32 - (150 << 8));
     assert_eq!(super::error(&lut, 0, 20 << 8), -(20 << 8));
     let frame = [255u8, 100, 0, 255];
     let pred = [230u16 << 8, 90 << 8, 20 << 8, 150 << 8];
     let mut out = [0u16; 4];
     assert!(super::censor_row(&frame, &pred, &lut, &mut out));
     for i in 0..4 {
-        assert_eq!(lut[frame[i] as usize] as i32 - out[i] as i32, super::error(&lut, frame[i], pred[i]), "{i}");
+        assert_eq!(lut.v[frame[i] as usize] as i32 - out[i] as i32, super::error(&lut, frame[i], pred[i]), "{i}");
     }
     assert!(!super::censor_row(&[1, 2, 3], &pred[..3], &lut, &mut out));
+    // A camera that clipped at 178 and 12: v(178) = 142.4 grey.
+    let plateau = LightFit { clip: [12, 178], ..fit };
+    plateau.lut(&mut lut);
+    assert_eq!((lut.lo, lut.hi), (12, 178));
+    assert_eq!(super::error(&lut, 178, 200 << 8), 0);
+    assert_eq!(super::error(&lut, 178, 100 << 8), lut.v[178] as i32 - (100 << 8));
+    assert_eq!(super::error(&lut, 177, 200 << 8), lut.v[177] as i32 - (200 << 8));
+    assert_eq!(super::error(&lut, 12, 5 << 8), 0);
+    assert_eq!(super::error(&lut, 13, 5 << 8), lut.v[13] as i32 - (5 << 8));
+    let frame = [178u8, 100, 12, 178, 13, 177];
+    let pred = [200u16 << 8, 90 << 8, 5 << 8, 100 << 8, 5 << 8, 200 << 8];
+    let mut out = [0u16; 6];
+    assert!(super::censor_row(&frame, &pred, &lut, &mut out));
+    for i in 0..6 {
+        assert_eq!(lut.v[frame[i] as usize] as i32 - out[i] as i32, super::error(&lut, frame[i], pred[i]), "{i}");
+    }
+    assert!(!super::censor_row(&[13, 100, 177], &pred[..3], &lut, &mut out));
 }
 
 /// The last pass's test without squares is the squared test: `isqrt` is the floor of the root

@@ -451,7 +451,7 @@ pub fn combined_table(sigma: &[u16], mu: &[u16], c: &Combine, out: &mut [u16]) {
 pub fn pooled_one_sided(
     frame: &[u8],
     pred: &[u16],
-    lut: &[u16; 256],
+    lut: &crate::light::Lut,
     thr: &[u16],
     mask: &mut [u8],
     ring: &mut [i32],
@@ -493,7 +493,7 @@ pub fn pooled_one_sided(
         r: r as u32,
         rows: 0,
         prime: 1,
-        lut: lut.as_ptr(),
+        lut: lut.v.as_ptr(),
     };
     // Both calls below: every pointer is at a row inside the slices checked above (h rows of
     // w, slots rows of w in the ring, ZERO_ROW's w, `censored`'s MAX_FACE_W >= w), `cols` has PAD columns either side of w,
@@ -502,7 +502,7 @@ pub fn pooled_one_sided(
     // A row with clipped pixels reads its prediction censored ([`crate::light::censor_row`]).
     let mut censored = [0u16; MAX_FACE_W];
     // Most frames have no clipped pixel at all: one test of the whole frame spares each row's.
-    let clipped = crate::light::any_clipped(&frame[..n]);
+    let clipped = crate::light::any_clipped(&frame[..n], lut);
     let pred_row = |y: usize, buf: &mut [u16; MAX_FACE_W]| match clipped {
         true => pred_row(frame, pred, lut, y, w, buf),
         false => pred[y * w..].as_ptr(),
@@ -517,7 +517,7 @@ pub fn pooled_one_sided(
     job.prime = 0;
     let zero = ZERO_ROW.as_ptr();
     // Past the bottom: frame 0 against a prediction of v(0), an error of zero.
-    let below = [lut[0]; MAX_FACE_W];
+    let below = [lut.v[0]; MAX_FACE_W];
     // Row y + r comes in; its slot, (y + r) mod slots, held row y - r - 1.
     let (mut slot, mut count) = (r, 0u32);
     for y in 0..h {
@@ -558,7 +558,7 @@ pub fn pooled_one_sided(
 
 /// Row `y` of the prediction, or its censored copy in `buf` when the frame's row is clipped.
 #[inline(always)]
-fn pred_row(frame: &[u8], pred: &[u16], lut: &[u16; 256], y: usize, w: usize, buf: &mut [u16; MAX_FACE_W]) -> *const u16 {
+fn pred_row(frame: &[u8], pred: &[u16], lut: &crate::light::Lut, y: usize, w: usize, buf: &mut [u16; MAX_FACE_W]) -> *const u16 {
     let (f, p) = (&frame[y * w..y * w + w], &pred[y * w..y * w + w]);
     if crate::light::censor_row(f, p, lut, &mut buf[..w]) {
         buf.as_ptr()
@@ -569,7 +569,7 @@ fn pred_row(frame: &[u8], pred: &[u16], lut: &[u16; 256], y: usize, w: usize, bu
 
 /// The same mask written out plainly: each pixel's clipped window summed, `|s| > T k`.
 #[inline(never)]
-pub fn reference(frame: &[u8], pred: &[u16], lut: &[u16; 256], thr: &[u16], mask: &mut [u8], w: usize, pool: u8) -> u32 {
+pub fn reference(frame: &[u8], pred: &[u16], lut: &crate::light::Lut, thr: &[u16], mask: &mut [u8], w: usize, pool: u8) -> u32 {
     if w == 0 || pool > MAX_POOL {
         return 0;
     }
@@ -620,14 +620,17 @@ mod tests {
                         })
                         .collect();
                     // Half the faces through a random photometric fit, half unfitted.
-                    let mut lut = crate::light::IDENTITY_TABLE;
+                    // Half of those clipped at a plateau's levels besides 0 and 255.
+                    let mut lut = crate::light::Lut::IDENTITY;
                     if rng.gen_bool(0.5) {
+                        let lo = if rng.gen_bool(0.5) { rng.gen_range(0..60) } else { 0 };
                         let fit = crate::light::LightFit {
                             gain: rng.gen_range(20_000..200_000),
                             offset: rng.gen_range(-3_000_000..3_000_000),
+                            clip: [lo, if rng.gen_bool(0.5) { rng.gen_range(150..=255) } else { 255 }],
                             ..crate::light::LightFit::IDENTITY
                         };
-                        fit.table(&mut lut);
+                        fit.lut(&mut lut);
                     }
                     let mut want = vec![0u8; n];
                     let count = reference(&frame, &pred, &lut, &thr, &mut want, w, pool);
@@ -657,7 +660,7 @@ mod tests {
 
     /// Salient exactly when the window mean exceeds `T` (not rounded); a saturated `T` never
     /// fires, not even at the largest error a u16 prediction allows.
-    const ID: [u16; 256] = crate::light::IDENTITY_TABLE;
+    const ID: crate::light::Lut = crate::light::Lut::IDENTITY;
 
     #[test]
     fn the_test_is_the_window_mean() {

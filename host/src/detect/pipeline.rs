@@ -60,18 +60,21 @@ pub fn face_error(face: &[u8], predicted: &[f32], w: usize, pool: u8) -> Vec<f32
 pub fn face_error_fitted(face: &[u8], predicted: &[f32], w: usize, pool: u8) -> (Vec<f32>, LightFit) {
     let fit = light_fit(face, predicted, w);
     let v = fitted_values(&fit);
-    let signed: Vec<f32> = face.iter().zip(predicted).map(|(&i, &p)| censored_error(&v, i, 255.0 * p)).collect();
+    let signed: Vec<f32> = face.iter().zip(predicted).map(|(&i, &p)| censored_error(&v, fit.clip, i, 255.0 * p)).collect();
     (pooled_error(&signed, w, pool), fit)
 }
 
 /// `v(i) - p` in grey levels, censored where the camera clipped, as the board's
-/// [`msr_firmware::light::error`]: a pixel at 255 is at least `v(255)`, one at 0 at most `v(0)`.
-pub fn censored_error<T: Float>(v: &[f32; 256], i: u8, p: T) -> T {
+/// [`msr_firmware::light::error`]: a pixel at or over the fit's top clip level (255, or a
+/// plateau's: [`LightFit::clip`]) is at least `v(i)`, one at or under the bottom one at most.
+pub fn censored_error<T: Float>(v: &[f32; 256], clip: [u8; 2], i: u8, p: T) -> T {
     let e = T::from(v[i as usize]).unwrap_or_else(T::zero) - p;
-    match i {
-        255 => e.max(T::zero()),
-        0 => e.min(T::zero()),
-        _ => e,
+    if i >= clip[1] {
+        e.max(T::zero())
+    } else if i <= clip[0] {
+        e.min(T::zero())
+    } else {
+        e
     }
 }
 

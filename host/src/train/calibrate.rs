@@ -129,8 +129,9 @@ pub fn error_stats_by_pose<'a>(
 /// the fit leaves. `observed` is grey/255 (whole grey levels).
 pub fn error_map(observed: &[f32], predicted: &[f32], w: usize, pool: u8) -> Vec<f64> {
     let grey: Vec<u8> = observed.iter().map(|&i| (i * 255.0).round().clamp(0.0, 255.0) as u8).collect();
-    let v = pipeline::fitted_values(&pipeline::light_fit(&grey, predicted, w));
-    let signed: Vec<f64> = grey.iter().zip(predicted).map(|(&i, &p)| pipeline::censored_error(&v, i, 255.0 * p as f64)).collect();
+    let fit = pipeline::light_fit(&grey, predicted, w);
+    let v = pipeline::fitted_values(&fit);
+    let signed: Vec<f64> = grey.iter().zip(predicted).map(|(&i, &p)| pipeline::censored_error(&v, fit.clip, i, 255.0 * p as f64)).collect();
     pipeline::pooled_error(&signed, w, pool)
 }
 

@@ -140,14 +140,21 @@ fn pool_agrees() -> Result<(), &'static str> {
                         _ => (next() % 24_000) as u16,
                     };
                 }
-                let mut lut = msr_firmware::light::IDENTITY_TABLE;
+                let mut lut = msr_firmware::light::Lut::IDENTITY;
                 if next() % 2 == 0 {
+                    // Half of those clipped at a plateau's levels besides 0 and 255.
+                    let clip = match next() % 3 {
+                        0 => [0, 255],
+                        1 => [0, 150 + (next() % 106) as u8],
+                        _ => [(next() % 60) as u8, 150 + (next() % 106) as u8],
+                    };
                     let fit = msr_firmware::light::LightFit {
                         gain: 20_000 + (next() % 180_000) as i32,
                         offset: (next() % 6_000_000) as i32 - 3_000_000,
+                        clip,
                         ..msr_firmware::light::LightFit::IDENTITY
                     };
-                    fit.table(&mut lut);
+                    fit.lut(&mut lut);
                 }
                 let (f, p, t) = (&c.frame[..n], &c.pred[..n], &c.thr[..n]);
                 let count = pool::reference(f, p, &lut, t, &mut c.want[..n], w, r);
@@ -182,23 +189,54 @@ fn pool_agrees() -> Result<(), &'static str> {
 
 /// The board's clip test ([`msr_firmware::light::any_clipped`], an assembly routine here) against
 /// the plain one, on rows of 0 to 19 bytes at every offset from a word, each byte in turn set to
-/// each of 0, 1, 254 and 255 among bytes of 1 to 254.
+/// each of the clip levels, their neighbours and 0 and 255, among bytes strictly between the
+/// levels; for the camera's 0 and 255 and for plateaus' levels.
 fn clip_test_agrees() -> Result<(), &'static str> {
     let mut buf = [7u8; 24];
-    for len in 0..20 {
-        for start in 0..4 {
-            for at in 0..len.max(1) {
-                for v in [0u8, 1, 254, 255] {
-                    buf.fill(((len * 37 + at * 11) % 254 + 1) as u8);
-                    let row = &mut buf[start..start + len];
-                    if let Some(b) = row.get_mut(at) {
-                        *b = v;
-                    }
-                    let want = row.iter().any(|&f| f == 0 || f == 255);
-                    if msr_firmware::light::any_clipped(row) != want {
-                        return Err(if want { "a clipped byte missed" } else { "a clipped byte seen where none is" });
+    for (lo, hi) in [(0u8, 255u8), (0, 178), (16, 235), (40, 255), (100, 102)] {
+        let lut = msr_firmware::light::Lut { lo, hi, ..msr_firmware::light::Lut::IDENTITY };
+        let span = (hi - lo - 1) as usize;
+        for len in 0..20 {
+            for start in 0..4 {
+                for at in 0..len.max(1) {
+                    for v in [lo, lo + 1, hi - 1, hi, 0, 255] {
+                        buf.fill(((len * 37 + at * 11) % span) as u8 + lo + 1);
+                        let row = &mut buf[start..start + len];
+                        if let Some(b) = row.get_mut(at) {
+                            *b = v;
+                        }
+                        let want = row.iter().any(|&f| f <= lo || f >= hi);
+                        if msr_firmware::light::any_clipped(row, &lut) != want {
+                            return Err(if want { "a clipped byte missed" } else { "a clipped byte seen where none is" });
+                        }
                     }
                 }
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The board's sample levels ([`msr_firmware::light::sample_levels`], an assembly routine here)
+/// against the plain ones, on 0 to 256 samples of random and of few distinct grey levels.
+fn sample_levels_agree() -> Result<(), &'static str> {
+    let mut seed = 0x2545_f491_u32;
+    let mut next = move || {
+        seed ^= seed << 13;
+        seed ^= seed >> 17;
+        seed ^= seed << 5;
+        seed
+    };
+    let mut xs = [0u8; msr_firmware::light::MAX_SAMPLES];
+    for n in 0..=msr_firmware::light::MAX_SAMPLES {
+        for spread in [254u32, 3] {
+            let base = 1 + next() % (255 - spread);
+            for x in xs.iter_mut() {
+                *x = (base + next() % (spread + 1)) as u8;
+            }
+            let want = msr_firmware::light::sample_levels_reference(&xs[..n]);
+            if msr_firmware::light::sample_levels(&mut xs, n) != want {
+                return Err("the sample levels differ");
             }
         }
     }
@@ -226,6 +264,10 @@ fn main() -> ! {
     }
     if let Err(e) = clip_test_agrees() {
         hprintln!("MSR-BENCH-ERROR the clip test: {}", e);
+        exit(1);
+    }
+    if let Err(e) = sample_levels_agree() {
+        hprintln!("MSR-BENCH-ERROR the sample levels: {}", e);
         exit(1);
     }
     let settings = Settings::of(&model);
