@@ -558,7 +558,8 @@ pub fn fit(frame: &[u8], pred: &[u16], w: usize) -> LightFit {
         Verdict::NoFace
     } else if !(GAIN_RANGE[0]..=GAIN_RANGE[1]).contains(&gf)
         || kept.n * 256 < MIN_INLIER_SHARE * n as u32
-        || halves_split(&halves, gain, offset) > MAX_HALF_SPLIT as i64
+        || (halves_split(&halves, gain, offset) > MAX_HALF_SPLIT as i64
+            && median_split(xs, ys, half, (g1, k1, cut2), (gain, offset), &kept) > MAX_HALF_SPLIT as i64)
     {
         Verdict::SceneChanged
     } else {
@@ -696,6 +697,45 @@ core::arch::global_asm!(
     "bx lr",
     ".size msr_sample_levels, . - msr_sample_levels",
 );
+
+/// How far apart the halves' median residuals under the line `(g, k)` are, of the samples
+/// [`kept_sums`] keeps (within `cut2` of the line `(g1, k1)`), in 1/256 of the kept samples'
+/// mean predicted grey. Asked only of a frame whose halves' means are apart: a lamp that
+/// switched moves every residual of its half, median and mean alike, while a large mark moves
+/// the mean of its half only (the green mark of one published frame, a quarter of the usable
+/// samples of its half once the white face clips at exposure x1.1, took the mean past the bound).
+fn median_split(xs: &[u8], ys: &[u16], half: usize, (g1, k1, cut2): (i32, i32, u32), (g, k): (i32, i32), kept: &Sums) -> i64 {
+    let cut = if cut2 >= 65535 * 65535 { u32::MAX } else { isqrt(cut2) };
+    // Insertion sort as the samples come (at most MAX_SAMPLES, only on this rare path): the
+    // residuals in Q8.8, clamped to i16 (128 grey levels either side is enough for a median).
+    let median = |xs: &[u8], ys: &[u16]| -> Option<i32> {
+        let mut r = [0i16; MAX_SAMPLES];
+        let mut m = 0usize;
+        for (&x, &y) in xs.iter().zip(ys) {
+            if m == MAX_SAMPLES || residual(x as u32, y as u32, g1, k1).unsigned_abs() > cut {
+                continue;
+            }
+            let v = residual(x as u32, y as u32, g, k).clamp(i16::MIN as i32, i16::MAX as i32) as i16;
+            let mut j = m;
+            while j > 0 && r[j - 1] > v {
+                r[j] = r[j - 1];
+                j -= 1;
+            }
+            r[j] = v;
+            m += 1;
+        }
+        (m > 0).then(|| r[m / 2] as i32)
+    };
+    let half = half.min(xs.len()).min(ys.len());
+    let (Some(top), Some(bottom)) = (median(&xs[..half], &ys[..half]), median(&xs[half..], &ys[half..])) else {
+        return 0;
+    };
+    if kept.n == 0 || kept.y == 0 {
+        return 0;
+    }
+    let mean_y = div_round(kept.y as i64, kept.n as i64).max(1);
+    (top - bottom).unsigned_abs() as i64 * 256 / mean_y
+}
 
 /// How far apart the halves' mean residuals under the fit are, in 1/256 of the mean predicted
 /// grey: what a lamp switching between the top and the bottom rows leaves.

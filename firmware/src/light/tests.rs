@@ -136,6 +136,28 @@ fn a_lamp_switching_mid_frame_or_a_wild_gain_is_a_changed_scene() {
     assert_eq!(dim.verdict, Verdict::SceneChanged, "gain {}", dim.gain_f32());
 }
 
+/// A mark large enough to move its half's mean residual past the bound (two fifths of the bottom
+/// half, 55 grey levels darker, within the trimming's cut) is not a lamp: the halves' medians
+/// stay together. The same darkening over the whole bottom half is one.
+#[test]
+fn a_large_mark_in_one_half_is_not_a_changed_scene() {
+    let p = face();
+    let mut f = seen(&p, 1.0, 0.0);
+    for y in 30..H {
+        for x in 0..31 {
+            f[y * W + x] = f[y * W + x].saturating_sub(55).max(1);
+        }
+    }
+    let m = fit(&f, &p, W);
+    assert_eq!(m.verdict, Verdict::Face, "{m:?}");
+    let mut lamp = seen(&p, 1.0, 0.0);
+    for v in &mut lamp[W * H / 2..] {
+        *v = v.saturating_sub(55).max(1);
+    }
+    let l = fit(&lamp, &p, W);
+    assert_eq!(l.verdict, Verdict::SceneChanged, "{l:?}");
+}
+
 #[test]
 fn the_table_is_the_value_and_the_identity_is_a_shift() {
     let mut t = [0u16; 256];
