@@ -146,6 +146,9 @@ pub fn to_json(d: &Detection) -> String {
         correlation: f32,
         samples: u16,
         inliers: u16,
+        /// The grey levels where the camera clipped, darkest and brightest: 0 and 255, or a
+        /// plateau's (`msr_firmware::light::PLATEAU_SHARE`).
+        clip: [u8; 2],
     }
     #[derive(serde::Serialize)]
     #[allow(non_snake_case)]
@@ -173,6 +176,7 @@ pub fn to_json(d: &Detection) -> String {
             correlation: d.light.correlation_milli as f32 / 1000.0,
             samples: d.light.samples,
             inliers: d.light.inliers,
+            clip: d.light.clip,
         },
     };
     // Plain structs and finite floats: serialising cannot fail.
