@@ -22,10 +22,14 @@ pub struct Args {
     /// 0..=255): detection under a camera exposure the model was not calibrated at
     #[arg(long, default_value_t = 1.0)]
     pub exposure: f32,
+    /// Code every test face in this grey range after the exposure: a camera whose video coding
+    /// the model was not calibrated at
+    #[arg(long, value_enum, default_value_t = eval::Range::Full)]
+    pub range: eval::Range,
 }
 
 pub fn run(args: Args) -> Result<()> {
-    let report = eval::evaluate_lit(&args.model, &args.data, args.manifest.as_deref(), args.exposure)?;
+    let report = eval::evaluate_lit(&args.model, &args.data, args.manifest.as_deref(), args.exposure, args.range)?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {

@@ -81,7 +81,26 @@ pub fn evaluate(blob_path: &Path, data: &Path) -> Result<Report> {
 
 /// [`evaluate`], with the float decoder taken from a published manifest when one is given.
 pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> Result<Report> {
-    evaluate_lit(blob_path, data, manifest, 1.0)
+    evaluate_lit(blob_path, data, manifest, 1.0, Range::Full)
+}
+
+/// The grey range a camera codes its frames in.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum Range {
+    /// 0..=255, as the frames were recorded
+    #[default]
+    Full,
+    /// 16..=235, as video luma (YUYV, most webcams) codes it: black lifted to 16, white at 235
+    Limited,
+}
+
+/// Codes full-range grey levels in `range` (limited: `16 + round(219 v / 255)`).
+pub fn code_range(grey: &mut [u8], range: Range) {
+    if range == Range::Limited {
+        for g in grey {
+            *g = (16 + (*g as u32 * 219 + 127) / 255) as u8;
+        }
+    }
 }
 
 /// Multiplies each grey level by `exposure` (rounded, clipped to 0..=255): a camera's exposure
@@ -95,8 +114,9 @@ pub fn expose(grey: &mut [u8], exposure: f32) {
 }
 
 /// [`evaluate_with`], every test face multiplied by `exposure` first ([`expose`]; 1: as
-/// recorded).
-pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, exposure: f32) -> Result<Report> {
+/// recorded), then coded in `range` ([`code_range`]): a camera's exposure, its clip at 255,
+/// then its video coding.
+pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, exposure: f32, range: Range) -> Result<Report> {
     ensure!(
         exposure.is_finite() && (0.05..=20.0).contains(&exposure),
         "exposure must be in 0.05..=20, got {exposure}"
@@ -117,6 +137,7 @@ pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, expo
         .with_context(|| format!("cannot load dataset {}", data.display()))?;
     for s in &mut ds.samples {
         expose(&mut s.face.grey, exposure);
+        code_range(&mut s.face.grey, range);
     }
     let test: Vec<&Sample> = ds.split(Split::Test).collect();
     ensure!(
@@ -573,4 +594,22 @@ pub fn markdown(r: &Report) -> String {
     }
     s.push('\n');
     s
+}
+
+#[cfg(test)]
+mod range_tests {
+    use super::*;
+
+    /// Limited range as BT.601 codes luma (`16 + 219 E'`): black at 16, white at 235, the order
+    /// of the levels kept; full range leaves the frame as it is.
+    #[test]
+    fn limited_range_codes_black_at_16_and_white_at_235() {
+        let mut g: Vec<u8> = (0..=255).collect();
+        code_range(&mut g, Range::Limited);
+        assert_eq!((g[0], g[128], g[255]), (16, 126, 235));
+        assert!(g.windows(2).all(|w| w[0] <= w[1]));
+        let mut f: Vec<u8> = (0..=255).collect();
+        code_range(&mut f, Range::Full);
+        assert_eq!(f, (0..=255).collect::<Vec<u8>>());
+    }
 }
