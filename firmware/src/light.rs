@@ -186,11 +186,6 @@ pub struct Lut {
 impl Lut {
     /// `v(I) = I << 8`, clipped at 0 and 255.
     pub const IDENTITY: Lut = Lut { v: IDENTITY_TABLE, lo: 0, hi: 255 };
-
-    /// `v` with the camera's clip levels at 0 and 255.
-    pub const fn new(v: [u16; 256]) -> Lut {
-        Lut { v, lo: 0, hi: 255 }
-    }
 }
 
 /// The signed error of one pixel, Q8.8: `v(f) - p`, censored where the camera clipped. A pixel
@@ -213,8 +208,8 @@ pub fn error(lut: &Lut, f: u8, p: u16) -> i32 {
 }
 
 /// Whether a byte of `row` is at or past a clip level of `lut` (`<= lo` or `>= hi`), four at a
-/// time (most rows have none, and every row is asked: a byte at a time took 7 instructions a
-/// pixel on the board, the word test below in Rust 2.9, the board's routine 1.3).
+/// time (asked of the whole frame, then of each row when the frame has one: a byte at a time
+/// took 7 instructions a pixel on the board, a word test in Rust 2.9, the board's routine 1.3).
 #[cfg(target_arch = "arm")]
 #[inline]
 pub fn any_clipped(row: &[u8], lut: &Lut) -> bool {
