@@ -112,16 +112,25 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     // The gate by default, calibrated on the dataset's robot and reported; --no-self-gate is
     // the same blob without it, byte for byte.
     assert!(gate.is_some() && r["self_gate"]["gate"]["gain_px_per_rad"].is_number(), "{report}");
-    // Each of the rest, hold, level and (return stage) line statistics has its own tolerance: 1.5 times its largest
-    // value over the calibration's draws, at least two 1/64 px steps; the blob stores them.
+    // Each of the rest, hold, level and (return stage) line statistics has its own tolerance: 4
+    // times its root mean square over the calibration's draws, at least two 1/64 px steps; the
+    // joint bound is 14 over 4^2; the blob stores them.
     let g = gate.unwrap();
     let sg = &r["self_gate"];
     for (stat, tol, stored) in [("rest_px", "rest_tol_px", g.rest_tol), ("hold_px", "hold_tol_px", g.hold_tol), ("level_px", "level_tol_px", g.level_tol), ("line_px", "line_tol_px", g.line_tol.unwrap())] {
-        let max = sg[stat].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).fold(0.0, f64::max);
-        let want = (1.5 * max).max(2.0 / 64.0) as f32;
+        let v: Vec<f64> = sg[stat].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+        let rms = (v.iter().map(|x| x * x).sum::<f64>() / v.len() as f64).sqrt();
+        let want = (4.0 * rms).max(2.0 / 64.0) as f32;
         assert_eq!(sg["gate"][tol].as_f64().unwrap() as f32, want, "{stat}: {report}");
         assert_eq!(stored, want, "{stat}");
     }
+    assert_eq!(g.joint_tol, Some(14.0 / 16.0));
+    assert_eq!(sg["gate"]["joint_tol"].as_f64().unwrap() as f32, 14.0 / 16.0);
+    // The draws' joints under that gate: the own image, mostly well inside the bound.
+    let joints: Vec<f64> = sg["joint"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    assert_eq!(joints.len(), sg["rest_px"].as_array().unwrap().len());
+    let inside = joints.iter().filter(|j| **j <= 14.0 / 16.0).count();
+    assert!(inside * 10 >= joints.len() * 9, "{joints:?}");
     let plain = out.join("plain.msrm");
     let report = ok(&["quantize", "--train", p(&out), "--reach", p(&reach), "--json", "--no-self-gate", "--out", p(&plain)]);
     assert!(serde_json::from_str::<Value>(&report).unwrap()["self_gate"].is_null());

@@ -29,7 +29,7 @@
 //! self gate (if flags bit 3): amplitude f32, gain f32, gain_tol f32, rest_tol f32,
 //!   latency_ms u16, timeout_ms u16, min_frames u8, layout u8, reserved u8 x2 (0),
 //!   then for layout 1: hold_tol f32, level_tol f32; for layout 2: hold_tol f32, level_tol f32,
-//!   line_tol f32
+//!   line_tol f32; for layout 3: hold_tol f32, level_tol f32, line_tol f32, joint_tol f32
 //! ```
 //!
 //! Fixed point: a layer's input is i16 with `in_shift` fraction bits, its weights (i8 or i16) have
@@ -66,7 +66,10 @@
 //! statistic has its own spread in the own image, and one tolerance sized by the largest let a
 //! babbling robot through on the others); 2 (what the writer makes for a gate with a
 //! `line_tol`), `line_tol` follows too: the probe returns to the resting yaw and the face there
-//! must lie on the poses' line within it ([`SelfGate::line_tol`]). Any other layout is refused.
+//! must lie on the poses' line within it ([`SelfGate::line_tol`]); 3 (what the writer makes for a
+//! gate with a `joint_tol`), `joint_tol` follows `line_tol`: the statistics' squared shares of
+//! their tolerances must also sum to at most it ([`SelfGate::joint_tol`]). Any other layout is
+//! refused.
 //! Bit 4 (version 5): the error is pooled before its statistics and the threshold, `e = |mean
 //! of 255 (I - I_hat) over the (2 pool + 1)^2 window|` (clipped at the face's border), with
 //! `pool` (1..=[`MAX_POOL`]) in header byte 37; the blob's mu and sigma are of that error.
@@ -140,6 +143,8 @@ const FLAG_SELF_GATE: u16 = 8;
 pub const SELF_GATE_LEN: usize = 32;
 /// Bytes of the self-gate section with a return stage (layout 2, [`SelfGate::line_tol`]).
 pub const SELF_GATE_LEN_V2: usize = 36;
+/// Bytes of the self-gate section with a joint bound (layout 3, [`SelfGate::joint_tol`]).
+pub const SELF_GATE_LEN_V3: usize = 40;
 /// Bytes of a layout-0 self-gate section (one tolerance for the rest, hold and level).
 pub const SELF_GATE_LEN_V0: usize = 24;
 /// Largest [`SelfGate::amplitude`], radians (about 5.7 degrees: within the training poses).
@@ -584,6 +589,12 @@ pub struct SelfGate {
     /// reported, the poses' exact midpoint, and the face there must lie this close (pixels) to
     /// the poses' line. `None` (layouts 0 and 1): two stages, as before.
     pub line_tol: Option<f32>,
+    /// With a return stage (layout 3): the most `sum((statistic / tolerance)^2)` over the gain
+    /// (`|ratio - 1|` over `gain_tol`), rest, hold, level and line may reach. Each tolerance alone
+    /// bounds one statistic (a box); the own image comes near one of them at a time, a stranger
+    /// that gets inside the box by luck near several (`firmware::self_gate::joint`). `None`
+    /// (layouts 0 to 2): the box alone.
+    pub joint_tol: Option<f32>,
     /// The robot's own latency from a head pose to a frame showing it on the board, ms.
     pub latency_ms: u16,
     /// A probe not decided within this is undecided (no reach), ms.
@@ -603,6 +614,7 @@ impl SelfGate {
             && self.gain_tol > 0.0
             && self.gain_tol < 1.0
             && [self.rest_tol, self.hold_tol, self.level_tol, self.line_tol.unwrap_or(1.0)].iter().all(|t| *t > 0.0 && *t <= 64.0)
+            && self.joint_tol.is_none_or(|j| self.line_tol.is_some() && j > 0.0 && j <= 64.0)
             && (1..=1000).contains(&self.latency_ms)
             && (100..=MAX_GATE_TIMEOUT_MS).contains(&self.timeout_ms)
             && (1..=MAX_GATE_FRAMES).contains(&self.min_frames)
@@ -1112,13 +1124,14 @@ impl<'a> Model<'a> {
             if r.take(2)? != [0; 2] {
                 return Err(BlobError::BadHeader);
             }
-            let (hold_tol, level_tol, line_tol) = match layout {
-                0 => (rest_tol, rest_tol, None),
-                1 => (r.f32()?, r.f32()?, None),
-                2 => (r.f32()?, r.f32()?, Some(r.f32()?)),
+            let (hold_tol, level_tol, line_tol, joint_tol) = match layout {
+                0 => (rest_tol, rest_tol, None, None),
+                1 => (r.f32()?, r.f32()?, None, None),
+                2 => (r.f32()?, r.f32()?, Some(r.f32()?), None),
+                3 => (r.f32()?, r.f32()?, Some(r.f32()?), Some(r.f32()?)),
                 _ => return Err(BlobError::BadHeader),
             };
-            let g = SelfGate { amplitude, gain, gain_tol, rest_tol, hold_tol, level_tol, line_tol, latency_ms, timeout_ms, min_frames };
+            let g = SelfGate { amplitude, gain, gain_tol, rest_tol, hold_tol, level_tol, line_tol, joint_tol, latency_ms, timeout_ms, min_frames };
             if !g.is_valid() {
                 return Err(BlobError::SelfGate);
             }
@@ -1549,8 +1562,13 @@ mod writer {
                 }
                 o.extend_from_slice(&g.latency_ms.to_le_bytes());
                 o.extend_from_slice(&g.timeout_ms.to_le_bytes());
-                o.extend_from_slice(&[g.min_frames, if g.line_tol.is_some() { 2 } else { 1 }, 0, 0]);
-                for f in [g.hold_tol, g.level_tol].into_iter().chain(g.line_tol) {
+                let layout = match (g.line_tol, g.joint_tol) {
+                    (None, _) => 1,
+                    (Some(_), None) => 2,
+                    (Some(_), Some(_)) => 3,
+                };
+                o.extend_from_slice(&[g.min_frames, layout, 0, 0]);
+                for f in [g.hold_tol, g.level_tol].into_iter().chain(g.line_tol).chain(g.joint_tol) {
                     o.extend_from_slice(&f.to_le_bytes());
                 }
                 flags |= FLAG_SELF_GATE;

@@ -13,6 +13,7 @@ fn params() -> SelfGate {
         hold_tol: 1.5,
         level_tol: 1.5,
         line_tol: None,
+        joint_tol: None,
         latency_ms: 100,
         timeout_ms: 2000,
         min_frames: 2,
@@ -325,6 +326,9 @@ fn the_return_stage_catches_a_face_off_the_line_that_the_rest_test_allows() {
     // A NaN back at the rest never passes.
     let (r, t) = done(run_back(three, [120.25; 3], [101.28; 2], [139.22; 2], [f32::NAN, 120.25]));
     assert_eq!((r.decision, t), (GateDecision::Reject, None));
+    // A gate without a joint bound (blob layouts 0 to 2) passes it: the box alone.
+    let (r, t) = done(run_back(SelfGate { joint_tol: None, ..three }, [120.431; 3], [101.0; 2], [139.2625; 2], [120.291; 2]));
+    assert_eq!((r.decision, t), (GateDecision::Pass, Some(TARGET)), "{r:?}");
 }
 
 #[test]
@@ -411,4 +415,24 @@ fn a_mark_that_is_salient_at_neither_pose_fails_the_gate_with_a_return_stage() {
     assert_eq!(r.salient, [300.0, 0.0, 0.0]);
     // A two-stage gate (blob layouts 0 and 1) decides on the positions alone, as before.
     assert_eq!(run(two, [0, 0]).0.decision, GateDecision::Pass);
+}
+
+#[test]
+fn a_probe_near_several_tolerances_at_once_is_rejected() {
+    let three = SelfGate { gain_tol: 0.01, rest_tol: 0.6, hold_tol: 0.2, level_tol: 0.1, line_tol: Some(0.2), joint_tol: Some(1.25), ..params() };
+    // The rest half its tolerance off the line and back 0.16 px (0.8 of its tolerance) from it,
+    // the gain right: near one tolerance, the own image's noise. Joint 0.25 + 0.64.
+    let (r, t) = done(run_back(three, [120.3; 3], [101.03; 2], [138.97; 2], [120.16; 2]));
+    assert_eq!((r.decision, t), (GateDecision::Pass, Some(TARGET)), "{r:?}");
+    // The same, and the gain 0.85 of its tolerance off too: every statistic inside its own
+    // tolerance, their joint 1.61 past the bound (issue 29's babblers passed the box so).
+    let (r, t) = done(run_back(three, [120.431; 3], [101.0; 2], [139.2625; 2], [120.291; 2]));
+    assert!(((r.gain_ratio - 1.0).abs() - 0.0085).abs() < 2e-4, "{}", r.gain_ratio);
+    assert!(r.line_px < 0.2 && r.rest_px < 0.6, "{r:?}");
+    let j = joint(&three, r.gain_ratio, r.rest_px, r.hold_px, r.level_px, r.line_px);
+    assert!((j - 1.61).abs() < 0.02, "{j}");
+    assert_eq!((r.decision, t), (GateDecision::Reject, None));
+    // A gate without a joint bound (blob layouts 0 to 2) passes it: the box alone.
+    let (r, t) = done(run_back(SelfGate { joint_tol: None, ..three }, [120.431; 3], [101.0; 2], [139.2625; 2], [120.291; 2]));
+    assert_eq!((r.decision, t), (GateDecision::Pass, Some(TARGET)), "{r:?}");
 }

@@ -677,6 +677,7 @@ fn gate() -> SelfGate {
         hold_tol: 0.5,
         level_tol: 0.25,
         line_tol: None,
+        joint_tol: None,
         latency_ms: 100,
         timeout_ms: 2000,
         min_frames: 2,
@@ -746,7 +747,7 @@ fn self_gate_values_are_checked() {
     assert_eq!(edit(at + 18, &[0xB9, 0x0B]), Err(BlobError::SelfGate), "timeout 3001 ms");
     assert_eq!(edit(at + 20, &[0]), Err(BlobError::SelfGate), "no frames");
     assert_eq!(edit(at + 20, &[9]), Err(BlobError::SelfGate), "9 frames");
-    assert_eq!(edit(at + 21, &[3]), Err(BlobError::BadHeader), "layout 3");
+    assert_eq!(edit(at + 21, &[4]), Err(BlobError::BadHeader), "layout 4");
     assert_eq!(edit(at + 22, &[1]), Err(BlobError::BadHeader), "reserved");
     assert_eq!(edit(at + 23, &[1]), Err(BlobError::BadHeader), "reserved");
     // Layout 0 says the section ends at 24 bytes: 8 bytes too many.
@@ -956,6 +957,45 @@ fn a_layout_2_self_gate_carries_the_line_tolerance_and_older_layouts_still_read(
     // Layout 2 with only layout 1's 32 bytes: the line tolerance is missing.
     let mut short = one.clone();
     short[plain.len() + 21] = 2;
+    recrc(&mut short);
+    assert_eq!(Model::parse(&short), Err(BlobError::Truncated));
+    for cut in plain.len()..gated.len() {
+        assert!(Model::parse(&gated[..cut]).is_err());
+    }
+}
+
+#[test]
+fn a_layout_3_self_gate_carries_the_joint_bound_after_the_line_tolerance() {
+    let plain = mlp_spec().to_bytes().unwrap();
+    let three = SelfGate { line_tol: Some(0.25), ..gate() };
+    let joint = SelfGate { joint_tol: Some(0.875), ..three };
+    let gated = set_self_gate(&plain, Some(joint)).unwrap();
+    assert_eq!(gated.len(), plain.len() + SELF_GATE_LEN_V3);
+    // The layout byte says 3; hold 0.5, level 0.25, line 0.25, then the joint bound (0.875 =
+    // 0x3F600000).
+    assert_eq!(gated[plain.len() + 21], 3);
+    assert_eq!(&gated[plain.len() + 24..], &[0, 0, 0, 0x3F, 0, 0, 0x80, 0x3E, 0, 0, 0x80, 0x3E, 0, 0, 0x60, 0x3F]);
+    assert_eq!(Model::parse(&gated).unwrap().self_gate, Some(joint));
+    assert_eq!(set_self_gate(&gated, None).unwrap(), plain);
+    // Without a joint bound the writer still makes layout 2, byte for byte as before.
+    let two = set_self_gate(&plain, Some(three)).unwrap();
+    assert_eq!((two.len(), two[plain.len() + 21]), (plain.len() + SELF_GATE_LEN_V2, 2));
+    assert_eq!(Model::parse(&two).unwrap().self_gate.unwrap().joint_tol, None);
+    assert_eq!(set_self_gate(&two, Some(joint)).unwrap(), gated);
+    // Out of range or not finite: refused, when read and when written; and a joint bound needs
+    // the return stage's line (a two-stage gate has no layout for it).
+    for bad in [0.0f32, -0.5, 65.0, f32::NAN, f32::INFINITY] {
+        let mut b = gated.clone();
+        let at = plain.len() + 36;
+        b[at..at + 4].copy_from_slice(&bad.to_le_bytes());
+        recrc(&mut b);
+        assert_eq!(Model::parse(&b).map(|m| m.self_gate), Err(BlobError::SelfGate), "{bad}");
+        assert_eq!(set_self_gate(&plain, Some(SelfGate { joint_tol: Some(bad), ..three })), Err(BlobError::SelfGate), "{bad}");
+    }
+    assert_eq!(set_self_gate(&plain, Some(SelfGate { joint_tol: Some(0.875), ..gate() })), Err(BlobError::SelfGate));
+    // Layout 3 with only layout 2's 36 bytes: the joint bound is missing.
+    let mut short = two.clone();
+    short[plain.len() + 21] = 3;
     recrc(&mut short);
     assert_eq!(Model::parse(&short), Err(BlobError::Truncated));
     for cut in plain.len()..gated.len() {
