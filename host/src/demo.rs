@@ -439,6 +439,7 @@ fn self_gate_episodes(blob: &[u8], cfg: &EpisodeConfig, a: &DemoConfig) -> Resul
         hold_tol_px: g.hold_tol_px,
         level_tol_px: g.level_tol_px,
         line_tol_px: g.line_tol_px,
+        joint_tol: g.joint_tol,
         scenes,
     })
 }

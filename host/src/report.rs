@@ -57,6 +57,9 @@ pub struct SelfGateReport {
     /// The return stage's line tolerance (`None`: a two-stage gate, or a report from before).
     #[serde(default)]
     pub line_tol_px: Option<f32>,
+    /// The joint bound (`None`: the box alone, or a report from before).
+    #[serde(default)]
+    pub joint_tol: Option<f32>,
     pub scenes: Vec<SceneReport>,
 }
 
@@ -341,6 +344,9 @@ fn self_gate_section(h: &mut String, g: &SelfGateReport) {
         let _ = write!(h, "<p>Besides the gain, a pass needs the resting face within {:.2} px of the line between the probe's poses, the face's x within {:.2} px while the head holds still, and its y within {:.2} px of its rest at each pose (each calibrated from the own image's spread).</p>", g.rest_tol_px, g.hold_tol_px, g.level_tol_px);
         if let Some(t) = g.line_tol_px {
             let _ = write!(h, "<p>The probe ends back at the resting yaw, where the face must lie within {t:.2} px of the probe's line.</p>");
+        }
+        if let Some(j) = g.joint_tol {
+            let _ = write!(h, "<p>And the statistics' squared shares of their tolerances must sum to at most {j:.3}: the own image comes near one tolerance at a time, a stranger that gets inside them by luck near several.</p>");
         }
     }
 }
