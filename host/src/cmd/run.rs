@@ -143,8 +143,8 @@ pub fn describe(m: &BoardToHost) -> String {
         BoardToHost::UploadAck { next } => format!("upload: the board wants byte {next} next"),
         BoardToHost::Store(r) => crate::cmd::status::describe_store(r),
         BoardToHost::SelfGate(g) => format!(
-            "self gate at frame {}: {:?}, gain ratio {:.3}, rest {:.2} px, frames {:?}, {} ms",
-            g.frame, g.decision, g.gain_ratio, g.rest_px, g.frames, g.elapsed_ms
+            "self gate at frame {}: {:?}, gain ratio {:.3}, rest {:.2} px, hold {:.2} px, level {:.2} px, line {:.2} px, {} frames unlike the prediction, frames {:?}, {} ms",
+            g.frame, g.decision, g.gain_ratio, g.rest_px, g.hold_px, g.level_px, g.line_px, g.unlike, g.frames, g.elapsed_ms
         ),
     }
 }

@@ -120,13 +120,7 @@ fn pool_agrees() -> Result<(), &'static str> {
     use msr_firmware::saliency::pool;
     // SAFETY: the only reference to this static, taken once in this single-threaded image.
     let c = unsafe { &mut *core::ptr::addr_of_mut!(CHECK) };
-    let mut rng = 0x9e37_79b9u32;
-    let mut next = move || {
-        rng ^= rng << 13;
-        rng ^= rng >> 17;
-        rng ^= rng << 5;
-        rng
-    };
+    let mut next = xorshift(0x9e37_79b9);
     for w in [1usize, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 17, 24, 33, 74, 75] {
         for h in [1usize, 2, 4, 5, 7] {
             for r in 0..=msr_shared::blob::MAX_POOL {
@@ -217,16 +211,20 @@ fn clip_test_agrees() -> Result<(), &'static str> {
     Ok(())
 }
 
-/// The board's sample levels ([`msr_firmware::light::sample_levels`], an assembly routine here)
-/// against the plain ones, on 0 to 256 samples of random and of few distinct grey levels.
-fn sample_levels_agree() -> Result<(), &'static str> {
-    let mut seed = 0x2545_f491_u32;
-    let mut next = move || {
+/// Xorshift32 from `seed` (not 0): the checks' random inputs, the same on every run.
+fn xorshift(mut seed: u32) -> impl FnMut() -> u32 {
+    move || {
         seed ^= seed << 13;
         seed ^= seed >> 17;
         seed ^= seed << 5;
         seed
-    };
+    }
+}
+
+/// The board's sample levels ([`msr_firmware::light::sample_levels`], an assembly routine here)
+/// against the plain ones, on 0 to 256 samples of random and of few distinct grey levels.
+fn sample_levels_agree() -> Result<(), &'static str> {
+    let mut next = xorshift(0x2545_f491);
     let mut xs = [0u8; msr_firmware::light::MAX_SAMPLES];
     for n in 0..=msr_firmware::light::MAX_SAMPLES {
         for spread in [254u32, 3] {
