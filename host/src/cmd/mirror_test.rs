@@ -222,6 +222,10 @@ pub fn run(a: Args) -> Result<()> {
         Backend::Inproc => (episode::run_inproc(&blob, &cfg, a.trials, a.seed, &progress)?, None),
         Backend::Qemu => (crate::episode::qemu::run_qemu(&blob, &cfg, a.trials, a.seed, &progress)?, None),
     };
+    let mut trials = trials;
+    if let Some(g) = msr_shared::blob::Model::parse(&blob).ok().and_then(|m| m.self_gate) {
+        episode::add_gate_joints(&mut trials, &g);
+    }
     let mut s = episode::summarise(a.backend, a.robot, a.servo_bus, &trials);
     s.room = room;
     // The summary first: a failing --trials-out or --bus-log write (checked up front, but a disk

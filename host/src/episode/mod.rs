@@ -272,6 +272,12 @@ pub struct GateRecord {
     pub salient: [Option<f32>; 3],
     pub frames: [u8; 2],
     pub elapsed_ms: u16,
+    /// The statistics' squared shares of the model gate's tolerances, summed
+    /// (`msr_firmware::self_gate::joint`; the gate passes at most its `joint_tol`): how near the
+    /// tolerances the probe came all at once. `null` when undecided or not worked out
+    /// ([`add_gate_joints`]).
+    #[serde(default)]
+    pub joint: Option<f32>,
 }
 
 impl GateRecord {
@@ -293,7 +299,25 @@ impl GateRecord {
             salient: g.salient.map(finite),
             frames: g.frames,
             elapsed_ms: g.elapsed_ms,
+            joint: None,
         }
+    }
+
+    /// [`GateRecord::joint`] under `gate`, the gate that decided (the report does not carry it).
+    pub fn joint_under(&self, gate: &msr_shared::blob::SelfGate) -> Option<f32> {
+        let line = match gate.line_tol {
+            Some(_) => self.line_px?,
+            None => 0.0,
+        };
+        let j = msr_firmware::self_gate::joint(gate, self.gain_ratio?, self.rest_px?, self.hold_px?, self.level_px?, line);
+        j.is_finite().then_some(j)
+    }
+}
+
+/// Fills every gate decision's [`GateRecord::joint`] under `gate`, the model's.
+pub fn add_gate_joints(trials: &mut [Trial], gate: &msr_shared::blob::SelfGate) {
+    for r in trials.iter_mut().flat_map(|t| t.gate.iter_mut()) {
+        r.joint = r.joint_under(gate);
     }
 }
 
@@ -1114,5 +1138,50 @@ mod tests {
         assert_eq!(unique.len(), seeds.len());
         assert_eq!(trial_seed(0, 0), 1);
         assert_ne!(trial_seed(0, 7), trial_seed(1, 7));
+    }
+
+    #[test]
+    fn a_gate_records_joint_is_its_statistics_over_the_tolerances() {
+        let gate = msr_shared::blob::SelfGate {
+            amplitude: 0.07,
+            gain: 296.0,
+            gain_tol: 0.02,
+            rest_tol: 0.5,
+            hold_tol: 0.4,
+            level_tol: 0.2,
+            line_tol: Some(0.25),
+            joint_tol: Some(0.875),
+            latency_ms: 250,
+            timeout_ms: 2500,
+            min_frames: 2,
+        };
+        let report = GateReport {
+            frame: 9,
+            decision: GateDecision::Reject,
+            gain_ratio: 1.01,
+            rest_px: 0.25,
+            hold_px: 0.2,
+            level_px: 0.1,
+            line_px: 0.125,
+            unlike: 0,
+            salient: [50.0, 60.0, 70.0],
+            frames: [2, 2],
+            elapsed_ms: 1600,
+        };
+        let mut trial = Trial::default();
+        trial.gate.push(GateRecord::of(2_000_000, &report));
+        // Undecided: no statistics, no joint.
+        trial.gate.push(GateRecord::of(5_000_000, &GateReport { decision: GateDecision::Undecided(msr_shared::msg::GateUndecided::Timeout), gain_ratio: f32::NAN, ..report }));
+        assert_eq!(trial.gate[0].joint, None);
+        add_gate_joints(std::slice::from_mut(&mut trial), &gate);
+        // Each statistic half its tolerance: 5 x 0.25.
+        let j = trial.gate[0].joint.unwrap();
+        assert!((j - 1.25).abs() < 1e-3, "{j}");
+        assert_eq!(trial.gate[1].joint, None);
+        // A two-stage gate leaves the line out.
+        let two = msr_shared::blob::SelfGate { line_tol: None, joint_tol: None, ..gate };
+        assert!((trial.gate[0].joint_under(&two).unwrap() - 1.0).abs() < 1e-3);
+        let json = serde_json::to_value(&trial.gate[0]).unwrap();
+        assert!((json["joint"].as_f64().unwrap() - 1.25).abs() < 1e-3);
     }
 }
