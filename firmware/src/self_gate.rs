@@ -40,7 +40,7 @@
 //! statistics' squared shares of their tolerances sum to at most it ([`joint`]): near one
 //! tolerance is the own image's noise, near several at once a stranger's luck (a babbling
 //! robot that held still at a pose whose gain came within the band passed the red box 3 times
-//! in 1000 trials, issue 29). A probe starts only after the head has rested
+//! in about 1200 trials, issue 29). A probe starts only after the head has rested
 //! [`REST_BEFORE_PROBE_US`] since the last one: a delayed picture of the last probe must not
 //! replay in step with the next. Anything that stops the
 //! test (no frames, silent servos, a head that does not get there, the timeout) is undecided,

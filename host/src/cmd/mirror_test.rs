@@ -197,8 +197,9 @@ pub fn run(a: Args) -> Result<()> {
         cfg.mcap = Some(crate::rosbag::session::LogModel(blob.clone().into()));
     }
     let quiet = a.json;
+    // The gate the trials run with (the blob's, after --self-gate).
+    let gate = msr_shared::blob::Model::parse(&blob).ok().and_then(|m| m.self_gate);
     if !quiet {
-        let gate = msr_shared::blob::Model::parse(&blob).ok().and_then(|m| m.self_gate);
         eprintln!(
             "mirror-test: {} {} trials of robot {} (seed {}), scene {}, self gate {}",
             a.trials,
@@ -214,7 +215,7 @@ pub fn run(a: Args) -> Result<()> {
             eprintln!("{}", describe(t));
         }
     };
-    let (trials, room) = match a.backend {
+    let (mut trials, room) = match a.backend {
         Backend::Inproc if a.one_board => {
             let (t, r) = episode::run_one_board(&blob, &cfg, a.trials, a.seed, &progress)?;
             (t, Some(r))
@@ -222,9 +223,8 @@ pub fn run(a: Args) -> Result<()> {
         Backend::Inproc => (episode::run_inproc(&blob, &cfg, a.trials, a.seed, &progress)?, None),
         Backend::Qemu => (crate::episode::qemu::run_qemu(&blob, &cfg, a.trials, a.seed, &progress)?, None),
     };
-    let mut trials = trials;
-    if let Some(g) = msr_shared::blob::Model::parse(&blob).ok().and_then(|m| m.self_gate) {
-        episode::add_gate_joints(&mut trials, &g);
+    if let Some(g) = &gate {
+        episode::add_gate_joints(&mut trials, g);
     }
     let mut s = episode::summarise(a.backend, a.robot, a.servo_bus, &trials);
     s.room = room;
