@@ -211,6 +211,72 @@ fn clip_test_agrees() -> Result<(), &'static str> {
     Ok(())
 }
 
+/// The room's row routines ([`msr_firmware::room::rows`], assembly here) against their Rust
+/// versions: rule 2's sums on rows of 1 to 16 cells at every offset from a word, masks, clip
+/// levels of the camera and of plateaus and none left between them, a random table of `v(I)`;
+/// rule 4 on predictions over the whole u16 range with offsets over the whole i16 range.
+fn room_rows_agree() -> Result<(), &'static str> {
+    use msr_firmware::room::{rows, Acc, CELL};
+    // SAFETY: the only reference to this static, taken once in this single-threaded image
+    // (after `pool_agrees` is done with it).
+    let c = unsafe { &mut *core::ptr::addr_of_mut!(CHECK) };
+    let mut next = xorshift(0x6a09_e667);
+    let mut v = [0u16; 256];
+    let (mut got, mut want) = ([Acc::ZERO; 16], [Acc::ZERO; 16]);
+    let mut offsets = [0i16; 16];
+    for cells in 1..=16usize {
+        for start in 0..4 {
+            for (lo, hi) in [(0u32, 255u32), (20, 200), (99, 100), (0, 1)] {
+                let n = cells * CELL;
+                for i in 0..n {
+                    c.frame[start + i] = next() as u8;
+                    c.pred[start + i] = next() as u16;
+                    c.mask[start + i] = next().is_multiple_of(4) as u8;
+                }
+                v.iter_mut().for_each(|x| *x = next() as u16);
+                for k in 0..cells {
+                    got[k] = Acc { sum: next() as i32 >> 8, pred: next() as i32 >> 8, count: next() >> 8 };
+                    want[k] = got[k];
+                    offsets[k] = match next() % 6 {
+                        0 => i16::MIN,
+                        1 => i16::MAX,
+                        2 => 0,
+                        _ => next() as i16 >> (next() % 12),
+                    };
+                }
+                let mut job = rows::GatherJob {
+                    frame: c.frame[start..].as_ptr(),
+                    pred: c.pred[start..].as_ptr(),
+                    mask: c.mask[start..].as_ptr(),
+                    v: v.as_ptr(),
+                    acc: got.as_mut_ptr(),
+                    cells: cells as u32,
+                    first: lo + 1,
+                    span: hi - lo - 1,
+                };
+                // SAFETY: `cells` cells behind every pointer (start + 128 <= CHECK_PIXELS).
+                unsafe { rows::gather(&job) };
+                job.acc = want.as_mut_ptr();
+                // SAFETY: as above.
+                unsafe { rows::gather_reference(&job) };
+                if got != want {
+                    return Err("the room's sums differ");
+                }
+                c.thr[start..start + n].copy_from_slice(&c.pred[start..start + n]);
+                // SAFETY: `cells` cells behind both pointers.
+                unsafe {
+                    rows::apply(c.pred[start..].as_mut_ptr(), offsets.as_ptr(), cells as u32);
+                    rows::apply_reference(c.thr[start..].as_mut_ptr(), offsets.as_ptr(), cells as u32);
+                }
+                if c.pred[start..start + n] != c.thr[start..start + n] {
+                    return Err("the room's offsets added differ");
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Xorshift32 from `seed` (not 0): the checks' random inputs, the same on every run.
 fn xorshift(mut seed: u32) -> impl FnMut() -> u32 {
     move || {
@@ -266,6 +332,10 @@ fn main() -> ! {
     }
     if let Err(e) = sample_levels_agree() {
         hprintln!("MSR-BENCH-ERROR the sample levels: {}", e);
+        exit(1);
+    }
+    if let Err(e) = room_rows_agree() {
+        hprintln!("MSR-BENCH-ERROR the room: {}", e);
         exit(1);
     }
     let settings = Settings::of(&model);
