@@ -389,7 +389,51 @@ impl Sums {
 
 /// `a / b` rounded to nearest (ties away from zero), `b > 0`.
 fn div_round(a: i64, b: i64) -> i64 {
-    if a >= 0 { (a + b / 2) / b } else { -((-a + b / 2) / b) }
+    let q = div_u64(a.unsigned_abs() + b as u64 / 2, b as u64) as i64;
+    if a >= 0 { q } else { -q }
+}
+
+/// `n / d`, `d > 0`; with the board's 32-bit divide where the operands allow (a 64-bit
+/// division is a library loop there: about 400 instructions a line fit went to two of them).
+fn div_u64(n: u64, d: u64) -> u64 {
+    if d >> 32 != 0 {
+        n / d
+    } else if n >> 32 == 0 {
+        (n as u32 / d as u32) as u64
+    } else if n >> 32 < d {
+        div_64_32(n, d as u32) as u64
+    } else {
+        n / d
+    }
+}
+
+/// `n / d` for `n / d < 2^32` (`n >> 32 < d`): long division in two 16-bit digits on 32-bit
+/// divides (Hacker's Delight, `divlu`).
+fn div_64_32(n: u64, d: u32) -> u32 {
+    let s = d.leading_zeros();
+    let d = d << s;
+    let (d1, d0) = (d >> 16, d & 0xFFFF);
+    // n << s, whose top 32 bits are under d (so under 2^32).
+    let (hi, lo) = ((n >> 32) as u32, n as u32);
+    let top = if s == 0 { hi } else { (hi << s) | (lo >> (32 - s)) };
+    let lo = lo << s;
+    let (n1, n0) = (lo >> 16, lo & 0xFFFF);
+    // Each digit: estimate from the divisor's top half, then at most two corrections.
+    let digit = |top: u32, next: u32| -> (u32, u32) {
+        let (mut q, mut r) = (top / d1, top % d1);
+        while q >> 16 != 0 || q as u64 * d0 as u64 > ((r as u64) << 16) + next as u64 {
+            q -= 1;
+            r += d1;
+            if r >> 16 != 0 {
+                break;
+            }
+        }
+        // The remainder of (top : next) / d, under d.
+        (q, (((top as u64) << 16) + next as u64 - q as u64 * d as u64) as u32)
+    };
+    let (q1, rem) = digit(top, n1);
+    let (q0, _) = digit(rem, n0);
+    (q1 << 16) | q0
 }
 
 /// Q8.8 residual of one sample against a line.
@@ -440,8 +484,28 @@ fn kept_sums(xs: &[u8], ys: &[u16], g: i32, k: i32, cut2: u32) -> Sums {
     s
 }
 
-/// `floor(sqrt(n))`, exactly (bisection: 16 steps).
+/// `floor(sqrt(n))`, exactly: two bits of the root a step, 16 steps at most (core's
+/// `u32::isqrt` took 700 bytes more of the board's code).
 fn isqrt(n: u32) -> u32 {
+    let (mut rem, mut root, mut bit) = (n, 0u32, 1u32 << 30);
+    while bit > n {
+        bit >>= 2;
+    }
+    while bit != 0 {
+        if rem >= root + bit {
+            rem -= root + bit;
+            root = (root >> 1) + bit;
+        } else {
+            root >>= 1;
+        }
+        bit >>= 2;
+    }
+    root
+}
+
+#[cfg(test)]
+/// The bisection [`isqrt`] replaced, for its test.
+fn isqrt_bisection(n: u32) -> u32 {
     // lo^2 <= n < hi^2
     let (mut lo, mut hi) = (0u64, 1u64 << 16);
     while hi - lo > 1 {
@@ -458,7 +522,7 @@ fn isqrt(n: u32) -> u32 {
 /// The squared cut ([`TRIM_X4`] times the RMS, at least [`MIN_CUT_Q88`]) for a sum of squared
 /// residuals `sse` over `n` samples, saturating.
 fn cut_of(sse: u64, n: u32) -> u32 {
-    let c = sse.saturating_mul(TRIM_X4 * TRIM_X4) / (16 * n.max(1) as u64);
+    let c = div_u64(sse.saturating_mul(TRIM_X4 * TRIM_X4), 16 * n.max(1) as u64);
     c.max(MIN_CUT_Q88 * MIN_CUT_Q88).min(u32::MAX as u64) as u32
 }
 
@@ -729,7 +793,7 @@ fn median_split(xs: &[u8], ys: &[u16], half: usize, (g1, k1, cut2): (i32, i32, u
         return 0;
     }
     let mean_y = div_round(kept.y as i64, kept.n as i64).max(1);
-    (top - bottom).unsigned_abs() as i64 * 256 / mean_y
+    div_u64((top - bottom).unsigned_abs() as u64 * 256, mean_y as u64) as i64
 }
 
 /// How far apart the halves' mean residuals under the fit are, in 1/256 of the mean predicted
@@ -747,7 +811,7 @@ fn halves_split(h: &[Sums; 2], g: i32, k: i32) -> i64 {
         return 0;
     }
     let mean_y = div_round(256 * all.y as i64, all.n as i64).max(1);
-    (mean_r(&h[0]) - mean_r(&h[1])).abs() * 256 / mean_y
+    div_u64((mean_r(&h[0]) - mean_r(&h[1])).unsigned_abs() * 256, mean_y as u64) as i64
 }
 
 #[cfg(test)]

@@ -301,3 +301,40 @@ fn the_cut_without_squares_keeps_the_same_samples() {
         }
     }
 }
+
+/// The divisions the fit takes on 32-bit divides where it can: the same quotients as u64's
+/// own, at the edges of each path (n or d at 2^32, a quotient just under 2^32) and at random.
+#[test]
+fn the_divisions_are_u64_division() {
+    let mut cases = vec![(0u64, 1u64), (1, 1), (u32::MAX as u64, 1), (1 << 32, 1), (1 << 32, 2), (u64::MAX, 1), (u64::MAX, 1 << 32)];
+    for d in [1u64, 2, 3, 0xFFFF, 0x1_0000, 0x1_0001, 0x8000_0000, 0xFFFF_FFFF, 0x1_0000_0000] {
+        for n in [d * 0xFFFF_FFFF, d.wrapping_mul(0xFFFF_FFFF).wrapping_add(d - 1), (d << 32).wrapping_sub(1), d << 31, 0x1234_5678_9ABC] {
+            cases.push((n, d));
+        }
+    }
+    let mut rng = 0x9E37_79B9_7F4A_7C15u64;
+    for _ in 0..200_000 {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        let d = (rng >> (rng % 64)).max(1);
+        let n = rng.rotate_left(17) >> (rng % 29);
+        cases.push((n, d));
+    }
+    for (n, d) in cases {
+        assert_eq!(div_u64(n, d), n / d, "{n} / {d}");
+    }
+    for a in [-5i64, -4, -3, 0, 3, 4, 5, i64::MAX / 2, -(i64::MAX / 2)] {
+        for b in [1i64, 2, 7, 1 << 33] {
+            let want = if a >= 0 { (a + b / 2) / b } else { -((-a + b / 2) / b) };
+            assert_eq!(div_round(a, b), want, "{a} / {b}");
+        }
+    }
+}
+
+#[test]
+fn isqrt_is_the_bisection() {
+    for n in (0..=u32::MAX).step_by(9973).chain([0, 1, 2, 3, 4, 65535 * 65535 - 1, 65535 * 65535, u32::MAX]) {
+        assert_eq!(isqrt(n), isqrt_bisection(n), "{n}");
+    }
+}
