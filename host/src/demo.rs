@@ -193,7 +193,7 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
         let (gated, cal) = crate::train::self_gate::attach(&blob, a.robot, &crate::train::self_gate::GateCalibration::default())
             .context("calibrating the self gate (--no-self-gate leaves it out)")?;
         let g = &cal.gate;
-        let line = format!(
+        let mut line = format!(
             "; a self gate calibrated for the {} robot: gain {:.1} px/rad +- {:.1} %, rest {:.2} px, hold {:.2} px, level {:.2} px",
             a.robot,
             g.gain_px_per_rad,
@@ -202,6 +202,12 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
             g.hold_tol_px,
             g.level_tol_px
         );
+        if let Some(t) = g.line_tol_px {
+            line += &format!(", line {t:.2} px");
+        }
+        if let Some(j) = g.joint_tol {
+            line += &format!(", joint {j:.3}");
+        }
         (gated, line)
     } else {
         notes.push("The model has no self gate (`--no-self-gate`): a confirmed mark is reached at once, as the paper, even for another robot's face.".into());
