@@ -69,6 +69,26 @@ impl Light {
         Light { key: 1.0 + d * rng.gen_range(0.25..0.45), ..Light::FIXED }
     }
 
+    /// The fixed light with the key lamp turned to the edge of [`Light::varied`]'s range: its
+    /// direction moved by 0.1 along each of two axes, either way (4.2 to 5.7 degrees).
+    pub fn turned<R: Rng>(rng: &mut R) -> Light {
+        let d = crate::looks::LIGHT;
+        let mut side = || if rng.gen_bool(0.5) { 0.1 } else { -0.1 };
+        Light { key_dir: [d.x, d.y + side(), d.z + side()], ..Light::FIXED }
+    }
+
+    /// The fixed light with the ambient share at an end of [`Light::varied`]'s range: 0.40 or
+    /// 0.50 (calibrated 0.45).
+    pub fn ambient<R: Rng>(rng: &mut R) -> Light {
+        Light { ambient: if rng.gen_bool(0.5) { 0.4 } else { 0.5 }, ..Light::FIXED }
+    }
+
+    /// The fixed light at an end of [`Light::varied`]'s colour temperatures: 5000 or 6500 K,
+    /// against a camera balanced for 5500 K.
+    pub fn colour<R: Rng>(rng: &mut R) -> Light {
+        Light { tint: tint_of_kelvin(if rng.gen_bool(0.5) { 5000.0 } else { 6500.0 }), ..Light::FIXED }
+    }
+
     /// This light with the exposure multiplied by `k`.
     pub fn exposed(self, k: f32) -> Light {
         Light { exposure: self.exposure * k, ..self }
@@ -111,6 +131,12 @@ pub enum LightMode {
     VariedTrain,
     /// Every frame with a lamp switched on or off against the fixed light ([`Light::lamp`]).
     Lamp,
+    /// Every frame with the key lamp turned ([`Light::turned`]), nothing else changed.
+    Turn,
+    /// Every frame with another ambient share ([`Light::ambient`]), nothing else changed.
+    Ambient,
+    /// Every frame at another colour temperature ([`Light::colour`]), nothing else changed.
+    Colour,
 }
 
 impl LightMode {
@@ -120,6 +146,9 @@ impl LightMode {
             LightMode::Varied => "varied",
             LightMode::VariedTrain => "varied-train",
             LightMode::Lamp => "lamp",
+            LightMode::Turn => "turn",
+            LightMode::Ambient => "ambient",
+            LightMode::Colour => "colour",
         }
     }
 
@@ -131,6 +160,9 @@ impl LightMode {
             (LightMode::Varied, _) => Some(Light::varied(rng)),
             (LightMode::VariedTrain, true) => rng.gen_bool(0.5).then(|| Light::varied(rng)),
             (LightMode::Lamp, _) => Some(Light::lamp(rng)),
+            (LightMode::Turn, _) => Some(Light::turned(rng)),
+            (LightMode::Ambient, _) => Some(Light::ambient(rng)),
+            (LightMode::Colour, _) => Some(Light::colour(rng)),
         }
     }
 }
@@ -325,6 +357,28 @@ mod tests {
         assert!(warm[0] > warm[1] && warm[1] > warm[2] && warm[2] < 0.8, "{warm:?}");
         let cold = tint_of_kelvin(8000.0);
         assert!(cold[0] < 0.95 && cold[2] > 1.0, "{cold:?}");
+    }
+
+    /// Each single-nuisance light changes its own part of the fixed light and nothing else,
+    /// by what its doc says.
+    #[test]
+    fn one_nuisance_at_a_time() {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let (mut warm, mut cold) = (0, 0);
+        for _ in 0..64 {
+            let t = Light::turned(&mut rng);
+            assert_eq!(Light { key_dir: Light::FIXED.key_dir, ..t }, Light::FIXED);
+            let deg = t.key_dir().angle(&Light::FIXED.key_dir()).to_degrees();
+            assert!((4.2..=5.75).contains(&deg), "{deg}");
+            let a = Light::ambient(&mut rng);
+            assert_eq!(Light { ambient: Light::FIXED.ambient, ..a }, Light::FIXED);
+            assert!(a.ambient == 0.4 || a.ambient == 0.5, "{}", a.ambient);
+            let c = Light::colour(&mut rng);
+            assert_eq!(Light { tint: Light::FIXED.tint, ..c }, Light::FIXED);
+            if c.tint[2] < 1.0 { warm += 1 } else { cold += 1 }
+        }
+        assert!(warm > 10 && cold > 10, "{warm} {cold}");
+        assert_eq!(LightMode::Turn.draw(false, &mut rng).map(|l| l.key), Some(1.0));
     }
 
     #[test]

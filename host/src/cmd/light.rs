@@ -15,6 +15,12 @@ pub enum DatasetLight {
     VariedTrain,
     /// Every frame with a lamp switched on or off (the key lamp 25..45 % stronger or weaker)
     Lamp,
+    /// One nuisance: the key lamp turned by 4.2..5.7 degrees (the edge of varied's range)
+    Turn,
+    /// One nuisance: the ambient share at 0.40 or 0.50 (calibrated 0.45)
+    Ambient,
+    /// One nuisance: the colour temperature at 5000 or 6500 K (the camera balanced for 5500 K)
+    Colour,
 }
 
 impl From<DatasetLight> for LightMode {
@@ -24,6 +30,9 @@ impl From<DatasetLight> for LightMode {
             DatasetLight::Varied => LightMode::Varied,
             DatasetLight::VariedTrain => LightMode::VariedTrain,
             DatasetLight::Lamp => LightMode::Lamp,
+            DatasetLight::Turn => LightMode::Turn,
+            DatasetLight::Ambient => LightMode::Ambient,
+            DatasetLight::Colour => LightMode::Colour,
         }
     }
 }

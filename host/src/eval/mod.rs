@@ -81,7 +81,7 @@ pub fn evaluate(blob_path: &Path, data: &Path) -> Result<Report> {
 
 /// [`evaluate`], with the float decoder taken from a published manifest when one is given.
 pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> Result<Report> {
-    evaluate_lit(blob_path, data, manifest, 1.0, Range::Full)
+    evaluate_lit(blob_path, data, manifest, &Camera::default())
 }
 
 /// The grey range a camera codes its frames in.
@@ -113,14 +113,49 @@ pub fn expose(grey: &mut [u8], exposure: f32) {
     }
 }
 
-/// [`evaluate_with`], every test face multiplied by `exposure` first ([`expose`]; 1: as
-/// recorded), then coded in `range` ([`code_range`]): a camera's exposure, its clip at 255,
-/// then its video coding.
-pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, exposure: f32, range: Range) -> Result<Report> {
+/// Adds Gaussian noise of `sigma` grey levels to each grey level (rounded, clipped to 0..=255),
+/// drawn from `seed`: a sensor noisier than the one the model was calibrated with.
+pub fn add_noise(grey: &mut [u8], sigma: f32, seed: u64) {
+    use rand::{Rng, SeedableRng};
+    if sigma <= 0.0 {
+        return;
+    }
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    for g in grey {
+        // Box-Muller: one normal deviate from two uniform ones.
+        let (u1, u2): (f64, f64) = (rng.gen_range(f64::MIN_POSITIVE..1.0), rng.gen());
+        let z = (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos();
+        *g = (*g as f64 + sigma as f64 * z).round().clamp(0.0, 255.0) as u8;
+    }
+}
+
+/// What a camera does to each test face before detection, one nuisance at a time or together:
+/// its exposure ([`expose`]), then sensor noise ([`add_noise`]), then its video coding
+/// ([`code_range`]). The default leaves the faces as recorded.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    /// Exposure factor, 0.05..=20 (1: as recorded).
+    pub exposure: f32,
+    /// Gaussian noise added, grey levels, 0..=64 (0: none).
+    pub noise: f32,
+    /// Grey range the faces are coded in.
+    pub range: Range,
+}
+
+impl Default for Camera {
+    fn default() -> Self {
+        Camera { exposure: 1.0, noise: 0.0, range: Range::Full }
+    }
+}
+
+/// [`evaluate_with`], every test face through `camera` first.
+pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, camera: &Camera) -> Result<Report> {
+    let Camera { exposure, noise, range } = *camera;
     ensure!(
         exposure.is_finite() && (0.05..=20.0).contains(&exposure),
         "exposure must be in 0.05..=20, got {exposure}"
     );
+    ensure!(noise.is_finite() && (0.0..=64.0).contains(&noise), "noise must be in 0..=64 grey levels, got {noise}");
     let bytes = read_blob(blob_path)?;
     let model = parse_blob(&bytes, blob_path)?;
     let published = match manifest {
@@ -135,8 +170,9 @@ pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, expo
     let crop = crate::detect::crop_mode_of(&model);
     let mut ds = Dataset::load_split(data, Some(Split::Test), crop)
         .with_context(|| format!("cannot load dataset {}", data.display()))?;
-    for s in &mut ds.samples {
+    for (i, s) in ds.samples.iter_mut().enumerate() {
         expose(&mut s.face.grey, exposure);
+        add_noise(&mut s.face.grey, noise, i as u64);
         code_range(&mut s.face.grey, range);
     }
     let test: Vec<&Sample> = ds.split(Split::Test).collect();
@@ -611,5 +647,27 @@ mod range_tests {
         let mut f: Vec<u8> = (0..=255).collect();
         code_range(&mut f, Range::Full);
         assert_eq!(f, (0..=255).collect::<Vec<u8>>());
+    }
+
+    /// The noise has the spread asked for (mean 0, standard deviation sigma, on grey 128 where
+    /// nothing clips), is the same for a seed and differs between seeds; 0 leaves the face.
+    #[test]
+    fn noise_has_the_asked_spread_and_is_repeatable() {
+        let mut g = vec![128u8; 20_000];
+        add_noise(&mut g, 4.0, 3);
+        let n = g.len() as f64;
+        let mean = g.iter().map(|&v| v as f64).sum::<f64>() / n;
+        let sd = (g.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / n).sqrt();
+        assert!((mean - 128.0).abs() < 0.1, "{mean}");
+        // Rounding adds 1/12 of a grey level squared to the variance.
+        assert!((sd - (16.0f64 + 1.0 / 12.0).sqrt()).abs() < 0.08, "{sd}");
+        let mut h = vec![128u8; 20_000];
+        add_noise(&mut h, 4.0, 3);
+        assert_eq!(g, h);
+        add_noise(&mut h, 0.0, 3);
+        assert_eq!(g, h);
+        let mut k = vec![128u8; 20_000];
+        add_noise(&mut k, 4.0, 4);
+        assert_ne!(g, k);
     }
 }
