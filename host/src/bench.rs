@@ -420,7 +420,12 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
     let held = (stages[1] + stages[2] + stages[3]) as f64 / pixels;
     // The mean is over the bench's frames, two of them marked; the costliest alone (a marked
     // frame: the extent and the blob) is `held_pose_worst`.
-    let held_worst = r["held_max"].as_u64().unwrap_or(0) as f64 / pixels;
+    // Required: read as 0, an older image would have called the target met.
+    let held_worst = r["held_max"]
+        .as_u64()
+        .context("the benchmark image reports no held_max: it is older than this msr (cargo xtask images)")?
+        as f64
+        / pixels;
     let post = held + table as f64 / pixels;
     // The worst frame for the room: a new head pose (the offsets added to the new prediction)
     // and learnt from (at most one frame in 400 ms is). A frame is learnt from only while the
