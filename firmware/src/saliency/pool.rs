@@ -13,9 +13,10 @@
 //! 2. the window sum slides along the row, a column in, a column out, and each pixel is tested.
 //!
 //! Both steps run in one pass, a column's update `r` pixels ahead of the test that first needs
-//! it: 19 instructions a pixel inside the row, 16.5 for the default radius of 2, whose pixels
-//! go in pairs with the ring and the column sums read and written two words at a time (the
-//! routine's comments count them), against 39 for the two loops LLVM made of the Rust; the
+//! it: 19 instructions a pixel inside the row, 17 for the default radius of 2, whose pixels
+//! go in pairs with the ring and the column sums read and written two words at a time, two
+//! pairs a loop step (the routine's comments count them), against 39 for the two loops LLVM
+//! made of the Rust; the
 //! row's salient pixels are counted at its end, four mask bytes an instruction. The edges take
 //! the clipped window's `k`. The table is made again when the head changes pose cell: 5.5
 //! instructions a pixel, two at a time. The benchmark image checks the routine against
@@ -111,8 +112,8 @@ core::arch::global_asm!(
     ".endm",
     // Two pixels x, x + 1 inside the row for a radius of 2 (33 instructions): columns x + 2
     // and x + 3 in, their ring words and sums read and written as pairs (LDRD/STRD); r3 then
-    // points at column x + 4, so the columns leaving, x - 3 and x - 2, are 28 and 24 bytes
-    // back. r6 and r8 are scratch here.
+    // points at column x + 4, so the columns leaving, x - 3 and x - 2, are the pair 28 bytes
+    // back, read at once too. r6 and r8 are scratch here.
     ".macro MSR_POOL_PAIR2",
     "ldrb r10, [r0], #1",
     "ldrb r11, [r0], #1",
@@ -130,13 +131,13 @@ core::arch::global_asm!(
     "add r6, r6, r10",
     "add r8, r8, r11",
     "strd r6, r8, [r3], #8",
+    // The window's two steps: r6 = c(x + 2) - c(x - 3), r8 = c(x + 3) - c(x - 2).
+    "ldrd r10, r11, [r3, #-28]",
+    "sub r6, r6, r10",
+    "sub r8, r8, r11",
     "add r7, r7, r6",
-    "ldr r10, [r3, #-28]",
-    "sub r7, r7, r10",
     "MSR_POOL_TEST",
     "add r7, r7, r8",
-    "ldr r10, [r3, #-24]",
-    "sub r7, r7, r10",
     "MSR_POOL_TEST",
     ".endm",
     ".section .text.msr_pool_row,\"ax\",%progbits",
@@ -185,20 +186,27 @@ core::arch::global_asm!(
     "cmp r5, r12",
     "bne 2b",
     // 3. The inside, k = rows (2 r + 1): w - 2 r pixels. A radius of 2 (the default pool):
-    //    an odd one first, then pairs; any other: (w - 2 r) % 4 single ones first, then fours.
+    //    an odd one first, then a pair if the rest is not a multiple of four, then two pairs
+    //    a step; any other: (w - 2 r) % 4 single ones first, then fours.
     "ldr r10, [sp, #4]",
     "ldr r11, [sp]",
     "sub r10, r10, r11, lsl #1",
     "add r12, r5, r10",
     "cmp r11, #2",
     "bne 20f",
-    "ands r10, r10, #1",
+    "tst r10, #1",
     "beq 21f",
     "MSR_POOL_PIXEL",
     "21:",
+    "sub r10, r12, r5",
+    "tst r10, #2",
+    "beq 24f",
+    "MSR_POOL_PAIR2",
+    "24:",
     "cmp r5, r12",
     "beq 22f",
     "23:",
+    "MSR_POOL_PAIR2",
     "MSR_POOL_PAIR2",
     "cmp r5, r12",
     "bne 23b",
