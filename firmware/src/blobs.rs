@@ -131,8 +131,11 @@ const EMPTY_SLOT: Slot = Slot {
 /// A labeller with `LABELS` component slots for masks up to `2 * RUNS - 1` pixels wide.
 pub struct Labeller<const LABELS: usize, const RUNS: usize> {
     slots: [Slot; LABELS],
+    /// Released slots, the last released on top.
     free: [u16; LABELS],
     n_free: usize,
+    /// Slots `fresh..` have not been used since the last reset (so a reset touches none).
+    fresh: usize,
     rows: [[Run; RUNS]; 2],
     n_rows: [usize; 2],
 }
@@ -150,6 +153,7 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
             slots: [EMPTY_SLOT; LABELS],
             free: [0; LABELS],
             n_free: 0,
+            fresh: 0,
             rows: [[EMPTY_RUN; RUNS]; 2],
             n_rows: [0; 2],
         }
@@ -161,21 +165,22 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
     }
 
     fn reset(&mut self) {
-        let n = LABELS.min(NONE as usize);
-        for i in 0..n {
-            self.free[i] = (n - 1 - i) as u16;
-            self.slots[i].used = false;
-        }
-        self.n_free = n;
+        self.n_free = 0;
+        self.fresh = 0;
         self.n_rows = [0; 2];
     }
 
+    /// A released slot if there is one (the last released), else the lowest fresh one.
     fn alloc(&mut self) -> u16 {
-        if self.n_free == 0 {
+        let l = if self.n_free > 0 {
+            self.n_free -= 1;
+            self.free[self.n_free]
+        } else if self.fresh < LABELS.min(NONE as usize) {
+            self.fresh += 1;
+            (self.fresh - 1) as u16
+        } else {
             return NONE;
-        }
-        self.n_free -= 1;
-        let l = self.free[self.n_free];
+        };
         self.slots[l as usize] = Slot {
             used: true,
             parent: l,
@@ -325,12 +330,7 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
         while x < w && set > 0 {
             // Skip empty pixels four at a time (one unaligned word load on the board): most of
             // a face is not salient.
-            while let Some(&[a, b, c, d]) = row.get(x..x + 4) {
-                if u32::from_ne_bytes([a, b, c, d]) != 0 {
-                    break;
-                }
-                x += 4;
-            }
+            x += 4 * words_while(&row[x..], |v| v == 0);
             while x < w && row[x] == 0 {
                 x += 1;
             }
@@ -338,6 +338,8 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
                 break;
             }
             let x0 = x;
+            // A run's pixels four at a time too, while no byte of the word is zero.
+            x += 4 * words_while(&row[x..], |v| v.wrapping_sub(0x0101_0101) & !v & 0x8080_8080 == 0);
             while x < w && row[x] != 0 {
                 x += 1;
             }
@@ -381,25 +383,34 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
                 k += 1;
             }
             let len = (r.x1 - r.x0) as u32 + 1;
-            let run_blob = Blob {
-                area: len,
-                x0: r.x0,
-                y0: y as u16,
-                x1: r.x1,
-                y1: y as u16,
-                sum_x: (r.x0 as u64 + r.x1 as u64) * len as u64 / 2,
-                sum_y: y as u64 * len as u64,
-                first: (y * width) as u32 + r.x0 as u32,
-            };
+            // The run's column sum: (x0 + x1) len / 2 is whole, as one of the two factors is even.
+            let sum_x = (r.x0 as u32 + r.x1 as u32) as u64 * len as u64 / 2;
             if label == NONE {
                 label = self.alloc();
                 if label == NONE {
                     sum.overflow = true;
                     continue;
                 }
-                self.slots[label as usize].blob = run_blob;
+                self.slots[label as usize].blob = Blob {
+                    area: len,
+                    x0: r.x0,
+                    y0: y as u16,
+                    x1: r.x1,
+                    y1: y as u16,
+                    sum_x,
+                    sum_y: y as u64 * len as u64,
+                    first: (y * width) as u32 + r.x0 as u32,
+                };
             } else {
-                self.slots[label as usize].blob.merge(&run_blob);
+                // Joined to runs of the rows above: the component's top row and first pixel
+                // stay, its bottom row is this one (`Blob::merge` of the run, written out).
+                let b = &mut self.slots[label as usize].blob;
+                b.area += len;
+                b.x0 = b.x0.min(r.x0);
+                b.x1 = b.x1.max(r.x1);
+                b.y1 = y as u16;
+                b.sum_x += sum_x;
+                b.sum_y += y as u64 * len as u64;
             }
             let s = &mut self.slots[label as usize];
             s.tainted |= tainted;
@@ -407,6 +418,25 @@ impl<const LABELS: usize, const RUNS: usize> Labeller<LABELS, RUNS> {
             self.rows[cur][i].label = label;
         }
     }
+}
+
+/// How many whole words from the start of `bytes` pass `ok`, each read as one (unaligned)
+/// load: a mask's rows start anywhere. Written with a pointer because LLVM turns the same
+/// test on four byte values into four byte loads.
+#[inline(always)]
+pub(crate) fn words_while(bytes: &[u8], ok: impl Fn(u32) -> bool) -> usize {
+    let (n, p) = (bytes.len() / 4, bytes.as_ptr());
+    let mut i = 0;
+    while i < n {
+        // SAFETY: i < len / 4, so the four bytes from 4 i are inside `bytes`; an unaligned
+        // read takes any address.
+        let v = unsafe { core::ptr::read_unaligned(p.add(4 * i) as *const u32) };
+        if !ok(v) {
+            break;
+        }
+        i += 1;
+    }
+    i
 }
 
 pub mod merge;

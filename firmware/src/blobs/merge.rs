@@ -105,19 +105,23 @@ pub fn pick<const L: usize, const R: usize>(
     merge: Merge,
 ) -> (Option<Blob>, Summary) {
     let mut plain = crate::winner::Winner::new(min_area);
-    let mut frags = Fragments::new(merge.fragment);
+    // Only a merge needs the fragments' table (1 KiB that every frame would clear).
+    let mut frags = merge.is_on().then(|| Fragments::new(merge.fragment));
     let summary = labeller
         .label_rows(mask, w, h, counts, |b| {
             plain.offer(b);
-            if merge.is_on() {
-                frags.offer(b);
+            if let Some(f) = frags.as_mut() {
+                f.offer(b);
             }
         })
         .unwrap_or(Summary {
             overflow: true,
             ..Summary::default()
         });
-    let best = winner(&mut frags, merge, min_area).unwrap_or(plain.best);
+    let best = match frags.as_mut() {
+        Some(f) => winner(f, merge, min_area).unwrap_or(plain.best),
+        None => plain.best,
+    };
     (best, summary)
 }
 
