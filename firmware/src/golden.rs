@@ -143,10 +143,10 @@ pub fn run(
 /// What [`room`] gave: its cost (from the caller's counter) and the offsets' digest.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct RoomReport {
-    /// Counter units (instructions on the board) per frame learnt from, the batch's update
-    /// excepted.
+    /// Counter units (instructions on the board) per frame learnt from (its samples).
     pub learn: u64,
-    /// Per frame that ends a batch (its samples and the update of every offset).
+    /// Per update of every offset ([`crate::room::Room::settle`], on the frame after a
+    /// batch's last).
     pub update: u64,
     /// Adding the offsets to one predicted face.
     pub apply: u64,
@@ -188,11 +188,12 @@ pub fn room(
         ws.saliency(model, &settings, crop)?;
         let t0 = counter();
         ws.learn(model, crop, i * 1_000_000);
-        let dt = counter().wrapping_sub(t0);
-        if i % 8 == 7 {
-            r.update += dt / 4;
-        } else {
-            r.learn += dt / 28;
+        r.learn += counter().wrapping_sub(t0) / 32;
+        // The board's next frame, not learnt from: the update after a batch's last.
+        if ws.room.pending() {
+            let t0 = counter();
+            ws.room.settle();
+            r.update += counter().wrapping_sub(t0) / 4;
         }
     }
     if let Some(face) = ws.decoder.face_mut() {

@@ -13,7 +13,9 @@
 //!    salient pixel's pooling window (the mask is not 0) nor clipped (`Lut::lo`, `Lut::hi`): its signed
 //!    error `v(I) - pred` against the prediction with the offsets, summed per cell. A mark's
 //!    pixels are salient, so they never teach the board that the mark belongs to the face.
-//! 3. After [`BATCH`] such frames, each cell with at least [`MIN_SAMPLES`] samples moves its
+//! 3. After [`BATCH`] such frames, on the next frame ([`Room::settle`], which the board calls on
+//!    every frame it does not learn from: the update's cost never falls on a frame that also
+//!    pays for its samples), each cell with at least [`MIN_SAMPLES`] samples moves its
 //!    offset by 1/2^[`RATE_SHIFT`] of the batch's mean error. Then the part of these offsets
 //!    that a gain and an offset would make (a least-squares line in the cells' mean predicted
 //!    grey level) is taken out: the per-frame fit already takes that part each frame, so the
@@ -28,7 +30,7 @@
 //! Integers, and one line fit in f32 per update, so the host and the board agree bit for bit
 //! (`msr bench --backend qemu` checks it). 96 cells: about 1 KiB of RAM.
 //! Rule 4 costs 4.3 instructions a pixel each time the network runs (a new head pose), rule 2
-//! 4.2 on a frame learnt from ([`rows`]).
+//! 4.2 on a frame learnt from ([`rows`]), rule 3 1.6 on the frame after a batch.
 
 use msr_shared::blob::{MAX_FACE_H, MAX_FACE_W};
 pub use msr_shared::msg::{RoomReport, RoomState};
@@ -81,6 +83,8 @@ pub struct Room {
     offset: [i16; CELLS],
     acc: [Acc; CELLS],
     batch: u16,
+    /// The batch is complete: [`Room::settle`] updates the offsets.
+    pending: bool,
     frozen: bool,
     last_us: Option<u64>,
     frames: u32,
@@ -101,6 +105,7 @@ impl Room {
             offset: [0; CELLS],
             acc: [Acc::ZERO; CELLS],
             batch: 0,
+            pending: false,
             frozen: false,
             last_us: None,
             frames: 0,
@@ -164,16 +169,23 @@ impl Room {
         }
     }
 
-    /// Rules 1-3 for one frame the board may learn from, taken at `now_us`: `frame` the crop,
-    /// `pred` the prediction with the offsets (Q8.8), `lut` the frame's fitted grey levels,
-    /// `mask` the saliency mask, `w` the face's width. Returns true when the offsets changed
-    /// (the prediction must be made again).
+    /// Rules 1 and 2 for one frame the board may learn from, taken at `now_us`: `frame` the
+    /// crop, `pred` the prediction with the offsets (Q8.8), `lut` the frame's fitted grey
+    /// levels, `mask` the saliency mask, `w` the face's width. Returns true when the offsets
+    /// changed (the prediction must be made again): only when a complete batch was still
+    /// waiting for [`Room::settle`], which this frame then does instead of being learnt from
+    /// (its prediction has the offsets of before; the board settles on the frames between,
+    /// so that does not happen there).
     pub fn learn(&mut self, now_us: u64, frame: &[u8], pred: &[u16], lut: &crate::light::Lut, mask: &[u8], w: usize) -> bool {
         if self.frozen || w == 0 || w > MAX_FACE_W {
             return false;
         }
         if self.last_us.is_some_and(|t| now_us.saturating_sub(t) < MIN_GAP_US) {
             return false;
+        }
+        // The prediction the samples are taken against has the offsets of before the update.
+        if self.pending {
+            return self.settle();
         }
         self.last_us = Some(now_us);
         // Strictly between the clip levels: `f - (lo + 1) < hi - lo - 1`, one test; with
@@ -187,7 +199,19 @@ impl Room {
         }
         self.frames = self.frames.saturating_add(1);
         self.batch += 1;
-        if self.batch < BATCH {
+        self.pending = self.batch >= BATCH;
+        false
+    }
+
+    /// Whether a complete batch waits for [`Room::settle`].
+    pub fn pending(&self) -> bool {
+        self.pending
+    }
+
+    /// Rule 3 once a batch is complete (else nothing): the offsets move. Returns true when they
+    /// changed (the prediction must be made again).
+    pub fn settle(&mut self) -> bool {
+        if !self.pending {
             return false;
         }
         let before = self.offset;
@@ -274,6 +298,7 @@ impl Room {
     fn clear_batch(&mut self) {
         self.acc = [Acc::ZERO; CELLS];
         self.batch = 0;
+        self.pending = false;
     }
 
     /// The state for `Status`; `applies`: a model is loaded (rule 4 has a face to add to).

@@ -18,7 +18,8 @@ fn frame(shift: u16) -> (Vec<u8>, Vec<u16>, crate::light::Lut) {
     (frame, pred, lut)
 }
 
-/// `n` frames of [`frame`] as the board learns them: against the prediction with the offsets.
+/// `n` frames of [`frame`] as the board learns them: against the prediction with the offsets,
+/// each followed by a frame it does not learn from, which settles a complete batch.
 fn learn_n(room: &mut Room, n: usize, shift: u16, mask: &[u8], t0: u64) -> u64 {
     let (f, p, lut) = frame(shift);
     let mut t = t0;
@@ -26,9 +27,42 @@ fn learn_n(room: &mut Room, n: usize, shift: u16, mask: &[u8], t0: u64) -> u64 {
         let mut q = p.clone();
         room.apply(&mut q, W);
         room.learn(t, &f, &q, &lut, mask, W);
+        room.settle();
         t += MIN_GAP_US;
     }
     t
+}
+
+/// A batch's update waits for the next frame; learnt from instead, that frame only settles
+/// (its prediction has the offsets of before), so no frame pays for both.
+#[test]
+fn the_update_comes_on_the_frame_after_the_batch() {
+    let mut room = Room::new();
+    let mask = vec![0u8; W * H];
+    let (f, p, lut) = frame(4);
+    for k in 0..BATCH as u64 {
+        assert!(!room.learn(k * MIN_GAP_US, &f, &p, &lut, &mask, W));
+    }
+    assert!(room.pending());
+    assert!(room.offsets().iter().all(|&o| o == 0), "nothing moves on the batch's last frame");
+    let g = room.generation();
+    assert!(room.learn(BATCH as u64 * MIN_GAP_US, &f, &p, &lut, &mask, W), "the next learn settles");
+    assert!(!room.pending());
+    assert_ne!(room.generation(), g);
+    assert_eq!(room.report(true).frames, BATCH as u32, "and is not learnt from");
+    assert_eq!(room.report(true).updates, 1);
+    assert!(!room.settle(), "nothing waits any more");
+    // The board's way: learnt, then settled on a frame between.
+    let mut board = Room::new();
+    learn_n(&mut board, BATCH as usize, 4, &mask, 0);
+    assert_eq!(board.offsets(), room.offsets());
+    // A freeze drops a complete batch with the rest.
+    let mut frozen = Room::new();
+    for k in 0..BATCH as u64 {
+        frozen.learn(k * MIN_GAP_US, &f, &p, &lut, &mask, W);
+    }
+    frozen.freeze(true);
+    assert!(!frozen.pending() && !frozen.settle());
 }
 
 #[test]
