@@ -420,11 +420,15 @@ fn main() -> ! {
         }
     };
     let mut sum = Stages::default();
-    // The costliest frame after the decoder at a held pose (a marked one: the extent and the blob).
-    let mut held_max = 0u64;
+    // The costliest frame after the decoder at a held pose (a marked one: the extent and the
+    // blob), and the costliest without a blob (what a frame the room learns from is).
+    let (mut held_max, mut held_clear_max) = (0u64, 0u64);
     for (k, l) in lines.iter().enumerate() {
         let s = l.stages;
         held_max = held_max.max(s.saliency + s.blobs + s.reach);
+        if l.blob.is_none() {
+            held_clear_max = held_clear_max.max(s.saliency + s.blobs + s.reach);
+        }
         hprintln!(
             "frame {}: decoder {} table {} saliency {} blobs {} reach {} (instructions); salient {} components {} blob {:?} reach {:?}",
             k, s.decoder, s.table, s.saliency, s.blobs, s.reach, l.salient, l.components, l.blob, l.reach
@@ -438,7 +442,7 @@ fn main() -> ! {
     let f = POSES.len() as u64;
     let sizes = memory::sizes();
     hprintln!(
-        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"table\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"held_max\":{},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}],\"golden_digest\":{},\"golden_detections\":{},\"room\":{{\"learn\":{},\"update\":{},\"apply\":{},\"digest\":{}}}}}",
+        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"table\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"held_max\":{},\"held_clear_max\":{},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}],\"golden_digest\":{},\"golden_detections\":{},\"room\":{{\"learn\":{},\"update\":{},\"apply\":{},\"digest\":{}}}}}",
         f,
         found,
         model.decoder_macs(),
@@ -448,6 +452,7 @@ fn main() -> ! {
         sum.blobs / f,
         sum.reach / f,
         held_max,
+        held_clear_max,
         sizes.static_ram,
         sizes.code - model_area::BUILT_IN.len(),
         bytes.len(),
