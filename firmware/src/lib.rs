@@ -99,12 +99,13 @@
 //! (0.78 per MAC); i8 weights (SXTB16 on top of SMLAD): 1.32 and 1.33 per MAC. SMLAD alone is
 //! 0.5 per MAC; the rest is mostly the per-output table step (3 instructions plus packing) and
 //! loads. After the decoder (`msr bench --backend qemu`, 58 x 75 = 4 350 pixels), a model with
-//! the pooled error and pose cells, what `msr train` makes (saliency: one assembly routine a
-//! row, [`saliency::pool`]): saliency about 96 k at a held head pose and 120 k when the frame
-//! changes pose cell (the threshold table made again, 24 k), blobs 1 k on an empty mask and 13 k
-//! with a mark, reach about 1.8 k: about 28.1 per pixel over the bench's four frames, three of
-//! them in a new cell (target 30). The paper's per-pixel error (`--pool 0`): saliency about
-//! 74 k, blobs about 26 k: about 23.5 per pixel.
+//! the pooled error and pose cells, what `msr demo` makes (saliency: the photometric fit, then
+//! one assembly routine a row, [`saliency::pool`]): saliency about 117 k at a held head pose
+//! and 24 k more when the frame changes pose cell (the threshold table made again), blobs
+//! 0.5 k on an empty mask and 10-11 k with a mark, reach about 2.5 k: 29.3 per pixel over the
+//! bench's four held frames, 31.2 the costliest (marked), 34.9 at a new pose cell (target 30;
+//! `docs/performance.md`). The paper's per-pixel error (`--pool 0`, measured before the fit):
+//! saliency about 74 k, blobs about 26 k: about 23.5 per pixel.
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
 // Index loops read best in the numeric kernels.
 #![allow(clippy::needless_range_loop)]
