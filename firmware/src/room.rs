@@ -13,10 +13,10 @@
 //!    salient pixel's pooling window (the mask is not 0) nor clipped (`Lut::lo`, `Lut::hi`): its signed
 //!    error `v(I) - pred` against the prediction with the offsets, summed per cell. A mark's
 //!    pixels are salient, so they never teach the board that the mark belongs to the face.
-//! 3. After [`BATCH`] such frames, on the next frame ([`Room::settle`], which the board calls on
-//!    every frame it does not learn from: the update's cost never falls on a frame that also
-//!    pays for its samples), each cell with at least [`MIN_SAMPLES`] samples moves its
-//!    offset by 1/2^[`RATE_SHIFT`] of the batch's mean error. Then the part of these offsets
+//! 3. After [`BATCH`] such frames, on the next frame ([`Room::settle`]; that frame is not learnt
+//!    from, so the update's cost never falls on a frame that also pays for samples), each cell
+//!    with at least [`MIN_SAMPLES`] samples moves its offset by 1/2^[`RATE_SHIFT`] of the
+//!    batch's mean error. Then the part of these offsets
 //!    that a gain and an offset would make (a least-squares line in the cells' mean predicted
 //!    grey level) is taken out: the per-frame fit already takes that part each frame, so the
 //!    room would otherwise wander along it unchecked. No offset goes further than [`LIMIT`]
@@ -172,20 +172,21 @@ impl Room {
     /// Rules 1 and 2 for one frame the board may learn from, taken at `now_us`: `frame` the
     /// crop, `pred` the prediction with the offsets (Q8.8), `lut` the frame's fitted grey
     /// levels, `mask` the saliency mask, `w` the face's width. Returns true when the offsets
-    /// changed (the prediction must be made again): only when a complete batch was still
-    /// waiting for [`Room::settle`], which this frame then does instead of being learnt from
-    /// (its prediction has the offsets of before; the board settles on the frames between,
-    /// so that does not happen there).
+    /// changed (the prediction must be made again): only on the frame after a batch's last,
+    /// which this call settles ([`Room::settle`]) instead of learning from (its prediction has
+    /// the offsets of before). The board calls this or `settle` on every frame, so the update
+    /// comes on the frame after the batch's last either way.
     pub fn learn(&mut self, now_us: u64, frame: &[u8], pred: &[u16], lut: &crate::light::Lut, mask: &[u8], w: usize) -> bool {
         if self.frozen || w == 0 || w > MAX_FACE_W {
             return false;
         }
-        if self.last_us.is_some_and(|t| now_us.saturating_sub(t) < MIN_GAP_US) {
-            return false;
-        }
-        // The prediction the samples are taken against has the offsets of before the update.
+        // Before the gap's test: the frame right after the batch's last settles it. Not learnt
+        // from: its prediction has the offsets of before the update.
         if self.pending {
             return self.settle();
+        }
+        if self.last_us.is_some_and(|t| now_us.saturating_sub(t) < MIN_GAP_US) {
+            return false;
         }
         self.last_us = Some(now_us);
         // Strictly between the clip levels: `f - (lo + 1) < hi - lo - 1`, one test; with

@@ -46,7 +46,9 @@ fn the_update_comes_on_the_frame_after_the_batch() {
     assert!(room.pending());
     assert!(room.offsets().iter().all(|&o| o == 0), "nothing moves on the batch's last frame");
     let g = room.generation();
-    assert!(room.learn(BATCH as u64 * MIN_GAP_US, &f, &p, &lut, &mask, W), "the next learn settles");
+    // The very next frame, inside the gap between two frames learnt from.
+    let last = (BATCH as u64 - 1) * MIN_GAP_US;
+    assert!(room.learn(last + 1000, &f, &p, &lut, &mask, W), "the next learn settles");
     assert!(!room.pending());
     assert_ne!(room.generation(), g);
     assert_eq!(room.report(true).frames, BATCH as u32, "and is not learnt from");
