@@ -25,7 +25,7 @@ pub struct Args {
     /// Mirror-test trials in-process (and under QEMU when it is installed)
     #[arg(long, default_value_t = 40)]
     pub trials: usize,
-    /// Of those, how many also run under QEMU (a few seconds each; capped at 75 s in all)
+    /// Of those, how many also run under QEMU (a few seconds each; capped at 90 s in all)
     #[arg(long, default_value_t = 5)]
     pub qemu_trials: usize,
     /// Folder of real frames in the published layout, for the real-frame check
