@@ -888,10 +888,14 @@ impl<S: ModelStore> Core<S> {
                 }
             }
         }
-        // Online self-calibration, rule 1 of `crate::room`: only a face with nothing on it,
-        // no candidate being confirmed, observing with the head still.
-        let mut learnt = false;
-        if reason.is_none()
+        // Online self-calibration. Rule 3 on the frame after a batch's last, whatever it shows:
+        // that frame is not learnt from, so the update's cost and the samples' never share one.
+        // Else rule 1: only a face with nothing on it, no candidate being confirmed, observing
+        // with the head still.
+        if ws.room.pending() {
+            self.room_unsaved |= ws.room.settle();
+            self.room = ws.room.report(self.room_applies());
+        } else if reason.is_none()
             && det.blob.is_none()
             && self.confirm.quiet()
             && self.motion.phase() == Phase::Observe
@@ -901,13 +905,7 @@ impl<S: ModelStore> Core<S> {
             if let Some(m) = self.store.active().and_then(|b| Model::parse_trusted(b).ok()) {
                 self.room_unsaved |= ws.learn(&m, pixels, now_us);
                 self.room = ws.room.report(true);
-                learnt = true;
             }
-        }
-        // Rule 3 on the frame after a batch's last: its cost and the samples' never share one.
-        if !learnt && ws.room.pending() {
-            self.room_unsaved |= ws.room.settle();
-            self.room = ws.room.report(self.room_applies());
         }
         let now_ms = now_us / 1000;
         if self.room_unsaved && now_ms.saturating_sub(self.room_saved_ms) >= ROOM_SAVE_MS {

@@ -189,14 +189,10 @@ impl Workspace {
 
     /// Online self-calibration ([`crate::room`], rules 2 and 3) from the last frame through
     /// [`saliency`](Self::saliency), `crop`, taken at `now_us`: the caller has checked rule 1
-    /// (a face, no blob, no candidate, observing); on the frame after a batch's last, the
-    /// batch's update instead ([`crate::room::Room::settle`]). Returns true when the offsets
-    /// changed (the next frame's prediction is made again).
+    /// (a face, no blob, no candidate, observing) and settled a complete batch first
+    /// ([`crate::room::Room::settle`]; else this frame settles it instead of being learnt
+    /// from). Returns true when the offsets changed (the next frame's prediction is made again).
     pub fn learn(&mut self, model: &Model, crop: &[u8], now_us: u64) -> bool {
-        // The frame after a batch's last settles it, whatever this frame shows.
-        if self.room.pending() {
-            return self.room.settle();
-        }
         if self.light.verdict != Verdict::Face || crop.len() != model.face_pixels() {
             return false;
         }
