@@ -88,12 +88,20 @@ impl Settings {
 /// `t * n` per pixel, Q8.8 grey levels; for a pooled model's one-sided test, `mu + t * n`
 /// ([`pool::Combine`]).
 pub struct Thresholds {
-    tn: [u16; MAX_FACE_PIXELS],
+    tn: Table,
     len: usize,
     /// (model CRC, threshold bits, normalisation, statistics cell, combined) the table was made
     /// for.
     key: Option<(u32, u32, Normalisation, u8, bool)>,
+    /// (model CRC, its largest sigma over every cell): found once per model (a pass over all
+    /// its statistics, at its first frame), it lets [`pool::combined_table`] skip every
+    /// per-pixel range check.
+    sigma_max: Option<(u32, u16)>,
 }
+
+/// The table's storage, word-aligned for the board's word loads and stores.
+#[repr(C, align(4))]
+struct Table([u16; MAX_FACE_PIXELS]);
 
 impl Default for Thresholds {
     fn default() -> Self {
@@ -119,9 +127,10 @@ impl Thresholds {
     /// An empty table; the first [`Thresholds::prepare`] fills it.
     pub const fn new() -> Self {
         Thresholds {
-            tn: [0; MAX_FACE_PIXELS],
+            tn: Table([0; MAX_FACE_PIXELS]),
             len: 0,
             key: None,
+            sigma_max: None,
         }
     }
 
@@ -138,12 +147,13 @@ impl Thresholds {
         if self.key == Some(key) && self.len == n {
             return false;
         }
-        let out = &mut self.tn[..n];
+        let sigma_max = if combined { self.sigma_max(model) } else { u16::MAX };
+        let out = &mut self.tn.0[..n];
         // Blobs are 4-byte aligned, so the tables are normally u16 slices; else read bytes.
         let aligned = (bytemuck::try_cast_slice::<u8, u16>(sigma.0), bytemuck::try_cast_slice::<u8, u16>(mu.0));
         match (combined, aligned) {
             (true, (Ok(sigma), Ok(mu))) => {
-                pool::combined_table(sigma, mu, &pool::Combine::new(s.threshold, s.normalisation), out)
+                pool::combined_table(sigma, mu, &pool::Combine::new(s.threshold, s.normalisation), sigma_max, out)
             }
             (true, _) => {
                 let c = pool::Combine::new(s.threshold, s.normalisation);
@@ -167,6 +177,27 @@ impl Thresholds {
         true
     }
 
+    /// The largest sigma of `model` (its header's table and every pose cell's), kept per model.
+    fn sigma_max(&mut self, model: &Model) -> u16 {
+        if let Some((crc, max)) = self.sigma_max {
+            if crc == model.crc32 {
+                return max;
+            }
+        }
+        let largest = |t: U16Table| match bytemuck::try_cast_slice::<u8, u16>(t.0) {
+            Ok(v) => v.iter().copied().max().unwrap_or(0),
+            Err(_) => t.iter().max().unwrap_or(0),
+        };
+        let mut max = largest(model.sigma);
+        if let Some(p) = &model.pose {
+            for (_, sigma) in (0..p.grid.len()).map_while(|b| p.tables(b)) {
+                max = max.max(largest(sigma));
+            }
+        }
+        self.sigma_max = Some((model.crc32, max));
+        max
+    }
+
     /// Forgets the table, so that the next [`Thresholds::prepare`] recomputes it.
     pub fn invalidate(&mut self) {
         self.key = None;
@@ -175,7 +206,7 @@ impl Thresholds {
     /// The table, Q8.8 grey levels per pixel, row-major (empty before `prepare`): `tn`, or
     /// `mu + tn` for a pooled model's one-sided test.
     pub fn table(&self) -> &[u16] {
-        &self.tn[..self.len]
+        &self.tn.0[..self.len]
     }
 }
 
@@ -404,6 +435,29 @@ fn run(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The bound the board's table routine relies on is the largest sigma of the header's table
+    /// and of every pose cell, found again for another model.
+    #[test]
+    fn the_largest_sigma_spans_every_cell() {
+        use msr_shared::blob::PoseGrid;
+        let mut spec = crate::testkit::conv_spec(5, false);
+        let n = spec.mu.len();
+        let mut far = vec![300u16; n];
+        far[n - 1] = 9000;
+        let cells = vec![(vec![256u16; n], vec![128u16; n]), (vec![256u16; n], far)];
+        spec.pose = Some((PoseGrid { bins: [2, 1], lo: [-0.1, -0.1], hi: [0.1, 0.1] }, cells));
+        let bytes = spec.to_bytes().unwrap();
+        let m = Model::parse(&bytes).unwrap();
+        let mut t = Box::new(Thresholds::new());
+        assert_eq!(t.sigma_max(&m), 9000);
+        let header_max = m.sigma.iter().max().unwrap();
+        assert!(header_max < 9000);
+        spec.pose = None;
+        let bytes = spec.to_bytes().unwrap();
+        let plain = Model::parse(&bytes).unwrap();
+        assert_eq!(t.sigma_max(&plain), header_max);
+    }
 
     #[test]
     fn threshold_table_values() {

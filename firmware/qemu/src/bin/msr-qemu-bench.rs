@@ -181,6 +181,44 @@ fn pool_agrees() -> Result<(), &'static str> {
     Ok(())
 }
 
+/// The board's threshold table ([`pool::combined_table`], an assembly routine here for a bound
+/// on sigma that keeps every `tn` in a halfword) against [`pool::Combine::at`], on 0 to 40 pixels
+/// from a word and from a halfword past one, at thresholds from 1e-3 to 255.9, sigmas up to the
+/// largest the bound lets through (and the bound itself), mu from 0 to 65535.
+fn table_agrees() -> Result<(), &'static str> {
+    use msr_firmware::saliency::pool;
+    #[repr(C, align(4))]
+    struct Words([u16; 48]);
+    let (mut sigma, mut mu, mut out) = (Words([0; 48]), Words([0; 48]), Words([0; 48]));
+    let mut next = xorshift(0x51ed_270b);
+    for t in [1e-3f32, 0.5, 1.0, 2.7, 4.59, 9.9, 255.9] {
+        let c = pool::Combine::new(t, msr_shared::blob::Normalisation::StdDev);
+        let bound = ((65535.0 / t) as u32).min(32767) as u16;
+        for n in 0..=40 {
+            for at in [0usize, 1] {
+                for i in 0..n {
+                    sigma.0[at + i] = if next() % 5 == 0 { bound } else { (next() % (bound as u32 + 1)) as u16 };
+                    mu.0[at + i] = match next() % 4 {
+                        0 => u16::MAX,
+                        _ => next() as u16,
+                    };
+                }
+                out.0.fill(7);
+                pool::combined_table(&sigma.0[at..at + n], &mu.0[at..at + n], &c, bound, &mut out.0[at..at + n]);
+                for i in 0..n {
+                    if out.0[at + i] != c.at(sigma.0[at + i], mu.0[at + i]) {
+                        return Err("a threshold differs");
+                    }
+                }
+                if out.0[at + n..].iter().any(|&v| v != 7) {
+                    return Err("a threshold past the end was written");
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 /// The board's clip test ([`msr_firmware::light::any_clipped`], an assembly routine here) against
 /// the plain one, on rows of 0 to 19 bytes at every offset from a word, each byte in turn set to
 /// each of the clip levels, their neighbours and 0 and 255, among bytes strictly between the
@@ -324,6 +362,10 @@ fn main() -> ! {
     let (ws, frame) = unsafe { (&mut *core::ptr::addr_of_mut!(WS), &mut *core::ptr::addr_of_mut!(FRAME)) };
     if let Err(e) = pool_agrees() {
         hprintln!("MSR-BENCH-ERROR the pooled saliency: {}", e);
+        exit(1);
+    }
+    if let Err(e) = table_agrees() {
+        hprintln!("MSR-BENCH-ERROR the threshold table: {}", e);
         exit(1);
     }
     if let Err(e) = clip_test_agrees() {
