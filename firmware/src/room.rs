@@ -29,8 +29,8 @@
 //!
 //! Integers, and one line fit in f32 per update, so the host and the board agree bit for bit
 //! (`msr bench --backend qemu` checks it). 96 cells: about 1 KiB of RAM.
-//! Rule 4 costs 4.3 instructions a pixel each time the network runs (a new head pose), rule 2
-//! 4.2 on a frame learnt from ([`rows`]), rule 3 1.6 on the frame after a batch.
+//! Rule 4 costs 2.6 instructions a pixel each time the network runs (a new head pose), rule 2
+//! 4.2 on a frame learnt from ([`rows`]), rule 3 1.9 on the frame after a batch.
 
 use msr_shared::blob::{MAX_FACE_H, MAX_FACE_W};
 pub use msr_shared::msg::{RoomReport, RoomState};
@@ -81,6 +81,10 @@ impl Acc {
 #[derive(Clone, Debug)]
 pub struct Room {
     offset: [i16; CELLS],
+    /// `offset` as rule 4's routine adds it ([`rows::Packed`]), kept with it by [`Room::pack`].
+    packed: [rows::Packed; CELLS],
+    /// Some offset is not 0 (rule 4 has something to add).
+    any: bool,
     acc: [Acc; CELLS],
     batch: u16,
     /// The batch is complete: [`Room::settle`] updates the offsets.
@@ -103,6 +107,8 @@ impl Room {
     pub const fn new() -> Self {
         Room {
             offset: [0; CELLS],
+            packed: [rows::Packed::ZERO; CELLS],
+            any: false,
             acc: [Acc::ZERO; CELLS],
             batch: 0,
             pending: false,
@@ -150,23 +156,35 @@ impl Room {
     }
 
     /// Rule 4: adds each pixel's cell offset to the predicted face `pred` (Q8.8, `w` pixels a
-    /// row), within the grey range 0..=65280. Nothing to do while every offset is 0.
+    /// row): `(min(p, 65280) + o).clamp(0, 65280)`, the sum held to the grey range. Nothing to
+    /// do while every offset is 0.
     pub fn apply(&self, pred: &mut [u16], w: usize) {
-        if w == 0 || w > MAX_FACE_W || self.offset.iter().all(|&o| o == 0) {
+        if w == 0 || w > MAX_FACE_W || !self.any {
             return;
         }
-        let full = w / CELL;
-        for (y, row) in pred.chunks_exact_mut(w).enumerate().take(MAX_FACE_H) {
-            let cells = &self.offset[(y / CELL) * COLS..][..w.div_ceil(CELL)];
-            if full > 0 {
-                // SAFETY: `full` whole cells lie inside the row and `cells`.
-                unsafe { rows::apply(row.as_mut_ptr(), cells.as_ptr(), full as u32) };
-            }
-            let o = cells[cells.len() - 1] as i32;
-            for p in &mut row[full * CELL..] {
-                *p = (*p as i32 + o).clamp(0, 255 << 8) as u16;
-            }
+        let n = (pred.len() / w).min(MAX_FACE_H);
+        if n == 0 {
+            return;
         }
+        let job = rows::ApplyJob {
+            pred: pred.as_mut_ptr(),
+            cells: self.packed.as_ptr(),
+            full: (w / CELL) as u32,
+            tail: (w % CELL) as u32,
+            rows: n as u32,
+            stride: (COLS * core::mem::size_of::<rows::Packed>()) as u32,
+        };
+        // SAFETY: `n * w <= pred.len()`; `n <= MAX_FACE_H` needs at most `ROWS` rows of
+        // cells and `w <= MAX_FACE_W` at most `COLS` cells a row, inside `packed`.
+        unsafe { rows::apply(&job) };
+    }
+
+    /// Makes `packed` and `any` follow `offset`; every change of `offset` ends here.
+    fn pack(&mut self) {
+        for (p, &o) in self.packed.iter_mut().zip(&self.offset) {
+            *p = rows::Packed::of(o);
+        }
+        self.any = self.offset.iter().any(|&o| o != 0);
     }
 
     /// Rules 1 and 2 for one frame the board may learn from, taken at `now_us`: `frame` the
@@ -247,6 +265,7 @@ impl Room {
             let line = (a + b * level[c]) as i32;
             self.offset[c] = (moved[c] - line).clamp(-(LIMIT as i32), LIMIT as i32) as i16;
         }
+        self.pack();
         let changed = self.offset != before;
         self.clear_batch();
         self.updates = self.updates.saturating_add(1);
@@ -341,6 +360,7 @@ impl Room {
         }
         self.reset();
         self.offset = offset;
+        self.pack();
         true
     }
 }

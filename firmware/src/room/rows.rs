@@ -1,11 +1,12 @@
-//! One row of rule 2 (the samples' sums) and of rule 4 (the offsets added), over a row's whole
-//! cells: Thumb-2 routines on the board, the same steps in Rust elsewhere. The board's routines
+//! One row of rule 2 (the samples' sums) over a row's whole cells, and rule 4 (the offsets added)
+//! over a whole face: Thumb-2 routines on the board, the same steps in Rust elsewhere. The board's routines
 //! are checked against the Rust ones by the benchmark image (`msr bench --backend qemu`).
 //!
 //! On a 75 x 58 face (`msr bench --backend qemu`, the red demo model) the Rust loops took 36.1 k
 //! instructions a frame learnt from (rule 2: the table's and the rows' addresses went to the
-//! stack) and 49.1 k a new prediction (rule 4); with these routines 18.4 k and 18.7 k, rule 4
-//! two values at a time with saturating halfword arithmetic.
+//! stack) and 49.1 k a new prediction (rule 4); with these routines 18.4 k and 11.5 k, rule 4
+//! two values at a time with saturating halfword arithmetic (18.7 k while the rows' loop and
+//! their partial last cell were Rust and the clamp took two more instructions a word).
 
 use super::{Acc, CELL};
 
@@ -72,22 +73,74 @@ pub unsafe fn gather_reference(job: &GatherJob) {
     }
 }
 
-/// Rule 4 for one row: each whole cell's offset added to its [`CELL`] predicted values, the sum
-/// held to `0..=65280`.
+/// A cell's offset as rule 4 adds it, two words: in each half of a 32-bit word, a value `p`
+/// becomes `p + add` saturated at 65535 (UQADD16), then `- sub` saturated at 0 (UQSUB16). With
+/// `add = max(o, 0) + 255` and `sub = max(-o, 0) + 255` that is
+/// `(min(p, 65280) + o).clamp(0, 65280)`: the prediction held to the grey range, plus the offset,
+/// held to it again, in two instructions for two values and whatever the offset's sign.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Packed {
+    /// `max(o, 0) + 255` in both halves.
+    pub add: u32,
+    /// `max(-o, 0) + 255` in both halves.
+    pub sub: u32,
+}
+
+impl Packed {
+    /// Offset 0.
+    pub const ZERO: Packed = Packed::of(0);
+
+    /// Offset `o`, Q8.8 grey levels (any i16: `add` and `sub` stay under 2^16).
+    pub const fn of(o: i16) -> Packed {
+        let o = o as i32;
+        let add = (if o > 0 { o } else { 0 }) as u32 + 255;
+        let sub = (if o < 0 { -o } else { 0 }) as u32 + 255;
+        Packed { add: add * 0x1_0001, sub: sub * 0x1_0001 }
+    }
+
+    /// One value, as the routine's halfword arithmetic does it.
+    pub fn add_to(self, p: u16) -> u16 {
+        let x = (p as u32 + (self.add & 0xffff)).min(0xffff);
+        x.saturating_sub(self.sub & 0xffff) as u16
+    }
+}
+
+/// A whole face for [`apply`]: `rows` rows of `full * CELL + tail` values from `pred`, row `y`
+/// taking its offsets from the row of cells `y / CELL`.
+#[repr(C)]
+pub struct ApplyJob {
+    /// The face's first predicted value (Q8.8); any halfword alignment.
+    pub pred: *mut u16,
+    /// The first row of cells (4-byte aligned, as `Packed` is).
+    pub cells: *const Packed,
+    /// Whole cells a row.
+    pub full: u32,
+    /// Values past them in a row (`0..CELL`), which take the next cell's offset.
+    pub tail: u32,
+    /// Rows of values, at least 1.
+    pub rows: u32,
+    /// Bytes from one row of cells to the next.
+    pub stride: u32,
+}
+
+/// Rule 4 over a face: each value's cell offset added ([`Packed`]).
 ///
 /// # Safety
-/// `cells * CELL` values behind `pred`, `cells` behind `offsets`.
+/// `rows >= 1`, `tail < CELL`; `rows * (full * CELL + tail)` values behind `pred`; behind `cells`,
+/// `rows.div_ceil(CELL)` rows of cells `stride` bytes apart, each of `full` cells and one more
+/// when `tail > 0`.
 #[inline]
-pub unsafe fn apply(pred: *mut u16, offsets: *const i16, cells: u32) {
+pub unsafe fn apply(job: &ApplyJob) {
     #[cfg(target_arch = "arm")]
     // SAFETY: the caller's contract; the routine keeps AAPCS.
     unsafe {
-        msr_room_apply(pred, offsets, cells)
+        msr_room_apply(job)
     }
     #[cfg(not(target_arch = "arm"))]
     // SAFETY: the caller's contract.
     unsafe {
-        apply_reference(pred, offsets, cells)
+        apply_reference(job)
     }
 }
 
@@ -95,14 +148,15 @@ pub unsafe fn apply(pred: *mut u16, offsets: *const i16, cells: u32) {
 ///
 /// # Safety
 /// As [`apply`].
-pub unsafe fn apply_reference(pred: *mut u16, offsets: *const i16, cells: u32) {
-    for c in 0..cells as usize {
-        // SAFETY: inside the caller's row and offsets.
+pub unsafe fn apply_reference(job: &ApplyJob) {
+    let w = job.full as usize * CELL + job.tail as usize;
+    for y in 0..job.rows as usize {
+        // SAFETY: inside the caller's face and rows of cells.
         unsafe {
-            let o = *offsets.add(c) as i32;
-            for x in c * CELL..(c + 1) * CELL {
-                let p = pred.add(x);
-                *p = (*p as i32 + o).clamp(0, 255 << 8) as u16;
+            let cells = job.cells.cast::<u8>().add((y / CELL) * job.stride as usize).cast::<Packed>();
+            for x in 0..w {
+                let p = job.pred.add(y * w + x);
+                *p = (*cells.add(x / CELL)).add_to(*p);
             }
         }
     }
@@ -111,7 +165,7 @@ pub unsafe fn apply_reference(pred: *mut u16, offsets: *const i16, cells: u32) {
 #[cfg(target_arch = "arm")]
 extern "C" {
     fn msr_room_gather(job: *const GatherJob);
-    fn msr_room_apply(pred: *mut u16, offsets: *const i16, cells: u32);
+    fn msr_room_apply(job: *const ApplyJob);
 }
 
 const _: () = assert!(CELL == 8, "the routines below take a cell as 8 pixels");
@@ -158,15 +212,20 @@ core::arch::global_asm!(
     "bne 1b",
     "pop {{r4-r11, pc}}",
     ".size msr_room_gather, . - msr_room_gather",
-    // Rule 4, two values a word: UQADD16 (UQSUB16 for a negative offset) saturates at 65535 (0),
-    // USUB16 and SEL hold the top at 0xff00. r0 pred, r1 offsets, r2 cells left, r3 0xff00ff00,
-    // r4 the offset in both halves, r5 and r6 scratch.
-    ".macro MSR_ROOM_PAIR op, at",
-    "ldr r5, [r0, #\\at]",
-    "\\op r5, r5, r4",
-    "usub16 r6, r5, r3",
-    "sel r5, r3, r5",
-    "str r5, [r0, #\\at]",
+    // Rule 4 over a face, two values a word (`Packed`): UQADD16 then UQSUB16. Loads and stores
+    // of a row's words may be unaligned (an odd row of an odd width); LDRD of a cell is not.
+    // r4 pred, r5 the row of cells, r6 full, r7 tail, r8 rows left, r9 stride, r10 rows left in
+    // this row of cells, r11 the cell, r12 cells left, r0 and r1 the cell's add and sub, r2, r3
+    // and lr scratch.
+    ".macro MSR_ROOM_PAIRS at",
+    "ldr r2, [r4, #\\at]",
+    "ldr r3, [r4, #\\at + 4]",
+    "uqadd16 r2, r2, r0",
+    "uqadd16 r3, r3, r0",
+    "uqsub16 r2, r2, r1",
+    "uqsub16 r3, r3, r1",
+    "str r2, [r4, #\\at]",
+    "str r3, [r4, #\\at + 4]",
     ".endm",
     ".section .text.msr_room_apply,\"ax\",%progbits",
     ".global msr_room_apply",
@@ -174,29 +233,56 @@ core::arch::global_asm!(
     ".p2align 2",
     ".thumb_func",
     "msr_room_apply:",
-    "push {{r4-r6, lr}}",
-    "mov r3, #0xff00ff00",
+    "push {{r4-r11, lr}}",
+    "ldm r0, {{r4-r9}}",
+    "mov r10, #8",
+    // A row: its whole cells, then its tail.
     "1:",
-    "ldrsh r4, [r1], #2",
-    "cmp r4, #0",
-    "blt 3f",
-    "pkhbt r4, r4, r4, lsl #16",
-    "MSR_ROOM_PAIR uqadd16, 0",
-    "MSR_ROOM_PAIR uqadd16, 4",
-    "MSR_ROOM_PAIR uqadd16, 8",
-    "MSR_ROOM_PAIR uqadd16, 12",
-    "b 4f",
+    "mov r11, r5",
+    "movs r12, r6",
+    "beq 3f",
+    "2:",
+    "ldrd r0, r1, [r11], #8",
+    "ldr lr, [r4]",
+    "uqadd16 lr, lr, r0",
+    "uqsub16 lr, lr, r1",
+    "ldr r2, [r4, #4]",
+    "uqadd16 r2, r2, r0",
+    "uqsub16 r2, r2, r1",
+    "str r2, [r4, #4]",
+    "MSR_ROOM_PAIRS 8",
+    // The first word last, its store stepping to the next cell.
+    "str lr, [r4], #16",
+    "subs r12, r12, #1",
+    "bne 2b",
+    // The tail: its pairs a word at a time, then an odd value alone.
     "3:",
-    "neg r4, r4",
-    "pkhbt r4, r4, r4, lsl #16",
-    "MSR_ROOM_PAIR uqsub16, 0",
-    "MSR_ROOM_PAIR uqsub16, 4",
-    "MSR_ROOM_PAIR uqsub16, 8",
-    "MSR_ROOM_PAIR uqsub16, 12",
+    "cbz r7, 5f",
+    "ldrd r0, r1, [r11]",
+    "lsrs r12, r7, #1",
+    "beq 6f",
     "4:",
-    "add r0, r0, #16",
-    "subs r2, r2, #1",
+    "ldr r2, [r4]",
+    "uqadd16 r2, r2, r0",
+    "uqsub16 r2, r2, r1",
+    "str r2, [r4], #4",
+    "subs r12, r12, #1",
+    "bne 4b",
+    "6:",
+    "tst r7, #1",
+    "beq 5f",
+    "ldrh r2, [r4]",
+    "uqadd16 r2, r2, r0",
+    "uqsub16 r2, r2, r1",
+    "strh r2, [r4], #2",
+    // The next row; every CELL rows, the next row of cells.
+    "5:",
+    "subs r10, r10, #1",
+    "itt eq",
+    "addeq r5, r5, r9",
+    "moveq r10, #8",
+    "subs r8, r8, #1",
     "bne 1b",
-    "pop {{r4-r6, pc}}",
+    "pop {{r4-r11, pc}}",
     ".size msr_room_apply, . - msr_room_apply",
 );

@@ -173,7 +173,8 @@ fn saved_offsets_come_back_and_anything_else_is_refused() {
 }
 
 /// Every offset a cell may hold, at its sign's ends and around 0, on predictions over the whole
-/// u16 range (past the grey range too): `apply` is `(p + o).clamp(0, 255 << 8)`.
+/// u16 range (past the grey range too), a face of odd width whose odd rows start between words:
+/// `apply` is `(min(p, 65280) + o).clamp(0, 255 << 8)`.
 #[test]
 fn apply_is_the_clamped_sum() {
     let mut room = Room::new();
@@ -181,17 +182,56 @@ fn apply_is_the_clamped_sum() {
     for (c, o) in room.offset.iter_mut().enumerate() {
         *o = offsets[c % offsets.len()];
     }
-    let w = MAX_FACE_W;
-    let mut pred: Vec<u16> = (0..w * MAX_FACE_H).map(|i| (i as u32 * 7919 % 65536) as u16).collect();
-    pred[3] = 65535;
-    pred[4] = 65280;
-    pred[5] = 0;
-    let before = pred.clone();
-    room.apply(&mut pred, w);
-    for (i, (&p, &q)) in before.iter().zip(&pred).enumerate() {
-        let o = room.offset_at(i % w, i / w) as i32;
-        assert_eq!(q as i32, (p as i32 + o).clamp(0, 255 << 8), "pixel {i}, offset {o}");
+    room.pack();
+    for w in [MAX_FACE_W, 75, 9, 8, 7, 1] {
+        let mut pred: Vec<u16> = (0..w * MAX_FACE_H).map(|i| (i as u32 * 7919 % 65536) as u16).collect();
+        let n = pred.len();
+        pred[3 % n] = 65535;
+        pred[4 % n] = 65280;
+        pred[5 % n] = 0;
+        let before = pred.clone();
+        room.apply(&mut pred, w);
+        for (i, (&p, &q)) in before.iter().zip(&pred).enumerate() {
+            let o = room.offset_at(i % w, i / w) as i32;
+            assert_eq!(q as i32, (p.min(255 << 8) as i32 + o).clamp(0, 255 << 8), "width {w}, pixel {i}, offset {o}");
+        }
     }
+}
+
+/// The two saturating steps of a packed offset are the definition for every value and every
+/// offset a cell can hold (and the i16 extremes the board's check feeds the routine).
+#[test]
+fn packed_offsets_are_the_definition() {
+    let offsets = (-LIMIT..=LIMIT).step_by(97).chain([-LIMIT, -256, -255, -1, 0, 1, 255, 256, LIMIT, i16::MIN, i16::MAX]);
+    for o in offsets {
+        let k = rows::Packed::of(o);
+        assert_eq!(k.add >> 16, k.add & 0xffff);
+        assert_eq!(k.sub >> 16, k.sub & 0xffff);
+        for p in 0..=u16::MAX {
+            let want = (p.min(255 << 8) as i32 + o as i32).clamp(0, 255 << 8);
+            assert_eq!(k.add_to(p) as i32, want, "p {p}, o {o}");
+        }
+    }
+}
+
+/// A new offset reaches rule 4 (the packed words follow every update, restore and reset).
+#[test]
+fn apply_follows_the_offsets() {
+    let mut room = Room::new();
+    let mut pred = vec![1000u16; 75 * 58];
+    room.apply(&mut pred, 75);
+    assert!(pred.iter().all(|&p| p == 1000), "offsets 0 add nothing");
+    let mut saved = [0u8; SAVED_LEN];
+    let mut other = Room::new();
+    other.offset[0] = 300;
+    other.save(&mut saved);
+    assert!(room.restore(&saved));
+    room.apply(&mut pred, 75);
+    assert_eq!(pred[0], 1300);
+    assert_eq!(pred[8], 1000, "the next cell's offset is 0");
+    room.reset();
+    room.apply(&mut pred, 75);
+    assert_eq!(pred[0], 1300, "after a reset nothing is added");
 }
 
 /// Rule 2's samples are the pixels at even x and even y (the cells are 8 wide), on a face of odd

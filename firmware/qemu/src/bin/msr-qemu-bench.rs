@@ -252,7 +252,8 @@ fn clip_test_agrees() -> Result<(), &'static str> {
 /// The room's row routines ([`msr_firmware::room::rows`], assembly here) against their Rust
 /// versions: rule 2's sums on rows of 1 to 16 cells at every offset from a word, masks, clip
 /// levels of the camera and of plateaus and none left between them, a random table of `v(I)`;
-/// rule 4 on predictions over the whole u16 range with offsets over the whole i16 range.
+/// rule 4 over faces of every width to 40 and every tail, on predictions over the whole u16 range
+/// with offsets over the whole i16 range.
 fn room_rows_agree() -> Result<(), &'static str> {
     use msr_firmware::room::{rows, Acc, CELL};
     // SAFETY: the only reference to this static, taken once in this single-threaded image
@@ -261,7 +262,6 @@ fn room_rows_agree() -> Result<(), &'static str> {
     let mut next = xorshift(0x6a09_e667);
     let mut v = [0u16; 256];
     let (mut got, mut want) = ([Acc::ZERO; 16], [Acc::ZERO; 16]);
-    let mut offsets = [0i16; 16];
     for cells in 1..=16usize {
         for start in 0..4 {
             for (lo, hi) in [(0u32, 255u32), (20, 200), (99, 100), (0, 1)] {
@@ -275,12 +275,6 @@ fn room_rows_agree() -> Result<(), &'static str> {
                 for k in 0..cells {
                     got[k] = Acc { sum: next() as i32 >> 8, pred: next() as i32 >> 8, count: next() >> 8 };
                     want[k] = got[k];
-                    offsets[k] = match next() % 6 {
-                        0 => i16::MIN,
-                        1 => i16::MAX,
-                        2 => 0,
-                        _ => next() as i16 >> (next() % 12),
-                    };
                 }
                 let mut job = rows::GatherJob {
                     frame: c.frame[start..].as_ptr(),
@@ -300,15 +294,43 @@ fn room_rows_agree() -> Result<(), &'static str> {
                 if got != want {
                     return Err("the room's sums differ");
                 }
-                c.thr[start..start + n].copy_from_slice(&c.pred[start..start + n]);
-                // SAFETY: `cells` cells behind both pointers.
-                unsafe {
-                    rows::apply(c.pred[start..].as_mut_ptr(), offsets.as_ptr(), cells as u32);
-                    rows::apply_reference(c.thr[start..].as_mut_ptr(), offsets.as_ptr(), cells as u32);
-                }
-                if c.pred[start..start + n] != c.thr[start..start + n] {
-                    return Err("the room's offsets added differ");
-                }
+            }
+        }
+    }
+    // Rule 4 over faces 1 to 40 values wide (0 to 5 whole cells and every tail), of as many
+    // rows as fit (three rows of cells at most), starting on a word and between two.
+    let mut table = [rows::Packed::ZERO; 3 * 6];
+    for w in 1..=40usize {
+        for start in 0..2 {
+            let n = ((CHECK_PIXELS - start) / w).min(3 * CELL);
+            for k in table.iter_mut() {
+                *k = rows::Packed::of(match next() % 6 {
+                    0 => i16::MIN,
+                    1 => i16::MAX,
+                    2 => 0,
+                    _ => next() as i16 >> (next() % 12),
+                });
+            }
+            for i in 0..n * w {
+                c.pred[start + i] = next() as u16;
+            }
+            c.thr[start..start + n * w].copy_from_slice(&c.pred[start..start + n * w]);
+            let mut job = rows::ApplyJob {
+                pred: c.pred[start..].as_mut_ptr(),
+                cells: table.as_ptr(),
+                full: (w / CELL) as u32,
+                tail: (w % CELL) as u32,
+                rows: n as u32,
+                stride: (6 * core::mem::size_of::<rows::Packed>()) as u32,
+            };
+            // SAFETY: `n * w` values behind `pred` (start + n * w <= CHECK_PIXELS); `n` rows
+            // need at most 3 rows of cells, `w <= 40` at most 5 cells a row, of 6.
+            unsafe { rows::apply(&job) };
+            job.pred = c.thr[start..].as_mut_ptr();
+            // SAFETY: as above.
+            unsafe { rows::apply_reference(&job) };
+            if c.pred[start..start + n * w] != c.thr[start..start + n * w] {
+                return Err("the room's offsets added differ");
             }
         }
     }
