@@ -28,7 +28,8 @@
 //!    at 0, or at the offsets the store saved for it ([`Room::restore`]).
 //!
 //! Integers, and one line fit in f32 per update, so the host and the board agree bit for bit
-//! (`msr bench --backend qemu` checks it). 96 cells: about 1 KiB of RAM.
+//! (`msr bench --backend qemu` checks it). 96 cells: about 2 KiB of RAM (the offsets, the batch's
+//! sums, and the offsets as rule 4 adds them).
 //! Rule 4 costs 2.6 instructions a pixel each time the network runs (a new head pose), rule 2
 //! 4.2 on a frame learnt from ([`rows`]), rule 3 1.9 on the frame after a batch.
 
@@ -265,11 +266,11 @@ impl Room {
             let line = (a + b * level[c]) as i32;
             self.offset[c] = (moved[c] - line).clamp(-(LIMIT as i32), LIMIT as i32) as i16;
         }
-        self.pack();
         let changed = self.offset != before;
         self.clear_batch();
         self.updates = self.updates.saturating_add(1);
         if changed {
+            self.pack();
             self.generation = self.generation.wrapping_add(1);
         }
         changed
