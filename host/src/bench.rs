@@ -10,6 +10,11 @@
 //!   frame is at a new pose); `held_pose_instructions_per_pixel` is a frame at the pose before,
 //!   what most frames are while the robot observes (the mean of the 4), and
 //!   `held_pose_worst_instructions_per_pixel` the costliest of them alone (a marked frame).
+//!   `room`: what the online self-calibration adds once it has learnt (`msr_firmware::room`,
+//!   the same learning sequence on the board and the host, whose offsets must agree): the
+//!   offsets added to a new prediction (`apply_instructions`), and with them a new head pose in
+//!   the same pose cell (`new_pose_*`), in another (`new_pose_cell_*`), a held frame learnt from
+//!   and the worst case (a new cell, the offsets and a frame learnt from).
 //!   Stack peak: painted stack of the benchmark run.
 //!   The image also reports a CRC-32 of each predicted face and the digest of the golden frames
 //!   (`msr_firmware::golden`: every stage, masks and blobs included, at 16 head poses); the bench
@@ -434,6 +439,11 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
     // frame after a batch of 8 (`update`: every offset moved; the board never does both on
     // one frame).
     let with_room = post + (room("apply") + room("learn")) as f64 / pixels;
+    // A new head pose once the room has learnt: the decoder runs and the offsets are added to
+    // its prediction (`apply`), inside the same pose cell (no table; the bench frames' mean and
+    // costliest) or in another (the table made again too).
+    let apply = room("apply") as f64 / pixels;
+    let (new_pose, new_pose_worst, new_cell) = (held + apply, held_worst + apply, post + apply);
     let held_clear = r["held_clear_max"]
         .as_u64()
         .context("the benchmark image reports no held_clear_max: it is older than this msr (cargo xtask images)")?
@@ -461,6 +471,9 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
             "matches_host": true,
             "post_decoder_with_room_instructions_per_pixel": round3(with_room),
             "held_pose_learning_instructions_per_pixel": round3(held_learning),
+            "new_pose_instructions_per_pixel": round3(new_pose),
+            "new_pose_worst_instructions_per_pixel": round3(new_pose_worst),
+            "new_pose_cell_instructions_per_pixel": round3(new_cell),
         },
         "static_ram_bytes": board.ram,
         "flash_bytes": flash,
@@ -584,6 +597,19 @@ pub fn print_table(v: &Value) {
             println!("  {k:<38} {}{note}", v[k]);
         }
     }
+    let room = &v["room"];
+    if !room["apply_instructions"].is_null() {
+        println!("  the room's offsets, once learnt (instructions a pixel after the decoder):");
+        for (k, what) in [
+            ("new_pose_instructions_per_pixel", "new head pose, same pose cell (mean)"),
+            ("new_pose_worst_instructions_per_pixel", "new head pose, same pose cell (costliest)"),
+            ("new_pose_cell_instructions_per_pixel", "new pose cell"),
+            ("held_pose_learning_instructions_per_pixel", "held pose, a frame learnt from"),
+            ("post_decoder_with_room_instructions_per_pixel", "new pose cell and learnt from"),
+        ] {
+            println!("    {what:<42} {}", room[k]);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -617,6 +643,13 @@ mod tests {
                 assert_eq!(v["marks_found"], 2, "{kind:?} i8 {i8w} pooled {pooled}");
                 let (mean, worst) = (v["held_pose_instructions_per_pixel"].as_f64().unwrap(), v["held_pose_worst_instructions_per_pixel"].as_f64().unwrap());
                 assert!(worst >= mean && worst > 0.0, "{kind:?} i8 {i8w} pooled {pooled}: worst {worst}, mean {mean}");
+                // The offsets the room learnt cost something, on top of each held figure.
+                let r = |k: &str| v["room"][k].as_f64().unwrap();
+                assert!(r("apply_instructions") > 0.0, "{kind:?} i8 {i8w} pooled {pooled}: no offsets added");
+                assert!(r("new_pose_instructions_per_pixel") > mean, "{kind:?} i8 {i8w} pooled {pooled}");
+                assert!(r("new_pose_worst_instructions_per_pixel") > worst, "{kind:?} i8 {i8w} pooled {pooled}");
+                let cell = v["post_decoder_instructions_per_pixel"].as_f64().unwrap();
+                assert!(r("new_pose_cell_instructions_per_pixel") > cell, "{kind:?} i8 {i8w} pooled {pooled}");
             }
         }
     }
