@@ -1,6 +1,7 @@
-//! One row of rule 2 (the samples' sums) over a row's whole cells, and rule 4 (the offsets added)
-//! over a whole face: Thumb-2 routines on the board, the same steps in Rust elsewhere. The board's routines
-//! are checked against the Rust ones by the benchmark image (`msr bench --backend qemu`).
+//! One row of rule 2 (the samples' sums) over a row's whole cells, and rule 4 (the offsets
+//! added) over a whole face: Thumb-2 routines on the board, the same steps in Rust elsewhere.
+//! The board's routines are checked against the Rust ones by the benchmark image
+//! (`msr bench --backend qemu`).
 //!
 //! On a 75 x 58 face (`msr bench --backend qemu`, the red demo model) the Rust loops took 36.1 k
 //! instructions a frame learnt from (rule 2: the table's and the rows' addresses went to the
