@@ -400,19 +400,29 @@ fn novelty_thresholds(n: &crate::train::calibrate::NoveltyParams) -> String {
 }
 
 fn novelty_note(a: &train::policy::Applied) -> String {
-    let said = |c: &Option<train::policy::Choice>| match c {
-        Some(c) => format!(
+    let said = |c: &Option<train::policy::Choice>, near: &Option<(train::policy::Scored, usize, usize)>| match (c, near) {
+        (Some(c), _) => format!(
             "threshold {:.2}, merge {:?} ({}: of the candidates under which none of {} unmarked frames fires at the \
              threshold or at threshold / {}, the one finding most of {} marked ones)",
             c.threshold, c.merge, c.poses, c.normal_frames, c.safety, c.marked_frames
         ),
-        None => "the paper's (no candidate kept the unmarked frames quiet)".into(),
+        (None, Some((q, normal, marked))) => format!(
+            "the paper's (no candidate kept all {normal} unmarked frames, each under a light of its own, quiet at the \
+             threshold and at threshold / {}; the quietest, threshold {:.2} with merge {:?}, fired on {} of them and \
+             found {} of {marked} marks)",
+            train::policy::SAFETY,
+            q.threshold,
+            q.merge,
+            q.normal_detections,
+            q.hits
+        ),
+        (None, None) => "the paper's (no frames to calibrate on)".into(),
     };
     format!(
         "Novelty settings by the calibrated policy (`train::policy`), not the paper's fixed 4.59 and plain blobs: at any \
          head pose {}; near the observe posture, where the robot looks for marks, {}{}.",
-        said(&a.general),
-        said(&a.observe),
+        said(&a.general, &a.quietest[0]),
+        said(&a.observe, &a.quietest[1]),
         if a.novelty.region.is_none() { " (the same: no pose region)" } else { "" }
     )
 }

@@ -125,11 +125,23 @@ impl Poses {
 /// and returns the best admissible one with all the scores; `None` without normal or marked
 /// frames, or when no candidate is admissible.
 pub fn calibrate(frames: &[Frame], h: usize, w: usize, base: &NoveltyParams, poses: Poses) -> Result<Option<Choice>> {
+    calibrate_scored(frames, h, w, base, poses).map(|(c, _)| c)
+}
+
+/// [`calibrate`] and every candidate's score (none without normal or marked frames): what a
+/// report says when no candidate was admissible ([`quietest`]).
+pub fn calibrate_scored(
+    frames: &[Frame],
+    h: usize,
+    w: usize,
+    base: &NoveltyParams,
+    poses: Poses,
+) -> Result<(Option<Choice>, Vec<Scored>)> {
     base.check()?;
     let marked = frames.iter().filter(|f| f.mark_box.is_some()).count();
     let normal = frames.len() - marked;
     if marked == 0 || normal == 0 {
-        return Ok(None);
+        return Ok((None, Vec::new()));
     }
     let detect = |f: &Frame, t: f64, merge: Merge| {
         let p = NoveltyParams { threshold: t, merge, region: None, ..*base };
@@ -159,7 +171,7 @@ pub fn calibrate(frames: &[Frame], h: usize, w: usize, base: &NoveltyParams, pos
             candidates.push(Scored { threshold: t, merge, hits, normal_detections });
         }
     }
-    Ok(best_of(&candidates).map(|b| Choice {
+    let choice = best_of(&candidates).map(|b| Choice {
         threshold: b.threshold,
         merge: b.merge,
         poses: poses.describe(),
@@ -167,7 +179,22 @@ pub fn calibrate(frames: &[Frame], h: usize, w: usize, base: &NoveltyParams, pos
         normal_frames: normal,
         safety: SAFETY,
         candidates: candidates.clone(),
-    }))
+    });
+    Ok((choice, candidates))
+}
+
+/// The candidate with the fewest normal frames detected (ties: most hits, then the threshold
+/// nearest the paper's, then the earlier merge): how near the policy came when none was quiet.
+pub fn quietest(c: &[Scored]) -> Option<&Scored> {
+    let rank = |s: &Scored| MERGES.iter().position(|m| *m == s.merge).unwrap_or(usize::MAX);
+    let off = |s: &Scored| (s.threshold - calibrate::DEFAULT_THRESHOLD).abs();
+    c.iter().min_by(|a, b| {
+        a.normal_detections
+            .cmp(&b.normal_detections)
+            .then(b.hits.cmp(&a.hits))
+            .then(off(a).total_cmp(&off(b)))
+            .then(rank(a).cmp(&rank(b)))
+    })
 }
 
 /// `base` with the general calibration's choice as its own settings and the observe
@@ -291,6 +318,9 @@ pub struct Applied {
     pub general: Option<Choice>,
     /// Near the observe posture: its pose region.
     pub observe: Option<Choice>,
+    /// Where a calibration chose nothing (general, observe): its [`quietest`] candidate, and
+    /// how many normal and marked frames it had.
+    pub quietest: [Option<(Scored, usize, usize)>; 2],
     pub novelty: NoveltyParams,
 }
 
@@ -308,12 +338,15 @@ pub fn apply(dir: &Path, name: &str, robot: Robot, max_head: f32, seed: u64) -> 
         .to_luma8();
     let cropper = crate::data::crop::Cropper::new(template, info.crop);
     let (h, w) = (info.face_h, info.face_w);
-    let choice = |poses: Poses| -> Result<Option<Choice>> {
+    let choice = |poses: Poses| -> Result<(Option<Choice>, Option<(Scored, usize, usize)>)> {
         let f = frames(robot, &cropper, &model, &stats, &info.novelty, (NORMAL_FRAMES, MARKED_FRAMES), seed, poses)?;
-        calibrate(&f, h, w, &info.novelty, poses)
+        let (c, scores) = calibrate_scored(&f, h, w, &info.novelty, poses)?;
+        let marked = f.iter().filter(|f| f.mark_box.is_some()).count();
+        let near = c.is_none().then(|| quietest(&scores).map(|q| (q.clone(), f.len() - marked, marked))).flatten();
+        Ok((c, near))
     };
-    let general = choice(Poses::Range(max_head))?;
-    let observe = choice(Poses::Observe)?;
+    let (general, general_near) = choice(Poses::Range(max_head))?;
+    let (observe, observe_near) = choice(Poses::Observe)?;
     let novelty = settle(&info.novelty, general.as_ref(), observe.as_ref())?;
     if general.is_some() || observe.is_some() {
         let n: usize = [&general, &observe].iter().filter_map(|c| c.as_ref()).map(|c| c.marked_frames + c.normal_frames).sum();
@@ -334,7 +367,7 @@ pub fn apply(dir: &Path, name: &str, robot: Robot, max_head: f32, seed: u64) -> 
         let json = dir.join(format!("{name}.json"));
         crate::fsio::write(&json, serde_json::to_string_pretty(&info)?)?;
     }
-    Ok(Applied { general, observe, novelty })
+    Ok(Applied { general, observe, quietest: [general_near, observe_near], novelty })
 }
 
 /// Most hits among the admissible; ties to the threshold nearest the paper's, then the earlier
@@ -420,6 +453,46 @@ mod tests {
         // Above the paper's too: 5.0 is nearer 4.59 than 4.0 is.
         let above = [scored(4.0, Merge::OFF, 7, 0), scored(5.0, Merge::OFF, 7, 0), scored(6.0, Merge::OFF, 7, 0)];
         assert_eq!(best_of(&above), Some(&above[1]));
+    }
+
+    #[test]
+    fn quietest_is_fewest_normal_detections_then_most_hits_then_closest_to_the_paper() {
+        let c = [
+            scored(6.0, Merge::OFF, 9, 3),
+            scored(5.0, Merge::OFF, 11, 2),
+            scored(6.0, MERGES[1], 12, 2),
+            scored(4.59, Merge::OFF, 12, 2),
+            scored(3.0, Merge::OFF, 15, 9),
+        ];
+        // Two normal frames is the fewest; of those, 12 hits; of those, 4.59 is the paper's.
+        assert_eq!(quietest(&c), Some(&c[3]));
+        assert_eq!(quietest(&c[..3]), Some(&c[2]));
+        assert_eq!(quietest(&c[..1]), Some(&c[0]));
+        assert_eq!(quietest(&[]), None);
+    }
+
+    #[test]
+    fn a_calibration_that_chooses_nothing_still_says_how_near_it_came() {
+        let (mut f, h, w) = frames();
+        let base = NoveltyParams { min_area: 12, ..Default::default() };
+        // A 4 x 4 patch at 4.5 in the normal frame: at 6.0 it stays under 6.0 and 6.0 / 1.25 =
+        // 4.8; every lower threshold (5.0 / 1.25 = 4.0 and down) finds it.
+        for dy in 0..4 {
+            for dx in 0..4 {
+                f[1].saliency[(1 + dy) * w + 14 + dx] = 4.5;
+            }
+        }
+        // ...and one more normal frame that fires at every candidate: nothing is admissible.
+        f.push(Frame { saliency: vec![9.0; h * w], mark_box: None });
+        let (choice, scores) = calibrate_scored(&f, h, w, &base, Poses::Observe).unwrap();
+        assert_eq!(choice, None);
+        assert_eq!(calibrate(&f, h, w, &base, Poses::Observe).unwrap(), None);
+        assert_eq!(scores.len(), THRESHOLDS.len() * MERGES.len());
+        let q = quietest(&scores).unwrap();
+        assert_eq!((q.threshold, q.merge, q.normal_detections, q.hits), (6.0, Merge::OFF, 1, 0));
+        assert!(scores.iter().filter(|s| s.threshold < 6.0).all(|s| s.normal_detections == 2));
+        // Without normal frames there is nothing to score.
+        assert_eq!(calibrate_scored(&f[..1], h, w, &base, Poses::Observe).unwrap(), (None, Vec::new()));
     }
 
     /// A 12 x 20 face: a mark broken into three 2 x 2 pieces two pixels apart, saliency 3.2;
