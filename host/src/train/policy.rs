@@ -186,15 +186,15 @@ pub fn calibrate_scored(
 /// The candidate with the fewest normal frames detected (ties: most hits, then the threshold
 /// nearest the paper's, then the earlier merge): how near the policy came when none was quiet.
 pub fn quietest(c: &[Scored]) -> Option<&Scored> {
+    c.iter().min_by(|a, b| a.normal_detections.cmp(&b.normal_detections).then(better(a, b)))
+}
+
+/// Most hits first, then the threshold nearest the paper's, then the earlier merge in
+/// [`MERGES`]: the order [`best_of`] and [`quietest`] break ties by.
+fn better(a: &Scored, b: &Scored) -> std::cmp::Ordering {
     let rank = |s: &Scored| MERGES.iter().position(|m| *m == s.merge).unwrap_or(usize::MAX);
     let off = |s: &Scored| (s.threshold - calibrate::DEFAULT_THRESHOLD).abs();
-    c.iter().min_by(|a, b| {
-        a.normal_detections
-            .cmp(&b.normal_detections)
-            .then(b.hits.cmp(&a.hits))
-            .then(off(a).total_cmp(&off(b)))
-            .then(rank(a).cmp(&rank(b)))
-    })
+    b.hits.cmp(&a.hits).then(off(a).total_cmp(&off(b))).then(rank(a).cmp(&rank(b)))
 }
 
 /// `base` with the general calibration's choice as its own settings and the observe
@@ -373,14 +373,7 @@ pub fn apply(dir: &Path, name: &str, robot: Robot, max_head: f32, seed: u64) -> 
 /// Most hits among the admissible; ties to the threshold nearest the paper's, then the earlier
 /// merge.
 fn best_of(c: &[Scored]) -> Option<&Scored> {
-    let rank = |s: &Scored| MERGES.iter().position(|m| *m == s.merge).unwrap_or(usize::MAX);
-    let off = |s: &Scored| (s.threshold - calibrate::DEFAULT_THRESHOLD).abs();
-    c.iter().filter(|s| s.normal_detections == 0).min_by(|a, b| {
-        b.hits
-            .cmp(&a.hits)
-            .then(off(a).total_cmp(&off(b)))
-            .then(rank(a).cmp(&rank(b)))
-    })
+    c.iter().filter(|s| s.normal_detections == 0).min_by(|a, b| better(a, b))
 }
 
 #[cfg(test)]
