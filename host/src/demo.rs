@@ -400,29 +400,31 @@ fn novelty_thresholds(n: &crate::train::calibrate::NoveltyParams) -> String {
 }
 
 fn novelty_note(a: &train::policy::Applied) -> String {
-    let said = |c: &Option<train::policy::Choice>, near: &Option<(train::policy::Scored, usize, usize)>| match (c, near) {
+    let said = |c: &Option<train::policy::Choice>, near: &Option<train::policy::Near>| match (c, near) {
         (Some(c), _) => format!(
             "threshold {:.2}, merge {:?} ({}: of the candidates under which none of {} unmarked frames fires at the \
              threshold or at threshold / {}, the one finding most of {} marked ones)",
             c.threshold, c.merge, c.poses, c.normal_frames, c.safety, c.marked_frames
         ),
-        (None, Some((q, normal, marked))) => format!(
-            "the paper's (no candidate kept all {normal} unmarked frames, each under a light of its own, quiet at the \
+        (None, Some(n)) => format!(
+            "the paper's (no candidate kept all {} unmarked frames, each under a light of its own, quiet at the \
              threshold and at threshold / {}; the quietest, threshold {:.2} with merge {:?}, fired on {} of them and \
-             found {} of {marked} marks)",
+             found {} of {} marks)",
+            n.normal_frames,
             train::policy::SAFETY,
-            q.threshold,
-            q.merge,
-            q.normal_detections,
-            q.hits
+            n.quietest.threshold,
+            n.quietest.merge,
+            n.quietest.normal_detections,
+            n.quietest.hits,
+            n.marked_frames
         ),
         (None, None) => "the paper's (no frames to calibrate on)".into(),
     };
     format!(
         "Novelty settings by the calibrated policy (`train::policy`), not the paper's fixed 4.59 and plain blobs: at any \
          head pose {}; near the observe posture, where the robot looks for marks, {}{}.",
-        said(&a.general, &a.quietest[0]),
-        said(&a.observe, &a.quietest[1]),
+        said(&a.general, &a.near[0]),
+        said(&a.observe, &a.near[1]),
         if a.novelty.region.is_none() { " (the same: no pose region)" } else { "" }
     )
 }

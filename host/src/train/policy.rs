@@ -125,23 +125,45 @@ impl Poses {
 /// and returns the best admissible one with all the scores; `None` without normal or marked
 /// frames, or when no candidate is admissible.
 pub fn calibrate(frames: &[Frame], h: usize, w: usize, base: &NoveltyParams, poses: Poses) -> Result<Option<Choice>> {
-    calibrate_scored(frames, h, w, base, poses).map(|(c, _)| c)
+    calibrate_scored(frames, h, w, base, poses).map(|s| s.choice)
 }
 
-/// [`calibrate`] and every candidate's score (none without normal or marked frames): what a
-/// report says when no candidate was admissible ([`quietest`]).
-pub fn calibrate_scored(
-    frames: &[Frame],
-    h: usize,
-    w: usize,
-    base: &NoveltyParams,
-    poses: Poses,
-) -> Result<(Option<Choice>, Vec<Scored>)> {
+/// What [`calibrate_scored`] found.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Scores {
+    /// [`calibrate`]'s answer.
+    pub choice: Option<Choice>,
+    /// Every candidate's score (none without normal or marked frames).
+    pub candidates: Vec<Scored>,
+    pub normal_frames: usize,
+    pub marked_frames: usize,
+}
+
+/// How near a calibration that chose nothing came: its [`quietest`] candidate, of how many frames.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Near {
+    pub quietest: Scored,
+    pub normal_frames: usize,
+    pub marked_frames: usize,
+}
+
+impl Scores {
+    /// Without a choice, the quietest candidate; `None` when a candidate was chosen or none was
+    /// scored.
+    pub fn near(&self) -> Option<Near> {
+        let q = quietest(&self.candidates).filter(|_| self.choice.is_none())?;
+        Some(Near { quietest: q.clone(), normal_frames: self.normal_frames, marked_frames: self.marked_frames })
+    }
+}
+
+/// [`calibrate`] and every candidate's score: what a report says when no candidate was
+/// admissible ([`Scores::near`]).
+pub fn calibrate_scored(frames: &[Frame], h: usize, w: usize, base: &NoveltyParams, poses: Poses) -> Result<Scores> {
     base.check()?;
     let marked = frames.iter().filter(|f| f.mark_box.is_some()).count();
     let normal = frames.len() - marked;
     if marked == 0 || normal == 0 {
-        return Ok((None, Vec::new()));
+        return Ok(Scores { choice: None, candidates: Vec::new(), normal_frames: normal, marked_frames: marked });
     }
     let detect = |f: &Frame, t: f64, merge: Merge| {
         let p = NoveltyParams { threshold: t, merge, region: None, ..*base };
@@ -180,7 +202,7 @@ pub fn calibrate_scored(
         safety: SAFETY,
         candidates: candidates.clone(),
     });
-    Ok((choice, candidates))
+    Ok(Scores { choice, candidates, normal_frames: normal, marked_frames: marked })
 }
 
 /// The candidate with the fewest normal frames detected (ties: most hits, then the threshold
@@ -318,9 +340,8 @@ pub struct Applied {
     pub general: Option<Choice>,
     /// Near the observe posture: its pose region.
     pub observe: Option<Choice>,
-    /// Where a calibration chose nothing (general, observe): its [`quietest`] candidate, and
-    /// how many normal and marked frames it had.
-    pub quietest: [Option<(Scored, usize, usize)>; 2],
+    /// Where a calibration chose nothing (general, observe): how near it came.
+    pub near: [Option<Near>; 2],
     pub novelty: NoveltyParams,
 }
 
@@ -338,12 +359,11 @@ pub fn apply(dir: &Path, name: &str, robot: Robot, max_head: f32, seed: u64) -> 
         .to_luma8();
     let cropper = crate::data::crop::Cropper::new(template, info.crop);
     let (h, w) = (info.face_h, info.face_w);
-    let choice = |poses: Poses| -> Result<(Option<Choice>, Option<(Scored, usize, usize)>)> {
+    let choice = |poses: Poses| -> Result<(Option<Choice>, Option<Near>)> {
         let f = frames(robot, &cropper, &model, &stats, &info.novelty, (NORMAL_FRAMES, MARKED_FRAMES), seed, poses)?;
-        let (c, scores) = calibrate_scored(&f, h, w, &info.novelty, poses)?;
-        let marked = f.iter().filter(|f| f.mark_box.is_some()).count();
-        let near = c.is_none().then(|| quietest(&scores).map(|q| (q.clone(), f.len() - marked, marked))).flatten();
-        Ok((c, near))
+        let s = calibrate_scored(&f, h, w, &info.novelty, poses)?;
+        let near = s.near();
+        Ok((s.choice, near))
     };
     let (general, general_near) = choice(Poses::Range(max_head))?;
     let (observe, observe_near) = choice(Poses::Observe)?;
@@ -367,7 +387,7 @@ pub fn apply(dir: &Path, name: &str, robot: Robot, max_head: f32, seed: u64) -> 
         let json = dir.join(format!("{name}.json"));
         crate::fsio::write(&json, serde_json::to_string_pretty(&info)?)?;
     }
-    Ok(Applied { general, observe, quietest: [general_near, observe_near], novelty })
+    Ok(Applied { general, observe, near: [general_near, observe_near], novelty })
 }
 
 /// Most hits among the admissible; ties to the threshold nearest the paper's, then the earlier
@@ -477,15 +497,20 @@ mod tests {
         }
         // ...and one more normal frame that fires at every candidate: nothing is admissible.
         f.push(Frame { saliency: vec![9.0; h * w], mark_box: None });
-        let (choice, scores) = calibrate_scored(&f, h, w, &base, Poses::Observe).unwrap();
-        assert_eq!(choice, None);
+        let s = calibrate_scored(&f, h, w, &base, Poses::Observe).unwrap();
+        assert_eq!(s.choice, None);
         assert_eq!(calibrate(&f, h, w, &base, Poses::Observe).unwrap(), None);
-        assert_eq!(scores.len(), THRESHOLDS.len() * MERGES.len());
-        let q = quietest(&scores).unwrap();
+        assert_eq!(s.candidates.len(), THRESHOLDS.len() * MERGES.len());
+        let q = quietest(&s.candidates).unwrap();
         assert_eq!((q.threshold, q.merge, q.normal_detections, q.hits), (6.0, Merge::OFF, 1, 0));
-        assert!(scores.iter().filter(|s| s.threshold < 6.0).all(|s| s.normal_detections == 2));
+        assert!(s.candidates.iter().filter(|s| s.threshold < 6.0).all(|s| s.normal_detections == 2));
+        assert_eq!(s.near(), Some(Near { quietest: q.clone(), normal_frames: 2, marked_frames: 1 }));
         // Without normal frames there is nothing to score.
-        assert_eq!(calibrate_scored(&f[..1], h, w, &base, Poses::Observe).unwrap(), (None, Vec::new()));
+        let none = calibrate_scored(&f[..1], h, w, &base, Poses::Observe).unwrap();
+        assert_eq!((none.choice, none.candidates), (None, Vec::new()));
+        // A calibration that chose something is not near anything.
+        let (f, h, w) = frames();
+        assert_eq!(calibrate_scored(&f, h, w, &base, Poses::Observe).unwrap().near(), None);
     }
 
     /// A 12 x 20 face: a mark broken into three 2 x 2 pieces two pixels apart, saliency 3.2;
