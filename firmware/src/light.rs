@@ -319,7 +319,7 @@ pub const IDENTITY_TABLE: [u16; 256] = {
 };
 
 /// Least-squares sums over samples (x: observed grey, y: prediction Q8.8).
-#[derive(Clone, Copy, Default)]
+#[derive(Clone, Copy, Default, Debug, PartialEq)]
 struct Sums {
     n: u32,
     x: u32,
@@ -342,6 +342,27 @@ impl Sums {
         if YY {
             self.yy += y as u64 * y as u64;
         }
+    }
+
+    /// The sums without those of `o`, a part of the samples these sum (exact: every sum of
+    /// a part is at most the whole's).
+    fn minus(&self, o: &Sums) -> Sums {
+        Sums {
+            n: self.n - o.n,
+            x: self.x - o.x,
+            y: self.y - o.y,
+            xx: self.xx - o.xx,
+            xy: self.xy - o.xy,
+            yy: self.yy - o.yy,
+        }
+    }
+
+    /// The sums without one of their samples.
+    #[inline(always)]
+    fn remove(&mut self, x: u32, y: u32) {
+        let mut one = Sums::default();
+        one.add::<true>(x, y);
+        *self = self.minus(&one);
     }
 
     fn plus(&self, o: &Sums) -> Sums {
@@ -443,8 +464,8 @@ fn residual(x: u32, y: u32, g: i32, k: i32) -> i32 {
 }
 
 /// The samples a pass keeps: those within `cut2` (squared Q8.8) of the line `(g, k)`; their
-/// sums and squared residuals.
-#[inline(always)]
+/// sums and squared residuals. What [`trim`] gives, the plain way (for its test).
+#[cfg(test)]
 fn kept(xs: &[u8], ys: &[u16], g: i32, k: i32, cut2: u32) -> (Sums, u64) {
     let (mut s, mut sse) = (Sums::default(), 0u64);
     for (&x, &y) in xs.iter().zip(ys) {
@@ -458,21 +479,65 @@ fn kept(xs: &[u8], ys: &[u16], g: i32, k: i32, cut2: u32) -> (Sums, u64) {
     (s, sse)
 }
 
-/// The squared residuals of every sample against the line `(g, k)` (what [`kept`] sums with
-/// no cut, without the sums it has no use for).
-fn sse(xs: &[u8], ys: &[u16], g: i32, k: i32) -> u64 {
-    let mut sse = 0u64;
-    for (&x, &y) in xs.iter().zip(ys) {
+/// The squared residuals of every sample against the line `(g, k)`, summed, each residual's
+/// magnitude (at most 65535) in `rs`, for [`trim`], and the sum of the squared predictions
+/// (what `Sums::add::<true>` adds beyond the gather's sums).
+fn sse(xs: &[u8], ys: &[u16], g: i32, k: i32, rs: &mut [u16]) -> (u64, u64) {
+    let (mut sse, mut yy) = (0u64, 0u64);
+    for ((&x, &y), r_out) in xs.iter().zip(ys).zip(rs.iter_mut()) {
         let r = residual(x as u32, y as u32, g, k).unsigned_abs().min(65535);
+        *r_out = r as u16;
         sse += (r * r) as u64;
+        yy += y as u64 * y as u64;
     }
-    sse
+    (sse, yy)
+}
+
+/// `floor(sqrt(cut2))`, or `u32::MAX` once `cut2 >= 65535^2`: a residual magnitude `r` at
+/// most 65535 has `r^2 <= cut2` exactly when `r <= root_cut(cut2)`.
+fn root_cut(cut2: u32) -> u32 {
+    if cut2 >= 65535 * 65535 { u32::MAX } else { isqrt(cut2) }
+}
+
+/// The samples within `cut2` (squared Q8.8) of the line [`sse`] measured `rs` against: their
+/// sums and squared residuals, as `all` (the sums of every sample) and `sse` (the sum of every
+/// `rs^2`) without the samples past the cut. The same sums added up sample by sample
+/// (`kept`, kept for the test) took 32 instructions a sample on the board; the cut rejects a
+/// few samples at most, so taking them out costs about 7 a sample.
+#[inline(always)]
+fn trim(all: Sums, sse: u64, xs: &[u8], ys: &[u16], rs: &[u16], cut2: u32) -> (Sums, u64) {
+    let cut = root_cut(cut2);
+    let (mut s, mut sse) = (all, sse);
+    for ((&x, &y), &r) in xs.iter().zip(ys).zip(rs) {
+        if r as u32 > cut {
+            s.remove(x as u32, y as u32);
+            sse -= r as u64 * r as u64;
+        }
+    }
+    (s, sse)
+}
+
+/// The samples within `cut2` of the line `(g, k)`, as `kept_sums` (kept for the test) takes
+/// them (with their squares), from `sums`, the sums of every one of `xs` and `ys`: those past
+/// the cut taken out (14 instructions a sample on the board where adding up the kept ones
+/// took 27).
+#[inline(always)]
+fn trim_again(sums: Sums, xs: &[u8], ys: &[u16], g: i32, k: i32, cut2: u32) -> Sums {
+    let cut = root_cut(cut2);
+    let mut s = sums;
+    for (&x, &y) in xs.iter().zip(ys) {
+        if residual(x as u32, y as u32, g, k).unsigned_abs() > cut {
+            s.remove(x as u32, y as u32);
+        }
+    }
+    s
 }
 
 /// The samples within `cut2` of the line `(g, k)`, as [`kept`] takes them, with their squares
 /// (for the correlation) and without the squared residuals: `min(r, 65535)^2 <= cut2` is
-/// `r <= floor(sqrt(cut2))`, or every sample once `cut2 >= 65535^2`.
-#[inline(always)]
+/// `r <= floor(sqrt(cut2))`, or every sample once `cut2 >= 65535^2`. What [`trim_again`]
+/// gives, the plain way (for its test).
+#[cfg(test)]
 fn kept_sums(xs: &[u8], ys: &[u16], g: i32, k: i32, cut2: u32) -> Sums {
     let cut = if cut2 >= 65535 * 65535 { u32::MAX } else { isqrt(cut2) };
     let mut s = Sums::default();
@@ -539,30 +604,8 @@ pub fn fit(frame: &[u8], pred: &[u16], w: usize) -> LightFit {
         return no_face;
     }
     let h = (frame.len().min(pred.len()) / w).min(MAX_FACE_H);
-    let (step_x, step_y) = steps(w, h);
-    // Gather, and the first fit. `half`: the first sample of the bottom half's rows.
-    let (mut n, mut half) = (0usize, None);
-    let mut all = Sums::default();
-    let mut y = step_y / 2;
-    while y < h {
-        if half.is_none() && y >= h / 2 {
-            half = Some(n);
-        }
-        let (Some(fr), Some(pr)) = (frame.get(y * w..y * w + w), pred.get(y * w..y * w + w)) else { break };
-        let mut x = step_x / 2;
-        while x < w {
-            let i = fr[x];
-            if i != 0 && i != 255 && n < MAX_SAMPLES {
-                xs[n] = i;
-                ys[n] = pr[x];
-                all.add::<false>(i as u32, pr[x] as u32);
-                n += 1;
-            }
-            x += step_x;
-        }
-        y += step_y;
-    }
-    let mut half = half.unwrap_or(n);
+    let (mut n, mut half, [mut top, bottom]) = gather(frame, pred, w, h, &mut xs, &mut ys);
+    let mut all = top.plus(&bottom);
     // A plateau at the samples' extreme is where the camera clipped: those samples leave too.
     let clip = clip_levels(&mut xs, n);
     if clip != [0, 255] {
@@ -570,7 +613,7 @@ pub fn fit(frame: &[u8], pred: &[u16], w: usize) -> LightFit {
         all = Sums::default();
         for j in 0..n {
             if j == half {
-                kept_half = Some(m);
+                (kept_half, top) = (Some(m), all);
             }
             let x = xs[j];
             if x > clip[0] && x < clip[1] {
@@ -578,6 +621,9 @@ pub fn fit(frame: &[u8], pred: &[u16], w: usize) -> LightFit {
                 all.add::<false>(x as u32, ys[j] as u32);
                 m += 1;
             }
+        }
+        if kept_half.is_none() {
+            top = all;
         }
         (n, half) = (m, kept_half.unwrap_or(m));
     }
@@ -588,11 +634,22 @@ pub fn fit(frame: &[u8], pred: &[u16], w: usize) -> LightFit {
     }
     let (xs, ys) = (&xs[..n], &ys[..n]);
     let Some((g0, k0)) = all.line() else { return no_face };
-    let sse0 = sse(xs, ys, g0, k0);
-    let (s1, sse1) = kept(xs, ys, g0, k0, cut_of(sse0, n as u32));
+    // With the residuals, the squares of the predictions (for the correlation), each half's
+    // apart: the halves' sums start as `top` and `all - top`, and each trimming takes its few
+    // rejected samples out of them again.
+    let mut rs = [0u16; MAX_SAMPLES];
+    let (rs_top, rs_bottom) = rs.split_at_mut(half);
+    let (sse_top, yy_top) = sse(&xs[..half], &ys[..half], g0, k0, rs_top);
+    let (sse_bottom, yy_bottom) = sse(&xs[half..], &ys[half..], g0, k0, rs_bottom);
+    let sse0 = sse_top + sse_bottom;
+    (top.yy, all.yy) = (yy_top, yy_top + yy_bottom);
+    let (s1, sse1) = trim(all, sse0, xs, ys, &rs[..n], cut_of(sse0, n as u32));
     let Some((g1, k1)) = s1.line() else { return no_face };
     let cut2 = cut_of(sse1, s1.n);
-    let halves = [kept_sums(&xs[..half], &ys[..half], g1, k1, cut2), kept_sums(&xs[half..], &ys[half..], g1, k1, cut2)];
+    let halves = [
+        trim_again(top, &xs[..half], &ys[..half], g1, k1, cut2),
+        trim_again(all.minus(&top), &xs[half..], &ys[half..], g1, k1, cut2),
+    ];
     let kept = halves[0].plus(&halves[1]);
     let Some((gain, offset)) = kept.line() else { return no_face };
     let (dxx, dxy, dyy) = kept.centred();
@@ -625,6 +682,52 @@ pub fn fit(frame: &[u8], pred: &[u16], w: usize) -> LightFit {
         Verdict::Face
     };
     out
+}
+
+/// The usable samples of the grid (neither 0 nor 255) into `xs` (grey) and `ys` (prediction),
+/// with the sums of the top half's rows (those above `h / 2`) and of the bottom half's apart
+/// (without the squares of the predictions: [`sse`] adds them). Returns the samples, the
+/// first of the bottom half's and the two sums.
+fn gather(frame: &[u8], pred: &[u16], w: usize, h: usize, xs: &mut [u8; MAX_SAMPLES], ys: &mut [u16; MAX_SAMPLES]) -> (usize, usize, [Sums; 2]) {
+    let (step_x, step_y) = steps(w, h);
+    // The first grid row at or under h / 2.
+    let first = step_y / 2;
+    let split = (first + (h / 2).saturating_sub(first).div_ceil(step_y) * step_y).min(h);
+    let top = gather_rows(frame, pred, w, (first, split), (step_x, step_y), xs, ys, 0);
+    let bottom = gather_rows(frame, pred, w, (split, h), (step_x, step_y), xs, ys, top.n as usize);
+    (bottom.n as usize, top.n as usize, [top, Sums { n: bottom.n - top.n, ..bottom }])
+}
+
+/// The grid's rows `rows.0, rows.0 + step_y, ..` under `rows.1` into `xs` and `ys` from
+/// sample `n`: the samples' sums, with `n` (in `Sums::n`) the samples after them. A function
+/// of its own, with its sums in locals: inside [`fit`] they lived on the stack (29
+/// instructions a sample; 21 here).
+#[inline(never)]
+#[allow(clippy::too_many_arguments)]
+fn gather_rows(frame: &[u8], pred: &[u16], w: usize, rows: (usize, usize), (step_x, step_y): (usize, usize), xs: &mut [u8; MAX_SAMPLES], ys: &mut [u16; MAX_SAMPLES], mut n: usize) -> Sums {
+    let (mut sx, mut sy, mut sxx, mut sxy) = (0u32, 0u32, 0u32, 0u32);
+    let mut y = rows.0;
+    while y < rows.1 {
+        let (Some(fr), Some(pr)) = (frame.get(y * w..y * w + w), pred.get(y * w..y * w + w)) else { break };
+        let mut x = step_x / 2;
+        while x < w {
+            let i = fr[x];
+            if i != 0 && i != 255 && n < MAX_SAMPLES {
+                let p = pr[x];
+                xs[n] = i;
+                ys[n] = p;
+                let (i, p) = (i as u32, p as u32);
+                sx += i;
+                sy += p;
+                sxx += i * i;
+                sxy += i * p;
+                n += 1;
+            }
+            x += step_x;
+        }
+        y += step_y;
+    }
+    Sums { n: n as u32, x: sx, y: sy, xx: sxx, xy: sxy, yy: 0 }
 }
 
 /// The clip levels of the `n` samples in `xs` (none at 0 or 255): their darkest and brightest
@@ -758,7 +861,7 @@ core::arch::global_asm!(
 );
 
 /// How far apart the halves' median residuals under the line `(g, k)` are, of the samples
-/// [`kept_sums`] keeps (within `cut2` of the line `(g1, k1)`), in 1/256 of the kept samples'
+/// [`trim_again`] keeps (within `cut2` of the line `(g1, k1)`), in 1/256 of the kept samples'
 /// mean predicted grey. Asked only of a frame whose halves' means are apart: a lamp that
 /// switched moves every residual of its half, median and mean alike, while a large mark moves
 /// the mean of its half only (the green mark of one published frame, a quarter of the usable

@@ -302,6 +302,90 @@ fn the_cut_without_squares_keeps_the_same_samples() {
     }
 }
 
+/// The fit's trimming takes the rejected samples out of the sums of all of them: the same
+/// sums (and squared residuals) as adding up the kept ones, for cuts at, under and over each
+/// residual, none and every sample rejected, and the saturated residuals.
+#[test]
+fn taking_the_rejected_out_is_adding_up_the_kept() {
+    let mut rng = 0x7F4A_7C15u32;
+    let mut next = || {
+        rng ^= rng << 13;
+        rng ^= rng >> 17;
+        rng ^= rng << 5;
+        rng
+    };
+    for len in [0usize, 1, 2, 37, MAX_SAMPLES] {
+        let xs: Vec<u8> = (0..len).map(|_| (next() % 254 + 1) as u8).collect();
+        let ys: Vec<u16> = (0..len).map(|_| next() as u16).collect();
+        let mut all = Sums::default();
+        xs.iter().zip(&ys).for_each(|(&x, &y)| all.add::<true>(x as u32, y as u32));
+        for (g, k) in [(65536, 0), (-(1 << 20), 1 << 28), (1 << 20, -(1 << 28)), (90_000, -3_000_000)] {
+            let mut rs = [0u16; MAX_SAMPLES];
+            let (sse_all, yy) = sse(&xs, &ys, g, k, &mut rs[..len]);
+            assert_eq!(yy, all.yy);
+            let mut cuts: Vec<u32> = vec![0, 1, 65534 * 65534, 65535 * 65535 - 1, 65535 * 65535, u32::MAX];
+            for &r in rs.iter().take(len.min(40)) {
+                let r = r as u32;
+                cuts.extend([r * r, (r * r).saturating_sub(1), r * r + 1]);
+            }
+            for cut2 in cuts {
+                let (want, want_sse) = kept(&xs, &ys, g, k, cut2);
+                let (got, got_sse) = trim(all, sse_all, &xs, &ys, &rs[..len], cut2);
+                assert_eq!((got.n, got.x, got.y, got.xx, got.xy), (want.n, want.x, want.y, want.xx, want.xy), "{len} {g} {k} {cut2}");
+                assert_eq!(got_sse, want_sse, "{len} {g} {k} {cut2}");
+                for half in [0, len / 3, len] {
+                    let top = {
+                        let mut t = Sums::default();
+                        xs[..half].iter().zip(&ys[..half]).for_each(|(&x, &y)| t.add::<true>(x as u32, y as u32));
+                        t
+                    };
+                    let got = [trim_again(top, &xs[..half], &ys[..half], g, k, cut2), trim_again(all.minus(&top), &xs[half..], &ys[half..], g, k, cut2)];
+                    let want = [kept_sums(&xs[..half], &ys[..half], g, k, cut2), kept_sums(&xs[half..], &ys[half..], g, k, cut2)];
+                    assert_eq!(got, want, "{len} {g} {k} {cut2} {half}");
+                }
+            }
+        }
+    }
+}
+
+/// The gather in two halves takes the samples of the one loop over the grid it replaced, and
+/// splits them at the first grid row at or under `h / 2`, for every face size up to the
+/// largest (clipped pixels, 0 and 255, left out).
+#[test]
+fn the_halves_gather_the_grid_and_split_it_where_the_one_loop_did() {
+    for w in [1usize, 2, 5, 6, 7, 13, 58, MAX_FACE_W] {
+        for h in 1..=MAX_FACE_H {
+            let frame: Vec<u8> = (0..w * h).map(|k| (k * 37 % 256) as u8).collect();
+            let pred: Vec<u16> = (0..w * h).map(|k| (k * 7919 % 65536) as u16).collect();
+            let (mut xs, mut ys) = ([0u8; MAX_SAMPLES], [0u16; MAX_SAMPLES]);
+            let (n, half, [top, bottom]) = gather(&frame, &pred, w, h, &mut xs, &mut ys);
+            // The loop of before.
+            let (step_x, step_y) = steps(w, h);
+            let (mut want, mut want_half, mut want_top, mut want_all) = (Vec::new(), None, Sums::default(), Sums::default());
+            let mut y = step_y / 2;
+            while y < h {
+                if want_half.is_none() && y >= h / 2 {
+                    (want_half, want_top) = (Some(want.len()), want_all);
+                }
+                let mut x = step_x / 2;
+                while x < w {
+                    let i = frame[y * w + x];
+                    if i != 0 && i != 255 && want.len() < MAX_SAMPLES {
+                        want.push((i, pred[y * w + x]));
+                        want_all.add::<false>(i as u32, pred[y * w + x] as u32);
+                    }
+                    x += step_x;
+                }
+                y += step_y;
+            }
+            let want_top = if want_half.is_some() { want_top } else { want_all };
+            assert_eq!((n, half), (want.len(), want_half.unwrap_or(want.len())), "{w} x {h}");
+            assert_eq!((top, top.plus(&bottom)), (want_top, want_all), "{w} x {h}");
+            assert!(xs[..n].iter().zip(&ys[..n]).eq(want.iter().map(|(i, p)| (i, p))), "{w} x {h}");
+        }
+    }
+}
+
 /// The divisions the fit takes on 32-bit divides where it can: the same quotients as u64's
 /// own, at the edges of each path (n or d at 2^32, a quotient just under 2^32) and at random.
 #[test]
