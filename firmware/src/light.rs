@@ -156,11 +156,7 @@ impl LightFit {
         // |offset| <= 2^28), a quarter of the i64 loop's instructions on the board.
         let (first, last) = (self.offset as i64 + 128, self.offset as i64 + 128 + 255 * self.gain as i64);
         if first.abs() < 1 << 30 && last.abs() < 1 << 30 {
-            let mut acc = first as i32;
-            for o in out.iter_mut() {
-                *o = (acc >> 8).clamp(0, V_MAX as i32) as u16;
-                acc += self.gain;
-            }
+            ramp(out, first as i32, self.gain);
             return;
         }
         let mut acc = first;
@@ -170,6 +166,71 @@ impl LightFit {
         }
     }
 }
+
+/// `out[i] = clamp((first + i gain) >> 8, 0, V_MAX)`, for `first` and `first + 255 gain` both
+/// within `±2^30` (so every step between is too): the i32 loop of [`LightFit::table`], plain.
+pub fn ramp_reference(out: &mut [u16; 256], first: i32, gain: i32) {
+    let mut acc = first;
+    for o in out.iter_mut() {
+        *o = (acc >> 8).clamp(0, V_MAX as i32) as u16;
+        acc = acc.wrapping_add(gain);
+    }
+}
+
+/// [`ramp_reference`]; on the board two entries a step, 4.5 instructions an entry where the
+/// compiled loop took 10 (a frame's table: 3.1 k instructions, 0.7 a pixel): `USAT` clamps
+/// each to 0..65535, and the pair's excess over `V_MAX` (`UQSUB16`) is taken back (`USUB16`).
+#[cfg(target_arch = "arm")]
+pub fn ramp(out: &mut [u16; 256], first: i32, gain: i32) {
+    // SAFETY: 256 halfwords behind `out`, written as 128 words (the Cortex-M4 takes the
+    // unaligned ones); the routine touches nothing else and keeps AAPCS.
+    unsafe { msr_fit_ramp(out.as_mut_ptr(), first, gain) }
+}
+
+/// The same, for builds that are not the board's.
+#[cfg(not(target_arch = "arm"))]
+pub fn ramp(out: &mut [u16; 256], first: i32, gain: i32) {
+    ramp_reference(out, first, gain)
+}
+
+#[cfg(target_arch = "arm")]
+extern "C" {
+    fn msr_fit_ramp(out: *mut u16, first: i32, gain: i32);
+}
+
+// r0 the table, r1 the accumulator, r2 the gain, r3 the steps left (64 of four entries),
+// r12 V_MAX in both halves, r4 and r5 scratch.
+#[cfg(target_arch = "arm")]
+core::arch::global_asm!(
+    ".macro MSR_FIT_RAMP2",
+    "usat r4, #16, r1, asr #8",
+    "add r1, r1, r2",
+    "usat r5, #16, r1, asr #8",
+    "add r1, r1, r2",
+    "pkhbt r4, r4, r5, lsl #16",
+    "uqsub16 r5, r4, r12",
+    "usub16 r4, r4, r5",
+    "str r4, [r0], #4",
+    ".endm",
+    ".section .text.msr_fit_ramp,\"ax\",%progbits",
+    ".global msr_fit_ramp",
+    ".type msr_fit_ramp,%function",
+    ".p2align 2",
+    ".thumb_func",
+    "msr_fit_ramp:",
+    "push {{r4, r5}}",
+    "movs r3, #64",
+    "mov r12, #0xFF00FF00",
+    "1:",
+    "MSR_FIT_RAMP2",
+    "MSR_FIT_RAMP2",
+    "subs r3, r3, #1",
+    "bne 1b",
+    "pop {{r4, r5}}",
+    "bx lr",
+    ".size msr_fit_ramp, . - msr_fit_ramp",
+    ".purgem MSR_FIT_RAMP2",
+);
 
 /// A frame's fitted grey levels `v` ([`LightFit::table`]) and the levels at which its camera
 /// clipped ([`LightFit::clip`]): what every saliency path takes the error from.

@@ -557,13 +557,12 @@ pub fn pooled_one_sided(
     let mut censored = [0u16; MAX_FACE_W];
     // Most frames have no clipped pixel at all: one test of the whole frame spares each row's.
     let clipped = crate::light::any_clipped(&frame[..n], lut);
-    let pred_row = |y: usize, buf: &mut [u16; MAX_FACE_W]| match clipped {
-        true => pred_row(frame, pred, lut, y, w, buf),
-        false => pred[y * w..].as_ptr(),
-    };
+    // The rare clipped frame's rows out of line; the others a pointer, here.
+    let pp = pred.as_ptr();
+    let mut pred_row = |y: usize| if clipped { pred_row(frame, pred, lut, y, w, &mut censored) } else { pp.wrapping_add(y * w) };
     for y in 0..r.min(h) {
         job.frame = fp.wrapping_add(y * w);
-        job.pred = pred_row(y, &mut censored);
+        job.pred = pred_row(y);
         job.ring = rp.wrapping_add(y * w);
         // SAFETY: see above.
         unsafe { run_row(&job) };
@@ -577,7 +576,7 @@ pub fn pooled_one_sided(
     for y in 0..h {
         let yin = y + r;
         (job.frame, job.pred) = if yin < h {
-            (fp.wrapping_add(yin * w), pred_row(yin, &mut censored))
+            (fp.wrapping_add(yin * w), pred_row(yin))
         } else {
             (zero as *const u8, below.as_ptr())
         };
@@ -611,7 +610,7 @@ pub fn pooled_one_sided(
 }
 
 /// Row `y` of the prediction, or its censored copy in `buf` when the frame's row is clipped.
-#[inline(always)]
+#[inline(never)]
 fn pred_row(frame: &[u8], pred: &[u16], lut: &crate::light::Lut, y: usize, w: usize, buf: &mut [u16; MAX_FACE_W]) -> *const u16 {
     let (f, p) = (&frame[y * w..y * w + w], &pred[y * w..y * w + w]);
     if crate::light::censor_row(f, p, lut, &mut buf[..w]) {

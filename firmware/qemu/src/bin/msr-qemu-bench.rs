@@ -367,6 +367,37 @@ fn sample_levels_agree() -> Result<(), &'static str> {
     Ok(())
 }
 
+/// The board's table of `v(I)` ([`msr_firmware::light::ramp`], an assembly routine here)
+/// against the plain loop: gains and offsets at the fit's limits, rising and falling ramps that
+/// cross 0 and `V_MAX` anywhere in the table, flat ones, and random ones within the routine's
+/// bounds.
+fn ramp_agrees() -> Result<(), &'static str> {
+    let mut next = xorshift(0x9e37_79b9);
+    let (mut got, mut want) = ([0u16; 256], [0u16; 256]);
+    let cases = [(128, 65536), (-(1 << 28), 1 << 20), ((1 << 28) + 128, -(1 << 20)), (0, 0), (65280 << 8, 0), (-1, 1), (65281 << 8, -257), (-(1 << 29), 1 << 21)];
+    for k in 0..4000u32 {
+        let gain = (next() as i32) >> (11 + k % 8);
+        let first = ((next() as i32) >> 3).clamp(-(1 << 30) + 1, (1 << 30) - 1);
+        let last = first as i64 + 255 * gain as i64;
+        if last.abs() >= 1 << 30 {
+            continue;
+        }
+        msr_firmware::light::ramp(&mut got, first, gain);
+        msr_firmware::light::ramp_reference(&mut want, first, gain);
+        if got != want {
+            return Err("the table of v(I) differs on a random ramp");
+        }
+    }
+    for (first, gain) in cases {
+        msr_firmware::light::ramp(&mut got, first, gain);
+        msr_firmware::light::ramp_reference(&mut want, first, gain);
+        if got != want {
+            return Err("the table of v(I) differs at a limit");
+        }
+    }
+    Ok(())
+}
+
 #[entry]
 fn main() -> ! {
     memory::paint_stack();
@@ -392,6 +423,10 @@ fn main() -> ! {
     }
     if let Err(e) = clip_test_agrees() {
         hprintln!("MSR-BENCH-ERROR the clip test: {}", e);
+        exit(1);
+    }
+    if let Err(e) = ramp_agrees() {
+        hprintln!("MSR-BENCH-ERROR the table of v(I): {}", e);
         exit(1);
     }
     if let Err(e) = sample_levels_agree() {
