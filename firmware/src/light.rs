@@ -270,7 +270,7 @@ pub fn error(lut: &Lut, f: u8, p: u16) -> i32 {
 
 /// Whether a byte of `row` is at or past a clip level of `lut` (`<= lo` or `>= hi`), four at a
 /// time (asked of the whole frame, then of each row when the frame has one: a byte at a time
-/// took 7 instructions a pixel on the board, a word test in Rust 2.9, the board's routine 1.3).
+/// took 7 instructions a pixel on the board, a word test in Rust 2.9, the board's routine 1.15).
 #[cfg(target_arch = "arm")]
 #[inline]
 pub fn any_clipped(row: &[u8], lut: &Lut) -> bool {
@@ -298,8 +298,8 @@ extern "C" {
 // then - (257 - (hi - lo)) (USUB8 sets a byte's GE flag when no borrow: the byte was strictly
 // between lo and hi), and SEL keeps the accumulator's byte where GE is set and takes 0 where
 // not (4 instructions a word; 0 and 255 give the constants 1 and 2). All ones back: nothing
-// clipped. Two words a turn, an odd one first. r0 the row, r1 words, r2 the addend, r3 the
-// least, r12 the accumulator.
+// clipped. Four words a turn, the 0 to 3 left over first. r0 the row, r1 words, r2 the addend,
+// r3 the least, r12 the accumulator.
 #[cfg(target_arch = "arm")]
 core::arch::global_asm!(
     ".macro MSR_UNCLIPPED_WORD",
@@ -314,24 +314,29 @@ core::arch::global_asm!(
     ".p2align 2",
     ".thumb_func",
     "msr_unclipped_words:",
-    "push {{r4, r5}}",
+    "push {{r4, r5, r6}}",
     "mov r12, #0xFFFFFFFF",
     "movs r5, #0",
-    "tst r1, #1",
+    "ands r6, r1, #3",
     "add r1, r0, r1, lsl #2",
     "beq 2f",
+    "3:",
     "MSR_UNCLIPPED_WORD",
+    "subs r6, r6, #1",
+    "bne 3b",
     "2:",
     "cmp r0, r1",
     "beq 9f",
     "1:",
     "MSR_UNCLIPPED_WORD",
     "MSR_UNCLIPPED_WORD",
+    "MSR_UNCLIPPED_WORD",
+    "MSR_UNCLIPPED_WORD",
     "cmp r0, r1",
     "bne 1b",
     "9:",
     "mov r0, r12",
-    "pop {{r4, r5}}",
+    "pop {{r4, r5, r6}}",
     "bx lr",
     ".size msr_unclipped_words, . - msr_unclipped_words",
     ".purgem MSR_UNCLIPPED_WORD",

@@ -30,7 +30,7 @@
 //! Integers, and one line fit in f32 per update, so the host and the board agree bit for bit
 //! (`msr bench --backend qemu` checks it). 96 cells: about 2 KiB of RAM (the offsets, the batch's
 //! sums, and the offsets as rule 4 adds them).
-//! Rule 4 costs 2.6 instructions a pixel each time the network runs (a new head pose), rule 2
+//! Rule 4 costs 2.3 instructions a pixel each time the network runs (a new head pose), rule 2
 //! 4.2 on a frame learnt from ([`rows`]), rule 3 1.9 on the frame after a batch.
 
 use msr_shared::blob::{MAX_FACE_H, MAX_FACE_W};

@@ -214,10 +214,12 @@ core::arch::global_asm!(
     "pop {{r4-r11, pc}}",
     ".size msr_room_gather, . - msr_room_gather",
     // Rule 4 over a face, two values a word (`Packed`): UQADD16 then UQSUB16. Loads and stores
-    // of a row's words may be unaligned (an odd row of an odd width); LDRD of a cell is not.
-    // r4 pred, r5 the row of cells, r6 full, r7 tail, r8 rows left, r9 stride, r10 rows left in
-    // this row of cells, r11 the cell, r12 cells left, r0 and r1 the cell's add and sub, r2, r3
-    // and lr scratch.
+    // of a row's words may be unaligned (an odd row of an odd width); LDRD of a cell is not. A
+    // row that starts on a word takes its whole cells by one LDM and one STM each (13
+    // instructions a cell, 19 a word at a time; LDM and STM fault unaligned, so the other rows
+    // go a word at a time). r4 pred, r5 the row of cells, r7 tail, r8 rows left, r9 stride,
+    // r10 rows left in this row of cells, r11 the cell, r12 cells left, r0 and r1 the cell's
+    // add and sub, r2, r3, r6 and lr scratch; `full` on the stack.
     ".macro MSR_ROOM_PAIRS at",
     "ldr r2, [r4, #\\at]",
     "ldr r3, [r4, #\\at + 4]",
@@ -236,12 +238,31 @@ core::arch::global_asm!(
     "msr_room_apply:",
     "push {{r4-r11, lr}}",
     "ldm r0, {{r4-r9}}",
+    "push {{r6}}",
     "mov r10, #8",
     // A row: its whole cells, then its tail.
     "1:",
     "mov r11, r5",
-    "movs r12, r6",
+    "ldr r12, [sp]",
+    "cmp r12, #0",
     "beq 3f",
+    "tst r4, #2",
+    "bne 2f",
+    "7:",
+    "ldrd r0, r1, [r11], #8",
+    "ldm r4, {{r2, r3, r6, lr}}",
+    "uqadd16 r2, r2, r0",
+    "uqadd16 r3, r3, r0",
+    "uqadd16 r6, r6, r0",
+    "uqadd16 lr, lr, r0",
+    "uqsub16 r2, r2, r1",
+    "uqsub16 r3, r3, r1",
+    "uqsub16 r6, r6, r1",
+    "uqsub16 lr, lr, r1",
+    "stmia r4!, {{r2, r3, r6, lr}}",
+    "subs r12, r12, #1",
+    "bne 7b",
+    "b 3f",
     "2:",
     "ldrd r0, r1, [r11], #8",
     "ldr lr, [r4]",
@@ -284,6 +305,7 @@ core::arch::global_asm!(
     "moveq r10, #8",
     "subs r8, r8, #1",
     "bne 1b",
+    "add sp, sp, #4",
     "pop {{r4-r11, pc}}",
     ".size msr_room_apply, . - msr_room_apply",
 );
