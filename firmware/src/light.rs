@@ -759,18 +759,19 @@ fn gather(frame: &[u8], pred: &[u16], w: usize, h: usize, xs: &mut [u8; MAX_SAMP
     // The first grid row at or under h / 2.
     let first = step_y / 2;
     let split = (first + (h / 2).saturating_sub(first).div_ceil(step_y) * step_y).min(h);
-    let top = gather_rows(frame, pred, w, (first, split), (step_x, step_y), xs, ys, 0);
-    let bottom = gather_rows(frame, pred, w, (split, h), (step_x, step_y), xs, ys, top.n as usize);
-    (bottom.n as usize, top.n as usize, [top, Sums { n: bottom.n - top.n, ..bottom }])
+    let (half, top) = gather_rows(frame, pred, w, (first, split), (step_x, step_y), xs, ys, 0);
+    let (n, bottom) = gather_rows(frame, pred, w, (split, h), (step_x, step_y), xs, ys, half);
+    (n, half, [top, bottom])
 }
 
 /// The grid's rows `rows.0, rows.0 + step_y, ..` under `rows.1` into `xs` and `ys` from
-/// sample `n`: the samples' sums, with `n` (in `Sums::n`) the samples after them. A function
-/// of its own, with its sums in locals: inside [`fit`] they lived on the stack (29
-/// instructions a sample; 21 here).
+/// sample `from`: how many samples `xs` holds after them, and their sums. A function of its
+/// own, with its sums in locals: inside [`fit`] they lived on the stack (29 instructions a
+/// sample; 21 here).
 #[inline(never)]
 #[allow(clippy::too_many_arguments)]
-fn gather_rows(frame: &[u8], pred: &[u16], w: usize, rows: (usize, usize), (step_x, step_y): (usize, usize), xs: &mut [u8; MAX_SAMPLES], ys: &mut [u16; MAX_SAMPLES], mut n: usize) -> Sums {
+fn gather_rows(frame: &[u8], pred: &[u16], w: usize, rows: (usize, usize), (step_x, step_y): (usize, usize), xs: &mut [u8; MAX_SAMPLES], ys: &mut [u16; MAX_SAMPLES], from: usize) -> (usize, Sums) {
+    let mut n = from;
     let (mut sx, mut sy, mut sxx, mut sxy) = (0u32, 0u32, 0u32, 0u32);
     let mut y = rows.0;
     while y < rows.1 {
@@ -793,7 +794,7 @@ fn gather_rows(frame: &[u8], pred: &[u16], w: usize, rows: (usize, usize), (step
         }
         y += step_y;
     }
-    Sums { n: n as u32, x: sx, y: sy, xx: sxx, xy: sxy, yy: 0 }
+    (n, Sums { n: (n - from) as u32, x: sx, y: sy, xx: sxx, xy: sxy, yy: 0 })
 }
 
 /// The clip levels of the `n` samples in `xs` (none at 0 or 255): their darkest and brightest
@@ -933,7 +934,7 @@ core::arch::global_asm!(
 /// the mean of its half only (the green mark of one published frame, a quarter of the usable
 /// samples of its half once the white face clips at exposure x1.1, took the mean past the bound).
 fn median_split(xs: &[u8], ys: &[u16], half: usize, (g1, k1, cut2): (i32, i32, u32), (g, k): (i32, i32), kept: &Sums) -> i64 {
-    let cut = if cut2 >= 65535 * 65535 { u32::MAX } else { isqrt(cut2) };
+    let cut = root_cut(cut2);
     // Insertion sort as the samples come (at most MAX_SAMPLES, only on this rare path): the
     // residuals in Q8.8, clamped to i16 (128 grey levels either side is enough for a median).
     let median = |xs: &[u8], ys: &[u16]| -> Option<i32> {

@@ -307,13 +307,8 @@ fn the_cut_without_squares_keeps_the_same_samples() {
 /// residual, none and every sample rejected, and the saturated residuals.
 #[test]
 fn taking_the_rejected_out_is_adding_up_the_kept() {
-    let mut rng = 0x7F4A_7C15u32;
-    let mut next = || {
-        rng ^= rng << 13;
-        rng ^= rng >> 17;
-        rng ^= rng << 5;
-        rng
-    };
+    let mut rng = crate::testkit::Lcg(0x7F4A_7C15);
+    let mut next = || rng.next_u32();
     for len in [0usize, 1, 2, 37, MAX_SAMPLES] {
         let xs: Vec<u8> = (0..len).map(|_| (next() % 254 + 1) as u8).collect();
         let ys: Vec<u16> = (0..len).map(|_| next() as u16).collect();
