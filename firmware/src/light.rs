@@ -601,11 +601,10 @@ fn trim_again(sums: Sums, xs: &[u8], ys: &[u16], g: i32, k: i32, cut2: u32) -> S
 
 /// The samples within `cut2` of the line `(g, k)`, as [`kept`] takes them, with their squares
 /// (for the correlation) and without the squared residuals: `min(r, 65535)^2 <= cut2` is
-/// `r <= floor(sqrt(cut2))`, or every sample once `cut2 >= 65535^2`. What [`trim_again`]
-/// gives, the plain way (for its test).
+/// `r <= root_cut(cut2)`. What [`trim_again`] gives, the plain way (for its test).
 #[cfg(test)]
 fn kept_sums(xs: &[u8], ys: &[u16], g: i32, k: i32, cut2: u32) -> Sums {
-    let cut = if cut2 >= 65535 * 65535 { u32::MAX } else { isqrt(cut2) };
+    let cut = root_cut(cut2);
     let mut s = Sums::default();
     for (&x, &y) in xs.iter().zip(ys) {
         if residual(x as u32, y as u32, g, k).unsigned_abs() <= cut {
