@@ -888,14 +888,17 @@ impl<S: ModelStore> Core<S> {
                 }
             }
         }
-        // Online self-calibration. Rule 3 on the frame after a batch's last, whatever it shows:
-        // that frame is not learnt from, so the update's cost and the samples' never share one.
-        // Else rule 1: only a face with nothing on it, no candidate being confirmed, observing
-        // with the head still.
-        if ws.room.pending() {
+        // Online self-calibration, never on a frame that paid for a new prediction (rule 1):
+        // the frame's budget has no room for both. Rule 3 on the next frame after a batch's
+        // last, whatever it shows: that frame is not learnt from, so the update's cost and the
+        // samples' never share one. Else rule 1: only a face with nothing on it, no candidate
+        // being confirmed, observing with the head still.
+        let held = !ws.afresh();
+        if held && ws.room.pending() {
             self.room_unsaved |= ws.room.settle();
             self.room = ws.room.report(self.room_applies());
-        } else if reason.is_none()
+        } else if held
+            && reason.is_none()
             && det.blob.is_none()
             && self.confirm.quiet()
             && self.motion.phase() == Phase::Observe

@@ -22,6 +22,7 @@
 //! The predicted face is kept, in Q8.8 grey levels, until the quantised head pose or the model
 //! changes ([`Decoder::predict`]); [`Decoder::predict_uncached`] always runs it.
 
+use crate::room::{self, rows::Packed, Room};
 use kernels::{Biases, Weights};
 use msr_shared::blob::{Activation, Layer, LayerKind, Model, WeightType, MAX_ACTIVATION_LEN};
 
@@ -83,6 +84,8 @@ pub struct Decoder {
     face: Option<(usize, usize)>,
     /// (model CRC, quantised head angles) of the cached face.
     key: Option<(u32, [i16; 2])>,
+    /// Times the network ran (wrapping).
+    runs: u32,
 }
 
 impl Default for Decoder {
@@ -98,7 +101,14 @@ impl Decoder {
             act: [Act([0; MAX_ACTIVATION_LEN]), Act([0; MAX_ACTIVATION_LEN])],
             face: None,
             key: None,
+            runs: 0,
         }
+    }
+
+    /// Times the network has run (wrapping): a caller that reads it before and after a
+    /// prediction knows whether the face was made for it or came from the cache.
+    pub fn runs(&self) -> u32 {
+        self.runs
     }
 
     /// Forgets the cached face (e.g. after a model change).
@@ -114,28 +124,22 @@ impl Decoder {
         let input = quantise_input(model, head)?;
         let key = (model.crc32, input);
         if self.key != Some(key) || self.face.is_none() {
-            self.run(model, input)?;
+            self.run(model, input, None)?;
             self.key = Some(key);
         }
         Ok(self.face().unwrap_or(&[]))
     }
 
-    /// [`predict`](Self::predict), with `adjust` applied to the face each time the network
-    /// runs (the cached face keeps it).
-    pub fn predict_with(
-        &mut self,
-        model: &Model,
-        head: [f32; 2],
-        adjust: impl FnOnce(&mut [u16]),
-    ) -> Result<&[u16], DecodeError> {
+    /// [`predict`](Self::predict), with the room's offsets added ([`Room`], rule 4) each time
+    /// the network runs (the cached face keeps them): by the network's last layer as it stores
+    /// the face where it can (the default conv decoder on the board), else by [`Room::apply`].
+    /// The same face either way.
+    pub fn predict_with(&mut self, model: &Model, head: [f32; 2], room: &Room) -> Result<&[u16], DecodeError> {
         let input = quantise_input(model, head)?;
         let key = (model.crc32, input);
         if self.key != Some(key) || self.face.is_none() {
-            self.run(model, input)?;
+            self.run_with(model, input, room)?;
             self.key = Some(key);
-            if let Some((k, n)) = self.face {
-                adjust(&mut bytemuck::cast_slice_mut(&mut self.act[k].0[..])[..n]);
-            }
         }
         Ok(self.face().unwrap_or(&[]))
     }
@@ -147,9 +151,32 @@ impl Decoder {
         head: [f32; 2],
     ) -> Result<&[u16], DecodeError> {
         let input = quantise_input(model, head)?;
-        self.run(model, input)?;
+        self.run(model, input, None)?;
         self.key = Some((model.crc32, input));
         Ok(self.face().unwrap_or(&[]))
+    }
+
+    /// Like [`predict_with`](Self::predict_with) but always runs the whole network (for
+    /// benchmarks: the cost of the room's offsets is this less [`predict_uncached`]).
+    pub fn predict_uncached_with(
+        &mut self,
+        model: &Model,
+        head: [f32; 2],
+        room: &Room,
+    ) -> Result<&[u16], DecodeError> {
+        let input = quantise_input(model, head)?;
+        self.run_with(model, input, room)?;
+        self.key = Some((model.crc32, input));
+        Ok(self.face().unwrap_or(&[]))
+    }
+
+    fn run_with(&mut self, model: &Model, input: [i16; 2], room: &Room) -> Result<(), DecodeError> {
+        if !self.run(model, input, room.halves())? {
+            if let Some((k, n)) = self.face {
+                room.apply(&mut bytemuck::cast_slice_mut(&mut self.act[k].0[..])[..n], model.face_w as usize);
+            }
+        }
+        Ok(())
     }
 
     /// The last predicted face, if any.
@@ -187,15 +214,21 @@ impl Decoder {
         }
     }
 
-    fn run(&mut self, model: &Model, input: [i16; 2]) -> Result<(), DecodeError> {
+    /// The network; with `room` ([`Room::halves`]), returns whether its last layer added the
+    /// offsets (else the face has none).
+    #[cfg_attr(not(target_arch = "arm"), allow(unused_variables))]
+    fn run(&mut self, model: &Model, input: [i16; 2], room: Option<&[Packed; 2 * room::CELLS]>) -> Result<bool, DecodeError> {
         self.face = None;
         self.key = None;
+        self.runs = self.runs.wrapping_add(1);
         check_scales(model)?;
         let grey_at = grey_layer(model);
         let [Act(a), Act(b)] = &mut self.act;
         a[0] = input[0];
         a[1] = input[1];
         let mut cur = 0usize;
+        #[cfg_attr(not(target_arch = "arm"), allow(unused_mut))]
+        let mut added = false;
         let rq = |i: usize| {
             let r = Requant::of(&model.layers[i]);
             if grey_at == Some(i) {
@@ -226,7 +259,9 @@ impl Decoder {
                     .and_then(|c| fused()?.with_crop(c))
                     .map(|f| (f, 3));
                 if let Some((f, n)) = with_crop.or_else(|| fused().map(|f| (f, 2))) {
-                    f.run(src, dst).map_err(|_| DecodeError::Shape(i as u8))?;
+                    // The room's offsets only where its output is the face (no crop after).
+                    let room = room.filter(|_| i + n == model.layers.len());
+                    added = f.run(src, dst, room).map_err(|_| DecodeError::Shape(i as u8))?;
                     i += n;
                     continue;
                 }
@@ -245,7 +280,7 @@ impl Decoder {
             to_grey_q88(&mut face[..n], last.out_shift as u32);
         }
         self.face = Some((cur, n));
-        Ok(())
+        Ok(added)
     }
 }
 

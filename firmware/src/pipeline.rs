@@ -87,6 +87,8 @@ pub struct Workspace {
     pub room: Room,
     /// The room generation the cached prediction has added.
     room_applied: Option<u32>,
+    /// The last [`decode`](Self::decode) ran the network.
+    afresh: bool,
 }
 
 impl Default for Workspace {
@@ -109,6 +111,7 @@ impl Workspace {
             fit_light: true,
             room: Room::new(),
             room_applied: None,
+            afresh: false,
         }
     }
 
@@ -128,8 +131,19 @@ impl Workspace {
             self.decoder.invalidate();
         }
         self.room_applied = Some(self.room.generation());
-        let (room, w) = (&self.room, model.face_w as usize);
-        self.decoder.predict_with(model, head, |face| room.apply(face, w))
+        let runs = self.decoder.runs();
+        let made = self.decoder.predict_with(model, head, &self.room).map(|_| ());
+        self.afresh = self.decoder.runs() != runs;
+        made?;
+        Ok(self.decoder.face().unwrap_or(&[]))
+    }
+
+    /// Whether the last [`decode`](Self::decode) ran the network (a new head pose, model or
+    /// room) rather than taking the cached face: such a frame has paid for a prediction, so
+    /// the board neither learns from it nor settles a batch on it ([`crate::room`], rules 1
+    /// and 3).
+    pub fn afresh(&self) -> bool {
+        self.afresh
     }
 
     /// Stage 2: the photometric fit of `crop` to the last predicted face ([`light::fit`]), then

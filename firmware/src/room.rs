@@ -7,14 +7,17 @@
 //! [`CELL`] x [`CELL`] pixels; the error statistics stay the model's. The rules:
 //!
 //! 1. Learn only from a frame that shows the face (the fit's verdict is `Face`), has no blob and
-//!    no candidate in the confirmation window, in the observe posture with the head still (the
-//!    board decides and calls [`Room::learn`]), and at most one frame every [`MIN_GAP_US`].
+//!    no candidate in the confirmation window, in the observe posture with the head still,
+//!    whose predicted face came from the cache (a frame that made a new one has paid for it:
+//!    `pipeline::Workspace::afresh`; the board decides and calls [`Room::learn`]), and at
+//!    most one frame every [`MIN_GAP_US`].
 //! 2. Of such a frame, every second pixel of every second row that is neither salient nor in a
 //!    salient pixel's pooling window (the mask is not 0) nor clipped (`Lut::lo`, `Lut::hi`): its signed
 //!    error `v(I) - pred` against the prediction with the offsets, summed per cell. A mark's
 //!    pixels are salient, so they never teach the board that the mark belongs to the face.
-//! 3. After [`BATCH`] such frames, on the next frame ([`Room::settle`]; that frame is not learnt
-//!    from, so the update's cost never falls on a frame that also pays for samples), each cell
+//! 3. After [`BATCH`] such frames, on the next frame whose predicted face came from the cache
+//!    ([`Room::settle`]; that frame is not learnt from, so the update's cost never falls on a
+//!    frame that also pays for samples or a prediction), each cell
 //!    with at least [`MIN_SAMPLES`] samples moves its offset by 1/2^[`RATE_SHIFT`] of the
 //!    batch's mean error. Then the part of these offsets
 //!    that a gain and an offset would make (a least-squares line in the cells' mean predicted
@@ -28,10 +31,12 @@
 //!    at 0, or at the offsets the store saved for it ([`Room::restore`]).
 //!
 //! Integers, and one line fit in f32 per update, so the host and the board agree bit for bit
-//! (`msr bench --backend qemu` checks it). 96 cells: about 2 KiB of RAM (the offsets, the batch's
-//! sums, and the offsets as rule 4 adds them).
-//! Rule 4 costs 2.3 instructions a pixel each time the network runs (a new head pose), rule 2
-//! 4.2 on a frame learnt from ([`rows`]), rule 3 1.9 on the frame after a batch.
+//! (`msr bench --backend qemu` checks it). 96 cells: about 2.6 KiB of RAM (the batch's sums, and
+//! the offsets as rule 4 adds them, two words a half cell).
+//! Rule 4 costs 1.8 instructions a pixel each time the network runs (a new head pose; added by
+//! the decoder's last layer as it stores the face, `decoder::fused`, else 2.3 in a pass of its
+//! own, [`rows`]), rule 2 4.2 on a frame learnt from ([`rows`]), rule 3 2.3 on the frame that
+//! settles a batch.
 
 use msr_shared::blob::{MAX_FACE_H, MAX_FACE_W};
 pub use msr_shared::msg::{RoomReport, RoomState};
@@ -44,6 +49,8 @@ pub const COLS: usize = MAX_FACE_W.div_ceil(CELL);
 pub const ROWS: usize = MAX_FACE_H.div_ceil(CELL);
 /// Cells in all.
 pub const CELLS: usize = COLS * ROWS;
+/// Pixels of a half cell: one entry of [`Room::halves`].
+pub const HALF: usize = CELL / 2;
 /// Least time between two frames learnt from (rule 1).
 pub const MIN_GAP_US: u64 = 400_000;
 /// Frames per update (rule 3).
@@ -56,6 +63,8 @@ pub const LIMIT: i16 = 12 * 256;
 pub const MIN_SAMPLES: u32 = 32;
 /// Bytes of [`Room::save`]: a version, the cell side, the columns and rows, then the offsets.
 pub const SAVED_LEN: usize = 4 + 2 * CELLS;
+/// Bytes from one row of cells of [`Room::halves`] to the next.
+pub const HALVES_STRIDE: usize = 2 * COLS * core::mem::size_of::<rows::Packed>();
 const VERSION: u8 = 1;
 
 pub mod rows;
@@ -81,9 +90,11 @@ impl Acc {
 /// The learnt offsets and the batch being gathered.
 #[derive(Clone, Debug)]
 pub struct Room {
-    offset: [i16; CELLS],
-    /// `offset` as rule 4's routine adds it ([`rows::Packed`]), kept with it by [`Room::pack`].
-    packed: [rows::Packed; CELLS],
+    /// The offsets as rule 4's routines add them ([`rows::Packed`]; the offset itself is
+    /// `add - sub`, [`Room::offset`]), twice a cell: one for each half of [`HALF`] pixels, as
+    /// the decoder's last layer writes its outputs in groups of four ([`Room::halves`]). The
+    /// only copy of the offsets (RAM: the board's state is within 60 KiB).
+    packed: [rows::Packed; 2 * CELLS],
     /// Some offset is not 0 (rule 4 has something to add).
     any: bool,
     acc: [Acc; CELLS],
@@ -107,8 +118,7 @@ impl Room {
     /// Offsets 0, learning.
     pub const fn new() -> Self {
         Room {
-            offset: [0; CELLS],
-            packed: [rows::Packed::ZERO; CELLS],
+            packed: [rows::Packed::ZERO; 2 * CELLS],
             any: false,
             acc: [Acc::ZERO; CELLS],
             batch: 0,
@@ -123,11 +133,14 @@ impl Room {
 
     /// Back to the calibrated statistics (offsets 0, counters 0); frozen or not stays.
     pub fn reset(&mut self) {
-        let frozen = self.frozen;
-        let generation = self.generation.wrapping_add(1);
-        *self = Room::new();
-        self.frozen = frozen;
-        self.generation = generation;
+        // Field by field: `*self = Room::new()` may build the 2.7 KiB value on the stack first.
+        self.packed.fill(rows::Packed::ZERO);
+        self.any = false;
+        self.clear_batch();
+        self.last_us = None;
+        self.frames = 0;
+        self.updates = 0;
+        self.generation = self.generation.wrapping_add(1);
     }
 
     /// Stops (`true`) or resumes learning; the offsets stay as they are.
@@ -148,12 +161,43 @@ impl Room {
 
     /// The offset of the cell holding pixel `(x, y)`, Q8.8 grey levels.
     pub fn offset_at(&self, x: usize, y: usize) -> i16 {
-        self.offset.get((y / CELL) * COLS + x / CELL).copied().unwrap_or(0)
+        let c = (y / CELL) * COLS + x / CELL;
+        if x < COLS * CELL && c < CELLS {
+            self.offset(c)
+        } else {
+            0
+        }
     }
 
     /// Every offset, row-major over [`COLS`] x [`ROWS`] cells.
-    pub fn offsets(&self) -> &[i16; CELLS] {
-        &self.offset
+    pub fn offsets(&self) -> [i16; CELLS] {
+        core::array::from_fn(|c| self.offset(c))
+    }
+
+    /// Cell `c`'s offset: `add - sub` of its packed words (`Packed::of` adds 255 to both).
+    fn offset(&self, c: usize) -> i16 {
+        let p = self.packed[2 * c];
+        ((p.add & 0xffff) as i32 - (p.sub & 0xffff) as i32) as i16
+    }
+
+    /// Sets cell `c`'s offset (both halves); [`Room::refresh`] after the last.
+    fn set(&mut self, c: usize, o: i16) {
+        self.packed[2 * c..2 * c + 2].fill(rows::Packed::of(o));
+    }
+
+    /// `any` and `generation` after the offsets changed.
+    fn refresh(&mut self) {
+        self.any = (0..CELLS).any(|c| self.offset(c) != 0);
+        self.generation = self.generation.wrapping_add(1);
+    }
+
+    /// Sets every offset (tests).
+    #[cfg(test)]
+    pub(crate) fn set_offsets(&mut self, offsets: &[i16; CELLS]) {
+        for (c, &o) in offsets.iter().enumerate() {
+            self.set(c, o);
+        }
+        self.refresh();
     }
 
     /// Rule 4: adds each pixel's cell offset to the predicted face `pred` (Q8.8, `w` pixels a
@@ -173,19 +217,19 @@ impl Room {
             full: (w / CELL) as u32,
             tail: (w % CELL) as u32,
             rows: n as u32,
-            stride: (COLS * core::mem::size_of::<rows::Packed>()) as u32,
+            stride: HALVES_STRIDE as u32,
         };
         // SAFETY: `n * w <= pred.len()`; `n <= MAX_FACE_H` needs at most `ROWS` rows of
         // cells and `w <= MAX_FACE_W` at most `COLS` cells a row, inside `packed`.
         unsafe { rows::apply(&job) };
     }
 
-    /// Makes `packed` and `any` follow `offset`; every change of `offset` ends here.
-    fn pack(&mut self) {
-        for (p, &o) in self.packed.iter_mut().zip(&self.offset) {
-            *p = rows::Packed::of(o);
-        }
-        self.any = self.offset.iter().any(|&o| o != 0);
+    /// Rule 4 as the decoder's last layer takes it, while some offset is not 0: the offsets
+    /// ([`rows::Packed`]) of each half cell of [`HALF`] pixels, row-major, [`HALVES_STRIDE`]
+    /// bytes from one row of cells to the next. Pixel `(x, y)` takes entry
+    /// `(y / CELL) * 2 * COLS + x / HALF`, which adds what [`Room::apply`] adds.
+    pub fn halves(&self) -> Option<&[rows::Packed; 2 * CELLS]> {
+        self.any.then_some(&self.packed)
     }
 
     /// Rules 1 and 2 for one frame the board may learn from, taken at `now_us`: `frame` the
@@ -234,7 +278,6 @@ impl Room {
         if !self.pending {
             return false;
         }
-        let before = self.offset;
         // Moved offsets (not yet clamped), and the least-squares line through them in the
         // cells' mean predicted grey level. In f32: IEEE single on the host and the board
         // alike (no fused operations), so the result is the same bit for bit.
@@ -246,7 +289,7 @@ impl Room {
             if k < MIN_SAMPLES {
                 continue;
             }
-            let o = self.offset[c] as i32 + ((sum / k as i32) >> RATE_SHIFT);
+            let o = self.offset(c) as i32 + ((sum / k as i32) >> RATE_SHIFT);
             let p = (pred / k as i32) as f32 / 256.0;
             moved[c] = o;
             level[c] = p;
@@ -259,19 +302,22 @@ impl Room {
         let (var, cov) = (n * spp - sp * sp, n * sop - so * sp);
         let b = if var > 0.0 { cov / var } else { 0.0 };
         let a = if n > 0.0 { (so - b * sp) / n } else { 0.0 };
+        let mut changed = false;
         for c in 0..CELLS {
             if self.acc[c].count < MIN_SAMPLES {
                 continue;
             }
             let line = (a + b * level[c]) as i32;
-            self.offset[c] = (moved[c] - line).clamp(-(LIMIT as i32), LIMIT as i32) as i16;
+            let o = (moved[c] - line).clamp(-(LIMIT as i32), LIMIT as i32) as i16;
+            if o != self.offset(c) {
+                self.set(c, o);
+                changed = true;
+            }
         }
-        let changed = self.offset != before;
         self.clear_batch();
         self.updates = self.updates.saturating_add(1);
         if changed {
-            self.pack();
-            self.generation = self.generation.wrapping_add(1);
+            self.refresh();
         }
         changed
     }
@@ -317,14 +363,15 @@ impl Room {
     }
 
     fn clear_batch(&mut self) {
-        self.acc = [Acc::ZERO; CELLS];
+        self.acc.fill(Acc::ZERO);
         self.batch = 0;
         self.pending = false;
     }
 
     /// The state for `Status`; `applies`: a model is loaded (rule 4 has a face to add to).
     pub fn report(&self, applies: bool) -> RoomReport {
-        let largest = self.offset.iter().map(|o| o.unsigned_abs()).max().unwrap_or(0);
+        let offsets = self.offsets();
+        let largest = offsets.iter().map(|o| o.unsigned_abs()).max().unwrap_or(0);
         RoomReport {
             state: match (applies, self.frozen) {
                 (false, _) => RoomState::Off,
@@ -334,14 +381,14 @@ impl Room {
             frames: self.frames,
             updates: self.updates,
             largest_q88: largest,
-            at_limit: self.offset.iter().filter(|o| o.unsigned_abs() >= LIMIT as u16).count() as u16,
+            at_limit: offsets.iter().filter(|o| o.unsigned_abs() >= LIMIT as u16).count() as u16,
         }
     }
 
     /// The offsets as the store keeps them ([`SAVED_LEN`] bytes).
     pub fn save(&self, out: &mut [u8; SAVED_LEN]) {
         out[..4].copy_from_slice(&[VERSION, CELL as u8, COLS as u8, ROWS as u8]);
-        for (o, b) in self.offset.iter().zip(out[4..].chunks_exact_mut(2)) {
+        for (o, b) in self.offsets().iter().zip(out[4..].chunks_exact_mut(2)) {
             b.copy_from_slice(&o.to_le_bytes());
         }
     }
@@ -360,8 +407,10 @@ impl Room {
             }
         }
         self.reset();
-        self.offset = offset;
-        self.pack();
+        for (c, &o) in offset.iter().enumerate() {
+            self.set(c, o);
+        }
+        self.refresh();
         true
     }
 }

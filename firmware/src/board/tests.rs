@@ -931,6 +931,36 @@ fn the_room_is_learnt_from_clean_frames_only_and_the_host_controls_it() {
     assert_eq!(rig.board.status().mode, Mode::Observe);
 }
 
+/// A frame that made a new prediction is not learnt from (room rule 1: its budget has paid
+/// for the network): a head whose reported yaw alternates between two poses from frame to frame
+/// teaches the room nothing, the same head held still learns.
+#[test]
+fn the_room_learns_only_on_frames_with_the_prediction_cached() {
+    let mut rig = Rig::new(Some(pooled_blob()));
+    rig.run(3000);
+    // The rig's servos stay where the test puts them.
+    rig.jammed = true;
+    let home = [rig.position[0], rig.position[1]];
+    let other = [home[0] + 0.01, home[1]];
+    for i in 0..20 {
+        let head = if i % 2 == 0 { home } else { other };
+        rig.position[0] = head[0];
+        rig.run(10);
+        rig.frame(i, &face(head, false));
+        rig.run(90);
+    }
+    let d = rig.detections();
+    assert!(d.len() >= 18 && d.iter().all(|d| d.blob.is_none()), "{d:?}");
+    assert_eq!(rig.board.status().room.frames, 0, "learnt from a frame with a new prediction");
+    rig.position[0] = home[0];
+    for i in 20..40 {
+        rig.frame(i, &face(home, false));
+        rig.run(100);
+    }
+    let learnt = rig.board.status().room.frames;
+    assert!((4..=6).contains(&learnt), "{learnt} frames learnt with the head still");
+}
+
 #[test]
 fn what_was_learnt_of_the_room_survives_a_reset_in_flash() {
     use crate::store::emu::EmuFlash;

@@ -18,6 +18,10 @@
 //!   is computed alone, and the last group may compute up to 3 outputs past the row end: they
 //!   land on the next row's first outputs before those are computed (rows run top down), or, in
 //!   the last row, in the buffer's slack.
+//! - Once the board has learnt the room ([`crate::room`], rule 4), `msr_convt4_grey_room` adds
+//!   its offsets as it stores: a group of four outputs is a half cell, one offset, two
+//!   saturating halfword steps a word (1.5 instructions a pixel, where a pass of its own over
+//!   the face took 2.3).
 //!
 //! Elsewhere (the host's tests) the two routines are Rust, step for step, so that what surrounds
 //! them (padding, packing, phases, crop) is tested against the layer-by-layer path.
@@ -26,7 +30,10 @@ use super::arm::{dense2_i8_x4, pair_i8, I8_BLOCK, I8_MAX_IN};
 use super::fast::smlad;
 use super::kernels::{AnyWeights, Table};
 use super::{AsmAct, Requant};
-use msr_shared::blob::{Layer, LayerKind, WeightOrder, WeightType, BLOCK, MAX_ACTIVATION_LEN};
+use crate::room::{self, rows::Packed};
+use msr_shared::blob::{
+    Layer, LayerKind, WeightOrder, WeightType, BLOCK, MAX_ACTIVATION_LEN, MAX_FACE_H, MAX_FACE_W,
+};
 
 /// Pixels per row of `mid` (row bytes = STRIDE * 8, an `LDRD` offset).
 pub(crate) const STRIDE: usize = 52;
@@ -76,6 +83,9 @@ struct Conv4Job {
     /// Bytes from one row's row A to the next's: after an even then an odd output row (they
     /// alternate).
     x_steps: [u32; 2],
+    /// `msr_convt4_grey_room` only: the first row's first group's offsets, then one entry a
+    /// group ([`crate::room::Room::halves`]); every row takes the same row of entries.
+    room: *const Packed,
 }
 
 // One pass: 4 biases (stored per pixel), then per block of 8 inputs one LDM of x and one LDM
@@ -307,43 +317,48 @@ core::arch::global_asm!(
 // Four adjacent outputs per pass. Slots 0 and 2 take weights W0, slots 1 and 3 W1; slot j reads
 // pixels (P_d, P_d+1), d = 0, 1, 1, 2, of row A (at r12) and row B (STRIDE * 8 bytes on).
 // Weights: W0A, W1A, W0B, W1B (4 words each: column A c01, c23, column B c01, c23).
-// r0-r3 acc, r4-r7 x, r8-r11 w, r12 x, lr w. Frame: y, table, sh, 32640 x 2, y_end, bias x 4.
+// r0-r3 acc, r4-r7 x, r8-r11 w, r12 x, lr w. Frame: y, table, sh, 32640 x 2, y_end, the room's
+// delta, bias x 4. Two routines from one macro: `msr_convt4_grey`, and `msr_convt4_grey_room`,
+// which also adds the room's offsets (`room::rows::Packed`, one a group of four outputs: the
+// group's entry is at its first output's address plus the delta, which moves back one output
+// row a row) by UQADD16 and UQSUB16, six instructions a group.
 #[cfg(target_arch = "arm")]
 core::arch::global_asm!(
-    ".section .text.msr_convt4_grey,\"ax\",%progbits",
-    ".global msr_convt4_grey",
-    ".type msr_convt4_grey,%function",
+    ".macro MSR_CONVT4 name, room",
+    ".section .text.\\name,\"ax\",%progbits",
+    ".global \\name",
+    ".type \\name,%function",
     ".p2align 2",
     ".thumb_func",
-    "msr_convt4_grey:",
+    "\\name:",
     "push {{r4-r11, lr}}",
-    "sub sp, sp, #72",
-    // Rows at sp + 36, then the row's output start, y_step, w_other, the row's x, x_steps, and
-    // at sp + 64 the bytes of one row's groups.
+    "sub sp, sp, #80",
+    // Rows at sp + 40, then the row's output start, y_step, w_other, the row's x, x_steps, and
+    // at sp + 68 the bytes of one row's groups.
     "add r8, r0, #28",
-    "ldm r8, {{r4-r8}}",
-    "str r4, [sp, #36]",
-    "strd r5, r6, [sp, #44]",
-    "strd r7, r8, [sp, #56]",
-    // r1 x, r2 w, r3 y, r4 groups, r5 table, r6 sh, r7 bias.
+    "ldm r8, {{r4-r9}}",
+    "str r4, [sp, #40]",
+    "strd r5, r6, [sp, #48]",
+    "strd r7, r8, [sp, #60]",
+    // r1 x, r2 w, r3 y, r4 groups, r5 table, r6 sh, r7 bias, r9 the room's first entry.
     "ldm r0, {{r1-r7}}",
-    "str r3, [sp, #40]",
-    "str r1, [sp, #52]",
+    "str r3, [sp, #44]",
+    "str r1, [sp, #56]",
     "lsls r4, r4, #3",
-    "str r4, [sp, #64]",
+    "str r4, [sp, #68]",
+    "sub r9, r9, r3",
     "movw r8, #32640",
     "movt r8, #32640",
-    "add r9, r3, r4",
-    "stm sp, {{r3, r5, r6, r8, r9}}",
-    "str r7, [sp, #20]",
-    "str r7, [sp, #24]",
-    "str r7, [sp, #28]",
-    "str r7, [sp, #32]",
+    "add r10, r3, r4",
+    "stm sp, {{r3, r5, r6, r8, r10}}",
+    "str r9, [sp, #20]",
+    "strd r7, r7, [sp, #24]",
+    "strd r7, r7, [sp, #32]",
     "mov r12, r1",
     "mov lr, r2",
     "1:",
-    "ldrd r0, r1, [sp, #20]",
-    "ldrd r2, r3, [sp, #28]",
+    "ldrd r0, r1, [sp, #24]",
+    "ldrd r2, r3, [sp, #32]",
     // Row A.
     "ldm r12!, {{r4-r7}}",
     "ldm lr!, {{r8-r11}}",
@@ -390,8 +405,12 @@ core::arch::global_asm!(
     "smlad r3, r6, r10, r3",
     "smlad r3, r7, r11, r3",
     "sub lr, lr, #64",
-    // r4 y, r5 table, r6 sh, r7 32640 x 2, r8 y_end.
+    // r4 y, r5 table, r6 sh, r7 32640 x 2, r8 y_end, r9 the room's delta.
+    ".if \\room",
+    "ldm sp, {{r4-r9}}",
+    ".else",
     "ldm sp, {{r4-r8}}",
+    ".endif",
     "asr r0, r0, r6",
     "ssat r0, #13, r0",
     "ldrsh.w r0, [r5, r0, lsl #1]",
@@ -412,33 +431,49 @@ core::arch::global_asm!(
     "pkhbt r2, r2, r3, lsl #16",
     "sadd16 r0, r0, r7",
     "sadd16 r2, r2, r7",
+    ".if \\room",
+    "add r9, r9, r4",
+    "ldrd r1, r3, [r9]",
+    "uqadd16 r0, r0, r1",
+    "uqadd16 r2, r2, r1",
+    "uqsub16 r0, r0, r3",
+    "uqsub16 r2, r2, r3",
+    ".endif",
     "str r0, [r4], #4",
     "str r2, [r4], #4",
     "str r4, [sp]",
     "cmp r4, r8",
     "bne 1b",
     // Next row: its output start, row A (the steps alternate), the other weights.
-    "add r12, sp, #36",
+    "add r12, sp, #40",
     "ldm r12, {{r0-r6}}",
     "subs r0, r0, #1",
     "beq 9f",
     "add r1, r1, r2",
     "add r4, r4, r5",
     "stm r12, {{r0, r1}}",
-    "str lr, [sp, #48]",
+    "str lr, [sp, #52]",
     "mov lr, r3",
-    "str r4, [sp, #52]",
-    "strd r6, r5, [sp, #56]",
-    "ldr r7, [sp, #64]",
+    "str r4, [sp, #56]",
+    "strd r6, r5, [sp, #60]",
+    "ldr r7, [sp, #68]",
     "add r7, r1, r7",
     "str r1, [sp, #0]",
     "str r7, [sp, #16]",
+    ".if \\room",
+    "ldr r7, [sp, #20]",
+    "sub r7, r7, r2",
+    "str r7, [sp, #20]",
+    ".endif",
     "mov r12, r4",
     "b 1b",
     "9:",
-    "add sp, sp, #72",
+    "add sp, sp, #80",
     "pop {{r4-r11, pc}}",
-    ".size msr_convt4_grey, . - msr_convt4_grey",
+    ".size \\name, . - \\name",
+    ".endm",
+    "MSR_CONVT4 msr_convt4_grey, 0",
+    "MSR_CONVT4 msr_convt4_grey_room, 1",
 );
 
 // The row offsets above are STRIDE * 8 - 16, - 8, + 0, + 8.
@@ -448,6 +483,7 @@ const _: () = assert!(STRIDE * 8 == 416);
 extern "C" {
     fn msr_dense_px4(job: *const Px4Job);
     fn msr_convt4_grey(job: *const Conv4Job);
+    fn msr_convt4_grey_room(job: *const Conv4Job);
 }
 
 #[cfg(not(target_arch = "arm"))]
@@ -537,7 +573,14 @@ mod portable {
     }
 
     pub(super) unsafe fn msr_convt4_grey(job: *const Conv4Job) {
-        let j = unsafe { &*job };
+        unsafe { convt4(&*job, false) }
+    }
+
+    pub(super) unsafe fn msr_convt4_grey_room(job: *const Conv4Job) {
+        unsafe { convt4(&*job, true) }
+    }
+
+    unsafe fn convt4(j: &Conv4Job, room: bool) {
         let (mut x_row, mut y_row) = (j.x, j.y);
         let (mut w, mut w_other) = (j.w, j.w_other);
         let mut steps = j.x_steps;
@@ -551,14 +594,14 @@ mod portable {
                 steps = [steps[1], steps[0]];
             }
             let w = unsafe { core::slice::from_raw_parts(w, 16) };
-            unsafe { conv4_row(j, x_row, y_row, w) };
+            unsafe { conv4_row(j, x_row, y_row, w, room) };
         }
     }
 
-    /// One output row of `msr_convt4_grey`.
-    unsafe fn conv4_row(j: &Conv4Job, x: *const u32, y: *mut i16, w: &[u32]) {
+    /// One output row of `msr_convt4_grey` (with the room's offsets: `_room`).
+    unsafe fn conv4_row(j: &Conv4Job, x: *const u32, y: *mut i16, w: &[u32], room: bool) {
         let (mut x, mut y) = (x, y);
-        for _ in 0..j.groups {
+        for g in 0..j.groups as usize {
             let mut acc = [j.bias; 4];
             for row in 0..2 {
                 let xr = unsafe { x.add(row * STRIDE * 2) };
@@ -573,8 +616,13 @@ mod portable {
                 let i = (a >> j.sh).clamp(-4096, 4095);
                 // SAFETY: the table's centre, i within its half-length.
                 let t = unsafe { *j.table.offset(i as isize) } as i32;
+                let mut v = (32640 + t - (t >> 8)) as u16;
+                if room {
+                    // SAFETY: the caller's entry for every group of the row.
+                    v = unsafe { *j.room.add(g) }.add_to(v);
+                }
                 unsafe {
-                    *y = (32640 + t - (t >> 8)) as u16 as i16;
+                    *y = v as i16;
                     y = y.add(1);
                 }
             }
@@ -717,8 +765,18 @@ impl<'l, 'a> Fused<'l, 'a> {
 
     /// The Dense from `buf` into `mid`, then the convolution into `buf`. Not inlined: its
     /// frame stays off the other layers' paths (stack peak).
+    ///
+    /// With `room` ([`room::Room::halves`]), the convolution also adds the room's offsets
+    /// when its groups fall on the half cells (one output channel, no output computed alone,
+    /// a window within the largest face): it returns whether it did (else the caller adds
+    /// them). It then runs once per row of cells, each run's rows reading that row's entries.
     #[inline(never)]
-    pub(crate) fn run(&self, buf: &mut [i16], mid: &mut [i16]) -> Result<(), ()> {
+    pub(crate) fn run(
+        &self,
+        buf: &mut [i16],
+        mid: &mut [i16],
+        room: Option<&[Packed; 2 * room::CELLS]>,
+    ) -> Result<bool, ()> {
         let (d, c) = (self.dense, self.conv);
         let (h, w) = (c.input.h as usize, c.input.w as usize);
         let n_in = d.input.len();
@@ -746,6 +804,8 @@ impl<'l, 'a> Fused<'l, 'a> {
         let (single, g0, groups) = self.columns();
         let y = buf;
         let row = STRIDE * C;
+        // The room's offsets in the convolution: its groups of four are the half cells.
+        let fused_room = oc_n == 1 && !single && fh <= MAX_FACE_H && fw <= MAX_FACE_W;
         for oc in 0..oc_n {
             let packs = self.packs(cw, oc);
             let bias = *cb.get(oc).ok_or(())?;
@@ -755,24 +815,38 @@ impl<'l, 'a> Fused<'l, 'a> {
             if groups > 0 && fh > 0 {
                 let base = ((g0 - q) / 2 + (q + p) / 2) * C;
                 let step = |oy: usize| ((ra(oy + 1) - ra(oy)) * 2) as u32;
-                let job = Conv4Job {
-                    x: mid[ra(top) + base..].as_ptr() as *const u32,
-                    w: packs[top % 2].as_ptr(),
-                    y: y[yo(top) + g0 - left..].as_mut_ptr(),
+                // Rows `from` on, `rows` of them; with the room's entries from `entries`.
+                let mut job = |from: usize, rows: usize, entries: *const Packed| Conv4Job {
+                    x: mid[ra(from) + base..].as_ptr() as *const u32,
+                    w: packs[from % 2].as_ptr(),
+                    y: y[yo(from) + g0 - left..].as_mut_ptr(),
                     groups: groups as u32,
                     table,
                     sh,
                     bias,
-                    rows: fh as u32,
+                    rows: rows as u32,
                     y_step: (fw * 2) as u32,
-                    w_other: packs[1 - top % 2].as_ptr(),
-                    x_steps: [step(top), step(top + 1)],
+                    w_other: packs[1 - from % 2].as_ptr(),
+                    x_steps: [step(from), step(from + 1)],
+                    room: entries,
                 };
-                // SAFETY: `reads_inside` checked every read (rows A and B, 4 pixels per group,
-                // inside the STRIDE-wide rows of `mid`, whose size is checked above); the writes
-                // are 4 * groups halfwords per row from the window's output g0, at most 3 past
-                // the window's row, inside `y` (checked above).
-                unsafe { msr_convt4_grey(&job) };
+                match room.filter(|_| fused_room) {
+                    Some(halves) => {
+                        for (k, from) in (top..top + fh).step_by(room::CELL).enumerate() {
+                            let rows = (top + fh - from).min(room::CELL);
+                            let entries = halves[k * 2 * room::COLS..].as_ptr();
+                            // SAFETY: as below; and `groups` entries from `entries`, inside
+                            // `halves` (fused_room: the window fits the largest face, so a
+                            // row of cells has an entry for each of its groups).
+                            unsafe { msr_convt4_grey_room(&job(from, rows, entries)) };
+                        }
+                    }
+                    // SAFETY: `reads_inside` checked every read (rows A and B, 4 pixels per
+                    // group, inside the STRIDE-wide rows of `mid`, whose size is checked
+                    // above); the writes are 4 * groups halfwords per row from the window's
+                    // output g0, at most 3 past the window's row, inside `y` (checked above).
+                    None => unsafe { msr_convt4_grey(&job(top, fh, core::ptr::null())) },
+                }
             }
             // Output `left` alone (after the groups: the row above may spill onto it): phase
             // 1 - q, slot 1's weights.
@@ -791,7 +865,7 @@ impl<'l, 'a> Fused<'l, 'a> {
                 y[yo(oy)] = super::GreyAct { sh }.act(acc);
             }
         }
-        Ok(())
+        Ok(room.is_some() && fused_room)
     }
 
     /// The Dense: `x` into the image rows of `mid` (borders not touched).

@@ -506,8 +506,35 @@ fn fused_dense_conv_transpose_equals_the_layers() {
         let mut mid = vec![0x5a5a_5a5au32; MAX_ACTIVATION_LEN / 2];
         let b16: &mut [i16] = bytemuck::cast_slice_mut(&mut buf);
         b16[..n_in].copy_from_slice(&x);
-        f.run(b16, bytemuck::cast_slice_mut(&mut mid)).unwrap();
+        assert!(!f.run(b16, bytemuck::cast_slice_mut(&mut mid), None).unwrap());
         assert_eq!(&b16[..want.len()], &want[..], "{what}");
+        // With the room's offsets: each output takes its half cell's entry (random entries, the
+        // extremes among them), added where its group falls on the half cells.
+        let mut halves = [Packed::ZERO; 2 * room::CELLS];
+        for e in halves.iter_mut() {
+            *e = Packed::of(match r.next_u32() % 5 {
+                0 => i16::MIN,
+                1 => i16::MAX,
+                _ => (r.next_u32() % 8192) as i16 - 4096,
+            });
+        }
+        let b16: &mut [i16] = bytemuck::cast_slice_mut(&mut buf);
+        b16[..n_in].copy_from_slice(&x);
+        let added = f.run(b16, bytemuck::cast_slice_mut(&mut mid), Some(&halves)).unwrap();
+        assert_eq!(added, left % 2 == 1 - p as u16 % 2, "{what}: groups on the half cells");
+        if added {
+            let fw = fw as usize;
+            let with: Vec<i16> = want
+                .iter()
+                .enumerate()
+                .map(|(i, &v)| {
+                    let (x, y) = (i % fw, i / fw);
+                    let e = halves[(y / room::CELL) * 2 * room::COLS + x / room::HALF];
+                    e.add_to(v as u16) as i16
+                })
+                .collect();
+            assert_eq!(&b16[..want.len()], &with[..], "{what}: with the room");
+        }
     }
 }
 

@@ -113,7 +113,8 @@ impl Packed {
 pub struct ApplyJob {
     /// The face's first predicted value (Q8.8); any halfword alignment.
     pub pred: *mut u16,
-    /// The first row of cells (4-byte aligned, as `Packed` is).
+    /// The first row of cells (4-byte aligned, as `Packed` is): two entries a cell, one for
+    /// each half ([`super::Room::halves`]); this routine reads the first.
     pub cells: *const Packed,
     /// Whole cells a row.
     pub full: u32,
@@ -129,8 +130,8 @@ pub struct ApplyJob {
 ///
 /// # Safety
 /// `rows >= 1`, `tail < CELL`; `rows * (full * CELL + tail)` values behind `pred`; behind `cells`,
-/// `rows.div_ceil(CELL)` rows of cells `stride` bytes apart, each of `full` cells and one more
-/// when `tail > 0`.
+/// `rows.div_ceil(CELL)` rows of cells `stride` bytes apart, each of `full` cells (two entries
+/// each) and one more when `tail > 0`.
 #[inline]
 pub unsafe fn apply(job: &ApplyJob) {
     #[cfg(target_arch = "arm")]
@@ -157,7 +158,7 @@ pub unsafe fn apply_reference(job: &ApplyJob) {
             let cells = job.cells.cast::<u8>().add((y / CELL) * job.stride as usize).cast::<Packed>();
             for x in 0..w {
                 let p = job.pred.add(y * w + x);
-                *p = (*cells.add(x / CELL)).add_to(*p);
+                *p = (*cells.add(2 * (x / CELL))).add_to(*p);
             }
         }
     }
@@ -249,7 +250,7 @@ core::arch::global_asm!(
     "tst r4, #2",
     "bne 2f",
     "7:",
-    "ldrd r0, r1, [r11], #8",
+    "ldrd r0, r1, [r11], #16",
     "ldm r4, {{r2, r3, r6, lr}}",
     "uqadd16 r2, r2, r0",
     "uqadd16 r3, r3, r0",
@@ -264,7 +265,7 @@ core::arch::global_asm!(
     "bne 7b",
     "b 3f",
     "2:",
-    "ldrd r0, r1, [r11], #8",
+    "ldrd r0, r1, [r11], #16",
     "ldr lr, [r4]",
     "uqadd16 lr, lr, r0",
     "uqsub16 lr, lr, r1",

@@ -179,10 +179,7 @@ fn saved_offsets_come_back_and_anything_else_is_refused() {
 fn apply_is_the_clamped_sum() {
     let mut room = Room::new();
     let offsets = [-LIMIT, -1000, -1, 0, 1, 1000, LIMIT];
-    for (c, o) in room.offset.iter_mut().enumerate() {
-        *o = offsets[c % offsets.len()];
-    }
-    room.pack();
+    room.set_offsets(&core::array::from_fn(|c| offsets[c % offsets.len()]));
     for w in [MAX_FACE_W, 75, 9, 8, 7, 1] {
         let mut pred: Vec<u16> = (0..w * MAX_FACE_H).map(|i| (i as u32 * 7919 % 65536) as u16).collect();
         let n = pred.len();
@@ -223,7 +220,9 @@ fn apply_follows_the_offsets() {
     assert!(pred.iter().all(|&p| p == 1000), "offsets 0 add nothing");
     let mut saved = [0u8; SAVED_LEN];
     let mut other = Room::new();
-    other.offset[0] = 300;
+    let mut first = [0; CELLS];
+    first[0] = 300;
+    other.set_offsets(&first);
     other.save(&mut saved);
     assert!(room.restore(&saved));
     room.apply(&mut pred, 75);
@@ -271,6 +270,25 @@ fn a_frame_teaches_every_second_pixel_of_every_second_row() {
         assert_eq!(got, want.to_vec(), "clip levels {lo} {hi}");
         if hi - lo > 100 {
             assert!(want.iter().filter(|c| c.2 > 0).count() > 50, "the frame taught most cells");
+        }
+    }
+}
+
+/// What the decoder's last layer adds ([`Room::halves`], an entry a half cell) is what
+/// [`Room::apply`] adds, and there is nothing to add while every offset is 0.
+#[test]
+fn the_halves_add_what_apply_adds() {
+    let mut room = Room::new();
+    assert!(room.halves().is_none());
+    room.set_offsets(&core::array::from_fn(|c| ((c as i32 * 977) % (2 * LIMIT as i32 + 1) - LIMIT as i32) as i16));
+    let halves = room.halves().expect("offsets not all 0");
+    for w in [MAX_FACE_W, 75, 9, 1] {
+        let pred: Vec<u16> = (0..w * MAX_FACE_H).map(|i| (i as u32 * 7919 % 65281) as u16).collect();
+        let mut applied = pred.clone();
+        room.apply(&mut applied, w);
+        for (i, (&p, &q)) in pred.iter().zip(&applied).enumerate() {
+            let (x, y) = (i % w, i / w);
+            assert_eq!(halves[(y / CELL) * 2 * COLS + x / HALF].add_to(p), q, "width {w}, pixel {i}");
         }
     }
 }

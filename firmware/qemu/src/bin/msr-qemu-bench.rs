@@ -299,7 +299,8 @@ fn room_rows_agree() -> Result<(), &'static str> {
     }
     // Rule 4 over faces 1 to 40 values wide (0 to 5 whole cells and every tail), of as many
     // rows as fit (three rows of cells at most), starting on a word and between two.
-    let mut table = [rows::Packed::ZERO; 3 * 6];
+    // Two entries a cell (`Room::halves`), the first read: the second random, never read.
+    let mut table = [rows::Packed::ZERO; 3 * 12];
     for w in 1..=40usize {
         for start in 0..2 {
             let n = ((CHECK_PIXELS - start) / w).min(3 * CELL);
@@ -321,10 +322,10 @@ fn room_rows_agree() -> Result<(), &'static str> {
                 full: (w / CELL) as u32,
                 tail: (w % CELL) as u32,
                 rows: n as u32,
-                stride: (6 * core::mem::size_of::<rows::Packed>()) as u32,
+                stride: (12 * core::mem::size_of::<rows::Packed>()) as u32,
             };
             // SAFETY: `n * w` values behind `pred` (start + n * w <= CHECK_PIXELS); `n` rows
-            // need at most 3 rows of cells, `w <= 40` at most 5 cells a row, of 6.
+            // need at most 3 rows of cells, `w <= 40` at most 5 cells a row, of 6 (12 entries).
             unsafe { rows::apply(&job) };
             job.pred = c.thr[start..].as_mut_ptr();
             // SAFETY: as above.
