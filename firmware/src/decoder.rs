@@ -134,7 +134,12 @@ impl Decoder {
     /// the network runs (the cached face keeps them): by the network's last layer as it stores
     /// the face where it can (the default conv decoder on the board), else by [`Room::apply`].
     /// The same face either way.
-    pub fn predict_with(&mut self, model: &Model, head: [f32; 2], room: &Room) -> Result<&[u16], DecodeError> {
+    pub fn predict_with(
+        &mut self,
+        model: &Model,
+        head: [f32; 2],
+        room: &Room,
+    ) -> Result<&[u16], DecodeError> {
         let input = quantise_input(model, head)?;
         let key = (model.crc32, input);
         if self.key != Some(key) || self.face.is_none() {
@@ -157,7 +162,8 @@ impl Decoder {
     }
 
     /// Like [`predict_with`](Self::predict_with) but always runs the whole network (for
-    /// benchmarks: the cost of the room's offsets is this less [`predict_uncached`]).
+    /// benchmarks: the cost of the room's offsets is this less
+    /// [`predict_uncached`](Self::predict_uncached)).
     pub fn predict_uncached_with(
         &mut self,
         model: &Model,
@@ -173,7 +179,8 @@ impl Decoder {
     fn run_with(&mut self, model: &Model, input: [i16; 2], room: &Room) -> Result<(), DecodeError> {
         if !self.run(model, input, room.halves())? {
             if let Some((k, n)) = self.face {
-                room.apply(&mut bytemuck::cast_slice_mut(&mut self.act[k].0[..])[..n], model.face_w as usize);
+                let face = &mut bytemuck::cast_slice_mut(&mut self.act[k].0[..])[..n];
+                room.apply(face, model.face_w as usize);
             }
         }
         Ok(())
@@ -217,7 +224,12 @@ impl Decoder {
     /// The network; with `room` ([`Room::halves`]), returns whether its last layer added the
     /// offsets (else the face has none).
     #[cfg_attr(not(target_arch = "arm"), allow(unused_variables))]
-    fn run(&mut self, model: &Model, input: [i16; 2], room: Option<&[Packed; 2 * room::CELLS]>) -> Result<bool, DecodeError> {
+    fn run(
+        &mut self,
+        model: &Model,
+        input: [i16; 2],
+        room: Option<&[Packed; 2 * room::CELLS]>,
+    ) -> Result<bool, DecodeError> {
         self.face = None;
         self.key = None;
         self.runs = self.runs.wrapping_add(1);

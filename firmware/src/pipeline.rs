@@ -123,7 +123,8 @@ impl Workspace {
     }
 
     /// Stage 1: the predicted face (cached per head pose), with what the board learnt of the
-    /// room added ([`Room::apply`]; the network runs again when that changes).
+    /// room added ([`Decoder::predict_with`]: by the network's last layer, or [`Room::apply`];
+    /// the network runs again when that changes).
     pub fn decode(&mut self, model: &Model, head: [f32; 2]) -> Result<&[u16], DecodeError> {
         self.head = head;
         self.row_counts = None;
