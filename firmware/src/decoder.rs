@@ -121,13 +121,7 @@ impl Decoder {
     /// (0..=65280), row-major `face_h x face_w`. Runs the network only when the angles, quantised
     /// to the first layer's input scale, or the model differ from the last call.
     pub fn predict(&mut self, model: &Model, head: [f32; 2]) -> Result<&[u16], DecodeError> {
-        let input = quantise_input(model, head)?;
-        let key = (model.crc32, input);
-        if self.key != Some(key) || self.face.is_none() {
-            self.run(model, input, None)?;
-            self.key = Some(key);
-        }
-        Ok(self.face().unwrap_or(&[]))
+        self.predict_in(model, head, None, false)
     }
 
     /// [`predict`](Self::predict), with the room's offsets added ([`Room`], rule 4) each time
@@ -140,13 +134,7 @@ impl Decoder {
         head: [f32; 2],
         room: &Room,
     ) -> Result<&[u16], DecodeError> {
-        let input = quantise_input(model, head)?;
-        let key = (model.crc32, input);
-        if self.key != Some(key) || self.face.is_none() {
-            self.run_with(model, input, room)?;
-            self.key = Some(key);
-        }
-        Ok(self.face().unwrap_or(&[]))
+        self.predict_in(model, head, Some(room), false)
     }
 
     /// Like [`predict`](Self::predict) but always runs the whole network (for benchmarks).
@@ -155,10 +143,7 @@ impl Decoder {
         model: &Model,
         head: [f32; 2],
     ) -> Result<&[u16], DecodeError> {
-        let input = quantise_input(model, head)?;
-        self.run(model, input, None)?;
-        self.key = Some((model.crc32, input));
-        Ok(self.face().unwrap_or(&[]))
+        self.predict_in(model, head, None, true)
     }
 
     /// Like [`predict_with`](Self::predict_with) but always runs the whole network (for
@@ -170,20 +155,29 @@ impl Decoder {
         head: [f32; 2],
         room: &Room,
     ) -> Result<&[u16], DecodeError> {
-        let input = quantise_input(model, head)?;
-        self.run_with(model, input, room)?;
-        self.key = Some((model.crc32, input));
-        Ok(self.face().unwrap_or(&[]))
+        self.predict_in(model, head, Some(room), true)
     }
 
-    fn run_with(&mut self, model: &Model, input: [i16; 2], room: &Room) -> Result<(), DecodeError> {
-        if !self.run(model, input, room.halves())? {
-            if let Some((k, n)) = self.face {
+    /// The four above: the network runs when `always`, or when the key differs from the
+    /// cached face's; with `room`, its offsets are added.
+    fn predict_in(
+        &mut self,
+        model: &Model,
+        head: [f32; 2],
+        room: Option<&Room>,
+        always: bool,
+    ) -> Result<&[u16], DecodeError> {
+        let input = quantise_input(model, head)?;
+        let key = (model.crc32, input);
+        if always || self.key != Some(key) || self.face.is_none() {
+            let added = self.run(model, input, room.and_then(Room::halves))?;
+            if let (Some(room), Some((k, n)), false) = (room, self.face, added) {
                 let face = &mut bytemuck::cast_slice_mut(&mut self.act[k].0[..])[..n];
                 room.apply(face, model.face_w as usize);
             }
+            self.key = Some(key);
         }
-        Ok(())
+        Ok(self.face().unwrap_or(&[]))
     }
 
     /// The last predicted face, if any.

@@ -158,8 +158,8 @@ pub struct RoomReport {
 /// Online self-calibration ([`crate::room`]) on a fixed sequence: 32 frames of the face at
 /// [`head_pose`]`(0)`, 2 grey levels brighter on its left half than predicted, with noise and
 /// a mark on every fourth, each through saliency and then learnt from (a second apart); then
-/// a prediction made with the offsets and one without. `counter` reads a clock (instructions on the board; the
-/// host may return 0). The room is reset first and left as learnt.
+/// a prediction made with the offsets and one without. `counter` reads a clock (instructions
+/// on the board; the host may return 0). The room is reset first and left as learnt.
 pub fn room(
     ws: &mut Workspace,
     model: &Model,

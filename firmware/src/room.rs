@@ -191,8 +191,7 @@ impl Room {
         self.generation = self.generation.wrapping_add(1);
     }
 
-    /// Sets every offset (tests).
-    #[cfg(test)]
+    /// Sets every offset.
     pub(crate) fn set_offsets(&mut self, offsets: &[i16; CELLS]) {
         for (c, &o) in offsets.iter().enumerate() {
             self.set(c, o);
@@ -407,10 +406,7 @@ impl Room {
             }
         }
         self.reset();
-        for (c, &o) in offset.iter().enumerate() {
-            self.set(c, o);
-        }
-        self.refresh();
+        self.set_offsets(&offset);
         true
     }
 }
