@@ -370,7 +370,7 @@ impl DxlBus {
             // Present Velocity in units of 0.229 rev/min.
             let v = sign(&r.map) * s.velocity / (0.229 * std::f64::consts::TAU / 60.0);
             put(table::PRESENT_VELOCITY, v.round() as i32 as u32);
-            put(table::PRESENT_POSITION, raw(s.position) as u32);
+            put(table::PRESENT_POSITION, raw(s.position + s.noise * crate::servo::COUNT_RAD) as u32);
         }
         t
     }

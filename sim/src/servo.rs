@@ -26,6 +26,13 @@ pub struct ServoConfig {
     pub hold_timeout_us: u64,
     /// Integration step.
     pub step_us: u64,
+    /// Encoder noise, counts RMS: each integration step draws Gaussian noise of this spread
+    /// onto the position before the encoder rounds it, so a servo holding still reads the
+    /// counts around its position by turns (most often the two nearest), as a real one can
+    /// (vibration, the holding loop's dither, electrical noise). 0: none.
+    pub encoder_noise: f64,
+    /// Seed of the encoder noise's draws.
+    pub noise_seed: u64,
 }
 
 impl Default for ServoConfig {
@@ -36,6 +43,8 @@ impl Default for ServoConfig {
             report_period_us: 10_000,
             hold_timeout_us: 100_000,
             step_us: 1_000,
+            encoder_noise: 0.0,
+            noise_seed: 0,
         }
     }
 }
@@ -59,6 +68,9 @@ pub struct Servo {
     pub faults: u8,
     /// Velocity over the last integration step (rad/s).
     pub velocity: f64,
+    /// The encoder noise drawn for this integration step, counts
+    /// ([`ServoConfig::encoder_noise`]).
+    pub noise: f64,
     last_target_us: Option<u64>,
 }
 
@@ -78,13 +90,14 @@ impl Servo {
             stiff: true,
             faults: 0,
             velocity: 0.0,
+            noise: 0.0,
             last_target_us: None,
         })
     }
 
     /// What the encoder reads.
     pub fn measured(&self) -> f64 {
-        quantise(self.position)
+        quantise(self.position + self.noise * COUNT_RAD)
     }
 
     /// A new goal, kept inside the joint's limits (the caller has checked it).
@@ -108,10 +121,12 @@ impl Servo {
     }
 }
 
+/// One encoder count, radians.
+pub const COUNT_RAD: f64 = std::f64::consts::TAU / ENCODER_COUNTS as f64;
+
 /// Rounds an angle to the encoder's resolution.
 pub fn quantise(angle: f64) -> f64 {
-    let lsb = std::f64::consts::TAU / ENCODER_COUNTS as f64;
-    (angle / lsb).round() * lsb
+    (angle / COUNT_RAD).round() * COUNT_RAD
 }
 
 /// What the bus has counted.
@@ -141,6 +156,8 @@ pub struct ServoBus {
     report_now: bool,
     /// Speaking Dynamixel Protocol 2.0 instead of the framed protocol.
     dxl: Option<crate::dynamixel::DxlBus>,
+    /// The encoder noise's draws.
+    rng: rand_chacha::ChaCha8Rng,
 }
 
 impl ServoBus {
@@ -164,6 +181,7 @@ impl ServoBus {
             next_report_us: 0,
             report_now: false,
             dxl: None,
+            rng: rand::SeedableRng::seed_from_u64(cfg.noise_seed),
         }
     }
 
@@ -299,6 +317,15 @@ impl ServoBus {
             let dt = dt_us as f64 * 1e-6;
             for s in &mut self.servos {
                 s.step(dt, tau);
+            }
+            if self.cfg.encoder_noise > 0.0 {
+                use rand::Rng;
+                for s in &mut self.servos {
+                    // Box-Muller: one normal deviate from two uniform ones.
+                    let (u1, u2): (f64, f64) = (self.rng.gen_range(f64::MIN_POSITIVE..1.0), self.rng.gen());
+                    let z = (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos();
+                    s.noise = self.cfg.encoder_noise * z;
+                }
             }
             self.now_us += dt_us;
         }

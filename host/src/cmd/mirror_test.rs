@@ -60,6 +60,11 @@ pub struct Args {
     /// When the cut starts, milliseconds into the trial
     #[arg(long, default_value_t = 1500)]
     pub disconnect_at_ms: u64,
+    /// Noise on the servos' encoders, counts RMS (0..=4), drawn every millisecond before the
+    /// encoder rounds: a servo holding still reads the counts around its position by turns,
+    /// as a real one can
+    #[arg(long, default_value_t = 0.0, value_parser = super::encoder_noise)]
+    pub encoder_noise: f64,
     /// Share of trials without a mark
     #[arg(long, default_value_t = 0.2)]
     pub no_mark_share: f64,
@@ -172,6 +177,7 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     c.light = a.light.into();
     c.log_bus = a.bus_log.is_some();
     c.learn_room = a.learn_room == OnOff::On;
+    c.encoder_noise = a.encoder_noise;
     if a.one_board && a.backend != Backend::Inproc {
         return Err(super::usage("--one-board needs --backend inproc"));
     }

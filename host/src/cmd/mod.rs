@@ -133,6 +133,14 @@ impl std::fmt::Display for Usage {
 
 impl std::error::Error for Usage {}
 
+/// Encoder noise, counts RMS, 0..=4 (a clap value parser).
+pub(crate) fn encoder_noise(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (0.0..=4.0).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}` is not a noise between 0 and 4 counts")),
+    }
+}
+
 /// A [`Usage`] error.
 pub fn usage(msg: impl Into<String>) -> anyhow::Error {
     anyhow::Error::new(Usage(msg.into()))

@@ -153,6 +153,8 @@ pub struct EpisodeConfig {
     /// Let the board learn the room's light (its online self-calibration); off: the PC tells
     /// it to freeze at the start of each trial, so it keeps the model's own statistics.
     pub learn_room: bool,
+    /// The servos' encoder noise, counts RMS ([`msr_sim::servo::ServoConfig::encoder_noise`]).
+    pub encoder_noise: f64,
 }
 
 /// A light plan drawn once for a run of trials, and where in it a trial starts.
@@ -189,6 +191,7 @@ impl EpisodeConfig {
             light: LightPlan::Fixed,
             light_span: None,
             learn_room: true,
+            encoder_noise: 0.0,
         }
     }
 
@@ -231,6 +234,8 @@ impl EpisodeConfig {
         w.servo_link.a_to_b = self.servo_faults.clone();
         w.servo_link.b_to_a = self.servo_faults.clone();
         w.pace = self.pace;
+        w.servo.encoder_noise = self.encoder_noise;
+        w.servo.noise_seed = seed;
         if self.servo_bus == ServoBus::Dynamixel {
             w.servo_link.baud = 1_000_000;
             w.dynamixel = Some(msr_sim::dynamixel::DxlConfig::default());

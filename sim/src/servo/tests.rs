@@ -167,3 +167,35 @@ fn odd_start_angles_are_clamped() {
     assert_eq!(b.position(Joint::HeadYaw), Joint::HeadYaw.limits().unwrap().max as f64);
     assert_eq!(b.position(Joint::LElbowRoll), Joint::LElbowRoll.limits().unwrap().max as f64);
 }
+
+/// Encoder noise: a servo holding still reads the counts around its position by turns, the
+/// reports' mean within a tenth of a count of the true position (the noise dithers the
+/// rounding), the same draws for the same seed; none by default.
+#[test]
+fn encoder_noise_makes_a_still_servo_read_the_counts_around_it() {
+    let readings = |noise: f64, seed: u64| {
+        let cfg = ServoConfig { encoder_noise: noise, noise_seed: seed, ..ServoConfig::default() };
+        // 0.3 of a count past a count: its nearest count when read without noise.
+        let yaw = (100.0 + 0.3) * COUNT_RAD;
+        let mut b = ServoBus::new(cfg, &[(Joint::HeadYaw, yaw)]);
+        let reports = run(&mut b, 0, 9_990_000);
+        assert_eq!(b.position(Joint::HeadYaw), yaw, "noise moved the servo");
+        reports
+            .iter()
+            .map(|(_, s)| {
+                let p = s.iter().find(|s| s.joint == Joint::HeadYaw).unwrap().position as f64;
+                (p / COUNT_RAD).round() as i32
+            })
+            .collect::<Vec<i32>>()
+    };
+    assert!(readings(0.0, 1).iter().all(|&c| c == 100));
+    let r = readings(0.5, 1);
+    let mean = r.iter().sum::<i32>() as f64 / r.len() as f64;
+    assert!((mean - 100.3).abs() < 0.1, "mean reading {mean} counts");
+    for c in [99, 100, 101] {
+        assert!(r.contains(&c), "never read {c}");
+    }
+    assert!(r.iter().all(|c| (98..=102).contains(c)));
+    assert_eq!(r, readings(0.5, 1));
+    assert_ne!(r, readings(0.5, 2));
+}
