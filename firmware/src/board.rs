@@ -39,6 +39,11 @@ pub const SETTLE_RAD: f32 = 0.0031;
 pub const SETTLE_PERIODS: u8 = 3;
 /// How long past the move's planned duration the head may take to settle.
 pub const SETTLE_MARGIN_US: u64 = 1_000_000;
+/// A head servo's reading may flicker by an encoder count while it holds still; the pipeline
+/// keeps the head pose it last saw while both readings stay within two counts of it, so
+/// the prediction, its pose cell and what the room learns are not made again each frame (a
+/// decoder run costs about 48 instructions a pixel).
+pub const HEAD_DEAD_BAND_COUNTS: f32 = 2.05;
 
 /// A head pose asked for and not yet answered.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -111,6 +116,8 @@ struct Core<S: ModelStore> {
     room_unsaved: bool,
     /// What `Status` says of the room (kept here: `status` does not see the workspace).
     room: RoomReport,
+    /// The head pose the pipeline was last given (NaN: none yet); see [`HEAD_DEAD_BAND_COUNTS`].
+    steady_head: [f32; 2],
 }
 
 /// The firmware. `S` holds the model blobs (see [`ModelStore`]).
@@ -166,6 +173,7 @@ impl<S: ModelStore> Board<S> {
                 room_saved_ms: 0,
                 room_unsaved: false,
                 room: RoomReport { state: RoomState::Off, frames: 0, updates: 0, largest_q88: 0, at_limit: 0 },
+                steady_head: [f32::NAN; 2],
             },
         }
     }
@@ -782,6 +790,36 @@ impl<S: ModelStore> Core<S> {
         true
     }
 
+    /// The head pose for the pipeline: the one it was last given while each head servo reports
+    /// within [`HEAD_DEAD_BAND_COUNTS`] of its encoder's counts of it (a servo holding still may
+    /// flicker by a count), else `head`, which becomes that pose. The counts are the Dynamixel
+    /// map's; on the framed bus a 4096-count encoder's.
+    fn steady(&mut self, head: [f32; 2]) -> [f32; 2] {
+        let per_rad = |i: usize| {
+            self.dxl.as_ref().map_or(msr_shared::dynamixel::map::X_COUNTS_PER_RAD, |m| m.map()[i].counts_per_rad)
+        };
+        let near = |i: usize| (head[i] - self.steady_head[i]).abs() * per_rad(i) <= HEAD_DEAD_BAND_COUNTS;
+        if !(near(0) && near(1)) {
+            self.steady_head = head;
+        }
+        self.steady_head
+    }
+
+    /// Where the head holds, for the self gate's probe: the motion's head goal while both head
+    /// servos report within [`SETTLE_RAD`] of it, else `reading`. A servo holding still is
+    /// where it was sent, while its reading may be a count or two off (encoder noise, a
+    /// holding loop's dither); a probe centred on the reading would move the head by those
+    /// counts, in pitch too, and the gate would see its own image move (the level test).
+    fn held_head(&self, reading: [f32; 2]) -> [f32; 2] {
+        let g = self.motion.head_goal();
+        let near = |i: usize| (reading[i] - g[i]).abs() <= SETTLE_RAD;
+        if near(0) && near(1) {
+            g
+        } else {
+            reading
+        }
+    }
+
     fn on_frame<H: Write>(
         &mut self,
         now_us: u64,
@@ -798,9 +836,10 @@ impl<S: ModelStore> Core<S> {
             // The probe's frames go to the gate only: no reach while the head moves.
             let step = match (self.measured[0], self.measured[1]) {
                 (Some(yaw), Some(pitch)) => {
+                    let head = self.steady([yaw, pitch]);
                     let salient = match (self.settings, self.store.active()) {
                         (Some(s), Some(bytes)) => Model::parse_trusted(bytes).ok().and_then(|m| {
-                            pipeline::detect(ws, &m, &s, pixels, [h.crop_x, h.crop_y], [yaw, pitch]).ok()
+                            pipeline::detect(ws, &m, &s, pixels, [h.crop_x, h.crop_y], head).ok()
                         }),
                         _ => None,
                     };
@@ -829,6 +868,7 @@ impl<S: ModelStore> Core<S> {
             return;
         };
         let head = [yaw, pitch];
+        let steady = self.steady(head);
         if self.store.busy() {
             // On a board the model's flash bank may be being erased: reading it would stall the
             // CPU (and the control period) until the erase ends. The next frame is read.
@@ -838,7 +878,7 @@ impl<S: ModelStore> Core<S> {
         let result = match (self.settings, self.store.active()) {
             (Some(settings), Some(bytes)) => match Model::parse_trusted(bytes) {
                 Ok(model) => {
-                    pipeline::detect(ws, &model, &settings, pixels, [h.crop_x, h.crop_y], head)
+                    pipeline::detect(ws, &model, &settings, pixels, [h.crop_x, h.crop_y], steady)
                         .map_err(|_| (ErrorCode::BadFrame, h.frame as u32))
                 }
                 Err(_) => Err((ErrorCode::NoModel, 1)),
@@ -870,6 +910,7 @@ impl<S: ModelStore> Core<S> {
             g.observe(h.position(), yaw, det.salient_pixels);
         }
         let mut confirmed = false;
+        let held = self.held_head(head);
         if self.confirm.push(det.blob.is_some())
             && !self.servo_wd.tripped()
             && !self.face_wd.tripped()
@@ -877,7 +918,7 @@ impl<S: ModelStore> Core<S> {
             if let (Some(target), Some(g)) = (det.reach, self.gate.as_mut()) {
                 // Not yet: first the probe that tells whether this face is ours.
                 self.confirm.reset();
-                let step = g.start(now_us, h.frame, head, target);
+                let step = g.start(now_us, h.frame, held, target);
                 self.gate_step(step, h.frame, host);
             } else if let Some(target) = det.reach {
                 if self.motion.reach(target) {

@@ -19,9 +19,12 @@
 //! - `level_px`: how far the face's y moved at a pose from its rest (a yaw probe does not move
 //!   the own image up or down; a babbling robot's pitch does);
 //! - `line_px` (a gate with [`SelfGate::line_tol`], blob layout 2): the probe ends with a third
-//!   stage back at the resting yaw the encoder reported, the poses' exact midpoint (the servo
-//!   goes where it is sent), and the face there must lie on the poses' line. `rest_px` carries
-//!   the encoder's rounding of the resting yaw (up to half a pixel), so it cannot be tight;
+//!   stage back at the resting yaw the probe started from, the poses' exact midpoint (the servo
+//!   goes where it is sent), and the face there must lie on the poses' line. The board starts
+//!   the probe from where the head was sent while its servos report it there (within two
+//!   counts), else from the reported angles: a probe centred on a reading that a count of
+//!   encoder noise moved would move the head by that count, in pitch too. `rest_px` carries
+//!   the servo's rounding of the resting pose (up to half a pixel), so it cannot be tight;
 //!   `line_px` carries only the template match's noise. Another robot that stands still at a
 //!   pose whose camera-only gain happens to match the own image's, or that moved a little
 //!   between the rest and the probe, lies off the line by a few tenths of a pixel (issue 29:

@@ -14,7 +14,12 @@ fn gated(robot: Robot) -> (Vec<u8>, Vec<u8>) {
 }
 
 fn run(blob: &[u8], scene: Scene, n: usize, seed: u64) -> (Summary, Vec<Trial>) {
+    run_noisy(blob, scene, n, seed, 0.0)
+}
+
+fn run_noisy(blob: &[u8], scene: Scene, n: usize, seed: u64, encoder_noise: f64) -> (Summary, Vec<Trial>) {
     let mut cfg = EpisodeConfig::new(Robot::Red);
+    cfg.encoder_noise = encoder_noise;
     cfg.no_mark_share = 0.0;
     cfg.scene = scene;
     cfg.parallel = 2;
@@ -52,6 +57,17 @@ fn the_own_mirror_image_passes_and_is_touched_as_without_the_gate() {
     // The probe: two poses and the rest, each held 250 ms after the servos report it reached
     // (`GateCalibration`'s settle wait; 100 ms left the own face moving) plus the turns.
     assert!(b > a && b <= a + 1750.0, "latency {a} ms without the gate, {b} ms with it");
+}
+
+/// Servos whose readings wander by a count or two while they hold still (encoder noise of
+/// half a count RMS): the probe is centred where the head holds, not on a reading, so the
+/// head does not move in pitch and its own image stays level.
+#[test]
+fn the_own_mirror_image_passes_with_noisy_encoders() {
+    let (_, gated) = gated(Robot::Red);
+    let (on, trials) = run_noisy(&gated, Scene::Mirror, 6, 11, 0.5);
+    assert_eq!(on.gate_rejects, 0, "{trials:#?}");
+    assert!(on.touched >= 5, "{on:?}");
 }
 
 #[test]

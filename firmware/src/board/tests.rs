@@ -961,6 +961,57 @@ fn the_room_learns_only_on_frames_with_the_prediction_cached() {
     assert!((4..=6).contains(&learnt), "{learnt} frames learnt with the head still");
 }
 
+/// A head servo holding still may read the counts around its position by turns: within
+/// [`HEAD_DEAD_BAND_COUNTS`] the pipeline keeps the pose it has, so the decoder runs once and
+/// the room learns as with a still reading; three counts away is a new pose.
+#[test]
+fn a_head_reading_that_flickers_by_a_count_or_two_keeps_its_prediction() {
+    let count = core::f32::consts::TAU / 4096.0;
+    // Yaw and pitch each on one of the counts from -1 to +1 around home, by turns; or still.
+    let run = |flicker: bool| {
+        let mut rig = Rig::new(Some(pooled_blob()));
+        rig.run(3000);
+        rig.jammed = true;
+        let home = [rig.position[0], rig.position[1]];
+        let runs = rig.board.ws.decoder.runs();
+        for i in 0..40 {
+            let step = [(i % 3) as f32 - 1.0, ((i / 3) % 3) as f32 - 1.0];
+            if flicker {
+                rig.position[0] = home[0] + step[0] * count;
+                rig.position[1] = home[1] + step[1] * count;
+            }
+            rig.run(10);
+            rig.frame(i, &face(home, false));
+            rig.run(90);
+        }
+        let d = rig.detections();
+        assert!(d.len() >= 38 && d.iter().all(|d| d.blob.is_none()), "{d:?}");
+        // The reports keep the servos' readings.
+        assert_eq!(d.iter().any(|d| d.head[0] != home[0]), flicker, "{d:?}");
+        let ran = rig.board.ws.decoder.runs() - runs;
+        (rig, home, ran)
+    };
+    let (still, _, still_runs) = run(false);
+    let (mut rig, home, runs) = run(true);
+    // Once for the pose, once more after each update of the room's offsets.
+    let updates = still.board.status().room.updates;
+    assert_eq!(still_runs, 1 + updates, "{updates} updates");
+    assert_eq!(runs, still_runs, "the decoder ran again on a flicker");
+    let learnt = rig.board.status().room.frames;
+    assert!(learnt >= 4, "{learnt} frames learnt");
+    assert_eq!(learnt, still.board.status().room.frames, "the room learnt less from a flickering reading");
+    // Three counts from the pose the pipeline holds (yaw -1 count, from the first frame) is a
+    // new pose, and so is three counts back.
+    for (i, yaw) in [(40, 2.0), (41, -1.0)] {
+        let before = rig.board.ws.decoder.runs();
+        rig.position[0] = home[0] + yaw * count;
+        rig.run(10);
+        rig.frame(i, &face(home, false));
+        rig.run(90);
+        assert_eq!(rig.board.ws.decoder.runs(), before + 1, "three counts away kept the old pose");
+    }
+}
+
 #[test]
 fn what_was_learnt_of_the_room_survives_a_reset_in_flash() {
     use crate::store::emu::EmuFlash;
