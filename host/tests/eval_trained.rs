@@ -73,6 +73,22 @@ fn eval_reports_trained_float_and_firmware_rows() {
             let hit = r["hit_rate"].as_f64().unwrap();
             assert!((0.0..=1.0).contains(&hit));
         }
+        // The frames each row got wrong are listed, as many as its rates say.
+        for r in rows.iter().filter(|r| r["weighting"] == w) {
+            let (marked, unmarked) = (v["marked"].as_f64().unwrap(), v["unmarked"].as_f64().unwrap());
+            let wrong = r["wrong"].as_array().unwrap();
+            let missed = marked * (1.0 - r["hit_rate"].as_f64().unwrap());
+            let fired = unmarked * r["false_alarm_rate"].as_f64().unwrap();
+            assert_eq!(wrong.len(), (missed + fired).round() as usize, "{r}");
+            let n_fired = wrong.iter().filter(|x| x["what"] == "fired").count();
+            assert_eq!(n_fired, fired.round() as usize, "{r}");
+            for x in wrong {
+                assert!(["no blob", "off the mark", "fired"].contains(&x["what"].as_str().unwrap()), "{x}");
+                assert!(Path::new(x["file"].as_str().unwrap()).is_file(), "{x}");
+                assert_eq!(x["blob"].is_null(), x["what"] == "no blob", "{x}");
+                assert_eq!(x["mark_pixels"].is_null(), x["what"] == "fired", "{x}");
+            }
+        }
         assert!(has("decoder", w, "fixed").is_some());
         assert!(has("autoencoder", w, "fixed").is_none());
     }

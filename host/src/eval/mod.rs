@@ -47,6 +47,27 @@ pub struct Row {
     pub pixel_auroc: Option<f64>,
     /// Where the model of this row came from.
     pub source: String,
+    /// The test frames it got wrong: marks not found, unmarked frames that fired.
+    #[serde(default)]
+    pub wrong: Vec<Wrong>,
+}
+
+/// A test frame a row got wrong.
+#[derive(Serialize, Deserialize, Debug, Clone, PartialEq)]
+pub struct Wrong {
+    /// The frame's file.
+    pub file: String,
+    /// [HeadYaw, HeadPitch], radians.
+    pub head: [f32; 2],
+    /// `"no blob"` (a marked frame that found nothing), `"off the mark"` (the winning blob's
+    /// centroid is not on it) or `"fired"` (an unmarked frame).
+    pub what: String,
+    /// The winning blob's area and centroid (full-frame pixels), if any.
+    pub blob: Option<(u32, [f64; 2])>,
+    /// The mark's pixels inside the face, on a marked frame.
+    pub mark_pixels: Option<u32>,
+    /// The frame's photometric fit's verdict, when it was not a face.
+    pub verdict: Option<String>,
 }
 
 #[derive(Serialize, Deserialize, Debug, Clone)]
@@ -369,7 +390,16 @@ fn row(
     let (mut alarms, mut unmarked) = (0usize, 0usize);
     let (mut img_scores, mut img_labels) = (Vec::new(), Vec::new());
     let (mut px_scores, mut px_labels) = (Vec::new(), Vec::new());
+    let mut wrong = Vec::new();
     for (s, d) in test.iter().zip(dets) {
+        let wrong_as = |what: &str| Wrong {
+            file: s.file.display().to_string(),
+            head: s.head,
+            what: what.into(),
+            blob: d.blob.map(|b| (b.area, b.centroid)),
+            mark_pixels: s.mark.as_ref().map(|m| m.face_mask.iter().filter(|&&p| p).count() as u32),
+            verdict: (d.light.verdict != msr_firmware::light::Verdict::Face).then(|| format!("{:?}", d.light.verdict)),
+        };
         // The score is one of the f32 saliencies (or -inf), so the round trip is exact.
         let sal: Vec<f64> = d.saliency.iter().map(|&v| v as f64).collect();
         img_scores.push(detection_score(&sal, w, min_area) as f32);
@@ -381,6 +411,7 @@ fn row(
                 px_labels.extend(std::iter::repeat_n(false, d.saliency.len()));
                 if d.blob.is_some() {
                     alarms += 1;
+                    wrong.push(wrong_as("fired"));
                 }
             }
             Some(mk) => {
@@ -419,7 +450,11 @@ fn row(
                     overlap += inter as f64 / mk.pixels.max(1) as f64;
                     if on_mark(b.centroid[0].round() as i64, b.centroid[1].round() as i64) {
                         hits += 1;
+                    } else {
+                        wrong.push(wrong_as("off the mark"));
                     }
+                } else {
+                    wrong.push(wrong_as("no blob"));
                 }
             }
         }
@@ -436,6 +471,7 @@ fn row(
         image_auroc: auroc(&img_scores, &img_labels),
         pixel_auroc: auroc(&px_scores, &px_labels),
         source,
+        wrong,
     }
 }
 
