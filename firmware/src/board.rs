@@ -39,11 +39,6 @@ pub const SETTLE_RAD: f32 = 0.0031;
 pub const SETTLE_PERIODS: u8 = 3;
 /// How long past the move's planned duration the head may take to settle.
 pub const SETTLE_MARGIN_US: u64 = 1_000_000;
-/// A head servo's reading may flicker by an encoder count while it holds still; the pipeline
-/// keeps the head pose it last saw while both readings stay within two counts of it, so
-/// the prediction, its pose cell and what the room learns are not made again each frame (a
-/// decoder run costs about 48 instructions a pixel).
-pub const HEAD_DEAD_BAND_COUNTS: f32 = 2.05;
 
 /// A head pose asked for and not yet answered.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -116,7 +111,7 @@ struct Core<S: ModelStore> {
     room_unsaved: bool,
     /// What `Status` says of the room (kept here: `status` does not see the workspace).
     room: RoomReport,
-    /// The head pose the pipeline was last given (NaN: none yet); see [`HEAD_DEAD_BAND_COUNTS`].
+    /// The head pose the pipeline was last given (NaN: none yet); see [`Core::steady`].
     steady_head: [f32; 2],
 }
 
@@ -790,15 +785,13 @@ impl<S: ModelStore> Core<S> {
         true
     }
 
-    /// The head pose for the pipeline: the one it was last given while each head servo reports
-    /// within [`HEAD_DEAD_BAND_COUNTS`] of its encoder's counts of it (a servo holding still may
-    /// flicker by a count), else `head`, which becomes that pose. The counts are the Dynamixel
-    /// map's; on the framed bus a 4096-count encoder's.
+    /// The head pose for the pipeline: the one it was last given while both head servos report
+    /// within [`SETTLE_RAD`] (two counts) of it, else `head`, which becomes that pose. A servo
+    /// holding still may read the counts around its position by turns; each changed reading
+    /// would make the prediction again (the decoder, about 48 instructions a pixel), and the
+    /// room learns from no frame that did.
     fn steady(&mut self, head: [f32; 2]) -> [f32; 2] {
-        let per_rad = |i: usize| {
-            self.dxl.as_ref().map_or(msr_shared::dynamixel::map::X_COUNTS_PER_RAD, |m| m.map()[i].counts_per_rad)
-        };
-        let near = |i: usize| (head[i] - self.steady_head[i]).abs() * per_rad(i) <= HEAD_DEAD_BAND_COUNTS;
+        let near = |i: usize| (head[i] - self.steady_head[i]).abs() <= SETTLE_RAD;
         if !(near(0) && near(1)) {
             self.steady_head = head;
         }

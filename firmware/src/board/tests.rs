@@ -962,7 +962,7 @@ fn the_room_learns_only_on_frames_with_the_prediction_cached() {
 }
 
 /// A head servo holding still may read the counts around its position by turns: within
-/// [`HEAD_DEAD_BAND_COUNTS`] the pipeline keeps the pose it has, so the decoder runs once and
+/// two counts ([`SETTLE_RAD`]) the pipeline keeps the pose it has, so the decoder runs once and
 /// the room learns as with a still reading; three counts away is a new pose.
 #[test]
 fn a_head_reading_that_flickers_by_a_count_or_two_keeps_its_prediction() {
