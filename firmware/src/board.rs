@@ -40,6 +40,11 @@ pub const SETTLE_PERIODS: u8 = 3;
 /// How long past the move's planned duration the head may take to settle.
 pub const SETTLE_MARGIN_US: u64 = 1_000_000;
 
+/// Both head angles (yaw, pitch) within [`SETTLE_RAD`] of the other pose's (false with a NaN).
+fn within_settle(a: [f32; 2], b: [f32; 2]) -> bool {
+    (a[0] - b[0]).abs() <= SETTLE_RAD && (a[1] - b[1]).abs() <= SETTLE_RAD
+}
+
 /// A head pose asked for and not yet answered.
 #[derive(Clone, Copy, Debug, PartialEq)]
 struct HeadMove {
@@ -684,9 +689,7 @@ impl<S: ModelStore> Core<S> {
         let commanded = self.motion.commanded();
         let reached = commanded.is_some_and(|c| c[0] == m.goal[0] && c[1] == m.goal[1]);
         let near = match (self.measured[0], self.measured[1]) {
-            (Some(y), Some(p)) if reached => {
-                (y - m.goal[0]).abs() <= SETTLE_RAD && (p - m.goal[1]).abs() <= SETTLE_RAD
-            }
+            (Some(y), Some(p)) if reached => within_settle([y, p], m.goal),
             _ => false,
         };
         m.settled_periods = if near { m.settled_periods.saturating_add(1) } else { 0 };
@@ -791,8 +794,7 @@ impl<S: ModelStore> Core<S> {
     /// would make the prediction again (the decoder, about 48 instructions a pixel), and the
     /// room learns from no frame that did.
     fn steady(&mut self, head: [f32; 2]) -> [f32; 2] {
-        let near = |i: usize| (head[i] - self.steady_head[i]).abs() <= SETTLE_RAD;
-        if !(near(0) && near(1)) {
+        if !within_settle(head, self.steady_head) {
             self.steady_head = head;
         }
         self.steady_head
@@ -805,8 +807,7 @@ impl<S: ModelStore> Core<S> {
     /// counts, in pitch too, and the gate would see its own image move (the level test).
     fn held_head(&self, reading: [f32; 2]) -> [f32; 2] {
         let g = self.motion.head_goal();
-        let near = |i: usize| (reading[i] - g[i]).abs() <= SETTLE_RAD;
-        if near(0) && near(1) {
+        if within_settle(reading, g) {
             g
         } else {
             reading

@@ -31,3 +31,10 @@ pub mod servo;
 pub mod world;
 
 pub use looks::Robot;
+
+/// One standard normal deviate from two uniform ones (Box-Muller), for the sim's noises and the
+/// host's: the same draws from the same generator everywhere.
+pub fn standard_normal(rng: &mut impl rand::Rng) -> f64 {
+    let (u1, u2): (f64, f64) = (rng.gen_range(f64::MIN_POSITIVE..1.0), rng.gen());
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}

@@ -319,12 +319,8 @@ impl ServoBus {
                 s.step(dt, tau);
             }
             if self.cfg.encoder_noise > 0.0 {
-                use rand::Rng;
                 for s in &mut self.servos {
-                    // Box-Muller: one normal deviate from two uniform ones.
-                    let (u1, u2): (f64, f64) = (self.rng.gen_range(f64::MIN_POSITIVE..1.0), self.rng.gen());
-                    let z = (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos();
-                    s.noise = self.cfg.encoder_noise * z;
+                    s.noise = self.cfg.encoder_noise * crate::standard_normal(&mut self.rng);
                 }
             }
             self.now_us += dt_us;

@@ -137,15 +137,13 @@ pub fn expose(grey: &mut [u8], exposure: f32) {
 /// Adds Gaussian noise of `sigma` grey levels to each grey level (rounded, clipped to 0..=255),
 /// drawn from `seed`: a sensor noisier than the one the model was calibrated with.
 pub fn add_noise(grey: &mut [u8], sigma: f32, seed: u64) {
-    use rand::{Rng, SeedableRng};
+    use rand::SeedableRng;
     if sigma <= 0.0 {
         return;
     }
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
     for g in grey {
-        // Box-Muller: one normal deviate from two uniform ones.
-        let (u1, u2): (f64, f64) = (rng.gen_range(f64::MIN_POSITIVE..1.0), rng.gen());
-        let z = (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos();
+        let z = msr_sim::standard_normal(&mut rng);
         *g = (*g as f64 + sigma as f64 * z).round().clamp(0.0, 255.0) as u8;
     }
 }
@@ -397,7 +395,7 @@ fn row(
             head: s.head,
             what: what.into(),
             blob: d.blob.map(|b| (b.area, b.centroid)),
-            mark_pixels: s.mark.as_ref().map(|m| m.face_mask.iter().filter(|&&p| p).count() as u32),
+            mark_pixels: s.mark.as_ref().map(|m| m.pixels_in_face() as u32),
             verdict: (d.light.verdict != msr_firmware::light::Verdict::Face).then(|| format!("{:?}", d.light.verdict)),
         };
         // The score is one of the f32 saliencies (or -inf), so the round trip is exact.
