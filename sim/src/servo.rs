@@ -33,6 +33,10 @@ pub struct ServoConfig {
     pub encoder_noise: f64,
     /// Seed of the encoder noise's draws.
     pub noise_seed: u64,
+    /// Counts by which a pitch servo (the head's and the shoulders') holds off its goal, as a
+    /// real one under the load of what it carries does when its holding loop has no integral
+    /// term (a Dynamixel's default gains): gravity wins that many counts back. 0: none.
+    pub sag: f64,
 }
 
 impl Default for ServoConfig {
@@ -45,6 +49,7 @@ impl Default for ServoConfig {
             step_us: 1_000,
             encoder_noise: 0.0,
             noise_seed: 0,
+            sag: 0.0,
         }
     }
 }
@@ -61,6 +66,8 @@ pub struct Servo {
     min: f64,
     max: f64,
     max_velocity: f64,
+    /// Where the servo holds against its goal, radians ([`ServoConfig::sag`]).
+    sag: f64,
     /// True (unquantised) position.
     pub position: f64,
     pub target: f64,
@@ -85,6 +92,11 @@ impl Servo {
             min,
             max,
             max_velocity: l.max_velocity as f64 * cfg.velocity_fraction,
+            sag: if matches!(joint, Joint::HeadPitch | Joint::LShoulderPitch | Joint::RShoulderPitch) {
+                cfg.sag * COUNT_RAD
+            } else {
+                0.0
+            },
             position,
             target: position,
             stiff: true,
@@ -112,7 +124,8 @@ impl Servo {
             self.velocity = 0.0;
             return;
         }
-        let v = ((self.target - self.position) / tau).clamp(-self.max_velocity, self.max_velocity);
+        let held = (self.target + self.sag).clamp(self.min, self.max);
+        let v = ((held - self.position) / tau).clamp(-self.max_velocity, self.max_velocity);
         let next = self.position + v * dt;
         // First order never overshoots; the clamp keeps a limit-hugging target inside.
         let next = next.clamp(self.min, self.max);

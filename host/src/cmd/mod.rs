@@ -141,6 +141,15 @@ pub(crate) fn encoder_noise(s: &str) -> Result<f64, String> {
     }
 }
 
+/// A pitch servo's sag, counts, -6..=6 (a clap value parser): within the 0.01 rad the
+/// episodes' judge allows an arm that holds a reach (6.5 counts).
+pub(crate) fn sag(s: &str) -> Result<f64, String> {
+    match s.parse::<f64>() {
+        Ok(v) if (-6.0..=6.0).contains(&v) => Ok(v),
+        _ => Err(format!("`{s}` is not a sag between -6 and 6 counts")),
+    }
+}
+
 /// A [`Usage`] error.
 pub fn usage(msg: impl Into<String>) -> anyhow::Error {
     anyhow::Error::new(Usage(msg.into()))

@@ -155,6 +155,8 @@ pub struct EpisodeConfig {
     pub learn_room: bool,
     /// The servos' encoder noise, counts RMS ([`msr_sim::servo::ServoConfig::encoder_noise`]).
     pub encoder_noise: f64,
+    /// Counts by which the pitch servos hold off their goals ([`msr_sim::servo::ServoConfig::sag`]).
+    pub sag: f64,
 }
 
 /// A light plan drawn once for a run of trials, and where in it a trial starts.
@@ -192,6 +194,7 @@ impl EpisodeConfig {
             light_span: None,
             learn_room: true,
             encoder_noise: 0.0,
+            sag: 0.0,
         }
     }
 
@@ -236,6 +239,7 @@ impl EpisodeConfig {
         w.pace = self.pace;
         w.servo.encoder_noise = self.encoder_noise;
         w.servo.noise_seed = seed;
+        w.servo.sag = self.sag;
         if self.servo_bus == ServoBus::Dynamixel {
             w.servo_link.baud = 1_000_000;
             w.dynamixel = Some(msr_sim::dynamixel::DxlConfig::default());

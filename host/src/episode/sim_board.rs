@@ -49,26 +49,37 @@ pub struct ServeConfig {
     /// The board's flash in this file (created when missing): uploads and statistics survive
     /// a restart. Without it an upload lives in RAM until the server stops.
     pub flash: Option<PathBuf>,
+    /// Counts by which the emulated pitch servos hold off their goals
+    /// ([`msr_sim::servo::ServoConfig::sag`]).
+    pub sag: f64,
 }
 
 impl ServeConfig {
     /// A clean line to the board `backend` runs, with `model` (or none) in it.
     pub fn new(backend: Backend, model: Option<Vec<u8>>) -> ServeConfig {
-        ServeConfig { backend, model, host_faults: FaultConfig::default(), seed: 0, flash: None }
+        ServeConfig { backend, model, host_faults: FaultConfig::default(), seed: 0, flash: None, sag: 0.0 }
+    }
+
+    /// The world the served board lives in: real time, this config's seed and servos.
+    fn world(&self) -> WorldConfig {
+        let mut w = WorldConfig { pace: Some(1.0), ..WorldConfig::default() }.seeded(self.seed);
+        w.servo.sag = self.sag;
+        w
     }
 }
 
 impl SimBoard {
     /// Starts the board `cfg` names behind a new PTY.
     pub fn serve(cfg: ServeConfig) -> Result<SimBoard> {
+        let world = cfg.world();
         match cfg.backend {
             Backend::Inproc => match cfg.flash {
                 Some(path) => {
                     let builtin = cfg.model.as_deref().map(crate::flash_file::leak_aligned);
                     let store = crate::flash_file::open_store(&path, msr_firmware::store::EMULATED, builtin)?;
-                    SimBoard::start_board(Box::new(msr_firmware::Board::new(store)), cfg.host_faults, cfg.seed)
+                    SimBoard::start_board(Box::new(msr_firmware::Board::new(store)), cfg.host_faults, world)
                 }
-                None => SimBoard::start_with(cfg.model, cfg.host_faults, cfg.seed),
+                None => SimBoard::start_board(inproc_or_empty(cfg.model.as_deref()), cfg.host_faults, world),
             },
             Backend::Qemu => {
                 // `msr serve`'s flags give a burst length even without bursts: ask what they do.
@@ -80,7 +91,7 @@ impl SimBoard {
                     // line before QEMU starts; the image then reads it and writes through.
                     crate::flash_file::FileCells::open(path, msr_firmware::store::EMULATED.len() as usize)?;
                 }
-                SimBoard::start_qemu_with(cfg.model.as_deref(), cfg.flash.as_deref())
+                SimBoard::start_qemu_in(cfg.model.as_deref(), cfg.flash.as_deref(), world)
             }
         }
     }
@@ -93,6 +104,11 @@ impl SimBoard {
     /// As [`SimBoard::start_qemu`], with the board's flash in `flash_file` (see
     /// [`crate::episode::qemu::start_lockstep`]).
     pub fn start_qemu_with(blob: Option<&[u8]>, flash_file: Option<&std::path::Path>) -> Result<SimBoard> {
+        SimBoard::start_qemu_in(blob, flash_file, ServeConfig::new(Backend::Qemu, None).world())
+    }
+
+    /// As [`SimBoard::start_qemu_with`], in the world `cfg` (its pace and servos).
+    fn start_qemu_in(blob: Option<&[u8]>, flash_file: Option<&std::path::Path>, cfg: WorldConfig) -> Result<SimBoard> {
         let (mut ls, _) = crate::episode::qemu::start_lockstep(blob, flash_file)?;
         let pty = Pty::open()?;
         let path = pty.path().to_string();
@@ -102,7 +118,6 @@ impl SimBoard {
             move || -> Result<Served> {
                 let mut bridge = PtyBridge::new(pty);
                 let mut io_error = None;
-                let cfg = WorldConfig { pace: Some(1.0), ..WorldConfig::default() };
                 let (mut ho, mut so) = (Vec::new(), Vec::new());
                 let (w, _) = {
                     let mut fw = |_now: u64, he: &mut LinkEnd, se: &mut LinkEnd| {
@@ -167,18 +182,16 @@ impl SimBoard {
 
     /// [`SimBoard::start`] with `faults` on both directions of the host link, seeded by `seed`.
     pub fn start_with(blob: Option<Vec<u8>>, faults: FaultConfig, seed: u64) -> Result<SimBoard> {
-        let board = match &blob {
-            Some(b) => inproc_board(b),
-            None => Box::new(msr_firmware::Board::new(crate::episode::HeapStore::new(None, 2 * 1024 * 1024))),
-        };
-        SimBoard::start_board(board, faults, seed)
+        let cfg = ServeConfig { seed, ..ServeConfig::new(Backend::Inproc, None) };
+        SimBoard::start_board(inproc_or_empty(blob.as_deref()), faults, cfg.world())
     }
 
-    /// Serves `board` (any model store) behind a new PTY, `faults` on its host link.
+    /// Serves `board` (any model store) behind a new PTY, `faults` on its host link, in the
+    /// world `cfg` (its pace, seed and servos).
     pub fn start_board<S: ModelStore + Send + 'static>(
         mut board: Box<Board<S>>,
         faults: FaultConfig,
-        seed: u64,
+        mut cfg: WorldConfig,
     ) -> Result<SimBoard> {
         faults.check().map_err(|e| anyhow!("host-link faults: {e}"))?;
         let pty = Pty::open()?;
@@ -189,7 +202,6 @@ impl SimBoard {
             move || -> Result<Served> {
                 let mut bridge = PtyBridge::new(pty);
                 let mut io_error = None;
-                let mut cfg = WorldConfig { pace: Some(1.0), ..WorldConfig::default() }.seeded(seed);
                 cfg.host_link.a_to_b = faults.clone();
                 cfg.host_link.b_to_a = faults;
                 let (w, _) = {
@@ -259,5 +271,13 @@ impl Drop for SimBoard {
         if let Some(t) = self.thread.take() {
             let _ = t.join();
         }
+    }
+}
+
+/// An in-process board with `blob` built in, or one that waits for an upload.
+fn inproc_or_empty(blob: Option<&[u8]>) -> Box<Board<crate::episode::HeapStore>> {
+    match blob {
+        Some(b) => inproc_board(b),
+        None => Box::new(msr_firmware::Board::new(crate::episode::HeapStore::new(None, 2 * 1024 * 1024))),
     }
 }

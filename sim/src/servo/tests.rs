@@ -199,3 +199,34 @@ fn encoder_noise_makes_a_still_servo_read_the_counts_around_it() {
     assert_eq!(r, readings(0.5, 1));
     assert_ne!(r, readings(0.5, 2));
 }
+
+/// Sag: a pitch servo holds that many counts off its goal, wherever it is sent (the head's and
+/// the shoulders'), the other joints where they are sent; none by default.
+#[test]
+fn a_sagging_pitch_servo_holds_off_its_goal_by_the_counts_given() {
+    let hold = |sag: f64| {
+        let cfg = ServoConfig { sag, ..ServoConfig::default() };
+        let mut b = ServoBus::new(cfg, &[]);
+        let goal = 40.0 * COUNT_RAD;
+        let mut reports = Vec::new();
+        // Sent again every 50 ms (the hold timeout is 100 ms), for ten time constants.
+        for t in (0..300_000).step_by(50_000) {
+            b.receive(&targets(&[(Joint::HeadPitch, goal as f32), (Joint::HeadYaw, goal as f32), (Joint::LShoulderPitch, goal as f32)]), t);
+            reports = run(&mut b, t, t + 49_000);
+        }
+        let read = |j: Joint| {
+            let s = reports.last().unwrap().1.iter().find(|s| s.joint == j).unwrap().position as f64;
+            (s / COUNT_RAD).round() as i32
+        };
+        let off = |j: Joint| (b.position(j) - goal as f32 as f64) / COUNT_RAD;
+        (read(Joint::HeadPitch), read(Joint::HeadYaw), read(Joint::LShoulderPitch), off(Joint::HeadPitch), off(Joint::HeadYaw))
+    };
+    let (pitch, yaw, shoulder, p_off, y_off) = hold(0.0);
+    assert_eq!((pitch, yaw, shoulder), (40, 40, 40));
+    assert!(p_off.abs() < 0.01 && y_off.abs() < 0.01);
+    let (pitch, yaw, shoulder, p_off, y_off) = hold(3.0);
+    assert_eq!((pitch, yaw, shoulder), (43, 40, 43));
+    assert!((p_off - 3.0).abs() < 0.05 && y_off.abs() < 0.01, "{p_off} {y_off}");
+    let (pitch, _, shoulder, _, _) = hold(-5.0);
+    assert_eq!((pitch, shoulder), (35, 35));
+}
