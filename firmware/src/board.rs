@@ -32,17 +32,27 @@ pub const ROOM_SAVE_MS: u64 = 5 * 60 * 1000;
 pub const MAX_BYTES_PER_POLL: usize = 4096;
 /// Ask the servos for their state when none came for this long.
 pub const STATE_REQUEST_US: u64 = 20_000;
-/// The head has settled when both head servos report within this of the asked pose (two counts
-/// of a 12-bit encoder) for [`SETTLE_PERIODS`] control periods in a row.
+/// The head holds still while both head servos' readings stay within this of where they were
+/// (two counts of a 12-bit encoder): a reading may flicker by a count or two at rest.
 pub const SETTLE_RAD: f32 = 0.0031;
-/// Control periods in a row within [`SETTLE_RAD`] before a head move counts as settled.
-pub const SETTLE_PERIODS: u8 = 3;
+/// How far from the asked pose a head servo may hold (eight counts of a 12-bit encoder, 0.7
+/// degrees): a servo without an integral term holds off its goal by as much as its load
+/// takes back (gravity on the pitch), and sending it the goal again keeps it there.
+pub const HOLD_RAD: f32 = 0.0123;
+/// A head move has settled when both head servos report within [`HOLD_RAD`] of the asked pose
+/// and within [`STILL_RAD`] of where they were at the first of this many control periods in a
+/// row.
+pub const SETTLE_PERIODS: u8 = 4;
+/// One count of a 12-bit encoder: a servo still approaching where it holds moves by more than
+/// this over [`SETTLE_PERIODS`] periods until it is within about two counts of it (first order,
+/// a 30 ms time constant), so the angles a settled move reports are where the head holds.
+pub const STILL_RAD: f32 = 0.0016;
 /// How long past the move's planned duration the head may take to settle.
 pub const SETTLE_MARGIN_US: u64 = 1_000_000;
 
-/// Both head angles (yaw, pitch) within [`SETTLE_RAD`] of the other pose's (false with a NaN).
-fn within_settle(a: [f32; 2], b: [f32; 2]) -> bool {
-    (a[0] - b[0]).abs() <= SETTLE_RAD && (a[1] - b[1]).abs() <= SETTLE_RAD
+/// Both head angles (yaw, pitch) within `band` of the other pose's (false with a NaN).
+fn within(band: f32, a: [f32; 2], b: [f32; 2]) -> bool {
+    (a[0] - b[0]).abs() <= band && (a[1] - b[1]).abs() <= band
 }
 
 /// A head pose asked for and not yet answered.
@@ -52,6 +62,8 @@ struct HeadMove {
     since_us: u64,
     deadline_us: u64,
     settled_periods: u8,
+    /// The readings the periods counted in `settled_periods` stayed near.
+    still_at: [f32; 2],
 }
 
 /// The model in use, as far as the board needs to remember it between frames.
@@ -670,6 +682,7 @@ impl<S: ModelStore> Core<S> {
                     since_us: now_us,
                     deadline_us: now_us + planned + SETTLE_MARGIN_US,
                     settled_periods: 0,
+                    still_at: head,
                 });
             }
             Err(e) => {
@@ -688,11 +701,17 @@ impl<S: ModelStore> Core<S> {
         let Some(mut m) = self.head_move else { return };
         let commanded = self.motion.commanded();
         let reached = commanded.is_some_and(|c| c[0] == m.goal[0] && c[1] == m.goal[1]);
-        let near = match (self.measured[0], self.measured[1]) {
-            (Some(y), Some(p)) if reached => within_settle([y, p], m.goal),
-            _ => false,
+        m.settled_periods = match (self.measured[0], self.measured[1]) {
+            (Some(y), Some(p)) if reached && within(HOLD_RAD, [y, p], m.goal) => {
+                if m.settled_periods > 0 && within(STILL_RAD, [y, p], m.still_at) {
+                    m.settled_periods.saturating_add(1)
+                } else {
+                    m.still_at = [y, p];
+                    1
+                }
+            }
+            _ => 0,
         };
-        m.settled_periods = if near { m.settled_periods.saturating_add(1) } else { 0 };
         if m.settled_periods >= SETTLE_PERIODS {
             self.head_move = None;
             let head = [self.measured[0].unwrap_or(0.0), self.measured[1].unwrap_or(0.0)];
@@ -794,20 +813,21 @@ impl<S: ModelStore> Core<S> {
     /// would make the prediction again (the decoder, about 48 instructions a pixel), and the
     /// room learns from no frame that did.
     fn steady(&mut self, head: [f32; 2]) -> [f32; 2] {
-        if !within_settle(head, self.steady_head) {
+        if !within(SETTLE_RAD, head, self.steady_head) {
             self.steady_head = head;
         }
         self.steady_head
     }
 
     /// Where the head holds, for the self gate's probe: the motion's head goal while both head
-    /// servos report within [`SETTLE_RAD`] of it, else `reading`. A servo holding still is
-    /// where it was sent, while its reading may be a count or two off (encoder noise, a
-    /// holding loop's dither); a probe centred on the reading would move the head by those
-    /// counts, in pitch too, and the gate would see its own image move (the level test).
+    /// servos report within [`HOLD_RAD`] of it, else `reading`. A servo holding still holds
+    /// where it holds for that goal, while its reading may be a count or two off (encoder
+    /// noise, a holding loop's dither) or several (a pitch servo sagging under the head); a
+    /// probe centred on the reading would move the head by those counts, in pitch too, and
+    /// the gate would see its own image move (the level test).
     fn held_head(&self, reading: [f32; 2]) -> [f32; 2] {
         let g = self.motion.head_goal();
-        if within_settle(reading, g) {
+        if within(HOLD_RAD, reading, g) {
             g
         } else {
             reading

@@ -21,9 +21,10 @@
 //! - `line_px` (a gate with [`SelfGate::line_tol`], blob layout 2): the probe ends with a third
 //!   stage back at the resting yaw the probe started from, the poses' exact midpoint (the servo
 //!   goes where it is sent), and the face there must lie on the poses' line. The board starts
-//!   the probe from where the head was sent while its servos report it there (within two
-//!   counts), else from the reported angles: a probe centred on a reading that a count of
-//!   encoder noise moved would move the head by that count, in pitch too. `rest_px` carries
+//!   the probe from where the head was sent while its servos report it near there (within
+//!   `board::HOLD_RAD`, eight counts), else from the reported angles: a probe centred on a
+//!   reading that encoder noise or a sagging pitch servo moved off the goal would move the head
+//!   by those counts, in pitch too. `rest_px` carries
 //!   the servo's rounding of the resting pose (up to half a pixel), so it cannot be tight;
 //!   `line_px` carries only the template match's noise. Another robot that stands still at a
 //!   pose whose camera-only gain happens to match the own image's, or that moved a little

@@ -62,6 +62,8 @@ struct Rig<S: ModelStore = RamStore<STORE>> {
     servos_on: bool,
     /// The servos take no targets (a jammed joint).
     jammed: bool,
+    /// Where each servo holds against its target (a pitch servo sagging under its load).
+    sag: [f32; 5],
     position: [f32; 5],
 }
 
@@ -86,6 +88,7 @@ impl<S: ModelStore> Rig<S> {
             stiffness: false,
             servos_on: true,
             jammed: false,
+            sag: [0.0; 5],
             position: [0.1, -0.1, 1.0, 0.2, -0.5],
         }
     }
@@ -146,7 +149,7 @@ impl<S: ModelStore> Rig<S> {
                             assert_eq!(targets.len(), 5);
                             self.targets.push((self.now, t));
                             if self.stiffness && !self.jammed {
-                                self.position = t;
+                                self.position = core::array::from_fn(|i| t[i] + self.sag[i]);
                             }
                         }
                         BoardToServo::Stiffness { on } => self.stiffness = on,
@@ -959,6 +962,30 @@ fn the_room_learns_only_on_frames_with_the_prediction_cached() {
     }
     let learnt = rig.board.status().room.frames;
     assert!((4..=6).contains(&learnt), "{learnt} frames learnt with the head still");
+}
+
+/// A pitch servo without an integral term holds off its goal by what its load takes back: a
+/// head move settles where the servos hold still within [`HOLD_RAD`] (eight counts) of the
+/// pose asked for, and the answer gives the angles they report; farther off is not settled.
+#[test]
+fn a_head_move_settles_where_a_sagging_pitch_servo_holds() {
+    let count = core::f32::consts::TAU / 4096.0;
+    let answer = |sag_counts: f32| {
+        let mut rig = Rig::new(Some(blob()));
+        rig.run(3000);
+        rig.sag[1] = sag_counts * count;
+        rig.host_send(&HostToBoard::MoveHead { yaw: 0.08, pitch: -0.05 });
+        rig.run(1500);
+        head_answers(&rig)
+    };
+    assert_eq!(answer(0.0), vec![BoardToHost::HeadAt { head: [0.08, -0.05] }]);
+    for c in [3.0, -5.0, 7.5] {
+        assert_eq!(answer(c), vec![BoardToHost::HeadAt { head: [0.08, -0.05 + c * count] }], "{c} counts");
+    }
+    assert!(
+        matches!(answer(9.0)[..], [BoardToHost::Error { code: ErrorCode::HeadNotSettled, .. }]),
+        "nine counts off"
+    );
 }
 
 /// A head servo holding still may read the counts around its position by turns: within
