@@ -390,8 +390,9 @@ pub enum HostToBoard<'a> {
     /// Asks for [`BoardToHost::ServoBus`].
     GetServoBus,
     /// Moves the head to (HeadYaw, HeadPitch), radians, at the configured speed fraction, the
-    /// arm staying where it is. Answered by [`BoardToHost::HeadAt`] once the servos report the
-    /// head settled there, or by [`ErrorCode::HeadRefused`] / [`ErrorCode::HeadNotSettled`].
+    /// arm staying where it is. Answered by [`BoardToHost::HeadAt`] (the reported angles) once the
+    /// servos hold still within eight encoder counts of the pose (a loaded pitch servo may hold a
+    /// few counts off its goal), or by [`ErrorCode::HeadRefused`] / [`ErrorCode::HeadNotSettled`].
     /// Only while observing (not during a reach); an angle outside the joint's limits is refused,
     /// not clamped. Counts as host activity for the face watchdog (head babbling sends no
     /// frames). `yaw`, `pitch`: HeadYaw and HeadPitch, radians.
@@ -714,7 +715,8 @@ pub enum ErrorCode {
     /// or not finite, 1 no servo positions yet (or the servo watchdog holds), 2 a reach in
     /// progress.
     HeadRefused,
-    /// The head did not settle at the asked pose in time; `detail` is the milliseconds waited.
+    /// The head did not hold still within eight encoder counts of the asked pose in time;
+    /// `detail` is the milliseconds waited.
     HeadNotSettled,
     /// The model store is busy with flash work: `detail` 0 statistics not reset (a log
     /// compaction runs; ask again), 1 a frame not read (a sector of the model's flash bank is
