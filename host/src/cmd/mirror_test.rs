@@ -65,10 +65,8 @@ pub struct Args {
     /// as a real one can
     #[arg(long, default_value_t = 0.0, value_parser = super::encoder_noise)]
     pub encoder_noise: f64,
-    /// Counts by which the pitch servos (head, shoulders) hold off their goals, -6..=6, as
-    /// servos without an integral term do under their load
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = super::sag)]
-    pub sag: f64,
+    #[command(flatten)]
+    pub sag: super::Sag,
     /// Share of trials without a mark
     #[arg(long, default_value_t = 0.2)]
     pub no_mark_share: f64,
@@ -182,7 +180,7 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     c.log_bus = a.bus_log.is_some();
     c.learn_room = a.learn_room == OnOff::On;
     c.encoder_noise = a.encoder_noise;
-    c.sag = a.sag;
+    c.sag = a.sag.counts;
     if a.one_board && a.backend != Backend::Inproc {
         return Err(super::usage("--one-board needs --backend inproc"));
     }

@@ -135,18 +135,29 @@ impl std::error::Error for Usage {}
 
 /// Encoder noise, counts RMS, 0..=4 (a clap value parser).
 pub(crate) fn encoder_noise(s: &str) -> Result<f64, String> {
-    match s.parse::<f64>() {
-        Ok(v) if (0.0..=4.0).contains(&v) => Ok(v),
-        _ => Err(format!("`{s}` is not a noise between 0 and 4 counts")),
-    }
+    number_within(s, 0.0..=4.0, "a noise between 0 and 4 counts")
+}
+
+/// The `--sag` flag `msr serve` and `msr mirror-test` share.
+#[derive(clap::Args, Debug, Clone)]
+pub struct Sag {
+    /// Counts by which the pitch servos (head, shoulders) hold off their goals, -6..=6, as
+    /// servos without an integral term do under their load
+    #[arg(long = "sag", value_name = "SAG", default_value_t = 0.0, allow_hyphen_values = true, value_parser = sag)]
+    pub counts: f64,
 }
 
 /// A pitch servo's sag, counts, -6..=6 (a clap value parser): within the 0.01 rad the
 /// episodes' judge allows an arm that holds a reach (6.5 counts).
-pub(crate) fn sag(s: &str) -> Result<f64, String> {
+fn sag(s: &str) -> Result<f64, String> {
+    number_within(s, -6.0..=6.0, "a sag between -6 and 6 counts")
+}
+
+/// `s` as a number within `range`, or an error saying it is not `what`.
+fn number_within(s: &str, range: std::ops::RangeInclusive<f64>, what: &str) -> Result<f64, String> {
     match s.parse::<f64>() {
-        Ok(v) if (-6.0..=6.0).contains(&v) => Ok(v),
-        _ => Err(format!("`{s}` is not a sag between -6 and 6 counts")),
+        Ok(v) if range.contains(&v) => Ok(v),
+        _ => Err(format!("`{s}` is not {what}")),
     }
 }
 

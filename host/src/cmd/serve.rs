@@ -35,10 +35,8 @@ pub struct Args {
     /// a model committed there runs instead of --model
     #[arg(long, value_name = "FILE")]
     pub flash: Option<PathBuf>,
-    /// Counts by which the pitch servos (head, shoulders) hold off their goals, -6..=6, as
-    /// servos without an integral term do under their load
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = super::sag)]
-    pub sag: f64,
+    #[command(flatten)]
+    pub sag: super::Sag,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -50,7 +48,7 @@ pub fn run(a: Args) -> Result<()> {
     cfg.host_faults = a.noise.faults();
     cfg.seed = a.seed;
     cfg.flash = a.flash.clone();
-    cfg.sag = a.sag;
+    cfg.sag = a.sag.counts;
     let board = SimBoard::serve(cfg)?;
     // The path on stdout alone, for scripts; the rest on stderr.
     println!("{}", board.path());
