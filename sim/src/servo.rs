@@ -37,6 +37,11 @@ pub struct ServoConfig {
     /// real one under the load of what it carries does when its holding loop has no integral
     /// term (a Dynamixel's default gains): gravity wins that many counts back. 0: none.
     pub sag: f64,
+    /// Static friction, counts: the drive, proportional to the error, cannot move the joint
+    /// once it is within this many counts of where it holds, so a servo stops that far short
+    /// of a goal on the side it came from (a Dynamixel with no integral term stops a count or
+    /// two short under friction alone). Every joint. 0: none.
+    pub dead_band: f64,
 }
 
 impl Default for ServoConfig {
@@ -50,6 +55,7 @@ impl Default for ServoConfig {
             encoder_noise: 0.0,
             noise_seed: 0,
             sag: 0.0,
+            dead_band: 0.0,
         }
     }
 }
@@ -68,6 +74,8 @@ pub struct Servo {
     max_velocity: f64,
     /// Where the servo holds against its goal, radians ([`ServoConfig::sag`]).
     sag: f64,
+    /// [`ServoConfig::dead_band`], radians.
+    dead_band: f64,
     /// True (unquantised) position.
     pub position: f64,
     pub target: f64,
@@ -97,6 +105,7 @@ impl Servo {
             } else {
                 0.0
             },
+            dead_band: cfg.dead_band * COUNT_RAD,
             position,
             target: position,
             stiff: true,
@@ -125,6 +134,10 @@ impl Servo {
             return;
         }
         let held = (self.target + self.sag).clamp(self.min, self.max);
+        if (held - self.position).abs() <= self.dead_band {
+            self.velocity = 0.0;
+            return;
+        }
         let v = ((held - self.position) / tau).clamp(-self.max_velocity, self.max_velocity);
         let next = self.position + v * dt;
         // First order never overshoots; the clamp keeps a limit-hugging target inside.

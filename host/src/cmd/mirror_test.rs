@@ -66,7 +66,7 @@ pub struct Args {
     #[arg(long, default_value_t = 0.0, value_parser = super::encoder_noise)]
     pub encoder_noise: f64,
     #[command(flatten)]
-    pub sag: super::Sag,
+    pub servos: super::ServoHold,
     /// Share of trials without a mark
     #[arg(long, default_value_t = 0.2)]
     pub no_mark_share: f64,
@@ -180,7 +180,8 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     c.log_bus = a.bus_log.is_some();
     c.learn_room = a.learn_room == OnOff::On;
     c.encoder_noise = a.encoder_noise;
-    c.sag = a.sag.counts;
+    c.sag = a.servos.sag;
+    c.dead_band = a.servos.dead_band;
     if a.one_board && a.backend != Backend::Inproc {
         return Err(super::usage("--one-board needs --backend inproc"));
     }

@@ -138,13 +138,22 @@ pub(crate) fn encoder_noise(s: &str) -> Result<f64, String> {
     number_within(s, 0.0..=4.0, "a noise between 0 and 4 counts")
 }
 
-/// The `--sag` flag `msr serve` and `msr mirror-test` share.
+/// How the emulated servos hold: the flags `msr serve` and `msr mirror-test` share.
 #[derive(clap::Args, Debug, Clone)]
-pub struct Sag {
+pub struct ServoHold {
     /// Counts by which the pitch servos (head, shoulders) hold off their goals, -6..=6, as
     /// servos without an integral term do under their load
-    #[arg(long = "sag", value_name = "SAG", default_value_t = 0.0, allow_hyphen_values = true, value_parser = sag)]
-    pub counts: f64,
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true, value_parser = sag)]
+    pub sag: f64,
+    /// Static friction, counts (0..=3): every servo stops this far short of its goal, on the
+    /// side it came from
+    #[arg(long, default_value_t = 0.0, value_parser = dead_band)]
+    pub dead_band: f64,
+}
+
+/// A servo's dead band, counts, 0..=3 (a clap value parser).
+fn dead_band(s: &str) -> Result<f64, String> {
+    number_within(s, 0.0..=3.0, "a dead band between 0 and 3 counts")
 }
 
 /// A pitch servo's sag, counts, -6..=6 (a clap value parser): within the 0.01 rad the

@@ -36,7 +36,7 @@ pub struct Args {
     #[arg(long, value_name = "FILE")]
     pub flash: Option<PathBuf>,
     #[command(flatten)]
-    pub sag: super::Sag,
+    pub servos: super::ServoHold,
 }
 
 pub fn run(a: Args) -> Result<()> {
@@ -48,7 +48,8 @@ pub fn run(a: Args) -> Result<()> {
     cfg.host_faults = a.noise.faults();
     cfg.seed = a.seed;
     cfg.flash = a.flash.clone();
-    cfg.sag = a.sag.counts;
+    cfg.sag = a.servos.sag;
+    cfg.dead_band = a.servos.dead_band;
     let board = SimBoard::serve(cfg)?;
     // The path on stdout alone, for scripts; the rest on stderr.
     println!("{}", board.path());

@@ -157,6 +157,8 @@ pub struct EpisodeConfig {
     pub encoder_noise: f64,
     /// Counts by which the pitch servos hold off their goals ([`msr_sim::servo::ServoConfig::sag`]).
     pub sag: f64,
+    /// The servos' static friction, counts ([`msr_sim::servo::ServoConfig::dead_band`]).
+    pub dead_band: f64,
 }
 
 /// A light plan drawn once for a run of trials, and where in it a trial starts.
@@ -195,6 +197,7 @@ impl EpisodeConfig {
             learn_room: true,
             encoder_noise: 0.0,
             sag: 0.0,
+            dead_band: 0.0,
         }
     }
 
@@ -240,6 +243,7 @@ impl EpisodeConfig {
         w.servo.encoder_noise = self.encoder_noise;
         w.servo.noise_seed = seed;
         w.servo.sag = self.sag;
+        w.servo.dead_band = self.dead_band;
         if self.servo_bus == ServoBus::Dynamixel {
             w.servo_link.baud = 1_000_000;
             w.dynamixel = Some(msr_sim::dynamixel::DxlConfig::default());

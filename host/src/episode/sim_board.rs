@@ -52,18 +52,21 @@ pub struct ServeConfig {
     /// Counts by which the emulated pitch servos hold off their goals
     /// ([`msr_sim::servo::ServoConfig::sag`]).
     pub sag: f64,
+    /// The servos' static friction, counts ([`msr_sim::servo::ServoConfig::dead_band`]).
+    pub dead_band: f64,
 }
 
 impl ServeConfig {
     /// A clean line to the board `backend` runs, with `model` (or none) in it.
     pub fn new(backend: Backend, model: Option<Vec<u8>>) -> ServeConfig {
-        ServeConfig { backend, model, host_faults: FaultConfig::default(), seed: 0, flash: None, sag: 0.0 }
+        ServeConfig { backend, model, host_faults: FaultConfig::default(), seed: 0, flash: None, sag: 0.0, dead_band: 0.0 }
     }
 
     /// The world the served board lives in: real time, this config's seed and servos.
     fn world(&self) -> WorldConfig {
         let mut w = WorldConfig { pace: Some(1.0), ..WorldConfig::default() }.seeded(self.seed);
         w.servo.sag = self.sag;
+        w.servo.dead_band = self.dead_band;
         w
     }
 }

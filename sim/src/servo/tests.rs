@@ -230,3 +230,28 @@ fn a_sagging_pitch_servo_holds_off_its_goal_by_the_counts_given() {
     let (pitch, _, shoulder, _, _) = hold(-5.0);
     assert_eq!((pitch, shoulder), (35, 35));
 }
+
+/// Static friction: a servo stops where its drive falls under the friction, the dead band's
+/// counts short of its goal on the side it came from, and stays there; none by default.
+#[test]
+fn a_servo_with_a_dead_band_stops_short_of_its_goal_on_the_side_it_came_from() {
+    let stop = |dead_band: f64, from: f64| {
+        let cfg = ServoConfig { dead_band, ..ServoConfig::default() };
+        let mut b = ServoBus::new(cfg, &[]);
+        let mut t = 0;
+        for goal in [from, 0.0] {
+            for _ in 0..6 {
+                b.receive(&targets(&[(Joint::HeadYaw, (goal * COUNT_RAD) as f32)]), t);
+                run(&mut b, t, t + 49_000);
+                t += 50_000;
+            }
+        }
+        b.position(Joint::HeadYaw) / COUNT_RAD
+    };
+    assert!(stop(0.0, 40.0).abs() < 0.01);
+    let (above, below) = (stop(2.0, 40.0), stop(2.0, -40.0));
+    assert!((1.9..=2.0).contains(&above), "{above}");
+    assert!((-2.0..=-1.9).contains(&below), "{below}");
+    // A goal within the dead band does not move it.
+    assert!((stop(2.0, 1.5)).abs() < 1e-9);
+}
