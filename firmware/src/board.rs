@@ -1037,10 +1037,10 @@ impl<S: ModelStore> Core<S> {
         } else if self.face_wd.tripped() {
             g.abort(now_us, GateUndecided::FaceLost)
         } else {
-            if let Some(yaw) = self.measured[0] {
-                g.on_servo(now_us, yaw);
+            match self.measured[0].map_or(Step::Wait, |yaw| g.on_servo(now_us, yaw)) {
+                Step::Wait => g.poll(now_us),
+                turn => turn,
             }
-            g.poll(now_us)
         };
         let frame = self.last_reach.map_or(0, |d| d.frame);
         self.gate_step(step, frame, host);

@@ -14,15 +14,16 @@ fn gated(robot: Robot) -> (Vec<u8>, Vec<u8>) {
 }
 
 fn run(blob: &[u8], scene: Scene, n: usize, seed: u64) -> (Summary, Vec<Trial>) {
-    run_servos(blob, scene, n, seed, 0.0, 0.0)
+    run_servos(blob, scene, n, seed, 0.0, 0.0, 0.0)
 }
 
-/// [`run`] with servos whose encoders read with `encoder_noise` (counts RMS) and whose pitch
-/// servos hold `sag` counts off their goals.
-fn run_servos(blob: &[u8], scene: Scene, n: usize, seed: u64, encoder_noise: f64, sag: f64) -> (Summary, Vec<Trial>) {
+/// [`run`] with servos whose encoders read with `encoder_noise` (counts RMS), whose pitch
+/// servos hold `sag` counts off their goals and which stop `dead_band` counts short of them.
+fn run_servos(blob: &[u8], scene: Scene, n: usize, seed: u64, encoder_noise: f64, sag: f64, dead_band: f64) -> (Summary, Vec<Trial>) {
     let mut cfg = EpisodeConfig::new(Robot::Red);
     cfg.encoder_noise = encoder_noise;
     cfg.sag = sag;
+    cfg.dead_band = dead_band;
     cfg.no_mark_share = 0.0;
     cfg.scene = scene;
     cfg.parallel = 2;
@@ -68,7 +69,7 @@ fn the_own_mirror_image_passes_and_is_touched_as_without_the_gate() {
 #[test]
 fn the_own_mirror_image_passes_with_noisy_encoders() {
     let (_, gated) = gated(Robot::Red);
-    let (on, trials) = run_servos(&gated, Scene::Mirror, 6, 11, 0.5, 0.0);
+    let (on, trials) = run_servos(&gated, Scene::Mirror, 6, 11, 0.5, 0.0, 0.0);
     assert_eq!(on.gate_rejects, 0, "{trials:#?}");
     assert!(on.touched >= 5, "{on:?}");
 }
@@ -80,7 +81,20 @@ fn the_own_mirror_image_passes_with_noisy_encoders() {
 #[test]
 fn the_own_mirror_image_passes_with_sagging_pitch_servos() {
     let (_, gated) = gated(Robot::Red);
-    let (on, trials) = run_servos(&gated, Scene::Mirror, 6, 11, 0.0, -6.0);
+    let (on, trials) = run_servos(&gated, Scene::Mirror, 6, 11, 0.0, -6.0, 0.0);
+    assert_eq!(on.gate_rejects, 0, "{trials:#?}");
+    assert!(on.touched >= 5, "{on:?}");
+}
+
+/// Servos that static friction stops two counts short of their goals, on the side they came
+/// from (a holding loop without an integral term). The gate measures the span and the line the
+/// board commanded; with poses approached from both sides it refused every own image (red 0 of
+/// 173 in 200 trials at one count). Every pose is now approached from below, so each stops as
+/// far short, and the rest is taken where the encoder says the head rested.
+#[test]
+fn the_own_mirror_image_passes_with_a_yaw_servo_held_short_by_friction() {
+    let (_, gated) = gated(Robot::Red);
+    let (on, trials) = run_servos(&gated, Scene::Mirror, 6, 11, 0.0, 0.0, 2.0);
     assert_eq!(on.gate_rejects, 0, "{trials:#?}");
     assert!(on.touched >= 5, "{on:?}");
 }
@@ -104,20 +118,13 @@ fn the_own_mirror_image_passes_more_often_under_a_lamp_switched_on_or_off() {
     let (varied, _) = gate_of(&GateCalibration::default());
     let (fixed, _) = gate_of(&GateCalibration { light: LightMode::Fixed, ..GateCalibration::default() });
     let (_, lamp) = gate_of(&GateCalibration { light: LightMode::Lamp, seed: 26, ..GateCalibration::default() });
-    // The board's decision on each probe's statistics (`msr_firmware::self_gate`): the box, then
-    // the joint bound.
+    // The board's decision on each probe's statistics (`msr_firmware::self_gate::passes`).
     let refused = |g: &msr_shared::blob::SelfGate| {
         (0..lamp.gains.len())
             .filter(|&i| {
                 let ratio = (lamp.gains[i] / g.gain as f64) as f32;
                 let s = [lamp.rest_px[i], lamp.hold_px[i], lamp.level_px[i], lamp.line_px[i]].map(|v| v as f32);
-                let joint = msr_firmware::self_gate::joint(g, ratio, s[0], s[1], s[2], s[3]);
-                let boxed = (ratio - 1.0).abs() <= g.gain_tol
-                    && s[0] <= g.rest_tol
-                    && s[1] <= g.hold_tol
-                    && s[2] <= g.level_tol
-                    && g.line_tol.is_none_or(|t| s[3] <= t);
-                !(boxed && g.joint_tol.is_none_or(|b| joint <= b))
+                !msr_firmware::self_gate::passes(g, ratio, s[0], s[1], s[2], s[3])
             })
             .count()
     };
@@ -125,6 +132,22 @@ fn the_own_mirror_image_passes_more_often_under_a_lamp_switched_on_or_off() {
     eprintln!("of {} probes under a lamp refused: {v} (varied-light gate {varied:?}), {f} (fixed-light gate {fixed:?})", lamp.gains.len());
     assert!(varied.gain_tol > fixed.gain_tol);
     assert!(v < f && v <= lamp.gains.len() / 12, "{v} against {f}");
+}
+
+/// Another robot that holds still moves in the picture with the camera's turn alone: a gain
+/// 3-4 % off the own image's, the gate's only tell. Servos stopping half a count short on the
+/// side they came from, with poses approached from both sides, shrank the probe's span by a
+/// count in 91 and let that robot through (85 passes in 200 trials of one seed, red); every
+/// pose approached from below keeps the span.
+#[test]
+fn another_robot_that_holds_still_is_not_reached_for_with_servos_held_short_by_friction() {
+    let (_, gated) = gated(Robot::Red);
+    let (on, trials) = run_servos(&gated, Scene::Other, 8, 0, 0.0, 0.0, 0.5);
+    let still: Vec<_> = trials.iter().filter(|t| t.other_babbles == Some(false) && !t.gate.is_empty()).collect();
+    assert!(still.len() >= 2, "{on:?}");
+    for t in still {
+        assert!(!t.reached, "{t:#?}");
+    }
 }
 
 #[test]
