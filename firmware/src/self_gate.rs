@@ -237,11 +237,10 @@ impl Gate {
         if pr.via {
             // Past the pose by more than any friction holds a servo short of a goal.
             if yaw <= g[0] + VIA_RAD / 2.0 {
-                let pr = self.probe.as_mut().map(|pr| {
-                    pr.via = false;
-                    *pr
-                });
-                return pr.map_or(Step::Wait, |pr| Step::Head(self.goal(&pr)));
+                if let Some(p) = self.probe.as_mut() {
+                    p.via = false;
+                }
+                return Step::Head(self.goal(&Probe { via: false, ..pr }));
             }
             return Step::Wait;
         }

@@ -76,9 +76,10 @@ fn a_recording_is_a_dataset_that_msr_train_reads() {
 #[test]
 fn a_recording_with_sagging_pitch_servos_keeps_the_angles_they_report() {
     use msr_host::episode::{sim_board::ServeConfig, Backend};
+    use msr_sim::servo::ServoConfig;
     let tmp = tempfile::tempdir().unwrap();
     let out = tmp.path().join("rec");
-    let board = SimBoard::serve(ServeConfig { sag: 5.0, ..ServeConfig::new(Backend::Inproc, None) }).unwrap();
+    let board = SimBoard::serve(ServeConfig { servo: ServoConfig { sag: 5.0, ..Default::default() }, ..ServeConfig::new(Backend::Inproc, None) }).unwrap();
     let cfg = RecordConfig::new(board.path(), sim_camera(3), 6, &out);
     let r = record::record(&cfg).unwrap();
     assert_eq!((r.frames, r.skipped_not_settled), (6, 0), "{r:?}");

@@ -179,9 +179,7 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     c.light = a.light.into();
     c.log_bus = a.bus_log.is_some();
     c.learn_room = a.learn_room == OnOff::On;
-    c.encoder_noise = a.encoder_noise;
-    c.sag = a.servos.sag;
-    c.dead_band = a.servos.dead_band;
+    c.servo = msr_sim::servo::ServoConfig { encoder_noise: a.encoder_noise, ..a.servos.config() };
     if a.one_board && a.backend != Backend::Inproc {
         return Err(super::usage("--one-board needs --backend inproc"));
     }

@@ -151,6 +151,13 @@ pub struct ServoHold {
     pub dead_band: f64,
 }
 
+impl ServoHold {
+    /// The emulated servos these flags ask for.
+    pub fn config(&self) -> msr_sim::servo::ServoConfig {
+        msr_sim::servo::ServoConfig { sag: self.sag, dead_band: self.dead_band, ..Default::default() }
+    }
+}
+
 /// A servo's dead band, counts, 0..=3 (a clap value parser).
 fn dead_band(s: &str) -> Result<f64, String> {
     number_within(s, 0.0..=3.0, "a dead band between 0 and 3 counts")

@@ -48,8 +48,7 @@ pub fn run(a: Args) -> Result<()> {
     cfg.host_faults = a.noise.faults();
     cfg.seed = a.seed;
     cfg.flash = a.flash.clone();
-    cfg.sag = a.servos.sag;
-    cfg.dead_band = a.servos.dead_band;
+    cfg.servo = a.servos.config();
     let board = SimBoard::serve(cfg)?;
     // The path on stdout alone, for scripts; the rest on stderr.
     println!("{}", board.path());

@@ -38,6 +38,7 @@ use msr_sim::body::BodyPose;
 use msr_sim::light::{Light, LightPlan, LightSchedule};
 use msr_sim::link::{FaultConfig, LinkEnd};
 use msr_sim::render::{Renderer, Variation};
+use msr_sim::servo::ServoConfig;
 use msr_sim::world::{self, Flow, World, WorldConfig};
 use msr_sim::Robot;
 use rand::{Rng, SeedableRng};
@@ -153,12 +154,9 @@ pub struct EpisodeConfig {
     /// Let the board learn the room's light (its online self-calibration); off: the PC tells
     /// it to freeze at the start of each trial, so it keeps the model's own statistics.
     pub learn_room: bool,
-    /// The servos' encoder noise, counts RMS ([`msr_sim::servo::ServoConfig::encoder_noise`]).
-    pub encoder_noise: f64,
-    /// Counts by which the pitch servos hold off their goals ([`msr_sim::servo::ServoConfig::sag`]).
-    pub sag: f64,
-    /// The servos' static friction, counts ([`msr_sim::servo::ServoConfig::dead_band`]).
-    pub dead_band: f64,
+    /// How the emulated servos move and hold (encoder noise, sag, friction); each trial draws
+    /// its encoder noise from its own seed.
+    pub servo: ServoConfig,
 }
 
 /// A light plan drawn once for a run of trials, and where in it a trial starts.
@@ -195,9 +193,7 @@ impl EpisodeConfig {
             light: LightPlan::Fixed,
             light_span: None,
             learn_room: true,
-            encoder_noise: 0.0,
-            sag: 0.0,
-            dead_band: 0.0,
+            servo: ServoConfig::default(),
         }
     }
 
@@ -240,10 +236,7 @@ impl EpisodeConfig {
         w.servo_link.a_to_b = self.servo_faults.clone();
         w.servo_link.b_to_a = self.servo_faults.clone();
         w.pace = self.pace;
-        w.servo.encoder_noise = self.encoder_noise;
-        w.servo.noise_seed = seed;
-        w.servo.sag = self.sag;
-        w.servo.dead_band = self.dead_band;
+        w.servo = ServoConfig { noise_seed: seed, ..self.servo };
         if self.servo_bus == ServoBus::Dynamixel {
             w.servo_link.baud = 1_000_000;
             w.dynamixel = Some(msr_sim::dynamixel::DxlConfig::default());

@@ -12,6 +12,7 @@ use msr_shared::msg::Status;
 use msr_sim::link::{FaultConfig, LinkEnd};
 use msr_sim::pty::{Pty, PtyBridge};
 use msr_sim::world::{self, Flow, World, WorldConfig};
+use msr_sim::servo::ServoConfig;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -49,24 +50,20 @@ pub struct ServeConfig {
     /// The board's flash in this file (created when missing): uploads and statistics survive
     /// a restart. Without it an upload lives in RAM until the server stops.
     pub flash: Option<PathBuf>,
-    /// Counts by which the emulated pitch servos hold off their goals
-    /// ([`msr_sim::servo::ServoConfig::sag`]).
-    pub sag: f64,
-    /// The servos' static friction, counts ([`msr_sim::servo::ServoConfig::dead_band`]).
-    pub dead_band: f64,
+    /// How the emulated servos move and hold (sag, friction).
+    pub servo: ServoConfig,
 }
 
 impl ServeConfig {
     /// A clean line to the board `backend` runs, with `model` (or none) in it.
     pub fn new(backend: Backend, model: Option<Vec<u8>>) -> ServeConfig {
-        ServeConfig { backend, model, host_faults: FaultConfig::default(), seed: 0, flash: None, sag: 0.0, dead_band: 0.0 }
+        ServeConfig { backend, model, host_faults: FaultConfig::default(), seed: 0, flash: None, servo: ServoConfig::default() }
     }
 
     /// The world the served board lives in: real time, this config's seed and servos.
     fn world(&self) -> WorldConfig {
         let mut w = WorldConfig { pace: Some(1.0), ..WorldConfig::default() }.seeded(self.seed);
-        w.servo.sag = self.sag;
-        w.servo.dead_band = self.dead_band;
+        w.servo = self.servo;
         w
     }
 }
