@@ -253,7 +253,7 @@ impl Session {
         let now = |t0: Instant| t0.elapsed().as_micros() as u64;
         let c = face.crop;
         let size = [c.width as u16, c.height as u16];
-        let at = msr_shared::msg::CropAt::subpixel([c.x as u16, c.y as u16], face.shift);
+        let at = msr_shared::msg::CropAt::subpixel([c.x as u16, c.y as u16], face.at);
         let id = self.faces.start(at, size, face.grey.clone(), now(self.t0));
         self.frame_id = id;
         let deadline = Instant::now() + timeout;

@@ -95,11 +95,12 @@ pub const MAX_BUS_JOINTS: usize = 14;
 
 /// Steps of [`FrameHeader::crop_sub`] per pixel.
 pub const SUB_PER_PX: i8 = 64;
-/// Largest [`FrameHeader::crop_sub`] either way: half a pixel.
-pub const SUB_MAX: i8 = SUB_PER_PX / 2;
+/// Largest [`FrameHeader::crop_sub`] either way: one pixel (the face lies within half a pixel
+/// of where it was cut, and that within half a pixel of `crop_x`).
+pub const SUB_MAX: i8 = SUB_PER_PX;
 
 /// The sub-pixel part of a crop position `shift` pixels off the whole-pixel one, in
-/// [`FrameHeader::crop_sub`]'s steps (rounded, clamped to half a pixel; 0 when not finite).
+/// [`FrameHeader::crop_sub`]'s steps (rounded, clamped to a pixel; 0 when not finite).
 pub fn crop_sub(shift: f32) -> i8 {
     if !shift.is_finite() {
         return 0;
@@ -120,7 +121,7 @@ pub struct CropAt {
 }
 
 impl CropAt {
-    /// A crop at whole pixels `px`, cut `shift` pixels off them (within half a pixel).
+    /// A crop at whole pixels `px`, the face `shift` pixels off them (within a pixel).
     pub fn subpixel(px: [u16; 2], shift: [f32; 2]) -> CropAt {
         CropAt { px, sub: shift.map(crop_sub) }
     }
@@ -139,13 +140,15 @@ pub struct FrameHeader {
     pub frame: u16,
     /// Where the face crop sits in the full camera frame (pixels), for full-frame reports and
     /// the reach network's input; the nearest whole pixel when the host cropped at sub-pixel
-    /// precision (`blob::CropMode::Subpixel`), so within half a pixel.
+    /// precision (`blob::CropMode::Subpixel`), so within half a pixel of where it was cut.
     pub crop_x: u16,
     /// See `crop_x`.
     pub crop_y: u16,
-    /// The rest of the crop position, `[x, y]` in 1/[`SUB_PER_PX`] pixel, within
-    /// +-[`SUB_MAX`] (half a pixel): the face was cut at `crop_x + crop_sub[0] / SUB_PER_PX`.
-    /// Zero for a whole-pixel crop. The self gate follows the face to a fraction of a pixel.
+    /// Where the face lies relative to `crop_x`, `crop_y`, `[x, y]` in 1/[`SUB_PER_PX`] pixel,
+    /// within +-[`SUB_MAX`] (a pixel): the face lies at `crop_x + crop_sub[0] / SUB_PER_PX`,
+    /// as the host's template alignment finds it (the crop itself was cut within half a pixel
+    /// of `crop_x`). Zero for a whole-pixel crop. The self gate follows the face to a fraction
+    /// of a pixel.
     pub crop_sub: [i8; 2],
     /// Crop size; must equal the model's face size.
     pub width: u16,
@@ -172,7 +175,7 @@ impl FrameHeader {
     }
 
     /// Chunk size in range, at most [`MAX_FRAME_CHUNKS`] chunks, a non-empty image, the
-    /// sub-pixel part within half a pixel.
+    /// sub-pixel part within a pixel.
     pub fn is_valid(&self) -> bool {
         (MIN_CHUNK..=CHUNK).contains(&(self.chunk as usize))
             && self.pixels() > 0
@@ -989,17 +992,18 @@ mod tests {
         assert_eq!(postcard::from_bytes::<HostToBoard>(&bytes).unwrap(), HostToBoard::FrameStart(h));
         assert!(h.is_valid());
         assert_eq!(h.position(), [140.0 - 5.0 / 64.0, 95.5]);
-        // Past half a pixel either way: it parses, and is refused as invalid.
-        for (i, b) in [(5, 0x21u8), (5, 0xDF), (6, 0x80), (6, 0x7F)] {
+        // Past a pixel either way: it parses, and is refused as invalid.
+        for (i, b) in [(5, 0x41u8), (5, 0xBF), (6, 0x80), (6, 0x7F)] {
             let mut bad = bytes;
             bad[i] = b;
             let Ok(HostToBoard::FrameStart(g)) = postcard::from_bytes::<HostToBoard>(&bad) else { panic!("{bad:?}") };
             assert!(!g.is_valid(), "{:?}", g.crop_sub);
         }
         let mut edge = bytes;
-        (edge[5], edge[6]) = (0xE0, 0x20);
+        (edge[5], edge[6]) = (0xC0, 0x40);
         let Ok(HostToBoard::FrameStart(g)) = postcard::from_bytes::<HostToBoard>(&edge) else { panic!() };
-        assert!(g.is_valid(), "exactly half a pixel either way");
+        assert!(g.is_valid(), "exactly a pixel either way");
+        assert_eq!(g.position(), [139.0, 96.0]);
         // A version-3 header (no crop_sub) is cut short: its bytes do not parse as one.
         let old = [0x01, 0x03, 0x8C, 0x01, 0x5F, 0x4B, 0x3A, 0xE0, 0x01, 0x01];
         assert!(postcard::from_bytes::<HostToBoard>(&old).is_err());
@@ -1012,8 +1016,9 @@ mod tests {
         assert_eq!(crop_sub(-0.25), -16);
         assert_eq!(crop_sub(1.0 / 128.0), 1, "half a step rounds away from zero");
         assert_eq!(crop_sub(-1.0 / 128.0), -1);
-        assert_eq!(crop_sub(0.5), SUB_MAX);
-        assert_eq!(crop_sub(0.9), SUB_MAX);
+        assert_eq!(crop_sub(0.5), 32);
+        assert_eq!(crop_sub(1.0), SUB_MAX);
+        assert_eq!(crop_sub(1.9), SUB_MAX);
         assert_eq!(crop_sub(-7.0), -SUB_MAX);
         assert_eq!(crop_sub(f32::NAN), 0);
         assert_eq!(crop_sub(f32::INFINITY), 0);

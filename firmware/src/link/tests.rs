@@ -224,9 +224,9 @@ fn a_superseded_frame_is_never_processed() {
     // Wrong sizes are refused and keep nothing from changing.
     assert_eq!(a.start(FrameHeader { frame: 3, ..h2 }, 10, 11), Err(AssemblyError::Size));
     assert_eq!(a.start(FrameHeader { frame: 3, chunk: 23, ..h2 }, 10, 10), Err(AssemblyError::Size));
-    // A sub-pixel crop position past half a pixel is not a position: refused too.
-    assert_eq!(a.start(FrameHeader { frame: 3, crop_sub: [33, 0], ..h2 }, 10, 10), Err(AssemblyError::Size));
-    assert_eq!(a.start(FrameHeader { frame: 3, crop_sub: [0, -33], ..h2 }, 10, 10), Err(AssemblyError::Size));
+    // A face position past a pixel from the crop is not a position: refused too.
+    assert_eq!(a.start(FrameHeader { frame: 3, crop_sub: [65, 0], ..h2 }, 10, 10), Err(AssemblyError::Size));
+    assert_eq!(a.start(FrameHeader { frame: 3, crop_sub: [0, -65], ..h2 }, 10, 10), Err(AssemblyError::Size));
     a.start(FrameHeader { frame: 4, ..h2 }, 10, 10).unwrap();
     assert_eq!(a.chunk(4, 5, &px2[..24]), Err(AssemblyError::Chunk));
     assert_eq!(a.chunk(4, 96, &px2[..24]), Err(AssemblyError::Chunk), "the last chunk is 4 bytes");

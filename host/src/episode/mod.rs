@@ -692,7 +692,7 @@ impl Scenario<'_> {
             let c = face.crop;
             let size = [c.width as u16, c.height as u16];
             // The sub-pixel part too: the self gate follows the face to a fraction of a pixel.
-            let at = msr_shared::msg::CropAt::subpixel([c.x as u16, c.y as u16], face.shift);
+            let at = msr_shared::msg::CropAt::subpixel([c.x as u16, c.y as u16], face.at);
             let id = self.faces.start(at, size, face.grey, now);
             if let Some(f) = logged {
                 self.log_frame(now, id, w, &grey, &f, with_mark);

@@ -188,7 +188,7 @@ pub fn calibrate(robot: Robot, cropper: &Cropper, c: &GateCalibration) -> Result
         let r = renderer.render(&BodyPose::head(yaw, pitch), Some(mark), &Variation::random(rng).lit(light));
         let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb));
         let face = cropper.crop(&grey)?;
-        let s = face.shift.map(msr_shared::msg::crop_sub);
+        let s = face.at.map(msr_shared::msg::crop_sub);
         let x = face.crop.x as f64 + s[0] as f64 / sub;
         let y = face.crop.y as f64 + s[1] as f64 / sub;
         Ok((x, y))
