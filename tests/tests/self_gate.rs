@@ -3,9 +3,8 @@
 //! Few trials (CI has two cores); the 200-trial figures are in the README.
 mod common;
 
-use msr_host::episode::{self, Backend, EpisodeConfig, Scene, Summary, Trial};
+use msr_host::episode::{self, Backend, EpisodeConfig, Scene, ServoBus, Summary, Trial};
 use msr_host::train::self_gate::{attach, detach, GateCalibration};
-use msr_sim::servo::ServoConfig;
 use msr_sim::Robot;
 
 fn gated(robot: Robot) -> (Vec<u8>, Vec<u8>) {
@@ -15,13 +14,13 @@ fn gated(robot: Robot) -> (Vec<u8>, Vec<u8>) {
 }
 
 fn run(blob: &[u8], scene: Scene, n: usize, seed: u64) -> (Summary, Vec<Trial>) {
-    run_servos(blob, scene, n, seed, ServoConfig::default())
+    run_with(blob, scene, n, seed, |_| {})
 }
 
-/// [`run`] with servos that move and hold as `servo` says (encoder noise, sag, friction).
-fn run_servos(blob: &[u8], scene: Scene, n: usize, seed: u64, servo: ServoConfig) -> (Summary, Vec<Trial>) {
+/// [`run`] with the episodes' configuration changed by `set` (the servos, their bus).
+fn run_with(blob: &[u8], scene: Scene, n: usize, seed: u64, set: impl FnOnce(&mut EpisodeConfig)) -> (Summary, Vec<Trial>) {
     let mut cfg = EpisodeConfig::new(Robot::Red);
-    cfg.servo = servo;
+    set(&mut cfg);
     cfg.no_mark_share = 0.0;
     cfg.scene = scene;
     cfg.parallel = 2;
@@ -67,7 +66,7 @@ fn the_own_mirror_image_passes_and_is_touched_as_without_the_gate() {
 #[test]
 fn the_own_mirror_image_passes_with_noisy_encoders() {
     let (_, gated) = gated(Robot::Red);
-    let (on, trials) = run_servos(&gated, Scene::Mirror, 6, 11, ServoConfig { encoder_noise: 0.5, ..Default::default() });
+    let (on, trials) = run_with(&gated, Scene::Mirror, 6, 11, |c| c.servo.encoder_noise = 0.5);
     assert_eq!(on.gate_rejects, 0, "{trials:#?}");
     assert!(on.touched >= 5, "{on:?}");
 }
@@ -79,7 +78,7 @@ fn the_own_mirror_image_passes_with_noisy_encoders() {
 #[test]
 fn the_own_mirror_image_passes_with_sagging_pitch_servos() {
     let (_, gated) = gated(Robot::Red);
-    let (on, trials) = run_servos(&gated, Scene::Mirror, 6, 11, ServoConfig { sag: -6.0, ..Default::default() });
+    let (on, trials) = run_with(&gated, Scene::Mirror, 6, 11, |c| c.servo.sag = -6.0);
     assert_eq!(on.gate_rejects, 0, "{trials:#?}");
     assert!(on.touched >= 5, "{on:?}");
 }
@@ -92,9 +91,27 @@ fn the_own_mirror_image_passes_with_sagging_pitch_servos() {
 #[test]
 fn the_own_mirror_image_passes_with_a_yaw_servo_held_short_by_friction() {
     let (_, gated) = gated(Robot::Red);
-    let (on, trials) = run_servos(&gated, Scene::Mirror, 6, 11, ServoConfig { dead_band: 2.0, ..Default::default() });
+    let (on, trials) = run_with(&gated, Scene::Mirror, 6, 11, |c| c.servo.dead_band = 2.0);
     assert_eq!(on.gate_rejects, 0, "{trials:#?}");
     assert!(on.touched >= 5, "{on:?}");
+}
+
+/// A Dynamixel goes to whole encoder steps. With a probe amplitude of 0.07 rad (45.6 steps)
+/// both poses rounded outwards to 46, and the span the head moved was 0.8 % wider than the one
+/// the gate divides by (the own image read a gain ratio 1.1 % higher on that bus than on the
+/// framed one, and with a sag of 3 counts 12 of 170 were refused). The default amplitude is
+/// now a whole number of steps: the same gain on both buses.
+#[test]
+fn the_own_image_turns_with_the_same_gain_on_the_dynamixel_bus() {
+    let (_, gated) = gated(Robot::Red);
+    let mean_ratio = |bus: ServoBus| {
+        let (on, trials) = run_with(&gated, Scene::Mirror, 6, 11, |c| c.servo_bus = bus);
+        let r: Vec<f64> = trials.iter().flat_map(|t| &t.gate).filter_map(|g| g.gain_ratio).map(f64::from).collect();
+        assert!(r.len() >= 4, "{on:?}");
+        r.iter().sum::<f64>() / r.len() as f64
+    };
+    let (framed, dxl) = (mean_ratio(ServoBus::Framed), mean_ratio(ServoBus::Dynamixel));
+    assert!((dxl - framed).abs() < 0.004, "gain ratio {dxl} on the Dynamixel bus, {framed} on the framed one");
 }
 
 /// Probes of the own image under a lamp switched 25-45 % stronger or weaker (what `--light
@@ -140,7 +157,7 @@ fn the_own_mirror_image_passes_more_often_under_a_lamp_switched_on_or_off() {
 #[test]
 fn another_robot_that_holds_still_is_not_reached_for_with_servos_held_short_by_friction() {
     let (_, gated) = gated(Robot::Red);
-    let (on, trials) = run_servos(&gated, Scene::Other, 8, 0, ServoConfig { dead_band: 0.5, ..Default::default() });
+    let (on, trials) = run_with(&gated, Scene::Other, 8, 0, |c| c.servo.dead_band = 0.5);
     let still: Vec<_> = trials.iter().filter(|t| t.other_babbles == Some(false) && !t.gate.is_empty()).collect();
     assert!(still.len() >= 2, "{on:?}");
     for t in still {

@@ -20,7 +20,8 @@ use serde::Serialize;
 #[derive(Clone, Debug)]
 pub struct GateCalibration {
     /// The probe's yaw offset each way, radians (4 degrees: inside the training poses, and a
-    /// span wide enough that a pixel is a small part of the face's shift).
+    /// span wide enough that a pixel is a small part of the face's shift). The default is a
+    /// whole number of steps of a 12-bit encoder ([`AMPLITUDE_COUNTS`]).
     pub amplitude: f32,
     /// Probes simulated (each: a random mark, two resting frames, two at each pose, fresh noise).
     /// The statistics have long tails (a mark now and then moves the template's best match by
@@ -72,10 +73,17 @@ pub struct GateCalibration {
     pub light: LightMode,
 }
 
+/// The default probe amplitude in steps of a 12-bit encoder (4.04 degrees). A Dynamixel goes to
+/// whole steps: with 0.07 rad (45.6 steps) each pose rounded to 46 and the span the head moved
+/// was 0.8 % wider than the one the gate divides by, a bias the calibration (exact servos) did
+/// not see; red's own image read 1.006 on that bus against 0.995 on the framed one. A whole
+/// number of steps from any rest rounds both poses the same way, so the span is exact.
+pub const AMPLITUDE_COUNTS: u32 = 46;
+
 impl Default for GateCalibration {
     fn default() -> Self {
         GateCalibration {
-            amplitude: 0.07,
+            amplitude: AMPLITUDE_COUNTS as f32 * std::f32::consts::TAU / 4096.0,
             draws: 96,
             seed: 0,
             latency_ms: 250,
