@@ -462,15 +462,21 @@ fn self_gate_episodes(blob: &[u8], cfg: &EpisodeConfig, a: &DemoConfig) -> Resul
     })
 }
 
-/// Why the demo runs no QEMU episodes, if it does not: QEMU missing, or (on a fresh clone) the
-/// board image not built yet, which is no failure.
+/// Why the demo runs no QEMU episodes, if it does not: QEMU missing, (on a fresh clone) the
+/// board image not built yet, which is no failure, or the image older than its sources (after a
+/// `git pull`: it would run other firmware than the in-process trials it is compared with).
 fn qemu_skipped(qemu_available: bool, image: &Result<PathBuf>) -> Option<String> {
-    if !qemu_available {
-        Some("skipped: qemu-system-arm is not installed (apt-get install qemu-system-arm)".into())
-    } else if image.is_err() {
-        Some("skipped: the QEMU image is not built; run `cargo xtask images`".into())
-    } else {
-        None
+    use msr_sim::qemu::ImageError;
+    match image {
+        _ if !qemu_available => Some("skipped: qemu-system-arm is not installed (apt-get install qemu-system-arm)".into()),
+        Ok(_) => None,
+        Err(e) => Some(match e.downcast_ref::<ImageError>() {
+            Some(ImageError::Stale { source, .. }) => format!(
+                "skipped: the QEMU image is older than {}; run `cargo xtask images`",
+                source.display()
+            ),
+            _ => "skipped: the QEMU image is not built; run `cargo xtask images`".into(),
+        }),
     }
 }
 
@@ -574,5 +580,10 @@ mod tests {
         assert_eq!(why, "skipped: the QEMU image is not built; run `cargo xtask images`");
         assert!(qemu_skipped(false, &missing).unwrap().starts_with("skipped: qemu-system-arm is not installed"));
         assert_eq!(qemu_skipped(true, &Ok(PathBuf::from("msr-qemu"))), None);
+        let stale = Err(msr_sim::qemu::ImageError::Stale { image: "msr-qemu".into(), source: "firmware/src/lib.rs".into() }.into());
+        assert_eq!(
+            qemu_skipped(true, &stale).unwrap(),
+            "skipped: the QEMU image is older than firmware/src/lib.rs; run `cargo xtask images`"
+        );
     }
 }

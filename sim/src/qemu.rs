@@ -115,18 +115,84 @@ pub fn image_dir() -> PathBuf {
         .join("release")
 }
 
-/// The path of a built image, or an error that says how to build it.
+/// Why [`find_image`] found no image to run.
+#[derive(Debug)]
+pub enum ImageError {
+    /// Not built (a fresh clone).
+    Missing(PathBuf),
+    /// Built before one of its sources last changed: the firmware it runs is not the firmware
+    /// this `msr` was built with (after a `git pull`, say), and its trials would differ from
+    /// in-process ones, or its protocol from this host's, for no reason a user could see.
+    Stale { image: PathBuf, source: PathBuf },
+}
+
+impl std::fmt::Display for ImageError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ImageError::Missing(p) => write!(
+                f,
+                "firmware image {} is missing; build it with `cargo xtask images` \
+                 (or `cd firmware/qemu && cargo build --release`)",
+                p.display()
+            ),
+            ImageError::Stale { image, source } => write!(
+                f,
+                "firmware image {} is older than its source {}; rebuild it with `cargo xtask images` \
+                 (or `cd firmware/qemu && cargo build --release`)",
+                image.display(),
+                source.display()
+            ),
+        }
+    }
+}
+
+impl std::error::Error for ImageError {}
+
+/// The path of a built image that is newer than its sources, or an [`ImageError`] that says how
+/// to build it.
 pub fn find_image(name: &str) -> Result<PathBuf> {
     let path = image_dir().join(name);
-    if path.is_file() {
-        Ok(path)
-    } else {
-        bail!(
-            "firmware image {} is missing; build it with `cargo xtask images` \
-             (or `cd firmware/qemu && cargo build --release`)",
-            path.display()
-        )
+    if !path.is_file() {
+        return Err(ImageError::Missing(path).into());
     }
+    if let Some(source) = changed_source(&path) {
+        return Err(ImageError::Stale { image: path, source }.into());
+    }
+    Ok(path)
+}
+
+/// A source of `image` modified after it: the first file that cargo's dep-info beside it
+/// (`<image>.d`, the make rule cargo writes: `target: source source ...`, spaces in a path
+/// escaped with `\`) names and that is newer than the image. `None` without a dep-info file (an
+/// image copied elsewhere, `MSR_QEMU_IMAGES`), or when a listed file is missing (a checkout
+/// elsewhere): only a source that is there and newer says the image is stale.
+pub fn changed_source(image: &Path) -> Option<PathBuf> {
+    let built = std::fs::metadata(image).and_then(|m| m.modified()).ok()?;
+    let rule = std::fs::read_to_string(format!("{}.d", image.display())).ok()?;
+    let sources = rule.lines().next()?.split_once(": ")?.1;
+    dep_paths(sources).into_iter().find(|p| std::fs::metadata(p).and_then(|m| m.modified()).is_ok_and(|t| t > built))
+}
+
+/// The paths of a make rule's prerequisites: separated by spaces, `\ ` a space inside one.
+fn dep_paths(list: &str) -> Vec<PathBuf> {
+    let mut out = Vec::new();
+    let mut cur = String::new();
+    let mut chars = list.chars().peekable();
+    while let Some(c) = chars.next() {
+        match c {
+            '\\' if chars.peek() == Some(&' ') => cur.push(chars.next().unwrap_or(' ')),
+            ' ' | '\t' => {
+                if !cur.is_empty() {
+                    out.push(PathBuf::from(std::mem::take(&mut cur)));
+                }
+            }
+            c => cur.push(c),
+        }
+    }
+    if !cur.is_empty() {
+        out.push(PathBuf::from(cur));
+    }
+    out
 }
 
 /// How a run ended.
@@ -575,5 +641,45 @@ impl Lockstep {
         let _ = self.drain();
         self.clock.write_all(b"X")?;
         self.qemu.wait(timeout)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::time::SystemTime;
+
+    #[test]
+    fn a_make_rule_splits_at_spaces_but_not_escaped_ones() {
+        assert_eq!(
+            dep_paths("/a/lib.rs /b/my\\ dir/x.rs  /c/memory.x"),
+            [PathBuf::from("/a/lib.rs"), PathBuf::from("/b/my dir/x.rs"), PathBuf::from("/c/memory.x")]
+        );
+        assert!(dep_paths("").is_empty());
+    }
+
+    #[test]
+    fn an_image_older_than_a_source_it_names_is_stale() {
+        let dir = std::env::temp_dir().join(format!("msr-stale-{}", std::process::id()));
+        std::fs::create_dir_all(dir.join("my src")).unwrap();
+        let (image, src, gone) = (dir.join("msr-qemu"), dir.join("my src/lib.rs"), dir.join("gone.rs"));
+        let set = |p: &Path, s: u64| {
+            let f = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(p).unwrap();
+            f.set_modified(SystemTime::UNIX_EPOCH + Duration::from_secs(s)).unwrap();
+        };
+        std::fs::write(format!("{}.d", image.display()), format!("{}: {} {}\n", image.display(), src.display().to_string().replace(' ', "\\ "), gone.display())).unwrap();
+        set(&image, 2_000_000);
+        // `gone.rs` is listed but not there (a checkout elsewhere): it says nothing.
+        set(&src, 1_000_000);
+        assert_eq!(changed_source(&image), None, "a source older than the image");
+        set(&src, 2_000_000);
+        assert_eq!(changed_source(&image), None, "a source as old as the image");
+        set(&src, 3_000_000);
+        assert_eq!(changed_source(&image), Some(src.clone()), "a source newer than the image");
+        let e = ImageError::Stale { image: image.clone(), source: src.clone() }.to_string();
+        assert!(e.contains("is older than its source") && e.contains("cargo xtask images"), "{e}");
+        std::fs::remove_file(format!("{}.d", image.display())).unwrap();
+        assert_eq!(changed_source(&image), None, "no dep-info beside the image");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }
