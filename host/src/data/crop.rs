@@ -85,17 +85,23 @@ pub fn grey_of_rgb(r: u8, g: u8, b: u8) -> u8 {
     ((r as u32 * RY + g as u32 * GY + b as u32 * BY + (1 << 14)) >> 15) as u8
 }
 
+/// [`grey_of_rgb`] of packed RGB bytes, `w x h`.
+fn grey_of_rgb_bytes(w: u32, h: u32, rgb: &[u8]) -> GrayImage {
+    let grey = rgb.chunks_exact(3).map(|p| grey_of_rgb(p[0], p[1], p[2])).collect();
+    GrayImage::from_raw(w, h, grey).expect("an RGB image has three bytes a pixel")
+}
+
 /// Grey version of any decoded image. Alpha is dropped (as `cv2.imread` does by default); grey
 /// images are taken as they are.
 pub fn to_grey(img: &DynamicImage) -> GrayImage {
     match img {
         DynamicImage::ImageLuma8(g) => g.clone(),
+        // A camera's or the sim's frame: straight from its bytes (a copy and a bounds check a
+        // pixel took 0.28 ms of the crop's 2 ms at 320 x 240).
+        DynamicImage::ImageRgb8(rgb) => grey_of_rgb_bytes(rgb.width(), rgb.height(), rgb.as_raw()),
         _ => {
             let rgb = img.to_rgb8();
-            GrayImage::from_fn(rgb.width(), rgb.height(), |x, y| {
-                let p = rgb.get_pixel(x, y).0;
-                image::Luma([grey_of_rgb(p[0], p[1], p[2])])
-            })
+            grey_of_rgb_bytes(rgb.width(), rgb.height(), rgb.as_raw())
         }
     }
 }
@@ -398,11 +404,11 @@ pub fn align(frame: &GrayImage, tpl: &GrayImage, crop: CropBox, start: [f32; 2])
         // Normal equations of the step: A [dx dy] = -b, over the pixels with both neighbours.
         let (mut a11, mut a12, mut a22, mut b1, mut b2) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for r in 1..h - 1 {
+            let (up, mid, down, tr) = (&win[(r - 1) * w..r * w], &win[r * w..(r + 1) * w], &win[(r + 1) * w..(r + 2) * w], &t[r * w..(r + 1) * w]);
             for c in 1..w - 1 {
-                let i = r * w + c;
-                let gx = (win[i + 1] - win[i - 1]) / 2.0;
-                let gy = (win[i + w] - win[i - w]) / 2.0;
-                let e = win[i] - t[i];
+                let gx = (mid[c + 1] - mid[c - 1]) / 2.0;
+                let gy = (down[c] - up[c]) / 2.0;
+                let e = mid[c] - tr[c];
                 (a11, a12, a22, b1, b2) = (a11 + gx * gx, a12 + gx * gy, a22 + gy * gy, b1 + gx * e, b2 + gy * e);
             }
         }
@@ -452,6 +458,24 @@ fn resample(frame: &GrayImage, crop: CropBox, shift: [f32; 2]) -> Vec<f32> {
     };
     let ((bx, fx), (by, fy)) = (split(shift[0]), split(shift[1]));
     let mut out = Vec::with_capacity((crop.width * crop.height) as usize);
+    let (x0, y0) = (crop.x as i64 + bx, crop.y as i64 + by);
+    if x0 >= 0 && y0 >= 0 && x0 + crop.width as i64 + 1 <= fw && y0 + crop.height as i64 + 1 <= fh {
+        // Every sample and its right and lower neighbours inside the frame (the usual case): the
+        // same arithmetic on rows of the frame, without a clamp per read (a third of the time
+        // the alignment takes).
+        let w = crop.width as usize;
+        for r in 0..crop.height as usize {
+            let at = (y0 as usize + r) * fw as usize + x0 as usize;
+            let (row, below) = (&raw[at..at + w + 1], &raw[at + fw as usize..at + fw as usize + w + 1]);
+            for c in 0..w {
+                let (a, b, d, e) = (row[c] as f32, row[c + 1] as f32, below[c] as f32, below[c + 1] as f32);
+                let top = a + fx * (b - a);
+                let bottom = d + fx * (e - d);
+                out.push(top + fy * (bottom - top));
+            }
+        }
+        return out;
+    }
     for r in 0..crop.height as i64 {
         let y = crop.y as i64 + r + by;
         for c in 0..crop.width as i64 {
@@ -625,6 +649,22 @@ mod tests {
             assert_eq!((b.x, b.y), (tx, ty), "trial {trial}");
             assert_eq!((b.width, b.height), (9, 7));
         }
+    }
+
+    #[test]
+    fn grey_conversion_weighs_each_channel_of_each_pixel() {
+        // Every byte distinct along a row, so a channel or a pixel taken out of turn shows.
+        let rgb = image::RgbImage::from_fn(7, 5, |x, y| image::Rgb([(x * 37 + y) as u8, (x * 11 + 90 * y) as u8, (200 - 13 * x - y) as u8]));
+        let want = GrayImage::from_fn(7, 5, |x, y| {
+            let p = rgb.get_pixel(x, y).0;
+            image::Luma([grey_of_rgb(p[0], p[1], p[2])])
+        });
+        assert_eq!(grey_of_rgb(255, 0, 0), 76);
+        assert_eq!(grey_of_rgb(0, 255, 0), 150);
+        assert_eq!(grey_of_rgb(0, 0, 255), 29);
+        assert_eq!(to_grey(&DynamicImage::ImageRgb8(rgb.clone())), want);
+        let rgba = DynamicImage::ImageRgb8(rgb).to_rgba8();
+        assert_eq!(to_grey(&DynamicImage::ImageRgba8(rgba)), want, "alpha dropped");
     }
 
     #[test]
