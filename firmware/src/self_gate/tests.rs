@@ -22,9 +22,14 @@ fn params() -> SelfGate {
 
 /// Rest at x 120, then the probe: servo reports at the given times, frames with offsets.
 fn run(xp: [f32; 2], xm: [f32; 2]) -> Step {
+    run_read_at_rest(&[0.0; 3], xp, xm)
+}
+
+/// [`run`], the resting frames' yaw read as `rest_yaws` (the head resting at 0).
+fn run_read_at_rest(rest_yaws: &[f32], xp: [f32; 2], xm: [f32; 2]) -> Step {
     let mut g = Gate::new(params());
-    for _ in 0..3 {
-        g.observe([120.0, 50.0], 0.0, 0);
+    for &yaw in rest_yaws {
+        g.observe([120.0, 50.0], yaw, 0);
     }
     assert_eq!(g.start(0, 7, [0.0, 0.0], TARGET), Step::Head([0.07, 0.0]));
     g.on_servo(30 * MS, 0.02); // moving
@@ -65,6 +70,19 @@ fn own_mirror_image_passes() {
     assert!(r.rest_px < 1e-4);
     assert_eq!(r.frames, [2, 2]);
     assert_eq!((r.frame, r.elapsed_ms), (15, 650));
+}
+
+#[test]
+fn the_rest_is_read_over_six_frames_so_a_reading_that_flickers_moves_no_line() {
+    // An encoder reading a count either side of where the head rests, by turns: over three
+    // frames a third of a count (0.14 px at 271 px/rad) off, over six none.
+    let count = core::f32::consts::TAU / 4096.0;
+    let flicker: [f32; 7] = core::array::from_fn(|i| if i % 2 == 0 { count } else { -count });
+    let (r, _) = done(run_read_at_rest(&flicker, [101.0, 101.0], [139.0, 139.0]));
+    assert_eq!(r.decision, GateDecision::Pass);
+    assert!(r.rest_px < 0.01, "{}", r.rest_px);
+    let (r, _) = done(run_read_at_rest(&flicker[..3], [101.0, 101.0], [139.0, 139.0]));
+    assert!((r.rest_px - 271.0 * count / 3.0).abs() < 0.01, "a probe after three frames takes those: {}", r.rest_px);
 }
 
 #[test]
