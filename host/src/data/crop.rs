@@ -468,10 +468,7 @@ fn resample(frame: &GrayImage, crop: CropBox, shift: [f32; 2]) -> Vec<f32> {
             let at = (y0 as usize + r) * fw as usize + x0 as usize;
             let (row, below) = (&raw[at..at + w + 1], &raw[at + fw as usize..at + fw as usize + w + 1]);
             for c in 0..w {
-                let (a, b, d, e) = (row[c] as f32, row[c + 1] as f32, below[c] as f32, below[c + 1] as f32);
-                let top = a + fx * (b - a);
-                let bottom = d + fx * (e - d);
-                out.push(top + fy * (bottom - top));
+                out.push(bilerp([row[c], row[c + 1], below[c], below[c + 1]].map(f32::from), fx, fy));
             }
         }
         return out;
@@ -480,12 +477,19 @@ fn resample(frame: &GrayImage, crop: CropBox, shift: [f32; 2]) -> Vec<f32> {
         let y = crop.y as i64 + r + by;
         for c in 0..crop.width as i64 {
             let x = crop.x as i64 + c + bx;
-            let top = px(x, y) + fx * (px(x + 1, y) - px(x, y));
-            let bottom = px(x, y + 1) + fx * (px(x + 1, y + 1) - px(x, y + 1));
-            out.push(top + fy * (bottom - top));
+            out.push(bilerp([px(x, y), px(x + 1, y), px(x, y + 1), px(x + 1, y + 1)], fx, fy));
         }
     }
     out
+}
+
+/// Bilinear interpolation between a pixel, its right, lower and lower-right neighbours (`q`),
+/// `fx` of the way right and `fy` down: the one formula both of [`resample`]'s loops use.
+#[inline(always)]
+fn bilerp(q: [f32; 4], fx: f32, fy: f32) -> f32 {
+    let top = q[0] + fx * (q[1] - q[0]);
+    let bottom = q[2] + fx * (q[3] - q[2]);
+    top + fy * (bottom - top)
 }
 
 /// The pixels of `frame` inside `crop`, row-major. `crop` must lie inside the frame.
@@ -506,7 +510,7 @@ mod tests {
     use rand::{Rng, SeedableRng};
 
     /// The previous implementation (one matrix product, `matrixmultiply`), kept as the oracle the
-        /// FFT one must agree with exactly.
+    /// FFT one must agree with exactly.
     pub fn cross_correlation_gemm(frame: &GrayImage, tpl: &GrayImage) -> Vec<i64> {
         let (fw, fh) = (frame.width() as usize, frame.height() as usize);
         let (tw, th) = (tpl.width() as usize, tpl.height() as usize);
