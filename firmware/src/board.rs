@@ -472,18 +472,22 @@ impl<S: ModelStore> Core<S> {
         states: &[msr_shared::msg::JointState],
         host: &mut H,
     ) {
-        let _ = host;
         let mut any = false;
+        let mut yaw = false;
         for s in states {
             if let Some(i) = REACH_JOINTS.iter().position(|j| *j == s.joint) {
                 if s.position.is_finite() {
                     self.measured[i] = Some(s.position);
                     any = true;
+                    yaw |= i == 0;
                 }
             }
         }
         if any {
             self.feed_servos(now_us);
+        }
+        if yaw {
+            self.gate_report(now_us, host);
         }
     }
 
@@ -749,6 +753,7 @@ impl<S: ModelStore> Core<S> {
 
     /// What a Dynamixel poll brought: positions, and events for the host.
     fn on_positions<H: Write>(&mut self, now_us: u64, polled: Polled, host: &mut H) {
+        let yaw = polled.positions[0].is_some();
         for (m, p) in self.measured.iter_mut().zip(polled.positions) {
             if let Some(p) = p {
                 *m = Some(p);
@@ -768,6 +773,9 @@ impl<S: ModelStore> Core<S> {
         // to stop the motion once the watchdog's period has passed.
         if polled.complete {
             self.feed_servos(now_us);
+        }
+        if yaw {
+            self.gate_report(now_us, host);
         }
     }
 
@@ -860,13 +868,13 @@ impl<S: ModelStore> Core<S> {
                     let face = salient.as_ref().is_some_and(|d| d.light.verdict == Verdict::Face);
                     let salient = salient.map_or(u32::MAX, |d| d.salient_pixels);
                     match self.gate.as_mut() {
-                        Some(g) => g.on_probe_frame(now_us, h.frame, h.position(), yaw, salient, face),
+                        Some(g) => g.on_probe_frame(now_us, h.frame, h.position(), salient, face),
                         None => Step::Wait,
                     }
                 }
                 _ => Step::Wait,
             };
-            self.gate_step(step, h.frame, host);
+            self.gate_step(now_us, step, h.frame, host);
             return;
         }
         if self.motion.arm_up() {
@@ -933,7 +941,7 @@ impl<S: ModelStore> Core<S> {
                 // Not yet: first the probe that tells whether this face is ours.
                 self.confirm.reset();
                 let step = g.start(now_us, h.frame, held, target);
-                self.gate_step(step, h.frame, host);
+                self.gate_step(now_us, step, h.frame, host);
             } else if let Some(target) = det.reach {
                 if self.motion.reach(target) {
                     confirmed = true;
@@ -995,15 +1003,15 @@ impl<S: ModelStore> Core<S> {
 
     /// Carries out what the self gate asks: a head pose, or its decision (reported on the host
     /// link; a pass starts the reach as a confirmed detection of `frame`, anything else goes home).
-    fn gate_step<H: Write>(&mut self, step: Step, frame: u16, host: &mut H) {
+    fn gate_step<H: Write>(&mut self, now_us: u64, step: Step, frame: u16, host: &mut H) {
         match step {
             Step::Wait => {}
             Step::Head(head) => {
                 if !self.motion.probe(head) {
                     // Not streaming (the servos went quiet just now): undecided.
                     if let Some(g) = self.gate.as_mut() {
-                        let s = g.abort(self.last_poll_us, GateUndecided::ServosSilent);
-                        self.gate_step(s, frame, host);
+                        let s = g.abort(now_us, GateUndecided::ServosSilent);
+                        self.gate_step(now_us, s, frame, host);
                     }
                 }
             }
@@ -1023,8 +1031,18 @@ impl<S: ModelStore> Core<S> {
         }
     }
 
-    /// While probing: the servos' yaw to the gate, and the ways a probe ends without frames
-    /// (a watchdog, a bus fault, the timeout).
+    /// A fresh report of the head's yaw (this poll's servo status, not the last one kept): to
+    /// the gate, which averages the reports at rest and at each probe pose. Fresh only: a poll
+    /// runs as often as its loop does (each sim tick, unpaced on a board), not once a report.
+    fn gate_report<H: Write>(&mut self, now_us: u64, host: &mut H) {
+        let (Some(yaw), Some(g)) = (self.measured[0], self.gate.as_mut()) else { return };
+        let step = g.on_servo(now_us, yaw);
+        let frame = self.last_reach.map_or(0, |d| d.frame);
+        self.gate_step(now_us, step, frame, host);
+    }
+
+    /// While probing: the ways a probe ends without frames (a watchdog, a bus fault, the
+    /// timeout).
     fn gate_watch<H: Write>(&mut self, now_us: u64, host: &mut H) {
         self.last_poll_us = now_us;
         let Some(g) = self.gate.as_mut() else { return };
@@ -1037,13 +1055,10 @@ impl<S: ModelStore> Core<S> {
         } else if self.face_wd.tripped() {
             g.abort(now_us, GateUndecided::FaceLost)
         } else {
-            match self.measured[0].map_or(Step::Wait, |yaw| g.on_servo(now_us, yaw)) {
-                Step::Wait => g.poll(now_us),
-                turn => turn,
-            }
+            g.poll(now_us)
         };
         let frame = self.last_reach.map_or(0, |d| d.frame);
-        self.gate_step(step, frame, host);
+        self.gate_step(now_us, step, frame, host);
     }
 
     /// One control period.

@@ -5,7 +5,8 @@
 //! (from the resting yaw; by way of [`VIA_RAD`] below it, so that every pose is approached
 //! from below and a servo that friction stops short stops as short at each), and at each probe
 //! pose, once the servos report it settled and the robot's own latency has passed, the face crop's x position (every frame header carries it,
-//! to 1/64 pixel) is averaged over `min_frames` frames. Then
+//! to 1/64 pixel) is averaged over `min_frames` frames, and the head's reported yaw over every
+//! servo report meanwhile. Then
 //!
 //! - `gain_ratio = ((x+ - x-) / (2 amplitude)) / gain`, against the gain of the robot's own
 //!   mirror image (calibrated from rendered frames and stored in the model blob): in a mirror
@@ -57,12 +58,19 @@ use msr_shared::blob::SelfGate;
 use msr_shared::msg::{GateDecision, GateReport, GateUndecided};
 
 /// Resting frames kept (the latest, before a probe): their mean face x is the rest the probe's
-/// line must pass, their mean reported yaw where the encoder says the head rested (`drift`).
+/// line must pass, their mean reported yaw (each frame's the mean of the servo reports since
+/// the frame before) where the encoder says the head rested (`drift`).
 /// Six, not three: each reading carries the encoder's noise, and at half a count RMS three
 /// refused 2 of red's 170 own images on the rest distance (its 90th percentile 0.37 px; 0.28
 /// with six, none refused), at one count 30 (13 with six; eight did no better at half a count,
-/// and would not fit the board's 60 KiB). A probe that starts with fewer takes those it has.
+/// and would not fit the board's 60 KiB); those were one reading a frame, before the servo
+/// reports were averaged. A probe that starts with fewer takes those it has.
 pub const REST_FRAMES: usize = 6;
+
+/// The most servo reports a resting frame's yaw averages (ten a frame in the episodes): when
+/// frames stop while the reports go on (a camera unplugged), the sum starts again, and the
+/// first frame back takes the latest few, not minutes of them.
+pub const REST_REPORTS: u16 = 64;
 
 /// What the board does next.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -82,15 +90,25 @@ struct Acc {
     x_min: f32,
     x_max: f32,
     y: f32,
+    /// Sum of the servos' yaw reports over the pose's window ([`Gate::on_servo`]).
     yaw: f32,
     salient: f32,
     n: u8,
     /// Frames in which the pipeline did not find the predicted face.
     unlike: u8,
+    /// Yaw reports summed (in the struct's padding).
+    reports: u8,
 }
 
 impl Acc {
-    fn push(&mut self, x: f32, y: f32, yaw: f32, salient: u32, face: bool) {
+    /// One servo report at the pose; past 255 the mean is that of the first 255.
+    fn report(&mut self, yaw: f32) {
+        if self.reports < u8::MAX {
+            self.yaw += yaw;
+            self.reports += 1;
+        }
+    }
+    fn push(&mut self, x: f32, y: f32, salient: u32, face: bool) {
         self.unlike = self.unlike.saturating_add(!face as u8);
         if self.n == 0 {
             (self.x_min, self.x_max) = (x, x);
@@ -99,13 +117,13 @@ impl Acc {
         self.x_max = self.x_max.max(x);
         self.x += x;
         self.y += y;
-        self.yaw += yaw;
         self.salient += salient as f32;
         self.n = self.n.saturating_add(1);
     }
+    /// Mean x of the frames and mean reported yaw (NaN without a report: undecided).
     fn mean(&self) -> (f32, f32) {
-        let n = self.n.max(1) as f32;
-        (self.x / n, self.yaw / n)
+        let yaw = if self.reports == 0 { f32::NAN } else { self.yaw / self.reports as f32 };
+        (self.x / self.n.max(1) as f32, yaw)
     }
     fn y(&self) -> f32 {
         self.y / self.n.max(1) as f32
@@ -128,7 +146,7 @@ struct Probe {
     rest_spread: f32,
     pitch: f32,
     /// 0: the `+amplitude` pose, 1: the `-amplitude` pose, 2: back at the rest (return stage).
-    stage: usize,
+    stage: u8,
     /// On the way to stage 1 by way of [`VIA_RAD`] below its pose.
     via: bool,
     settled_since: Option<u64>,
@@ -145,14 +163,24 @@ pub struct Gate {
     rest_y: [f32; REST_FRAMES],
     /// When the last probe ended.
     last_end_us: Option<u64>,
-    rest_n: usize,
+    rest_n: u8,
+    /// Yaw reports since the last resting frame: their sum and count (that frame's yaw).
+    pending: (f32, u16),
     probe: Option<Probe>,
 }
 
 impl Gate {
     /// A gate with the blob's parameters, nothing seen yet.
     pub const fn new(p: SelfGate) -> Gate {
-        Gate { p, rest: [(0.0, 0.0, 0.0); REST_FRAMES], rest_y: [0.0; REST_FRAMES], last_end_us: None, rest_n: 0, probe: None }
+        Gate {
+            p,
+            rest: [(0.0, 0.0, 0.0); REST_FRAMES],
+            rest_y: [0.0; REST_FRAMES],
+            last_end_us: None,
+            rest_n: 0,
+            pending: (0.0, 0),
+            probe: None,
+        }
     }
 
     /// The blob's parameters.
@@ -166,19 +194,24 @@ impl Gate {
     }
 
     /// A frame while observing (head at rest): kept as the resting face. `pos`: the face
-    /// crop's position in the frame, pixels (`FrameHeader::position`); `salient`: the frame's
-    /// salient pixels (reported with the decision, for calibration).
+    /// crop's position in the frame, pixels (`FrameHeader::position`); `yaw`: the head's
+    /// latest reported yaw, kept for the frame when no servo report came since the last one
+    /// (else their mean: [`Gate::on_servo`]); `salient`: the frame's salient pixels (reported
+    /// with the decision, for calibration).
     pub fn observe(&mut self, pos: [f32; 2], yaw: f32, salient: u32) {
+        let (sum, n) = core::mem::take(&mut self.pending);
+        let yaw = if n == 0 { yaw } else { sum / n as f32 };
         self.rest.copy_within(1.., 0);
         self.rest_y.copy_within(1.., 0);
         self.rest[REST_FRAMES - 1] = (pos[0], yaw, salient as f32);
         self.rest_y[REST_FRAMES - 1] = pos[1];
-        self.rest_n = (self.rest_n + 1).min(REST_FRAMES);
+        self.rest_n = (self.rest_n + 1).min(REST_FRAMES as u8);
     }
 
     /// Forgets the resting frames (the head moved, the model changed).
     pub fn clear(&mut self) {
         self.rest_n = 0;
+        self.pending = (0.0, 0);
         self.probe = None;
     }
 
@@ -207,12 +240,12 @@ impl Gate {
         if self.rest_n == 0 {
             return self.undecided_at(now_us, now_us, frame, GateUndecided::FaceLost);
         }
-        let rest = &self.rest[REST_FRAMES - self.rest_n..];
+        let rest = &self.rest[REST_FRAMES - self.rest_n as usize..];
         let n = rest.len() as f32;
         let x = rest.iter().map(|r| r.0).sum::<f32>() / n;
         let sal = rest.iter().map(|r| r.2).sum::<f32>() / n;
         let rest_yaw = rest.iter().map(|r| r.1).sum::<f32>() / n;
-        let rest_y = self.rest_y[REST_FRAMES - self.rest_n..].iter().sum::<f32>() / n;
+        let rest_y = self.rest_y[REST_FRAMES - self.rest_n as usize..].iter().sum::<f32>() / n;
         let (lo, hi) = rest.iter().fold((f32::MAX, f32::MIN), |(l, h), r| (l.min(r.0), h.max(r.0)));
         let pr = Probe {
             started_us: now_us,
@@ -231,13 +264,24 @@ impl Gate {
         let g = self.goal(&pr);
         self.probe = Some(pr);
         self.rest_n = 0;
+        self.pending = (0.0, 0);
         Step::Head(g)
     }
 
     /// The servos reported the head's yaw (every control period). `Head`: the head passed
-    /// the way point below the `-amplitude` pose; now to the pose.
+    /// the way point below the `-amplitude` pose; now to the pose. Once the head has settled
+    /// at a pose and the latency has passed, every report counts towards the pose's yaw: a
+    /// reading that wanders by a count or two (a real encoder at rest) averages over the pose's
+    /// few hundred milliseconds of reports, not over its handful of frames. Between probes the
+    /// reports since the last frame give the next resting frame its yaw ([`Gate::observe`]).
     pub fn on_servo(&mut self, now_us: u64, yaw: f32) -> Step {
-        let Some(pr) = self.probe else { return Step::Wait };
+        let Some(pr) = self.probe else {
+            if self.pending.1 >= REST_REPORTS {
+                self.pending = (0.0, 0);
+            }
+            self.pending = (self.pending.0 + yaw, self.pending.1 + 1);
+            return Step::Wait;
+        };
         let g = self.goal(&pr);
         if pr.via {
             // Past the pose by more than any friction holds a servo short of a goal.
@@ -250,26 +294,30 @@ impl Gate {
             return Step::Wait;
         }
         let near = (yaw - g[0]).abs() <= SETTLE_SHARE * self.p.amplitude;
+        let latency = self.p.latency_ms as u64 * 1000;
         if let Some(pr) = self.probe.as_mut() {
             pr.settled_since = match (near, pr.settled_since) {
                 (true, Some(t)) => Some(t),
                 (true, None) => Some(now_us),
                 (false, _) => None,
             };
+            if pr.settled_since.is_some_and(|t| now_us >= t.saturating_add(latency)) {
+                pr.acc[pr.stage as usize].report(yaw);
+            }
         }
         Step::Wait
     }
 
-    /// A face frame arrived during the probe, with the head's reported yaw; the pipeline found
-    /// the face it predicts (see [`Gate::on_probe_frame`]).
-    pub fn on_frame(&mut self, now_us: u64, frame: u16, pos: [f32; 2], yaw: f32, salient: u32) -> Step {
-        self.on_probe_frame(now_us, frame, pos, yaw, salient, true)
+    /// A face frame arrived during the probe; the pipeline found the face it predicts (see
+    /// [`Gate::on_probe_frame`]).
+    pub fn on_frame(&mut self, now_us: u64, frame: u16, pos: [f32; 2], salient: u32) -> Step {
+        self.on_probe_frame(now_us, frame, pos, salient, true)
     }
 
     /// As [`Gate::on_frame`]; `face`: the pipeline found the face the model predicts at this
     /// head pose (the light fit's verdict). A gate with a return stage passes only when it did
     /// at every probe frame.
-    pub fn on_probe_frame(&mut self, now_us: u64, frame: u16, pos: [f32; 2], yaw: f32, salient: u32, face: bool) -> Step {
+    pub fn on_probe_frame(&mut self, now_us: u64, frame: u16, pos: [f32; 2], salient: u32, face: bool) -> Step {
         let latency = self.p.latency_ms as u64 * 1000;
         let min = self.p.min_frames;
         let stages = self.stages();
@@ -279,11 +327,12 @@ impl Gate {
         if now_us < since.saturating_add(latency) {
             return Step::Wait;
         }
-        pr.acc[pr.stage].push(pos[0], pos[1], yaw, salient, face);
-        if pr.acc[pr.stage].n < min {
+        let acc = &mut pr.acc[pr.stage as usize];
+        acc.push(pos[0], pos[1], salient, face);
+        if acc.n < min {
             return Step::Wait;
         }
-        if pr.stage + 1 < stages {
+        if pr.stage as usize + 1 < stages {
             pr.stage += 1;
             // Every pose approached from below (see `VIA_RAD`): the `-amplitude` pose by way
             // of a point past it.

@@ -36,21 +36,33 @@ fn run_read_at_rest(rest_yaws: &[f32], xp: [f32; 2], xm: [f32; 2]) -> Step {
     g.on_servo(60 * MS, 0.07); // settled
     g.on_servo(70 * MS, 0.069);
     // Inside the latency after settling: not used.
-    assert_eq!(g.on_frame(100 * MS, 8, [200.0, 50.0], 0.07, 0), Step::Wait);
-    assert_eq!(g.on_frame(170 * MS, 9, [xp[0], 50.0], 0.07, 0), Step::Wait);
+    assert_eq!(frame(&mut g, 100 * MS, 8, [200.0, 50.0], 0.07, 0), Step::Wait);
+    assert_eq!(frame(&mut g, 170 * MS, 9, [xp[0], 50.0], 0.07, 0), Step::Wait);
     // To the minus pose by way of a point below it.
-    assert_eq!(g.on_frame(270 * MS, 10, [xp[1], 50.0], 0.07, 0), Step::Head([-0.07 - VIA_RAD, 0.0]));
+    assert_eq!(frame(&mut g, 270 * MS, 10, [xp[1], 50.0], 0.07, 0), Step::Head([-0.07 - VIA_RAD, 0.0]));
     // The minus pose: the old settling no longer counts.
-    assert_eq!(g.on_frame(300 * MS, 11, [0.0, 50.0], 0.0, 0), Step::Wait);
+    assert_eq!(frame(&mut g, 300 * MS, 11, [0.0, 50.0], 0.0, 0), Step::Wait);
     // Not yet past the pose by half the way point's distance: no frames count, no turn back.
     assert_eq!(g.on_servo(380 * MS, -0.07), Step::Wait);
-    assert_eq!(g.on_frame(385 * MS, 11, [0.0, 50.0], -0.07, 0), Step::Wait);
+    assert_eq!(frame(&mut g, 385 * MS, 11, [0.0, 50.0], -0.07, 0), Step::Wait);
     assert_eq!(g.on_servo(390 * MS, -0.079), Step::Head([-0.07, 0.0]), "approached from below");
     g.on_servo(400 * MS, -0.07);
-    assert_eq!(g.on_frame(450 * MS, 12, [0.0, 50.0], -0.07, 0), Step::Wait);
-    assert_eq!(g.on_frame(499 * MS, 13, [0.0, 50.0], -0.07, 0), Step::Wait, "latency not yet passed");
-    assert_eq!(g.on_frame(550 * MS, 14, [xm[0], 50.0], -0.07, 0), Step::Wait);
-    g.on_frame(650 * MS, 15, [xm[1], 50.0], -0.07, 0)
+    assert_eq!(frame(&mut g, 450 * MS, 12, [0.0, 50.0], -0.07, 0), Step::Wait);
+    assert_eq!(frame(&mut g, 499 * MS, 13, [0.0, 50.0], -0.07, 0), Step::Wait, "latency not yet passed");
+    assert_eq!(frame(&mut g, 550 * MS, 14, [xm[0], 50.0], -0.07, 0), Step::Wait);
+    frame(&mut g, 650 * MS, 15, [xm[1], 50.0], -0.07, 0)
+}
+
+/// The servos report `yaw` (every control period; here with each frame), then a frame whose
+/// face the pipeline found.
+fn frame(g: &mut Gate, now_us: u64, n: u16, pos: [f32; 2], yaw: f32, salient: u32) -> Step {
+    probe_frame(g, now_us, n, pos, yaw, salient, true)
+}
+
+/// [`frame`], `face`: whether the pipeline found the face the model predicts.
+fn probe_frame(g: &mut Gate, now_us: u64, n: u16, pos: [f32; 2], yaw: f32, salient: u32, face: bool) -> Step {
+    assert_eq!(g.on_servo(now_us, yaw), Step::Wait);
+    g.on_probe_frame(now_us, n, pos, salient, face)
 }
 
 fn done(s: Step) -> (GateReport, Option<[f32; 5]>) {
@@ -83,6 +95,54 @@ fn the_rest_is_read_over_six_frames_so_a_reading_that_flickers_moves_no_line() {
     assert!(r.rest_px < 0.01, "{}", r.rest_px);
     let (r, _) = done(run_read_at_rest(&flicker[..3], [101.0, 101.0], [139.0, 139.0]));
     assert!((r.rest_px - 271.0 * count / 3.0).abs() < 0.01, "a probe after three frames takes those: {}", r.rest_px);
+}
+
+#[test]
+fn the_rest_yaw_is_the_mean_of_the_servo_reports_between_the_resting_frames() {
+    // Every frame lands on a reading a count high; the reports between them, every 10 ms,
+    // read a count either side by turns. Over the frames' readings the rest is a count
+    // (0.42 px) off the probe's line; over the reports, on it.
+    let count = core::f32::consts::TAU / 4096.0;
+    let rested = |reports: bool| {
+        let mut g = Gate::new(params());
+        for f in 0..6 {
+            if reports {
+                for r in 0..10 {
+                    g.on_servo((f * 100 + r * 10) * MS, if r % 2 == 0 { count } else { -count });
+                }
+            }
+            g.observe([120.0, 50.0], count, 0);
+        }
+        g
+    };
+    let probe = |mut g: Gate| {
+        assert_eq!(g.start(600 * MS, 7, [0.0, 0.0], TARGET), Step::Head([0.07, 0.0]));
+        g.on_servo(650 * MS, 0.07);
+        frame(&mut g, 800 * MS, 8, [101.03, 50.0], 0.07, 0);
+        frame(&mut g, 900 * MS, 9, [101.03, 50.0], 0.07, 0);
+        g.on_servo(940 * MS, -0.09);
+        g.on_servo(950 * MS, -0.07);
+        frame(&mut g, 1100 * MS, 10, [138.97, 50.0], -0.07, 0);
+        done(frame(&mut g, 1200 * MS, 11, [138.97, 50.0], -0.07, 0)).0
+    };
+    let r = probe(rested(true));
+    assert!(r.rest_px < 0.01, "{}", r.rest_px);
+    let r = probe(rested(false));
+    assert!((r.rest_px - 271.0 * count).abs() < 0.01, "{}", r.rest_px);
+}
+
+#[test]
+fn a_resting_frame_after_a_long_gap_takes_the_latest_reports() {
+    // Frames stopped for a minute while the servos went on reporting; the head turned to 0.3
+    // rad in the last few seconds. The first frame back reads where the head is now.
+    let mut g = Gate::new(params());
+    for i in 0..6000u64 {
+        g.on_servo(i * 10 * MS, if i < 5700 { 0.0 } else { 0.3 });
+    }
+    g.observe([120.0, 50.0], 0.0, 0);
+    assert_eq!(g.start(61_000 * MS, 1, [0.3, 0.0], TARGET), Step::Head([0.37, 0.0]));
+    let Some(pr) = g.probe else { panic!("probing") };
+    assert!((pr.rest_yaw - 0.3).abs() < 1e-5, "{}", pr.rest_yaw);
 }
 
 #[test]
@@ -126,7 +186,7 @@ fn a_head_that_never_settles_is_undecided() {
     g.observe([120.0, 50.0], 0.0, 0);
     g.start(0, 1, [0.0, 0.0], TARGET);
     g.on_servo(10 * MS, 0.01);
-    assert_eq!(g.on_frame(500 * MS, 2, [100.0, 50.0], 0.01, 0), Step::Wait);
+    assert_eq!(frame(&mut g, 500 * MS, 2, [100.0, 50.0], 0.01, 0), Step::Wait);
     assert_eq!(g.poll(1999 * MS), Step::Wait);
     let (r, t) = done(g.poll(2000 * MS));
     assert_eq!(r.decision, GateDecision::Undecided(GateUndecided::HeadStuck));
@@ -161,19 +221,87 @@ fn silent_servos_and_a_lost_face_are_undecided() {
 
 #[test]
 fn a_yaw_span_short_of_the_amplitude_is_undecided() {
-    // The servos call each pose settled (within 15 %), but the frames' reported yaws span less
-    // than one amplitude: a joint at its limit, say.
+    // The servos call each pose settled (within 15 % of the amplitude), but report it 0.009 rad
+    // short, from below at both (a joint at its limit, say): the span is not the commanded one.
+    let mut g = Gate::new(params());
+    g.observe([120.0, 50.0], 0.0, 0);
+    g.start(0, 1, [0.0, 0.0], TARGET);
+    g.on_servo(50 * MS, 0.061);
+    frame(&mut g, 200 * MS, 2, [110.0, 50.0], 0.061, 0);
+    frame(&mut g, 300 * MS, 3, [110.0, 50.0], 0.061, 0);
+    g.on_servo(340 * MS, -0.09); // past the pose: approached from below
+    g.on_servo(350 * MS, -0.061);
+    frame(&mut g, 500 * MS, 4, [130.0, 50.0], -0.061, 0);
+    let (r, t) = done(frame(&mut g, 600 * MS, 5, [130.0, 50.0], -0.061, 0));
+    assert_eq!((r.decision, t), (GateDecision::Undecided(GateUndecided::HeadStuck), None));
+}
+
+#[test]
+fn a_pose_yaw_is_the_mean_of_every_servo_report_not_of_the_frames_few() {
+    // An encoder at rest that reads six counts either side of the pose by turns, every 10 ms;
+    // both frames at each pose land on a high reading. Read at the frames alone the poses look
+    // 0.0092 rad high, past `POSE_TOL_RAD`: undecided. Over every report since the latency
+    // passed, the poses are where they were sent.
+    let six = 6.0 * core::f32::consts::TAU / 4096.0;
+    let probe = |every_report: bool| {
+        let mut g = Gate::new(params());
+        g.observe([120.0, 50.0], 0.0, 0);
+        g.start(0, 1, [0.0, 0.0], TARGET);
+        // (pose, settled at, frames at) in ms; a high reading on every 20 ms. Without every
+        // report, the servos report at the settling and with each frame only.
+        for (pose, from, frames) in [(0.07, 50, [200, 300]), (-0.07, 350, [500, 600])] {
+            if pose < 0.0 {
+                assert_eq!(g.on_servo(340 * MS, -0.09), Step::Head([-0.07, 0.0]), "past the pose");
+            }
+            let mut last = Step::Wait;
+            for t in (from..=frames[1]).step_by(10) {
+                let yaw = pose + if t % 20 == 0 { six } else { -six };
+                if every_report || t == from || frames.contains(&t) {
+                    assert_eq!(g.on_servo(t as u64 * MS, yaw), Step::Wait);
+                }
+                if frames.contains(&t) {
+                    last = g.on_frame(t as u64 * MS, 2, [120.0 - 271.0 * pose, 50.0], 0);
+                }
+            }
+            if pose > 0.0 {
+                assert_eq!(last, Step::Head([-0.07 - VIA_RAD, 0.0]));
+            } else {
+                return done(last);
+            }
+        }
+        unreachable!()
+    };
+    let (r, t) = probe(true);
+    assert_eq!((r.decision, t), (GateDecision::Pass, Some(TARGET)), "{r:?}");
+    let (r, t) = probe(false);
+    assert_eq!((r.decision, t), (GateDecision::Undecided(GateUndecided::HeadStuck), None), "{r:?}");
+}
+
+#[test]
+fn a_pose_without_a_servo_report_after_the_latency_is_undecided() {
+    // Settled, then silent servos: frames alone say nothing of where the head is.
     let mut g = Gate::new(params());
     g.observe([120.0, 50.0], 0.0, 0);
     g.start(0, 1, [0.0, 0.0], TARGET);
     g.on_servo(50 * MS, 0.07);
-    g.on_frame(200 * MS, 2, [110.0, 50.0], 0.03, 0);
-    g.on_frame(300 * MS, 3, [110.0, 50.0], 0.03, 0);
-    g.on_servo(340 * MS, -0.09); // past the pose: approached from below
+    g.on_frame(200 * MS, 2, [101.0, 50.0], 0);
+    g.on_frame(300 * MS, 3, [101.0, 50.0], 0);
+    g.on_servo(340 * MS, -0.09);
     g.on_servo(350 * MS, -0.07);
-    g.on_frame(500 * MS, 4, [130.0, 50.0], -0.03, 0);
-    let (r, t) = done(g.on_frame(600 * MS, 5, [130.0, 50.0], -0.03, 0));
+    g.on_frame(500 * MS, 4, [139.0, 50.0], 0);
+    let (r, t) = done(g.on_frame(600 * MS, 5, [139.0, 50.0], 0));
     assert_eq!((r.decision, t), (GateDecision::Undecided(GateUndecided::HeadStuck), None));
+}
+
+#[test]
+fn a_pose_reads_its_first_255_reports() {
+    let mut a = Acc::default();
+    for i in 0..300 {
+        a.report(if i < 255 { 0.07 } else { 1.0 });
+    }
+    assert_eq!(a.reports, 255);
+    assert!((a.mean().1 - 0.07).abs() < 1e-6, "{:?}", a.mean());
+    assert!(Acc::default().mean().1.is_nan(), "no report: no yaw");
 }
 
 #[test]
@@ -194,12 +322,12 @@ fn a_face_that_moves_up_or_down_is_rejected() {
     }
     g.start(0, 1, [0.0, 0.0], TARGET);
     g.on_servo(50 * MS, 0.07);
-    g.on_frame(200 * MS, 2, [101.0, 53.0], 0.07, 0);
-    g.on_frame(300 * MS, 3, [101.0, 53.0], 0.07, 0);
+    frame(&mut g, 200 * MS, 2, [101.0, 53.0], 0.07, 0);
+    frame(&mut g, 300 * MS, 3, [101.0, 53.0], 0.07, 0);
     g.on_servo(340 * MS, -0.09); // past the pose: approached from below
     g.on_servo(350 * MS, -0.07);
-    g.on_frame(500 * MS, 4, [139.0, 50.0], -0.07, 0);
-    let (r, t) = done(g.on_frame(600 * MS, 5, [139.0, 50.0], -0.07, 0));
+    frame(&mut g, 500 * MS, 4, [139.0, 50.0], -0.07, 0);
+    let (r, t) = done(frame(&mut g, 600 * MS, 5, [139.0, 50.0], -0.07, 0));
     assert_eq!((r.decision, t), (GateDecision::Reject, None));
     assert!((r.gain_ratio - 1.0016).abs() < 1e-3);
 }
@@ -229,12 +357,12 @@ fn run_with(p: SelfGate, rest: [f32; 3], xp: [f32; 2], xm: [f32; 2], y: [f32; 2]
     }
     g.start(0, 1, [0.0, 0.0], TARGET);
     g.on_servo(50 * MS, 0.07);
-    g.on_frame(200 * MS, 2, [xp[0], y[0]], 0.07, 0);
-    g.on_frame(300 * MS, 3, [xp[1], y[0]], 0.07, 0);
+    frame(&mut g, 200 * MS, 2, [xp[0], y[0]], 0.07, 0);
+    frame(&mut g, 300 * MS, 3, [xp[1], y[0]], 0.07, 0);
     g.on_servo(340 * MS, -0.09); // past the pose: approached from below
     g.on_servo(350 * MS, -0.07);
-    g.on_frame(500 * MS, 4, [xm[0], y[1]], -0.07, 0);
-    g.on_frame(600 * MS, 5, [xm[1], y[1]], -0.07, 0)
+    frame(&mut g, 500 * MS, 4, [xm[0], y[1]], -0.07, 0);
+    frame(&mut g, 600 * MS, 5, [xm[1], y[1]], -0.07, 0)
 }
 
 #[test]
@@ -309,21 +437,21 @@ fn run_back(p: SelfGate, rest: [f32; 3], xp: [f32; 2], xm: [f32; 2], xb: [f32; 2
     assert_eq!(g.start(0, 1, [0.0, 0.0], TARGET), Step::Head([0.07, 0.0]));
     g.on_servo(50 * MS, 0.07);
     // The mark is salient at the poses (a return stage wants it at one of them at least).
-    g.on_frame(200 * MS, 2, [xp[0], 50.0], 0.07, 40);
-    assert_eq!(g.on_frame(300 * MS, 3, [xp[1], 50.0], 0.07, 40), Step::Head([-0.07 - VIA_RAD, 0.0]));
+    frame(&mut g, 200 * MS, 2, [xp[0], 50.0], 0.07, 40);
+    assert_eq!(frame(&mut g, 300 * MS, 3, [xp[1], 50.0], 0.07, 40), Step::Head([-0.07 - VIA_RAD, 0.0]));
     g.on_servo(340 * MS, -0.09); // past the pose: approached from below
     g.on_servo(350 * MS, -0.07);
-    g.on_frame(500 * MS, 4, [xm[0], 50.0], -0.07, 40);
-    let s = g.on_frame(600 * MS, 5, [xm[1], 50.0], -0.07, 40);
+    frame(&mut g, 500 * MS, 4, [xm[0], 50.0], -0.07, 40);
+    let s = frame(&mut g, 600 * MS, 5, [xm[1], 50.0], -0.07, 40);
     if p.line_tol.is_none() {
         return s;
     }
     // Three stages: back to the resting yaw the encoder reported, the poses' midpoint.
     assert_eq!(s, Step::Head([0.0, 0.0]));
     g.on_servo(650 * MS, 0.0);
-    assert_eq!(g.on_frame(700 * MS, 6, [xb[0], 50.0], 0.0, 0), Step::Wait, "latency not yet passed");
-    g.on_frame(800 * MS, 7, [xb[0], 50.0], 0.0, 0);
-    g.on_frame(900 * MS, 8, [xb[1], 50.0], 0.0, 0)
+    assert_eq!(frame(&mut g, 700 * MS, 6, [xb[0], 50.0], 0.0, 0), Step::Wait, "latency not yet passed");
+    frame(&mut g, 800 * MS, 7, [xb[0], 50.0], 0.0, 0);
+    frame(&mut g, 900 * MS, 8, [xb[1], 50.0], 0.0, 0)
 }
 
 #[test]
@@ -365,16 +493,16 @@ fn a_head_that_does_not_get_back_to_the_rest_is_undecided() {
     g.observe([120.0, 50.0], 0.0, 0);
     g.start(0, 1, [0.0, 0.0], TARGET);
     g.on_servo(50 * MS, 0.07);
-    g.on_frame(200 * MS, 2, [101.0, 50.0], 0.07, 0);
-    g.on_frame(300 * MS, 3, [101.0, 50.0], 0.07, 0);
+    frame(&mut g, 200 * MS, 2, [101.0, 50.0], 0.07, 0);
+    frame(&mut g, 300 * MS, 3, [101.0, 50.0], 0.07, 0);
     g.on_servo(340 * MS, -0.09); // past the pose: approached from below
     g.on_servo(350 * MS, -0.07);
-    g.on_frame(500 * MS, 4, [139.0, 50.0], -0.07, 0);
-    assert_eq!(g.on_frame(600 * MS, 5, [139.0, 50.0], -0.07, 0), Step::Head([0.0, 0.0]));
+    frame(&mut g, 500 * MS, 4, [139.0, 50.0], -0.07, 0);
+    assert_eq!(frame(&mut g, 600 * MS, 5, [139.0, 50.0], -0.07, 0), Step::Head([0.0, 0.0]));
     // Settled within 15 % of the amplitude, but reported 0.009 rad off the rest.
     g.on_servo(650 * MS, 0.009);
-    g.on_frame(800 * MS, 6, [120.0, 50.0], 0.009, 0);
-    let (r, t) = done(g.on_frame(900 * MS, 7, [120.0, 50.0], 0.009, 0));
+    frame(&mut g, 800 * MS, 6, [120.0, 50.0], 0.009, 0);
+    let (r, t) = done(frame(&mut g, 900 * MS, 7, [120.0, 50.0], 0.009, 0));
     assert_eq!((r.decision, t), (GateDecision::Undecided(GateUndecided::HeadStuck), None));
 }
 
@@ -387,18 +515,18 @@ fn a_face_unlike_the_prediction_at_a_pose_fails_the_gate_with_a_return_stage() {
         g.observe([120.25, 50.0], 0.0, 90);
         g.start(0, 1, [0.0, 0.0], TARGET);
         g.on_servo(50 * MS, 0.07);
-        g.on_probe_frame(200 * MS, 2, [101.28, 50.0], 0.07, 90, true);
-        g.on_probe_frame(300 * MS, 3, [101.28, 50.0], 0.07, 90, true);
+        probe_frame(&mut g, 200 * MS, 2, [101.28, 50.0], 0.07, 90, true);
+        probe_frame(&mut g, 300 * MS, 3, [101.28, 50.0], 0.07, 90, true);
         g.on_servo(340 * MS, -0.09); // past the pose: approached from below
     g.on_servo(350 * MS, -0.07);
-        g.on_probe_frame(500 * MS, 4, [139.22, 50.0], -0.07, 90, true);
-        let s = g.on_probe_frame(600 * MS, 5, [139.22, 50.0], -0.07, 0, face_at_minus);
+        probe_frame(&mut g, 500 * MS, 4, [139.22, 50.0], -0.07, 90, true);
+        let s = probe_frame(&mut g, 600 * MS, 5, [139.22, 50.0], -0.07, 0, face_at_minus);
         if p.line_tol.is_none() {
             return done(s);
         }
         g.on_servo(650 * MS, 0.0);
-        g.on_probe_frame(800 * MS, 6, [120.25, 50.0], 0.0, 90, true);
-        done(g.on_probe_frame(900 * MS, 7, [120.25, 50.0], 0.0, 90, true))
+        probe_frame(&mut g, 800 * MS, 6, [120.25, 50.0], 0.0, 90, true);
+        done(probe_frame(&mut g, 900 * MS, 7, [120.25, 50.0], 0.0, 90, true))
     };
     let two = SelfGate { gain_tol: 0.01, rest_tol: 0.2, hold_tol: 0.2, level_tol: 0.2, ..params() };
     let three = SelfGate { line_tol: Some(0.2), ..two };
@@ -419,18 +547,18 @@ fn a_mark_that_is_salient_at_neither_pose_fails_the_gate_with_a_return_stage() {
         g.observe([120.25, 50.0], 0.0, 300);
         g.start(0, 1, [0.0, 0.0], TARGET);
         g.on_servo(50 * MS, 0.07);
-        g.on_frame(200 * MS, 2, [101.28, 50.0], 0.07, at[0]);
-        g.on_frame(300 * MS, 3, [101.28, 50.0], 0.07, at[0]);
+        frame(&mut g, 200 * MS, 2, [101.28, 50.0], 0.07, at[0]);
+        frame(&mut g, 300 * MS, 3, [101.28, 50.0], 0.07, at[0]);
         g.on_servo(340 * MS, -0.09); // past the pose: approached from below
     g.on_servo(350 * MS, -0.07);
-        g.on_frame(500 * MS, 4, [139.22, 50.0], -0.07, at[1]);
-        let s = g.on_frame(600 * MS, 5, [139.22, 50.0], -0.07, at[1]);
+        frame(&mut g, 500 * MS, 4, [139.22, 50.0], -0.07, at[1]);
+        let s = frame(&mut g, 600 * MS, 5, [139.22, 50.0], -0.07, at[1]);
         if p.line_tol.is_none() {
             return done(s);
         }
         g.on_servo(650 * MS, 0.0);
-        g.on_frame(800 * MS, 6, [120.25, 50.0], 0.0, 300);
-        done(g.on_frame(900 * MS, 7, [120.25, 50.0], 0.0, 300))
+        frame(&mut g, 800 * MS, 6, [120.25, 50.0], 0.0, 300);
+        done(frame(&mut g, 900 * MS, 7, [120.25, 50.0], 0.0, 300))
     };
     let two = SelfGate { gain_tol: 0.01, rest_tol: 0.2, hold_tol: 0.2, level_tol: 0.2, ..params() };
     let three = SelfGate { line_tol: Some(0.2), ..two };
