@@ -183,6 +183,12 @@ impl Gate {
         }
     }
 
+    /// Servo reports since the last resting frame (for the board's tests).
+    #[cfg(test)]
+    pub(crate) fn pending_reports(&self) -> u16 {
+        self.pending.1
+    }
+
     /// The blob's parameters.
     pub fn params(&self) -> &SelfGate {
         &self.p

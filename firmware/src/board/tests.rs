@@ -1083,6 +1083,30 @@ fn what_was_learnt_of_the_room_survives_a_reset_in_flash() {
 }
 
 #[test]
+fn the_self_gate_hears_each_servo_report_once_however_often_the_board_polls() {
+    // The board polls every millisecond, the servos report every 10 ms: the gate averages
+    // reports, so each must reach it once, not the last one kept at every poll.
+    let mut rig = Rig::new(None);
+    rig.run(1);
+    let p = msr_shared::blob::SelfGate {
+        amplitude: 0.07,
+        gain: -271.0,
+        gain_tol: 0.06,
+        rest_tol: 1.5,
+        hold_tol: 1.5,
+        level_tol: 1.5,
+        line_tol: None,
+        joint_tol: None,
+        latency_ms: 100,
+        timeout_ms: 2000,
+        min_frames: 2,
+    };
+    rig.board.core.gate = Some(crate::self_gate::Gate::new(p));
+    rig.run(95);
+    assert_eq!(rig.board.core.gate.as_ref().map(|g| g.pending_reports()), Some(9));
+}
+
+#[test]
 fn the_big_state_fits_the_ram_budget() {
     // Everything but the model store (a built-in blob stays in flash).
     let board = core::mem::size_of::<Board<RamStore<0>>>();
