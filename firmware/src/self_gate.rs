@@ -154,6 +154,13 @@ struct Probe {
     last_frame: u16,
 }
 
+impl Probe {
+    /// Settled at the current pose and `latency_us` past it: frames and servo reports count.
+    fn counting(&self, now_us: u64, latency_us: u64) -> bool {
+        self.settled_since.is_some_and(|t| now_us >= t.saturating_add(latency_us))
+    }
+}
+
 /// The gate of one model.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Gate {
@@ -231,6 +238,11 @@ impl Gate {
         [pr.rest.1 + a, pr.pitch]
     }
 
+    /// The robot's own latency, microseconds: a pose counts from this long after it settled.
+    fn latency_us(&self) -> u64 {
+        self.p.latency_ms as u64 * 1000
+    }
+
     /// Probe stages: the two poses, and the return to the rest when the gate has a line test.
     fn stages(&self) -> usize {
         if self.p.line_tol.is_some() { 3 } else { 2 }
@@ -300,14 +312,14 @@ impl Gate {
             return Step::Wait;
         }
         let near = (yaw - g[0]).abs() <= SETTLE_SHARE * self.p.amplitude;
-        let latency = self.p.latency_ms as u64 * 1000;
+        let latency = self.latency_us();
         if let Some(pr) = self.probe.as_mut() {
             pr.settled_since = match (near, pr.settled_since) {
                 (true, Some(t)) => Some(t),
                 (true, None) => Some(now_us),
                 (false, _) => None,
             };
-            if pr.settled_since.is_some_and(|t| now_us >= t.saturating_add(latency)) {
+            if pr.counting(now_us, latency) {
                 pr.acc[pr.stage as usize].report(yaw);
             }
         }
@@ -324,13 +336,12 @@ impl Gate {
     /// head pose (the light fit's verdict). A gate with a return stage passes only when it did
     /// at every probe frame.
     pub fn on_probe_frame(&mut self, now_us: u64, frame: u16, pos: [f32; 2], salient: u32, face: bool) -> Step {
-        let latency = self.p.latency_ms as u64 * 1000;
+        let latency = self.latency_us();
         let min = self.p.min_frames;
         let stages = self.stages();
         let Some(pr) = self.probe.as_mut() else { return Step::Wait };
         pr.last_frame = frame;
-        let Some(since) = pr.settled_since else { return Step::Wait };
-        if now_us < since.saturating_add(latency) {
+        if !pr.counting(now_us, latency) {
             return Step::Wait;
         }
         let acc = &mut pr.acc[pr.stage as usize];
@@ -519,4 +530,4 @@ fn elapsed_ms(from_us: u64, to_us: u64) -> u16 {
 }
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

@@ -1088,20 +1088,7 @@ fn the_self_gate_hears_each_servo_report_once_however_often_the_board_polls() {
     // reports, so each must reach it once, not the last one kept at every poll.
     let mut rig = Rig::new(None);
     rig.run(1);
-    let p = msr_shared::blob::SelfGate {
-        amplitude: 0.07,
-        gain: -271.0,
-        gain_tol: 0.06,
-        rest_tol: 1.5,
-        hold_tol: 1.5,
-        level_tol: 1.5,
-        line_tol: None,
-        joint_tol: None,
-        latency_ms: 100,
-        timeout_ms: 2000,
-        min_frames: 2,
-    };
-    rig.board.core.gate = Some(crate::self_gate::Gate::new(p));
+    rig.board.core.gate = Some(crate::self_gate::Gate::new(crate::self_gate::tests::params()));
     rig.run(95);
     assert_eq!(rig.board.core.gate.as_ref().map(|g| g.pending_reports()), Some(9));
 }

@@ -4,7 +4,7 @@ use super::*;
 const MS: u64 = 1000;
 const TARGET: [f32; 5] = [0.1, 0.05, -0.2, 0.3, -1.2];
 
-fn params() -> SelfGate {
+pub(crate) fn params() -> SelfGate {
     SelfGate {
         amplitude: 0.07,
         gain: -271.0,
