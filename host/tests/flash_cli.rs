@@ -207,3 +207,19 @@ fn the_qemu_board_keeps_its_flash_in_the_same_file() {
     assert_eq!(store(&port)["model_crc"].as_u64(), Some(running));
     kill(server);
 }
+
+#[test]
+fn a_killed_qemu_board_leaves_nothing_in_the_temp_directory() {
+    if !msr_sim::qemu::qemu_available() || msr_sim::qemu::find_image(msr_sim::qemu::BOARD_IMAGE).is_err() {
+        eprintln!("SKIPPED: qemu-system-arm or the board image is missing (`cargo xtask test` sets both up)");
+        return;
+    }
+    // `msr serve` stops on Ctrl-C, which runs no destructor: what QEMU needed in the temp
+    // directory (its UART sockets, the preload) must be gone once the board runs.
+    let tmp = tempfile::tempdir().unwrap();
+    let (server, port) = serve_on("qemu", &tmp.path().join("board.flash"));
+    let run_dir = std::env::temp_dir().join(format!("msr-qemu-{}-0", server.id()));
+    assert_eq!(store(&port)["source"], "None");
+    kill(server);
+    assert!(!run_dir.exists(), "{} is left behind", run_dir.display());
+}

@@ -324,7 +324,27 @@ impl Qemu {
         qemu.clock = streams.pop().expect("three listeners");
         qemu.servo = streams.pop().expect("three listeners");
         qemu.host = streams.pop().expect("three listeners");
+        // Connected sockets need no name: gone now, they cannot outlive a process that is
+        // killed (`msr serve` ends on Ctrl-C, which runs no destructor).
+        for p in &paths {
+            let _ = std::fs::remove_file(p);
+        }
+        if preload.is_none() {
+            qemu.tidy();
+        }
         Ok(qemu)
+    }
+
+    /// Removes this run's temporary directory. Call it once the image runs: QEMU has then
+    /// read the preload (its loader keeps a copy for a reset) and connected its UARTs, and
+    /// nothing there is needed again. Dropping the `Qemu` does the same.
+    pub fn tidy(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+
+    /// This run's temporary directory (gone once [`Qemu::tidy`] ran).
+    pub fn run_dir(&self) -> &Path {
+        &self.dir
     }
 
     fn accept(&mut self, l: &UnixListener, deadline: Instant) -> Result<UnixStream> {
@@ -404,7 +424,7 @@ impl Drop for Qemu {
             let _ = c.kill();
             let _ = c.wait();
         }
-        let _ = std::fs::remove_dir_all(&self.dir);
+        self.tidy();
     }
 }
 
@@ -483,6 +503,8 @@ impl Lockstep {
             ticks: 0,
         };
         let crc = ls.hello()?;
+        // The image runs: the preload is read.
+        ls.qemu.tidy();
         Ok((ls, crc))
     }
 
