@@ -76,7 +76,7 @@
 //! [`Workspace`] (two `MAX_ACTIVATION_LEN` i16 activation buffers, the threshold table, the
 //! labeller; the saliency mask, and the pooled saliency's ring of error rows behind it, reuse
 //! the spare activation buffer) plus the frame buffer and the link buffers make up [`Board`]:
-//! 61 432 bytes for faces up to 64 x 96, whatever the model
+//! 61 384 bytes for faces up to 64 x 96, whatever the model
 //! (`size_of::<Board<RamStore<0>>>()`, checked by a test against 60 KiB). The model store is
 //! separate: a built-in blob stays in flash; uploads need a staging area ([`ModelStore`]).
 //!

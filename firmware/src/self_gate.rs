@@ -60,12 +60,13 @@ use msr_shared::msg::{GateDecision, GateReport, GateUndecided};
 /// Resting frames kept (the latest, before a probe): their mean face x is the rest the probe's
 /// line must pass, their mean reported yaw (each frame's the mean of the servo reports since
 /// the frame before) where the encoder says the head rested (`drift`).
-/// Six, not three: each reading carries the encoder's noise, and at half a count RMS three
-/// refused 2 of red's 170 own images on the rest distance (its 90th percentile 0.37 px; 0.28
-/// with six, none refused), at one count 30 (13 with six; eight did no better at half a count,
-/// and would not fit the board's 60 KiB); those were one reading a frame, before the servo
-/// reports were averaged. A probe that starts with fewer takes those it has.
-pub const REST_FRAMES: usize = 6;
+/// Three: since each frame's yaw is the mean of the reports before it, three frames carry
+/// about thirty readings, and at one count RMS of encoder noise they refuse no own image, as
+/// six did (six were needed while each frame had one reading). Older frames can predate the
+/// mark (confirmation needs three frames with it) and a mark moves the template match by a
+/// fraction of a pixel: over six, seed 9002 refused one of red's own images on it. A probe
+/// that starts with fewer takes those it has.
+pub const REST_FRAMES: usize = 3;
 
 /// The most servo reports a resting frame's yaw averages (ten a frame in the episodes): when
 /// frames stop while the reports go on (a camera unplugged), the sum starts again, and the

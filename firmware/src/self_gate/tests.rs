@@ -27,9 +27,14 @@ fn run(xp: [f32; 2], xm: [f32; 2]) -> Step {
 
 /// [`run`], the resting frames' yaw read as `rest_yaws` (the head resting at 0).
 fn run_read_at_rest(rest_yaws: &[f32], xp: [f32; 2], xm: [f32; 2]) -> Step {
+    run_rested(rest_yaws.iter().map(|&yaw| (120.0, yaw)), xp, xm)
+}
+
+/// [`run`] after resting frames `(face x, yaw)`, oldest first.
+fn run_rested(rest: impl IntoIterator<Item = (f32, f32)>, xp: [f32; 2], xm: [f32; 2]) -> Step {
     let mut g = Gate::new(params());
-    for &yaw in rest_yaws {
-        g.observe([120.0, 50.0], yaw, 0);
+    for (x, yaw) in rest {
+        g.observe([x, 50.0], yaw, 0);
     }
     assert_eq!(g.start(0, 7, [0.0, 0.0], TARGET), Step::Head([0.07, 0.0]));
     g.on_servo(30 * MS, 0.02); // moving
@@ -85,16 +90,17 @@ fn own_mirror_image_passes() {
 }
 
 #[test]
-fn the_rest_is_read_over_six_frames_so_a_reading_that_flickers_moves_no_line() {
-    // An encoder reading a count either side of where the head rests, by turns: over three
-    // frames a third of a count (0.14 px at 271 px/rad) off, over six none.
-    let count = core::f32::consts::TAU / 4096.0;
-    let flicker: [f32; 7] = core::array::from_fn(|i| if i % 2 == 0 { count } else { -count });
-    let (r, _) = done(run_read_at_rest(&flicker, [101.0, 101.0], [139.0, 139.0]));
+fn the_rest_is_read_over_the_latest_three_frames_so_older_ones_move_no_line() {
+    // Four frames from before the mark was all there (the template match 1 px to the right),
+    // then the three that confirmed it: the rest is those three, on the poses' line at 120.
+    let older = [(121.0, 0.0); 4];
+    let latest = [(120.0, 0.0); 3];
+    let (r, _) = done(run_rested(older.into_iter().chain(latest), [101.0, 101.0], [139.0, 139.0]));
     assert_eq!(r.decision, GateDecision::Pass);
     assert!(r.rest_px < 0.01, "{}", r.rest_px);
-    let (r, _) = done(run_read_at_rest(&flicker[..3], [101.0, 101.0], [139.0, 139.0]));
-    assert!((r.rest_px - 271.0 * count / 3.0).abs() < 0.01, "a probe after three frames takes those: {}", r.rest_px);
+    // A probe after two frames takes those two.
+    let (r, _) = done(run_rested([(121.0, 0.0), (120.0, 0.0)], [101.0, 101.0], [139.0, 139.0]));
+    assert!((r.rest_px - 0.5).abs() < 0.01, "a probe after two frames takes those: {}", r.rest_px);
 }
 
 #[test]
