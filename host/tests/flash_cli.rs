@@ -134,8 +134,7 @@ fn a_flash_file_of_the_wrong_size_is_refused_in_one_line() {
 /// in-process board then reads what the QEMU board wrote.
 #[test]
 fn the_qemu_board_keeps_its_flash_in_the_same_file() {
-    if !msr_sim::qemu::qemu_available() || msr_sim::qemu::find_image(msr_sim::qemu::BOARD_IMAGE).is_err() {
-        eprintln!("SKIPPED: qemu-system-arm or the board image is missing (`cargo xtask test` sets both up)");
+    if !common::qemu_board_ready() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();
@@ -210,8 +209,7 @@ fn the_qemu_board_keeps_its_flash_in_the_same_file() {
 
 #[test]
 fn a_killed_qemu_board_leaves_nothing_in_the_temp_directory() {
-    if !msr_sim::qemu::qemu_available() || msr_sim::qemu::find_image(msr_sim::qemu::BOARD_IMAGE).is_err() {
-        eprintln!("SKIPPED: qemu-system-arm or the board image is missing (`cargo xtask test` sets both up)");
+    if !common::qemu_board_ready() {
         return;
     }
     // `msr serve` stops on Ctrl-C, which runs no destructor: what QEMU needed in the temp

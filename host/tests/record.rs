@@ -1,6 +1,8 @@
 //! `msr record` against the emulated board on a PTY (`msr serve`'s board, in-process): the
 //! dataset layout `msr train` reads, resuming, refusing to overwrite, skipping frames without a
 //! face, and a head pose the board refuses.
+mod common;
+
 use msr_host::camera::SourceConfig;
 use msr_host::session::Session;
 use msr_host::episode::sim_board::SimBoard;
@@ -171,8 +173,7 @@ fn msr_template_cuts_an_inclusive_box() {
 
 #[test]
 fn a_recording_from_the_firmware_image_in_qemu() {
-    if !msr_sim::qemu::qemu_available() || msr_sim::qemu::find_image(msr_sim::qemu::BOARD_IMAGE).is_err() {
-        eprintln!("SKIPPED: qemu-system-arm or the board image is missing (`cargo xtask test` sets both up)");
+    if !common::qemu_board_ready() {
         return;
     }
     let tmp = tempfile::tempdir().unwrap();

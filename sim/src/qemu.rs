@@ -342,11 +342,6 @@ impl Qemu {
         let _ = std::fs::remove_dir_all(&self.dir);
     }
 
-    /// This run's temporary directory (gone once [`Qemu::tidy`] ran).
-    pub fn run_dir(&self) -> &Path {
-        &self.dir
-    }
-
     fn accept(&mut self, l: &UnixListener, deadline: Instant) -> Result<UnixStream> {
         loop {
             match l.accept() {

@@ -38,3 +38,13 @@ pub fn real_dir() -> Option<PathBuf> {
         None
     }
 }
+
+/// Whether `qemu-system-arm` and the board image are here (said on stderr when not, and the
+/// test returns: `cargo xtask test` sets both up).
+pub fn qemu_board_ready() -> bool {
+    let ready = msr_sim::qemu::qemu_available() && msr_sim::qemu::find_image(msr_sim::qemu::BOARD_IMAGE).is_ok();
+    if !ready {
+        eprintln!("SKIPPED: qemu-system-arm or the board image is missing (`cargo xtask test` sets both up)");
+    }
+    ready
+}
