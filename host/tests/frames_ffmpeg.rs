@@ -79,13 +79,16 @@ fn a_video_played_into_msr_run_gives_the_detections_of_the_frame_folder() {
     let f = fixture();
     let (out, from_folder) = msr_run(&f.model, p(&f.frames), Stdio::null());
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let player = Command::new("ffmpeg")
+    let mut player = Command::new("ffmpeg")
         .args(["-hide_banner", "-v", "error", "-i", p(&f.video), "-f", "yuv4mpegpipe", "-pix_fmt", "gray", "-"])
         .stdout(Stdio::piped())
         .spawn()
         .expect("ffmpeg is not installed: `cargo xtask test` installs it (Debian: apt-get install ffmpeg)");
-    let (out, from_video) = msr_run(&f.model, "-", Stdio::from(player.stdout.unwrap()));
+    let stream = player.stdout.take().expect("piped");
+    let (out, from_video) = msr_run(&f.model, "-", Stdio::from(stream));
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    // The player wrote the whole video: a stream that stopped early would also end `msr run`.
+    assert!(player.wait().expect("ffmpeg ran").success(), "ffmpeg failed to play the video");
     eprintln!("{from_video:?}");
     // The board pauses detection once the arm goes up: at least the unmarked frames and the
     // confirming ones are answered, a mark is found and a reach starts.

@@ -91,7 +91,7 @@ fn frames_without_a_face_detect_nothing_and_say_why() {
     let refused = out.lines().filter(|l| l.contains("no detection: NoFace") || l.contains("no detection: SceneChanged")).count();
     assert_eq!(refused, faceless.len(), "{out}");
     assert!(!out.contains("REACH") && !out.contains("mark at"), "{out}");
-    let status = out.lines().filter(|l| l.starts_with("status:")).last().unwrap_or_else(|| panic!("no status: {out}"));
+    let status = out.lines().rfind(|l| l.starts_with("status:")).unwrap_or_else(|| panic!("no status: {out}"));
     let counted = |what: &str| -> u32 {
         let at = status.find(what).unwrap() + what.len();
         status[at..].split_whitespace().next().unwrap().trim_end_matches([',', ';']).parse().unwrap()
