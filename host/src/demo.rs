@@ -99,7 +99,17 @@ fn train_config(data: &Path, out: &Path, model: ModelKind, a: &DemoConfig) -> tr
         .with_seed(a.seed)
         .with_pool(a.pool)
         .with_pose_bins(a.pose_bins)
+        .with_light_copies(light_copies(a.light))
         .with_quiet(true)
+}
+
+/// Light copies in the statistics only for a dataset under the one fixed light, as a recording
+/// is (`train::light_copies`): the demo's other lights are rendered, which is better.
+fn light_copies(light: msr_sim::light::LightMode) -> u8 {
+    match light {
+        msr_sim::light::LightMode::Fixed => train::light_copies::LightCopies::DEFAULT.copies,
+        _ => 0,
+    }
 }
 
 /// Rewrites `index.html` from an earlier run's `report.json`, `model.msrm` and dataset in `out`.

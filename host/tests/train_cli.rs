@@ -84,7 +84,7 @@ fn train_writes_the_layout_and_quantize_matches_float() {
         .map(|s| (s.head, s.face_unit()))
         .unzip();
     let preds = m.predict_batch(&heads, &faces);
-    let again = msr_host::train::calibrate::error_stats(h, w, info_t.novelty.pool, faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..]))).unwrap();
+    let again = msr_host::train::calibrate::error_stats(h, w, info_t.novelty.pool, &info_t.light_copies, faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..]))).unwrap();
     assert_eq!(again.frames, stats.frames);
     let worst = again.mu.iter().zip(&stats.mu).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max);
     assert!(worst < 1e-3, "mu from the loaded model differs by {worst} grey levels");
@@ -187,6 +187,8 @@ fn bad_arguments_are_one_clear_line() {
     fails(&["train", "--data", p(tmp.path()), "--pool", "4", "--out", p(&o)], "--pool must be in 0..=3");
     fails(&["train", "--data", p(tmp.path()), "--pose-bins", "1", "--out", p(&o)], "--pose-bins must be 0");
     fails(&["demo", "--pose-bins", "5", "--out", p(&o)], "--pose-bins must be 0");
+    fails(&["train", "--data", p(tmp.path()), "--light-gamma", "0.7", "--out", p(&o)], "--light-gamma must be in 0..0.5");
+    fails(&["train", "--data", p(tmp.path()), "--light-gradient", "NaN", "--out", p(&o)], "--light-gradient must be in 0..0.5");
 
     let (a, b) = (tmp.path().join("a.csv"), tmp.path().join("b.csv"));
     std::fs::write(&a, "1,2\n3,4\n5,6\n").unwrap();

@@ -1,5 +1,6 @@
 //! `msr train`: flags to a [`TrainConfig`], then [`crate::train::run`].
 use crate::models::ArchKind;
+use crate::train::light_copies::LightCopies;
 use crate::train::{calibrate, DeviceArg, ModelKind, NormArg, TrainConfig};
 use anyhow::Result;
 use msr_shared::blob::CropMode;
@@ -66,6 +67,18 @@ pub struct Args {
     /// Smallest blob that counts as a detection, pixels
     #[arg(long, default_value_t = calibrate::DEFAULT_MIN_AREA)]
     pub min_area: u16,
+    /// Copies of each training face under other lights (a tone curve, a shading gradient) in
+    /// the error statistics, so that a recording made under one light does not fire when a lamp
+    /// changes (decoders only; 0: the faces alone)
+    #[arg(long, default_value_t = LightCopies::DEFAULT.copies)]
+    pub light_copies: u8,
+    /// The light copies' largest shading gradient, a share of the grey level from the face's
+    /// centre to its edge (0..0.5)
+    #[arg(long, default_value_t = LightCopies::DEFAULT.gradient)]
+    pub light_gradient: f32,
+    /// The light copies' largest change of the tone curve's exponent (0..0.5)
+    #[arg(long, default_value_t = LightCopies::DEFAULT.gamma)]
+    pub light_gamma: f32,
     #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
     pub device: DeviceArg,
     /// No progress bars
@@ -94,6 +107,9 @@ impl Args {
             .with_pose_bins(self.pose_bins)
             .with_min_area(self.min_area)
             .with_device(self.device)
+            .with_light_copies(self.light_copies)
+            .with_light_gradient(self.light_gradient)
+            .with_light_gamma(self.light_gamma)
             .with_quiet(self.quiet);
         c.threshold_percentile = self.threshold_percentile;
         c.conv_hidden = self.conv_hidden;
@@ -127,6 +143,7 @@ mod tests {
             "--lr-decay", "0.9", "--seed", "5", "--normalisation", "variance", "--two-sided",
             "--sigma-floor", "2", "--threshold-percentile", "99", "--min-area", "4", "--quiet",
             "--pool", "1", "--pose-bins", "2", "--conv-hidden", "16", "--conv-channels", "3",
+            "--light-copies", "2", "--light-gradient", "0.1", "--light-gamma", "0.15",
         ])
         .unwrap();
         let c = args.config();
@@ -138,6 +155,7 @@ mod tests {
         assert_eq!(c.normalisation, NormArg::Variance);
         assert!(c.two_sided && c.quiet);
         assert_eq!(c.threshold_percentile, Some(99.0));
+        assert_eq!((c.light_copies, c.light_gradient, c.light_gamma), (2, 0.1, 0.15));
         assert_eq!((c.pool, c.pose_bins, c.conv_hidden, c.conv_channels), (1, 2, Some(16), Some(3)));
     }
 }

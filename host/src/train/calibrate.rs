@@ -29,6 +29,8 @@
 use crate::detect::blobs::{self, Blob};
 use crate::detect::pipeline::{self, Settings};
 use crate::eval::metrics;
+use crate::train::light_copies::LightCopies;
+use rand_chacha::ChaCha8Rng;
 use anyhow::{bail, ensure, Context, Result};
 use msr_shared::blob::{Merge, Normalisation, PoseGrid, PoseRegion, Sided, MAX_POSE_BINS};
 use serde::{Deserialize, Serialize};
@@ -97,24 +99,26 @@ pub fn pose_grid(n: u8, max_head: f32) -> Result<PoseGrid> {
     Ok(g)
 }
 
-/// [`error_stats`] per cell of `grid`, each face filed under its head pose; every cell needs
-/// at least 2 frames.
+/// [`error_stats`] per cell of `grid`, each face (and its light copies) filed under its head
+/// pose; every cell needs at least 2 frames.
 pub fn error_stats_by_pose<'a>(
     h: usize,
     w: usize,
     pool: u8,
+    copies: &LightCopies,
     grid: PoseGrid,
     samples: impl IntoIterator<Item = ([f32; 2], &'a [f32], &'a [f32])>,
 ) -> Result<PoseErrorStats> {
     let mut acc = vec![StatsAccumulator::new(h, w); grid.len()];
+    let mut rng = copies.rng();
     for (head, obs, pred) in samples {
         ensure!(obs.len() == pred.len(), "observed and predicted faces differ in size");
         let Some(k) = grid.bin(head) else { bail!("a training frame has a non-finite head pose {head:?}") };
-        acc[k].add(&error_map(obs, pred, w, pool))?;
+        acc[k].add_face(obs, pred, w, pool, copies, &mut rng)?;
     }
     let (mut mu, mut sigma, mut frames) = (Vec::new(), Vec::new(), Vec::new());
     for (k, a) in acc.into_iter().enumerate() {
-        let n = a.n;
+        let n = a.faces;
         let s = a.finish().with_context(|| format!("pose cell {k} of {:?}", grid.bins))?;
         mu.push(s.mu);
         sigma.push(s.sigma);
@@ -141,13 +145,25 @@ pub struct StatsAccumulator {
     h: usize,
     w: usize,
     n: usize,
+    /// Faces added by [`StatsAccumulator::add_face`] (their copies not counted).
+    faces: usize,
     mean: Vec<f64>,
     m2: Vec<f64>,
 }
 
 impl StatsAccumulator {
     pub fn new(h: usize, w: usize) -> Self {
-        StatsAccumulator { h, w, n: 0, mean: vec![0.0; h * w], m2: vec![0.0; h * w] }
+        StatsAccumulator { h, w, n: 0, faces: 0, mean: vec![0.0; h * w], m2: vec![0.0; h * w] }
+    }
+
+    /// One training face's error map and those of its light copies ([`LightCopies`]).
+    pub fn add_face(&mut self, obs: &[f32], pred: &[f32], w: usize, pool: u8, copies: &LightCopies, rng: &mut ChaCha8Rng) -> Result<()> {
+        self.add(&error_map(obs, pred, w, pool))?;
+        for copy in copies.of(obs, w, rng) {
+            self.add(&error_map(&copy, pred, w, pool))?;
+        }
+        self.faces += 1;
+        Ok(())
     }
 
     pub fn add(&mut self, e: &[f64]) -> Result<()> {
@@ -163,26 +179,38 @@ impl StatsAccumulator {
         Ok(())
     }
 
+    /// The statistics; at least 2 frames (faces, when they came with [`Self::add_face`]: one
+    /// face's copies are not frames of their own). `frames` counts the faces so added, else the
+    /// maps.
     pub fn finish(self) -> Result<ErrorStats> {
-        ensure!(self.n >= 2, "error statistics need at least 2 frames, got {}", self.n);
+        let frames = if self.faces > 0 { self.faces } else { self.n };
+        ensure!(frames >= 2, "error statistics need at least 2 frames, got {frames}");
         let d = (self.n - 1) as f64;
         Ok(ErrorStats {
             h: self.h,
             w: self.w,
             sigma: self.m2.iter().map(|v| (v / d).max(0.0).sqrt()).collect(),
             mu: self.mean,
-            frames: self.n,
+            frames,
             pose: None,
         })
     }
 }
 
-/// Statistics of the error ([`error_map`] with `pool`) over (observed, predicted) pairs.
-pub fn error_stats<'a>(h: usize, w: usize, pool: u8, pairs: impl IntoIterator<Item = (&'a [f32], &'a [f32])>) -> Result<ErrorStats> {
+/// Statistics of the error ([`error_map`] with `pool`) over (observed, predicted) pairs, each
+/// observed face with its light copies ([`LightCopies`]; [`LightCopies::NONE`]: the faces alone).
+pub fn error_stats<'a>(
+    h: usize,
+    w: usize,
+    pool: u8,
+    copies: &LightCopies,
+    pairs: impl IntoIterator<Item = (&'a [f32], &'a [f32])>,
+) -> Result<ErrorStats> {
     let mut acc = StatsAccumulator::new(h, w);
+    let mut rng = copies.rng();
     for (obs, pred) in pairs {
         ensure!(obs.len() == pred.len(), "observed and predicted faces differ in size");
-        acc.add(&error_map(obs, pred, w, pool))?;
+        acc.add_face(obs, pred, w, pool, copies, &mut rng)?;
     }
     acc.finish()
 }
@@ -347,12 +375,49 @@ mod tests {
         // single pixel is too few samples for a light fit, which leaves it as it is.
         let obs = [[0.4f32], [0.4], [0.4]];
         let pred = [[0.3f32], [0.7], [0.2]];
-        let s = error_stats(1, 1, 0, obs.iter().zip(&pred).map(|(o, p)| (&o[..], &p[..]))).unwrap();
+        let s = error_stats(1, 1, 0, &LightCopies::NONE, obs.iter().zip(&pred).map(|(o, p)| (&o[..], &p[..]))).unwrap();
         assert!((s.mu[0] - 51.0).abs() < 1e-4, "{}", s.mu[0]);
         assert!((s.sigma[0] - 25.5).abs() < 1e-4, "{}", s.sigma[0]);
         assert_eq!(s.frames, 3);
         // Fewer than 2 frames is an error, not a NaN.
-        assert!(error_stats(1, 1, 0, obs.iter().zip(&pred).take(1).map(|(o, p)| (&o[..], &p[..]))).is_err());
+        assert!(error_stats(1, 1, 0, &LightCopies::NONE, obs.iter().zip(&pred).take(1).map(|(o, p)| (&o[..], &p[..]))).is_err());
+    }
+
+    /// A recording under one light: a shaded face with a little sensor noise. A lamp the
+    /// recording never saw (a tone curve and a gradient within the copies' amplitudes) fires
+    /// with the faces' statistics alone and not with their light copies.
+    #[test]
+    fn light_copies_cover_a_lamp_that_the_recording_never_saw() {
+        let (w, h) = (30, 24);
+        let clean: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (x, y) = ((i % w) as f32 / w as f32, (i / w) as f32 / h as f32);
+                0.15 + 0.7 * (1.0 - (x - 0.4).powi(2) - (y - 0.5).powi(2)).max(0.0)
+            })
+            .collect();
+        // Noise of up to 2 grey levels, the same on every run.
+        let noisy = |n: usize| -> Vec<f32> {
+            clean.iter().enumerate().map(|(i, &v)| (v * 255.0 + ((i * 7919 + n * 104_729) % 5) as f32 - 2.0).round() / 255.0).collect()
+        };
+        let faces: Vec<Vec<f32>> = (0..40).map(noisy).collect();
+        let pairs = || faces.iter().map(|f| (&f[..], &clean[..]));
+        let lamp: Vec<f32> = clean
+            .iter()
+            .enumerate()
+            .map(|(i, &v)| (v.powf(1.15) * (1.0 + 0.05 * (2.0 * (i % w) as f32 / (w - 1) as f32 - 1.0)) * 255.0).round() / 255.0)
+            .collect();
+        let p = NoveltyParams { pool: 2, ..Default::default() };
+        let salient = |stats: &ErrorStats| saliency(&error_map(&lamp, &clean, w, 2), stats, &p).iter().filter(|&&s| s > p.threshold).count();
+        let alone = error_stats(h, w, 2, &LightCopies::NONE, pairs()).unwrap();
+        let copied = error_stats(h, w, 2, &LightCopies::DEFAULT, pairs()).unwrap();
+        assert_eq!((alone.frames, copied.frames), (40, 40), "copies are not frames of their own");
+        let (fired, quiet) = (salient(&alone), salient(&copied));
+        eprintln!("salient pixels under the lamp: {fired} without copies, {quiet} with");
+        assert!(fired > 30, "the lamp fires without copies: {fired} salient pixels");
+        assert_eq!(quiet, 0, "and not with them");
+        // The unlit recording itself stays quiet either way.
+        let seen = noisy(99);
+        assert_eq!(saliency(&error_map(&seen, &clean, w, 2), &copied, &p).iter().filter(|&&s| s > p.threshold).count(), 0);
     }
 
     #[test]

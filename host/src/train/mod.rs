@@ -36,6 +36,7 @@ pub mod fit;
 pub mod plot;
 pub mod policy;
 pub mod calibrate;
+pub mod light_copies;
 pub mod reach;
 pub mod self_gate;
 #[cfg(test)]
@@ -140,6 +141,17 @@ pub struct TrainConfig {
     /// Smallest blob that counts as a detection, pixels.
     #[config(default = "calibrate::DEFAULT_MIN_AREA")]
     pub min_area: u16,
+    /// Copies of each training face under other lights in the error statistics (decoders only;
+    /// `light_copies::LightCopies`; 0: the faces alone, as `msr demo`, whose frames are rendered
+    /// under varied light).
+    #[config(default = "light_copies::LightCopies::DEFAULT.copies")]
+    pub light_copies: u8,
+    /// The copies' largest shading gradient (a share of the grey level, centre to edge).
+    #[config(default = "light_copies::LightCopies::DEFAULT.gradient")]
+    pub light_gradient: f32,
+    /// The copies' largest change of the tone curve's exponent.
+    #[config(default = "light_copies::LightCopies::DEFAULT.gamma")]
+    pub light_gamma: f32,
     #[config(default = "DeviceArg::Cpu")]
     pub device: DeviceArg,
     /// No progress bars.
@@ -194,8 +206,11 @@ pub struct ModelInfo {
     /// Its choice over the training poses.
     #[serde(default)]
     pub general_policy: Option<policy::Choice>,
-    /// Frames the error statistics were made from.
+    /// Frames the error statistics were made from (their light copies not counted).
     pub stats_frames: usize,
+    /// The light copies the statistics took in; none in files from before them.
+    #[serde(default = "light_copies::LightCopies::none")]
+    pub light_copies: light_copies::LightCopies,
     pub files: Files,
     /// CRC-32 of every part this run wrote (file name -> checksum): a folder whose parts come
     /// from two runs is refused when it is read. Absent in files from before it.
@@ -363,6 +378,13 @@ pub fn run(args: TrainConfig) -> Result<()> {
         ..Default::default()
     };
     hp.check()?;
+    // Checked before the training, used after it (an autoencoder takes none: `light_copies`).
+    let copies = light_copies::LightCopies { copies: args.light_copies, gradient: args.light_gradient, gamma: args.light_gamma, seed: args.seed };
+    copies.check()?;
+    let copies = match args.model {
+        ModelKind::Decoder => copies,
+        ModelKind::Autoencoder => light_copies::LightCopies::NONE,
+    };
     let dev = device(args.device)?;
 
     let ds = Dataset::load(&args.data, args.crop).with_context(|| format!("loading dataset {}", args.data.display()))?;
@@ -460,11 +482,11 @@ pub fn run(args: TrainConfig) -> Result<()> {
 
     // Statistics over the training frames, with the final model.
     let preds = net.predict_batch(&train.heads, &train.faces);
-    let mut stats = calibrate::error_stats(h, w, novelty.pool, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?;
+    let mut stats = calibrate::error_stats(h, w, novelty.pool, &copies, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?;
     let mut novelty = novelty;
     if let Some(grid) = pose_grid {
         let samples = train.heads.iter().zip(&train.faces).zip(&preds).map(|((&hd, f), p)| (hd, &f[..], &p[..]));
-        stats.pose = Some(calibrate::error_stats_by_pose(h, w, novelty.pool, grid, samples)?);
+        stats.pose = Some(calibrate::error_stats_by_pose(h, w, novelty.pool, &copies, grid, samples)?);
         novelty.pose_grid = Some(grid);
     }
 
@@ -536,6 +558,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
         novelty_policy: None,
         general_policy: None,
         stats_frames: stats.frames,
+        light_copies: copies,
         files,
         parts: Default::default(),
     };
