@@ -73,7 +73,10 @@ impl LightCopies {
 
     /// The copies of one face (`w` wide, grey/255 in 0..1), drawing their lights from `rng`.
     pub fn of(&self, face: &[f32], w: usize, rng: &mut ChaCha8Rng) -> Vec<Vec<f32>> {
-        let h = face.len() / w.max(1);
+        if w == 0 {
+            return Vec::new();
+        }
+        let h = face.len() / w;
         let unit = |i: usize, n: usize| if n > 1 { 2.0 * i as f32 / (n - 1) as f32 - 1.0 } else { 0.0 };
         (0..self.copies)
             .map(|_| {
@@ -84,7 +87,7 @@ impl LightCopies {
                 face.iter()
                     .enumerate()
                     .map(|(i, &v)| {
-                        let shade = 1.0 + a * unit(i % w, w) + b * unit(i / w.max(1), h);
+                        let shade = 1.0 + a * unit(i % w, w) + b * unit(i / w, h);
                         let grey = v.clamp(0.0, 1.0).powf(g) * shade * gain * 255.0 + offset;
                         grey.round().clamp(0.0, 255.0) / 255.0
                     })
@@ -132,6 +135,7 @@ mod tests {
         let other = LightCopies { seed: 1, ..c };
         assert_ne!(a, other.of(&f, w, &mut other.rng()));
         assert!(LightCopies::NONE.of(&f, w, &mut c.rng()).is_empty());
+        assert!(c.of(&f, 0, &mut c.rng()).is_empty(), "a face of no width has no copies");
     }
 
     #[test]
