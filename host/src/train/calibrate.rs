@@ -99,8 +99,9 @@ pub fn pose_grid(n: u8, max_head: f32) -> Result<PoseGrid> {
     Ok(g)
 }
 
-/// [`error_stats`] per cell of `grid`, each face (and its light copies) filed under its head
-/// pose; every cell needs at least 2 frames.
+/// [`error_stats`] over all faces, with those per cell of `grid` in its `pose`, each face (and
+/// its light copies) filed under its head pose: every error map is made once and goes to both.
+/// Every cell needs at least 2 frames.
 pub fn error_stats_by_pose<'a>(
     h: usize,
     w: usize,
@@ -108,13 +109,16 @@ pub fn error_stats_by_pose<'a>(
     copies: &LightCopies,
     grid: PoseGrid,
     samples: impl IntoIterator<Item = ([f32; 2], &'a [f32], &'a [f32])>,
-) -> Result<PoseErrorStats> {
+) -> Result<ErrorStats> {
+    let mut all = StatsAccumulator::new(h, w);
     let mut acc = vec![StatsAccumulator::new(h, w); grid.len()];
     let mut rng = copies.rng();
     for (head, obs, pred) in samples {
         ensure!(obs.len() == pred.len(), "observed and predicted faces differ in size");
         let Some(k) = grid.bin(head) else { bail!("a training frame has a non-finite head pose {head:?}") };
-        acc[k].add_face(obs, pred, w, pool, copies, &mut rng)?;
+        let maps = face_maps(obs, pred, w, pool, copies, &mut rng);
+        all.add_maps(&maps)?;
+        acc[k].add_maps(&maps)?;
     }
     let (mut mu, mut sigma, mut frames) = (Vec::new(), Vec::new(), Vec::new());
     for (k, a) in acc.into_iter().enumerate() {
@@ -124,7 +128,16 @@ pub fn error_stats_by_pose<'a>(
         sigma.push(s.sigma);
         frames.push(n);
     }
-    Ok(PoseErrorStats { grid, mu, sigma, frames })
+    let mut stats = all.finish()?;
+    stats.pose = Some(PoseErrorStats { grid, mu, sigma, frames });
+    Ok(stats)
+}
+
+/// The error maps of one training face and of its light copies ([`LightCopies`]), face first.
+fn face_maps(obs: &[f32], pred: &[f32], w: usize, pool: u8, copies: &LightCopies, rng: &mut ChaCha8Rng) -> Vec<Vec<f64>> {
+    std::iter::once(error_map(obs, pred, w, pool))
+        .chain(copies.of(obs, w, rng).iter().map(|copy| error_map(copy, pred, w, pool)))
+        .collect()
 }
 
 /// `e = |v(I) - 255 I_hat|` per pixel (censored where clipped: [`pipeline::censored_error`]), or pooled over the model's window
@@ -145,7 +158,7 @@ pub struct StatsAccumulator {
     h: usize,
     w: usize,
     n: usize,
-    /// Faces added by [`StatsAccumulator::add_face`] (their copies not counted).
+    /// Faces added with their copies' maps (the copies not counted).
     faces: usize,
     mean: Vec<f64>,
     m2: Vec<f64>,
@@ -156,11 +169,10 @@ impl StatsAccumulator {
         StatsAccumulator { h, w, n: 0, faces: 0, mean: vec![0.0; h * w], m2: vec![0.0; h * w] }
     }
 
-    /// One training face's error map and those of its light copies ([`LightCopies`]).
-    pub fn add_face(&mut self, obs: &[f32], pred: &[f32], w: usize, pool: u8, copies: &LightCopies, rng: &mut ChaCha8Rng) -> Result<()> {
-        self.add(&error_map(obs, pred, w, pool))?;
-        for copy in copies.of(obs, w, rng) {
-            self.add(&error_map(&copy, pred, w, pool))?;
+    /// One training face's error maps: its own and its light copies' ([`face_maps`]).
+    fn add_maps(&mut self, maps: &[Vec<f64>]) -> Result<()> {
+        for e in maps {
+            self.add(e)?;
         }
         self.faces += 1;
         Ok(())
@@ -179,9 +191,9 @@ impl StatsAccumulator {
         Ok(())
     }
 
-    /// The statistics; at least 2 frames (faces, when they came with [`Self::add_face`]: one
-    /// face's copies are not frames of their own). `frames` counts the faces so added, else the
-    /// maps.
+    /// The statistics; at least 2 frames (faces, when they came with their light copies' maps:
+    /// one face's copies are not frames of their own). `frames` counts the faces so added, else
+    /// the maps.
     pub fn finish(self) -> Result<ErrorStats> {
         let frames = if self.faces > 0 { self.faces } else { self.n };
         ensure!(frames >= 2, "error statistics need at least 2 frames, got {frames}");
@@ -210,7 +222,7 @@ pub fn error_stats<'a>(
     let mut rng = copies.rng();
     for (obs, pred) in pairs {
         ensure!(obs.len() == pred.len(), "observed and predicted faces differ in size");
-        acc.add_face(obs, pred, w, pool, copies, &mut rng)?;
+        acc.add_maps(&face_maps(obs, pred, w, pool, copies, &mut rng))?;
     }
     acc.finish()
 }

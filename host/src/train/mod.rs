@@ -482,13 +482,15 @@ pub fn run(args: TrainConfig) -> Result<()> {
 
     // Statistics over the training frames, with the final model.
     let preds = net.predict_batch(&train.heads, &train.faces);
-    let mut stats = calibrate::error_stats(h, w, novelty.pool, &copies, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?;
     let mut novelty = novelty;
-    if let Some(grid) = pose_grid {
-        let samples = train.heads.iter().zip(&train.faces).zip(&preds).map(|((&hd, f), p)| (hd, &f[..], &p[..]));
-        stats.pose = Some(calibrate::error_stats_by_pose(h, w, novelty.pool, &copies, grid, samples)?);
-        novelty.pose_grid = Some(grid);
-    }
+    let stats = match pose_grid {
+        Some(grid) => {
+            let samples = train.heads.iter().zip(&train.faces).zip(&preds).map(|((&hd, f), p)| (hd, &f[..], &p[..]));
+            novelty.pose_grid = Some(grid);
+            calibrate::error_stats_by_pose(h, w, novelty.pool, &copies, grid, samples)?
+        }
+        None => calibrate::error_stats(h, w, novelty.pool, &copies, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?,
+    };
 
     let policy = match args.threshold_percentile {
         None => ThresholdPolicy { kind: "fixed".into(), percentile: None, frames: None, n_frames: 0 },
