@@ -480,8 +480,8 @@ fn outputs_never_overwrite_inputs() {
 fn an_unwritable_trials_out_is_refused_before_any_trial() {
     // Was: every trial ran, then a write error naming no path, and the summary was lost.
     let tmp = tempfile::tempdir().unwrap();
+    // The model is not one: an error about the output, alone, says it was checked first.
     let model = file(tmp.path(), "m.msrm", b"not even a model");
-    let t0 = std::time::Instant::now();
     fails_with(
         &["mirror-test", "--model", model.to_str().unwrap(), "--trials-out", "/proc/t.json"],
         "--trials-out /proc/t.json: cannot write in /proc",
@@ -491,7 +491,6 @@ fn an_unwritable_trials_out_is_refused_before_any_trial() {
         &["mirror-test", "--model", model.to_str().unwrap(), "--trials-out", under_a_file.to_str().unwrap()],
         "is not a folder",
     );
-    assert!(t0.elapsed().as_secs() < 5);
 }
 
 #[test]

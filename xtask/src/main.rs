@@ -182,3 +182,49 @@ fn test(extra: &[String]) -> Result<(), String> {
     println!("\nxtask: all tests passed");
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::root;
+    use std::collections::{BTreeMap, BTreeSet};
+    use std::process::Command;
+
+    /// Each package `cargo tree ARGS` resolves, with the sets of features it is built with.
+    fn features(args: &[&str]) -> BTreeMap<String, BTreeSet<String>> {
+        let cargo = std::env::var("CARGO").unwrap_or_else(|_| "cargo".into());
+        let out = Command::new(cargo)
+            .args(["tree", "--offline", "--prefix", "none", "--no-dedupe", "-f", "{p} {f}"])
+            .args(args)
+            .current_dir(root())
+            .output()
+            .expect("run cargo tree");
+        assert!(out.status.success(), "cargo tree {args:?}: {}", String::from_utf8_lossy(&out.stderr));
+        let mut map: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+        for line in String::from_utf8_lossy(&out.stdout).lines() {
+            let mut words = line.split(' ');
+            let (Some(name), Some(version)) = (words.next(), words.next()) else { continue };
+            let feats: Vec<&str> = words.collect();
+            map.entry(format!("{name} {version}")).or_default().insert(feats.join(" "));
+        }
+        map
+    }
+
+    /// The README's first command builds `msr-host` without dev-dependencies; the test command
+    /// builds the workspace with them. A dependency whose features differ between the two is
+    /// compiled twice, and with it everything above it (burn included).
+    #[test]
+    fn the_build_and_the_test_build_resolve_the_same_features() {
+        let build = features(&["-p", "msr-host", "-e", "no-dev"]);
+        let test = features(&["--workspace"]);
+        assert!(build.len() > 100, "cargo tree listed {} packages", build.len());
+        let differ: Vec<String> = build
+            .iter()
+            .filter_map(|(p, f)| test.get(p).filter(|g| *g != f).map(|g| format!("{p}: build {f:?}, test {g:?}")))
+            .collect();
+        assert!(
+            differ.is_empty(),
+            "name these features in host/Cargo.toml's list for the test build:\n{}",
+            differ.join("\n")
+        );
+    }
+}
