@@ -5,7 +5,9 @@
 //!    `mcap` (pip);
 //! 2. builds `msr-shared` and `msr-firmware` for the bare-metal target without std;
 //! 3. builds the QEMU and NUCLEO-F429ZI firmware images;
-//! 4. runs every test of the workspace (the QEMU tests use the image from step 3).
+//! 4. runs every test of the workspace (the QEMU tests use the image from step 3), with
+//!    cargo-nextest where it is installed (`.config/nextest.toml`; then the doctests with
+//!    `cargo test --doc`), else with `cargo test`; `XTASK_RUNNER=cargo` asks for `cargo test`.
 //!
 //! `cargo xtask setup` does steps 1 only. Every step says what it runs.
 
@@ -29,7 +31,8 @@ fn main() -> ExitCode {
             eprintln!(
                 "usage: cargo xtask <command>\n\n\
                  commands:\n  \
-                 test [ARGS]  set up, build the firmware images, run every test (ARGS go to cargo test)\n  \
+                 test [ARGS]  set up, build the firmware images, run every test (ARGS go to cargo nextest run,\n               \
+                              or to cargo test where nextest is missing or XTASK_RUNNER=cargo)\n  \
                  setup        install or check the thumbv7em target, qemu-system-arm, ffmpeg, Chromium\n               \
                               and the Python venv target/pyenv (rosbags, mcap, pillow)\n  \
                  images       setup, then build the bare-metal firmware images"
@@ -89,19 +92,26 @@ fn setup() -> Result<(), String> {
         run(&root(), "rustup", &["target", "add", TARGET])?;
     }
 
-    tool(
-        "qemu-system-arm",
-        &["--version"],
-        "qemu-system-arm",
-        "qemu-system-arm (for the emulated Cortex-M4 tests)",
-    )?;
-    tool("ffmpeg", &["-version"], "ffmpeg", "ffmpeg (for the camera-stream tests)")?;
-    tool(
-        "chromium-headless-shell",
-        &["--version"],
-        "chromium-headless-shell",
-        "headless Chromium (for the test that lays out the demo's report at 1280 px)",
-    )?;
+    tools(&[
+        Tool {
+            program: "qemu-system-arm",
+            version_args: &["--version"],
+            package: "qemu-system-arm",
+            what: "qemu-system-arm (for the emulated Cortex-M4 tests)",
+        },
+        Tool {
+            program: "ffmpeg",
+            version_args: &["-version"],
+            package: "ffmpeg",
+            what: "ffmpeg (for the camera-stream tests)",
+        },
+        Tool {
+            program: "chromium-headless-shell",
+            version_args: &["--version"],
+            package: "chromium-headless-shell",
+            what: "headless Chromium (for the test that lays out the demo's report at 1280 px)",
+        },
+    ])?;
     pyenv()
 }
 
@@ -112,7 +122,12 @@ const PY_PACKAGES: [&str; 3] = ["rosbags==0.11.9", "mcap==1.6.0", "pillow==13.0.
 /// Makes the virtual environment `target/pyenv` with [`PY_PACKAGES`] (the tests in
 /// host/tests/rosbag_py.rs run its python and fail, naming this command, without it).
 fn pyenv() -> Result<(), String> {
-    tool("python3", &["--version"], "python3-venv", "python3 (for the ROS 2 bag tests)")?;
+    tools(&[Tool {
+        program: "python3",
+        version_args: &["--version"],
+        package: "python3-venv",
+        what: "python3 (for the ROS 2 bag tests)",
+    }])?;
     let env = root().join("target/pyenv");
     let py = env.join("bin/python");
     step(&format!("making the Python venv {} with {}", env.display(), PY_PACKAGES.join(", ")));
@@ -132,25 +147,54 @@ fn pyenv() -> Result<(), String> {
     run(&root(), &py_s, &args)
 }
 
-/// Checks that `program` runs, or installs the Debian package `package` when this user can.
-fn tool(program: &str, version_args: &[&str], package: &str, what: &str) -> Result<(), String> {
-    step(&format!("checking {what}"));
-    if let Some(v) = output(program, version_args) {
-        println!("{}", v.lines().next().unwrap_or("found"));
+/// A program a test needs, and the Debian package that has it.
+struct Tool {
+    program: &'static str,
+    version_args: &'static [&'static str],
+    package: &'static str,
+    what: &'static str,
+}
+
+/// Checks that each program runs, and installs the Debian packages of those that do not, in
+/// one `apt-get` without the packages' recommendations (qemu-system-arm's alone are a desktop's
+/// worth of GTK, GStreamer and firmware), when this user can.
+fn tools(tools: &[Tool]) -> Result<(), String> {
+    let mut missing = Vec::new();
+    for t in tools {
+        step(&format!("checking {}", t.what));
+        match output(t.program, t.version_args) {
+            Some(v) => println!("{}", v.lines().next().unwrap_or("found")),
+            None => {
+                println!("{} is missing", t.program);
+                missing.push(t);
+            }
+        }
+    }
+    if missing.is_empty() {
         return Ok(());
     }
+    let packages: Vec<&str> = missing.iter().map(|t| t.package).collect();
     let is_root = output("id", &["-u"]).is_some_and(|u| u.trim() == "0");
-    if is_root && output("apt-get", &["--version"]).is_some() {
-        println!("{program} is missing: installing the Debian package {package}");
-        run(&root(), "apt-get", &["update", "-q"])?;
-        run(&root(), "apt-get", &["install", "-y", "-q", package])?;
-        Ok(())
-    } else {
-        Err(format!(
-            "{program} is not installed and this user cannot install it; install the \
-             Debian/Ubuntu package `{package}` (or your distribution's {program}) and run again"
-        ))
+    if !(is_root && output("apt-get", &["--version"]).is_some()) {
+        let programs: Vec<&str> = missing.iter().map(|t| t.program).collect();
+        return Err(format!(
+            "{} not installed and this user cannot install them; install the Debian/Ubuntu \
+             packages `{}` (or your distribution's) and run again",
+            programs.join(", "),
+            packages.join(" ")
+        ));
     }
+    step(&format!("installing the Debian packages {}", packages.join(", ")));
+    run(&root(), "apt-get", &["update", "-q"])?;
+    let mut args = vec!["install", "-y", "-q", "--no-install-recommends"];
+    args.extend(&packages);
+    run(&root(), "apt-get", &args)?;
+    for t in missing {
+        if output(t.program, t.version_args).is_none() {
+            return Err(format!("`{}` still does not run after installing {}", t.program, t.package));
+        }
+    }
+    Ok(())
 }
 
 fn build_images() -> Result<(), String> {
@@ -175,10 +219,23 @@ fn build_images() -> Result<(), String> {
 fn test(extra: &[String]) -> Result<(), String> {
     setup()?;
     build_images()?;
-    step("running every test of the workspace");
-    let mut args = vec!["test", "--workspace", "--release"];
-    args.extend(extra.iter().map(String::as_str));
-    run(&root(), "cargo", &args)?;
+    let root = root();
+    let nextest = std::env::var("XTASK_RUNNER").as_deref() != Ok("cargo")
+        && output("cargo", &["nextest", "--version"]).is_some();
+    if nextest {
+        step("running every test of the workspace with cargo-nextest (both cores across the test binaries)");
+        let mut args = vec!["nextest", "run", "--workspace", "--release"];
+        args.extend(extra.iter().map(String::as_str));
+        run(&root, "cargo", &args)?;
+        step("running the crates' documentation examples (nextest does not run doctests)");
+        run(&root, "cargo", &["test", "--workspace", "--release", "--doc"])?;
+    } else {
+        step("running every test of the workspace with cargo test (cargo-nextest is not installed, \
+              or XTASK_RUNNER=cargo; `cargo install cargo-nextest --locked` spreads the tests over the cores)");
+        let mut args = vec!["test", "--workspace", "--release"];
+        args.extend(extra.iter().map(String::as_str));
+        run(&root, "cargo", &args)?;
+    }
     println!("\nxtask: all tests passed");
     Ok(())
 }

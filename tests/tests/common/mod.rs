@@ -12,7 +12,6 @@ use msr_host::models::ArchKind;
 use msr_host::train::{self, TrainConfig};
 use msr_sim::Robot;
 use std::path::{Path, PathBuf};
-use std::sync::Mutex;
 
 pub const TRAIN_FRAMES: usize = 400;
 pub const TRAIN_EPOCHS: usize = 20;
@@ -25,7 +24,15 @@ fn cache_dir() -> PathBuf {
     target.join("msr-tests")
 }
 
-static LOCK: Mutex<()> = Mutex::new(());
+/// An exclusive lock on `dir/NAME.lock`, held until the file is closed: test binaries and the
+/// processes of one binary (cargo-nextest runs each test in its own) make a model once between
+/// them.
+fn lock(dir: &Path, name: &str) -> std::fs::File {
+    std::fs::create_dir_all(dir).unwrap();
+    let f = std::fs::File::create(dir.join(format!("{name}.lock"))).unwrap();
+    f.lock().expect("lock the model cache");
+    f
+}
 
 /// The blob of a small model trained on sim frames of `robot` (the published fully connected
 /// decoder).
@@ -40,7 +47,6 @@ pub fn conv_model(robot: Robot) -> Vec<u8> {
 }
 
 fn trained_model_of(robot: Robot, arch: ArchKind) -> Vec<u8> {
-    let _g = LOCK.lock().unwrap_or_else(|e| e.into_inner());
     let kind = match arch {
         ArchKind::Mlp => "",
         ArchKind::Conv => "conv-",
@@ -51,6 +57,7 @@ fn trained_model_of(robot: Robot, arch: ArchKind) -> Vec<u8> {
     let (pool, pose_bins) = (train::calibrate::DEFAULT_POOL, train::calibrate::DEFAULT_POSE_BINS);
     let key = format!("{}-{kind}f{TRAIN_FRAMES}-e{TRAIN_EPOCHS}-subpixel-pool{pool}-bins{pose_bins}-v3", robot.name());
     let dir = cache_dir();
+    let _lock = lock(&dir, &key);
     let path = dir.join(format!("{key}.msrm"));
     if let Ok(b) = std::fs::read(&path) {
         // A cached blob counts only when it holds what the key says.
