@@ -325,6 +325,7 @@ pub fn check(c: &Command) -> Result<()> {
             real("--test-fraction", a.test_fraction, 0.0, 1.0, "")?;
             super::import_bag::joint_names(&a.joint_names)?;
             fsio::check_out_dir(&[("the bag", &a.bag), ("--template", &a.template)], "--out", &a.out)?;
+            writable_dir("--out", &a.out)?;
         }
     }
     Ok(())
