@@ -214,10 +214,12 @@ fn decode_jpeg(data: &[u8]) -> Result<DynamicImage> {
     use zune_core::options::DecoderOptions;
     let opts = DecoderOptions::default().set_strict_mode(true).set_max_width(16384).set_max_height(16384);
     let mut d = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(data), opts);
-    d.decode_headers().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    // The decoder's messages may span lines: one line each.
+    let err = |e: zune_jpeg::errors::DecodeErrors| anyhow::anyhow!("{}", format!("{e:?}").split_whitespace().collect::<Vec<_>>().join(" "));
+    d.decode_headers().map_err(err)?;
     let grey = d.input_colorspace() == Some(ColorSpace::Luma);
     d.set_options(opts.jpeg_set_out_colorspace(if grey { ColorSpace::Luma } else { ColorSpace::RGB }));
-    let px = d.decode().map_err(|e| anyhow::anyhow!("{e:?}"))?;
+    let px = d.decode().map_err(err)?;
     let info = d.info().context("no image size after decoding")?;
     let (w, h) = (info.width as u32, info.height as u32);
     let img = if grey {
@@ -434,7 +436,8 @@ pub fn import(cfg: &ImportConfig) -> Result<Imported> {
                 // A damaged picture is no frame of the training set: counted, and the rest go on.
                 Err(e) => {
                     if done.skipped_damaged == 0 {
-                        first_damage = Some(format!("image {k} on {topic}: {e:#}"));
+                        let why = format!("{e:#}").split_whitespace().collect::<Vec<_>>().join(" ");
+                        first_damage = Some(format!("image {k} on {topic}: {why}"));
                     }
                     done.skipped_damaged += 1;
                     return Ok(());

@@ -87,6 +87,9 @@ impl Bag {
             return Ok(Bag { path: path.into(), files: vec![(path.into(), s)], unlisted: Vec::new() });
         }
         if !path.is_dir() {
+            if path.exists() {
+                bail!("bag {}: not a bag folder, an .mcap or a .db3 file (a device, FIFO or socket)", path.display());
+            }
             bail!("bag {} does not exist", path.display());
         }
         let meta = path.join("metadata.yaml");
