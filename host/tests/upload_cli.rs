@@ -110,3 +110,22 @@ fn a_client_killed_mid_frame_does_not_spoil_the_next_request() {
 }
 
 use std::io::Write;
+
+#[test]
+fn a_reader_that_stops_early_ends_msr_quietly() {
+    // Was: `msr status | head -1` ended in a panic trace ("failed printing to stdout").
+    let tmp = tempfile::tempdir().unwrap();
+    let Some((a, _)) = two_models(tmp.path()) else { return };
+    let board = SimBoard::start(Some(std::fs::read(&a).unwrap())).unwrap();
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_msr"))
+        .args(["status", "--port", board.path()])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // The reader goes away before reading anything.
+    drop(child.stdout.take());
+    let out = child.wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked") && err.trim().is_empty(), "{err}");
+}
