@@ -283,12 +283,17 @@ fn poses(out: &Path) -> Vec<(f64, f64)> {
     index(out).frames.iter().map(|f| (f.head_yaw, f.head_pitch)).collect()
 }
 
-#[test]
-fn damaged_images_and_joint_states_never_become_frames() {
-    let tmp = tempfile::tempdir().unwrap();
-    let ds = dataset(tmp.path(), "6");
-    let src: Vec<(f64, f64)> = index(&ds).frames.iter().map(|f| (f.head_yaw, f.head_pitch)).collect();
+/// A dataset of 6 frames in `tmp`, and its poses.
+fn six(tmp: &Path) -> (PathBuf, Vec<(f64, f64)>) {
+    let ds = dataset(tmp, "6");
+    let src = index(&ds).frames.iter().map(|f| (f.head_yaw, f.head_pitch)).collect();
+    (ds, src)
+}
 
+#[test]
+fn cut_jpegs_are_counted_damaged_never_frames() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (ds, src) = six(tmp.path());
     // JPEGs cut to 85 % and to a third: damaged, counted so, never a frame with grey rows or
     // "without a face".
     let bag = tmp.path().join("cut");
@@ -299,7 +304,12 @@ fn damaged_images_and_joint_states_never_become_frames() {
     assert!(err.contains("2 damaged (the first: image 2 on /camera/image_raw"), "{err}");
     let kept: Vec<(f64, f64)> = [0, 1, 3, 5].iter().map(|&k| src[k]).collect();
     assert_eq!(poses(&tmp.path().join("o_cut")), kept);
+}
 
+#[test]
+fn no_pose_is_interpolated_across_joint_states_that_are_not_numbers() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (ds, src) = six(tmp.path());
     // Head angles NaN from 60 to 140 ms: the image at 100 ms would get a pose interpolated from
     // 40 and 160 ms, across them. It is skipped as such, not blamed on the head's speed.
     let bag = tmp.path().join("nan");
@@ -315,7 +325,12 @@ fn damaged_images_and_joint_states_never_become_frames() {
     for (g, w) in poses(&tmp.path().join("o_nan")).iter().zip(&kept) {
         assert!((g.0 - w.0).abs() < 1e-12 && (g.1 - w.1).abs() < 1e-12, "{g:?} against {w:?}");
     }
+}
 
+#[test]
+fn a_joint_state_with_fewer_positions_than_names_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (ds, _) = six(tmp.path());
     // A JointState with fewer positions than names: said so, naming the message.
     let outs = tmp.path().join("outs");
     std::fs::create_dir(&outs).unwrap();
@@ -326,11 +341,9 @@ fn damaged_images_and_joint_states_never_become_frames() {
 }
 
 #[test]
-fn a_bag_folder_is_what_its_metadata_lists() {
+fn a_file_the_metadata_does_not_list_is_not_merged() {
     let tmp = tempfile::tempdir().unwrap();
     let ds = dataset(tmp.path(), "4");
-    let outs = tmp.path().join("outs");
-    std::fs::create_dir(&outs).unwrap();
     let bag = tmp.path().join("bag");
     script("write_bag.py", &[s(&ds), s(&bag), "--storage", "mcap", "--encoding", "mono8"]);
     let other = tmp.path().join("other");
@@ -341,6 +354,16 @@ fn a_bag_folder_is_what_its_metadata_lists() {
     assert!(ok, "{err}");
     assert_eq!((r["images"].as_u64(), r["frames"].as_u64()), (Some(4), Some(4)), "{r}");
     assert!(err.contains("not read: ") && err.contains("zz_other.mcap"), "{err}");
+}
+
+#[test]
+fn garbage_metadata_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = dataset(tmp.path(), "4");
+    let outs = tmp.path().join("outs");
+    std::fs::create_dir(&outs).unwrap();
+    let bag = tmp.path().join("bag");
+    script("write_bag.py", &[s(&ds), s(&bag), "--storage", "mcap", "--encoding", "mono8"]);
     // Garbage metadata, metadata that lists nothing, a listed file that is missing: refused.
     let meta = bag.join("metadata.yaml");
     let good = std::fs::read_to_string(&meta).unwrap();
