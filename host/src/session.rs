@@ -5,7 +5,7 @@
 //! model blob (begin, chunks, commit; a lost chunk or an interrupted upload resumes where the
 //! board says it stopped), and sends face crops with selective repeat.
 use crate::data::crop;
-use anyhow::{bail, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use msr_shared::deliver::{FaceLink, LinkStats};
 use msr_shared::host_port::HostPort;
 use msr_shared::msg::{BoardToHost, HostToBoard, RoomCommand, Status, StoreReport};
@@ -28,6 +28,8 @@ pub struct Session {
     pub upload_resent: u64,
     /// The id of the last face sent.
     frame_id: u16,
+    /// Whether any message has come from the board in this session.
+    heard: bool,
 }
 
 /// A session's first frame id: from the clock and the process id, so that two sessions seldom
@@ -60,6 +62,22 @@ pub fn answers(m: &BoardToHost, frame: u16) -> bool {
     }
 }
 
+/// Whether `m` answers a step of a model upload: where the board stands, its acceptance, or its
+/// refusal of the upload. Other errors (a watchdog's, say, queued since the last run) are news of
+/// the board, not the upload's answer.
+pub fn answers_upload(m: &BoardToHost) -> bool {
+    use msr_shared::msg::ErrorCode;
+    match m {
+        BoardToHost::UploadAck { .. } | BoardToHost::ModelAccepted { .. } => true,
+        BoardToHost::Error { code, .. } => matches!(code, ErrorCode::BadUpload | ErrorCode::BadModel | ErrorCode::Version),
+        _ => false,
+    }
+}
+
+/// Tries in a row in which nothing at all came back from the board before an upload is given
+/// up: a lost begin or commit is tried again once, a board that went away is not waited for.
+pub const SILENT_TRIES: usize = 2;
+
 /// How long the PC waits for the board's ack of a face-frame round after its last byte went
 /// out: USB serial bridges batch reads for up to 16 ms.
 pub const ACK_TIMEOUT: Duration = Duration::from_millis(25);
@@ -81,7 +99,7 @@ impl Session {
         // Not where the last session's ids were (see `FaceLink::skip_ids`); a start that lands
         // among them anyway is found by its missing answer ([`Session::send_face`]).
         faces.skip_ids(first_id());
-        Ok(Session {
+        let mut s = Session {
             port,
             host: HostPort::default(),
             byte_time: Duration::from_secs_f64(10.0 / baud as f64),
@@ -90,7 +108,12 @@ impl Session {
             t0: Instant::now(),
             upload_resent: 0,
             frame_id: 0,
-        })
+            heard: false,
+        };
+        // A client killed mid-frame leaves the board's receiver holding part of a frame; a
+        // delimiter ends it, so that this session's first message is read whole.
+        s.send(&[0])?;
+        Ok(s)
     }
 
     /// The id of the face [`Session::send_face`] sent last.
@@ -150,6 +173,7 @@ impl Session {
         let mut out = std::mem::take(&mut self.pending);
         out.extend(self.host.receive(&buf[..n]));
         self.host.check_version()?;
+        self.heard |= !out.is_empty();
         Ok(out)
     }
 
@@ -176,30 +200,51 @@ impl Session {
     }
 
     /// Uploads a blob; `Ok(crc)` when the board accepted it, an error with the board's reason
-    /// otherwise (the board then keeps the model it had). `timeout` is per try: a try that gets
-    /// no answer starts again with `ModelBegin`, which the board answers with where to resume.
+    /// otherwise (the board then keeps the model it had). `timeout` is how long an answer is
+    /// waited for: to the begin, and after the blob's last byte went out (plus the line time of
+    /// what was sent, for a board that reads slower than the line). A try that gets no answer
+    /// starts again with `ModelBegin`, which the board answers with where to resume. A board that
+    /// says nothing at all (none there, or one that went away) is given up after
+    /// [`SILENT_TRIES`] tries, or at once when it answers neither the begin nor a status request.
     pub fn upload(&mut self, blob: &[u8], timeout: Duration) -> Result<u32> {
         let crc32 = msr_shared::blob::CRC32.checksum(blob);
         let begin = HostToBoard::ModelBegin { len: blob.len() as u32, crc32 };
+        let refused = |code, detail| anyhow!("the board refused the model: {code:?} (detail {detail})");
         let mut resume: Option<usize> = None;
         let mut sent_to = 0usize;
-        // The furthest byte the board has said it holds, and the tries since it moved.
-        let (mut best, mut stalled) = (0usize, 0usize);
+        // The furthest byte the board has said it holds, the tries since it moved, and the
+        // tries in a row that got nothing at all back.
+        let (mut best, mut stalled, mut silent) = (0usize, 0usize, 0usize);
         while stalled < UPLOAD_TRIES {
             stalled += 1;
             let from = match resume.take() {
                 Some(n) => n,
                 None => {
                     self.send_message(&begin)?;
-                    let (msgs, _) = self.wait_for(timeout, |m| {
-                        matches!(m, BoardToHost::UploadAck { .. } | BoardToHost::Error { .. })
-                    })?;
-                    match msgs.last() {
+                    let (msgs, _) = self.wait_for(timeout, answers_upload)?;
+                    match msgs.iter().rev().find(|m| answers_upload(m)) {
                         Some(BoardToHost::UploadAck { next }) => *next as usize,
-                        Some(BoardToHost::Error { code, detail }) => {
-                            bail!("the board refused the model: {code:?} (detail {detail})")
+                        Some(BoardToHost::Error { code, detail }) => return Err(refused(*code, *detail)),
+                        _ => {
+                            silent = if msgs.is_empty() { silent + 1 } else { 0 };
+                            if !self.heard {
+                                // Nothing ever came back: a board that answers a status request
+                                // lost the begin; none that does is not there.
+                                if self.status(timeout).is_err() {
+                                    bail!(
+                                        "no answer from the board to the model upload's begin nor to a status request \
+                                         within {timeout:?} each: no board on this port, or not at this baud"
+                                    );
+                                }
+                            } else if silent >= SILENT_TRIES {
+                                bail!(
+                                    "the board stopped answering during the model upload: nothing came back in \
+                                     {SILENT_TRIES} tries of {timeout:?}, at byte {best} of {}",
+                                    blob.len()
+                                );
+                            }
+                            continue;
                         }
-                        _ => continue,
                     }
                 }
             };
@@ -211,19 +256,12 @@ impl Session {
             let bytes = self.host.encode_upload_from(blob, from);
             self.send(&bytes)?;
             sent_to = blob.len();
-            let (msgs, _) = self.wait_for(timeout, |m| {
-                matches!(
-                    m,
-                    BoardToHost::ModelAccepted { .. }
-                        | BoardToHost::Error { .. }
-                        | BoardToHost::UploadAck { .. }
-                )
-            })?;
-            match msgs.last() {
+            let line = self.byte_time.mul_f64(bytes.len() as f64 * 1.1);
+            let (msgs, _) = self.wait_for(timeout + line, answers_upload)?;
+            silent = if msgs.is_empty() { silent + 1 } else { 0 };
+            match msgs.iter().rev().find(|m| answers_upload(m)) {
                 Some(BoardToHost::ModelAccepted { crc32 }) => return Ok(*crc32),
-                Some(BoardToHost::Error { code, detail }) => {
-                    bail!("the board refused the model: {code:?} (detail {detail})")
-                }
+                Some(BoardToHost::Error { code, detail }) => return Err(refused(*code, *detail)),
                 // A gap: go back to where the board stands (its answer to the commit, if a gap
                 // answer came first, says the same or later).
                 Some(BoardToHost::UploadAck { next }) => {
@@ -236,6 +274,11 @@ impl Session {
                         _ => resume = Some(*next as usize),
                     }
                 }
+                _ if silent >= SILENT_TRIES => bail!(
+                    "the board stopped answering during the model upload: nothing came back in \
+                     {SILENT_TRIES} tries, at byte {best} of {}",
+                    blob.len()
+                ),
                 _ => {}
             }
         }
@@ -322,7 +365,11 @@ impl Session {
         let (msgs, ok) = self.wait_for(timeout, |m| matches!(m, BoardToHost::Store(_)))?;
         match msgs.last() {
             Some(BoardToHost::Store(r)) if ok => Ok(*r),
-            _ => bail!("no answer to GetStore from the board within {timeout:?} (its firmware may predate it)"),
+            // Only a board that answers otherwise may run firmware without the store report.
+            _ if self.status(timeout).is_ok() => {
+                bail!("no answer to GetStore from the board within {timeout:?}, though it answers GetStatus (its firmware may predate GetStore)")
+            }
+            _ => bail!("no answer from the board within {timeout:?}: no board on this port, or not at this baud"),
         }
     }
 

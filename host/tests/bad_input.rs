@@ -590,3 +590,13 @@ fn link_losses_are_not_blamed_on_detection() {
     }
     assert!(failures.iter().any(|f| f.contains("link:")), "{failures:?}");
 }
+
+#[test]
+fn import_bag_joint_names_at_fault_exit_2() {
+    // Was: exit 1, as if a file were at fault.
+    for names in ["A,A", "A", ",B"] {
+        let (code, _, err) = msr_code(&["import-bag", "bag", "--image-topic", "/i", "--joints-topic", "/j", "--template", "t.png", "--out", "o", "--joint-names", names]);
+        assert_eq!(code, 2, "{names}: {err}");
+        assert!(err.contains("--joint-names takes two different names"), "{err}");
+    }
+}

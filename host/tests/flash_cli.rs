@@ -221,3 +221,55 @@ fn a_killed_qemu_board_leaves_nothing_in_the_temp_directory() {
     kill(server);
     assert!(!run_dir.exists(), "{} is left behind", run_dir.display());
 }
+
+#[test]
+fn a_second_server_on_the_same_flash_file_is_refused_in_one_line() {
+    // Two boards on one flash would each take an upload and write over what the other saved.
+    let tmp = tempfile::tempdir().unwrap();
+    let flash = tmp.path().join("board.flash");
+    let (server, port) = serve(&flash);
+    let before = std::fs::read(&flash).unwrap();
+    for backend in ["inproc", "qemu"] {
+        let (ok, _, err) = common::msr(&["serve", "--backend", backend, "--flash", flash.to_str().unwrap(), "--seconds", "1"]);
+        assert!(!ok, "{backend}: a second server started");
+        assert_eq!(err.trim().lines().count(), 1, "{backend}: {err}");
+        assert!(err.contains("is in use by another board"), "{backend}: {err}");
+    }
+    assert_eq!(std::fs::read(&flash).unwrap(), before, "the refused servers wrote the file");
+    assert_eq!(store(&port)["source"], "None");
+    kill(server);
+    // Once the first is gone (killed: the lock goes with the process), the file is free.
+    let (server, port) = serve(&flash);
+    assert_eq!(store(&port)["source"], "None");
+    kill(server);
+}
+
+#[test]
+fn a_flash_file_removed_while_serving_stops_the_server_with_an_error() {
+    // Was: the board went on, took an upload "into flash slot 0", and saved it nowhere.
+    for how in ["removed", "replaced by another file"] {
+        let tmp = tempfile::tempdir().unwrap();
+        let flash = tmp.path().join("board.flash");
+        let mut child = Command::new(env!("CARGO_BIN_EXE_msr"))
+            .args(["serve", "--flash", flash.to_str().unwrap()])
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        let mut line = String::new();
+        BufReader::new(child.stdout.take().unwrap()).read_line(&mut line).unwrap();
+        if how == "removed" {
+            std::fs::remove_file(&flash).unwrap();
+        } else {
+            let other = tmp.path().join("other");
+            std::fs::write(&other, b"another file").unwrap();
+            std::fs::rename(&other, &flash).unwrap();
+        }
+        // The server stops by itself (waited for as an event: its exit).
+        let out = child.wait_with_output().unwrap();
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{how}: {err}");
+        let last = err.trim_end().lines().last().unwrap_or("");
+        assert!(last.starts_with("msr: error:") && last.contains(&format!("was {how}")), "{how}: {err}");
+    }
+}

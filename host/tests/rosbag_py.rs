@@ -277,3 +277,141 @@ fn run_mcap_holds_the_frames_and_the_boards_answers() {
     }
     assert!(r["status"].as_array().unwrap().iter().any(|st| st["values"].get("frames").is_some()), "{}", r["status"]);
 }
+
+/// The frames of an import with their poses, by file.
+fn poses(out: &Path) -> Vec<(f64, f64)> {
+    index(out).frames.iter().map(|f| (f.head_yaw, f.head_pitch)).collect()
+}
+
+/// A dataset of 6 frames in `tmp`, and its poses.
+fn six(tmp: &Path) -> (PathBuf, Vec<(f64, f64)>) {
+    let ds = dataset(tmp, "6");
+    let src = index(&ds).frames.iter().map(|f| (f.head_yaw, f.head_pitch)).collect();
+    (ds, src)
+}
+
+#[test]
+fn cut_jpegs_are_counted_damaged_never_frames() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (ds, src) = six(tmp.path());
+    // JPEGs cut to 85 % and to a third: damaged, counted so, never a frame with grey rows or
+    // "without a face".
+    let bag = tmp.path().join("cut");
+    script("write_bag.py", &[s(&ds), s(&bag), "--storage", "mcap", "--encoding", "jpeg", "--cut", "2:0.85", "--cut", "4:0.33"]);
+    let (ok, r, err) = import(&bag, &ds, &tmp.path().join("o_cut"), &[]);
+    assert!(ok, "{err}");
+    assert_eq!((r["frames"].as_u64(), r["skipped_damaged"].as_u64(), r["skipped_no_face"].as_u64()), (Some(4), Some(2), Some(0)), "{r}");
+    assert!(err.contains("2 damaged (the first: image 2 on /camera/image_raw"), "{err}");
+    let kept: Vec<(f64, f64)> = [0, 1, 3, 5].iter().map(|&k| src[k]).collect();
+    assert_eq!(poses(&tmp.path().join("o_cut")), kept);
+}
+
+#[test]
+fn no_pose_is_interpolated_across_joint_states_that_are_not_numbers() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (ds, src) = six(tmp.path());
+    // Head angles NaN from 60 to 140 ms: the image at 100 ms would get a pose interpolated from
+    // 40 and 160 ms, across them. It is skipped as such, not blamed on the head's speed.
+    let bag = tmp.path().join("nan");
+    script("write_bag.py", &[s(&ds), s(&bag), "--storage", "mcap", "--encoding", "mono8", "--nan-ms", "60:140"]);
+    let (ok, r, err) = import(&bag, &ds, &tmp.path().join("o_nan"), &[]);
+    assert!(ok, "{err}");
+    assert_eq!(
+        (r["frames"].as_u64(), r["skipped_invalid_joint_state"].as_u64(), r["skipped_moving"].as_u64()),
+        (Some(5), Some(1), Some(0)),
+        "{r}"
+    );
+    let kept: Vec<(f64, f64)> = [0, 2, 3, 4, 5].iter().map(|&k| src[k]).collect();
+    for (g, w) in poses(&tmp.path().join("o_nan")).iter().zip(&kept) {
+        assert!((g.0 - w.0).abs() < 1e-12 && (g.1 - w.1).abs() < 1e-12, "{g:?} against {w:?}");
+    }
+}
+
+#[test]
+fn a_joint_state_with_fewer_positions_than_names_is_named() {
+    let tmp = tempfile::tempdir().unwrap();
+    let (ds, _) = six(tmp.path());
+    // A JointState with fewer positions than names: said so, naming the message.
+    let outs = tmp.path().join("outs");
+    std::fs::create_dir(&outs).unwrap();
+    let bag = tmp.path().join("short");
+    script("write_bag.py", &[s(&ds), s(&bag), "--storage", "sqlite3", "--encoding", "mono8", "--short-positions", "5"]);
+    let e = refused(&bag, &ds, &outs.join("o"), &[]);
+    assert!(e.contains("joint state 6 on /joint_states") && e.contains("has 4 names and 3 positions"), "{e}");
+}
+
+#[test]
+fn a_file_the_metadata_does_not_list_is_not_merged() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = dataset(tmp.path(), "4");
+    let bag = tmp.path().join("bag");
+    script("write_bag.py", &[s(&ds), s(&bag), "--storage", "mcap", "--encoding", "mono8"]);
+    let other = tmp.path().join("other");
+    script("write_bag.py", &[s(&ds), s(&other), "--storage", "mcap", "--encoding", "mono8"]);
+    // Another recording's file moved in: not merged (it would double every frame).
+    std::fs::copy(other.join("other.mcap"), bag.join("zz_other.mcap")).unwrap();
+    let (ok, r, err) = import(&bag, &ds, &tmp.path().join("o1"), &[]);
+    assert!(ok, "{err}");
+    assert_eq!((r["images"].as_u64(), r["frames"].as_u64()), (Some(4), Some(4)), "{r}");
+    assert!(err.contains("not read: ") && err.contains("zz_other.mcap"), "{err}");
+}
+
+#[test]
+fn garbage_metadata_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = dataset(tmp.path(), "4");
+    let outs = tmp.path().join("outs");
+    std::fs::create_dir(&outs).unwrap();
+    let bag = tmp.path().join("bag");
+    script("write_bag.py", &[s(&ds), s(&bag), "--storage", "mcap", "--encoding", "mono8"]);
+    // Garbage metadata, metadata that lists nothing, a listed file that is missing: refused.
+    let meta = bag.join("metadata.yaml");
+    let good = std::fs::read_to_string(&meta).unwrap();
+    std::fs::write(&meta, b"\x00\x01garbage: [\n\xff").unwrap();
+    let e = refused(&bag, &ds, &outs.join("o"), &[]);
+    assert!(e.contains("is not rosbag2 metadata"), "{e}");
+    std::fs::write(&meta, "hello: world\nrelative_file_paths: [bag.mcap]\n").unwrap();
+    let e = refused(&bag, &ds, &outs.join("o"), &[]);
+    assert!(e.contains("is not rosbag2 metadata (no rosbag2_bagfile_information"), "{e}");
+    std::fs::write(&meta, good.replace("relative_file_paths:\n  - bag.mcap", "relative_file_paths: []")).unwrap();
+    let e = refused(&bag, &ds, &outs.join("o"), &[]);
+    assert!(e.contains("lists no storage files"), "{e}");
+    std::fs::write(&meta, good.replace("- bag.mcap", "- gone.mcap")).unwrap();
+    let e = refused(&bag, &ds, &outs.join("o"), &[]);
+    assert!(e.contains("lists gone.mcap, which is missing"), "{e}");
+}
+
+#[test]
+fn an_import_removes_the_temporary_folders_of_killed_imports() {
+    let tmp = tempfile::tempdir().unwrap();
+    let ds = dataset(tmp.path(), "4");
+    let bag = tmp.path().join("bag");
+    script("write_bag.py", &[s(&ds), s(&bag), "--storage", "mcap", "--encoding", "mono8"]);
+    // What an import killed mid-way leaves: its hidden folder, named by its (dead) process.
+    let mut dead = Command::new("true").spawn().unwrap();
+    let dead_pid = dead.id();
+    dead.wait().unwrap();
+    let outs = tmp.path().join("outs");
+    let stale = outs.join(format!(".o.tmp{dead_pid}"));
+    std::fs::create_dir_all(stale.join("frames")).unwrap();
+    std::fs::write(stale.join("frames/000000.png"), b"half").unwrap();
+    // One of a running import (this test's process stands for it): left alone.
+    let running = outs.join(format!(".o.tmp{}", std::process::id()));
+    std::fs::create_dir_all(&running).unwrap();
+    let (ok, r, err) = import(&bag, &ds, &outs.join("o"), &[]);
+    assert!(ok && r["frames"] == 4, "{err}");
+    assert!(!stale.exists(), "{} is left behind", stale.display());
+    assert!(running.exists(), "a running import's folder was removed");
+}
+
+#[test]
+fn an_mcap_output_in_a_new_folder_is_written_there() {
+    // Was: every trial ran, then "cannot write nodir/x.mcap". Every other output's folder is
+    // made (fsio); the MCAP's now is too.
+    let tmp = tempfile::tempdir().unwrap();
+    let m = model(tmp.path());
+    let mcap = tmp.path().join("nodir/deeper/x.mcap");
+    common::msr_ok(&["mirror-test", "--model", s(&m), "--trials", "1", "--parallel", "1", "--mcap", s(&mcap)]);
+    let r = script("read_mcap.py", &[s(&mcap)]);
+    assert!(r["topics"]["/camera/image"]["count"].as_u64().unwrap() > 0, "{}", r["topics"]);
+}

@@ -323,8 +323,9 @@ pub fn check(c: &Command) -> Result<()> {
             real("--max-head-speed-deg-s", a.max_head_speed_deg_s, 0.0, 1e4, " deg/s")?;
             real("--max-joint-gap-ms", a.max_joint_gap_ms, 0.0, 1e7, " ms")?;
             real("--test-fraction", a.test_fraction, 0.0, 1.0, "")?;
-            super::import_bag::joint_names(&a.joint_names)?;
+            super::import_bag::joint_names(&a.joint_names).map_err(|e| super::usage(e.to_string()))?;
             fsio::check_out_dir(&[("the bag", &a.bag), ("--template", &a.template)], "--out", &a.out)?;
+            writable_dir("--out", &a.out)?;
         }
     }
     Ok(())

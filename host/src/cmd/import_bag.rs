@@ -60,10 +60,17 @@ pub fn config(a: &Args) -> Result<ImportConfig> {
 pub fn run(a: Args) -> Result<()> {
     let c = config(&a)?;
     let r = import::import(&c)?;
+    // Said after the import, so that a refusal stays one line.
+    if let Ok(bag) = crate::rosbag::read::Bag::open(&a.bag) {
+        for p in &bag.unlisted {
+            eprintln!("not read: {} (the bag's metadata.yaml does not list it)", p.display());
+        }
+    }
     println!("{}", serde_json::to_string(&r)?);
     eprintln!(
         "imported {} of {} images into {} ({} train, {} test) in {:.1} s; skipped {} taken while the head \
-         moved faster than {} deg/s, {} without a joint state within {} ms, {} without a face",
+         moved faster than {} deg/s, {} without a joint state within {} ms, {} with a joint state that is not a \
+         number, {} damaged{}, {} without a face",
         r.frames,
         r.images,
         a.out.display(),
@@ -74,6 +81,9 @@ pub fn run(a: Args) -> Result<()> {
         a.max_head_speed_deg_s,
         r.skipped_no_joint_state,
         a.max_joint_gap_ms,
+        r.skipped_invalid_joint_state,
+        r.skipped_damaged,
+        r.first_damage.as_ref().map_or(String::new(), |d| format!(" (the first: {d})")),
         r.skipped_no_face
     );
     Ok(())

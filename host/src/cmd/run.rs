@@ -224,7 +224,7 @@ pub fn run(a: Args) -> Result<()> {
                 a.baud
             );
         }
-        let crc = s.upload(&blob, timeout + line)?;
+        let crc = s.upload(&blob, timeout)?;
         print(&BoardToHost::ModelAccepted { crc32: crc }, a.json)?;
     } else {
         // Frames cropped with one model's template and read with another's: refuse.

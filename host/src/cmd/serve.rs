@@ -69,6 +69,12 @@ pub fn run(a: Args) -> Result<()> {
     let t0 = Instant::now();
     let limit = a.seconds.map(Duration::from_secs_f64);
     while !board.finished() && limit.is_none_or(|l| t0.elapsed() < l) {
+        // A flash file removed under the board: what it accepts from now on is kept nowhere,
+        // so it stops rather than say "uploaded into flash".
+        if let Err(e) = board.check_flash() {
+            let _ = board.stop();
+            return Err(e);
+        }
         std::thread::sleep(Duration::from_millis(50));
     }
     let served = board.stop()?;

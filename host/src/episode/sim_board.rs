@@ -35,6 +35,8 @@ pub struct SimBoard {
     path: String,
     stop: Arc<AtomicBool>,
     thread: Option<JoinHandle<Result<Served>>>,
+    /// The flash file's lock and watch, when the board keeps its flash in one.
+    flash: Option<crate::flash_file::FlashWatch>,
 }
 
 /// What `msr serve` serves.
@@ -76,8 +78,10 @@ impl SimBoard {
             Backend::Inproc => match cfg.flash {
                 Some(path) => {
                     let builtin = cfg.model.as_deref().map(crate::flash_file::leak_aligned);
-                    let store = crate::flash_file::open_store(&path, msr_firmware::store::EMULATED, builtin)?;
-                    SimBoard::start_board(Box::new(msr_firmware::Board::new(store)), cfg.host_faults, world)
+                    let (store, watch) = crate::flash_file::open_store(&path, msr_firmware::store::EMULATED, builtin)?;
+                    let mut b = SimBoard::start_board(Box::new(msr_firmware::Board::new(store)), cfg.host_faults, world)?;
+                    b.flash = Some(watch);
+                    Ok(b)
                 }
                 None => SimBoard::start_board(inproc_or_empty(cfg.model.as_deref()), cfg.host_faults, world),
             },
@@ -86,12 +90,19 @@ impl SimBoard {
                 if !cfg.host_faults.is_clean() {
                     bail!("host-link faults are emulated for the in-process board only (--backend inproc)");
                 }
-                if let Some(path) = &cfg.flash {
-                    // Checked (or created, erased) here, so that a wrong file is refused in one
-                    // line before QEMU starts; the image then reads it and writes through.
-                    crate::flash_file::FileCells::open(path, msr_firmware::store::EMULATED.len() as usize)?;
-                }
-                SimBoard::start_qemu_in(cfg.model.as_deref(), cfg.flash.as_deref(), world)
+                // Checked (or created, erased) and locked here, so that a wrong file or one in use
+                // is refused in one line before QEMU starts; the image then reads it and writes
+                // through.
+                let watch = match &cfg.flash {
+                    Some(path) => {
+                        let cells = crate::flash_file::FileCells::open(path, msr_firmware::store::EMULATED.len() as usize)?;
+                        Some(cells.watch(path)?)
+                    }
+                    None => None,
+                };
+                let mut b = SimBoard::start_qemu_in(cfg.model.as_deref(), cfg.flash.as_deref(), world)?;
+                b.flash = watch;
+                Ok(b)
             }
         }
     }
@@ -172,7 +183,7 @@ impl SimBoard {
                 })
             },
         )?;
-        Ok(SimBoard { path, stop, thread: Some(thread) })
+        Ok(SimBoard { path, stop, thread: Some(thread), flash: None })
     }
 
     /// Starts a board with `blob` built in (or none) behind a new PTY.
@@ -240,6 +251,7 @@ impl SimBoard {
             path,
             stop,
             thread: Some(thread),
+            flash: None,
         })
     }
 
@@ -251,6 +263,12 @@ impl SimBoard {
     /// The board stopped by itself (an error): [`SimBoard::stop`] says why.
     pub fn finished(&self) -> bool {
         self.thread.as_ref().is_none_or(|t| t.is_finished())
+    }
+
+    /// Errs when the board's flash file is no longer where it was named (see
+    /// [`crate::flash_file::FlashWatch::check`]).
+    pub fn check_flash(&self) -> Result<()> {
+        self.flash.as_ref().map_or(Ok(()), |w| w.check())
     }
 
     /// Stops the world and returns what the board did.

@@ -6,9 +6,12 @@
 //! and encodings and finds a damaged file before anything is written, and it keeps the joint
 //! states (small) and each image's stamp. Each image then gets the head angles interpolated
 //! linearly at its header stamp, or is skipped: no joint state on both sides within the gap limit,
-//! the head moving faster than the speed limit there, or (second pass) no face where the template
-//! looks. The second pass decodes the kept images and writes them into a temporary folder beside
-//! `--out`, renamed to `--out` at the end: a failed import leaves nothing.
+//! a joint state there that is not a number (never interpolated across), the head moving faster
+//! than the speed limit there, or (second pass) an image that does not decode whole (a cut JPEG is
+//! damaged, not a picture with grey rows) or has no face where the template looks. The second pass
+//! decodes the kept images and writes them into a temporary folder beside `--out`, renamed to
+//! `--out` at the end: a failed import leaves nothing, and the temporary folders of imports that
+//! were killed are removed by the next import beside them.
 use super::msgs::{self, CompressedImage, Image, JointState};
 use super::read::{Bag, Topic};
 use crate::data::crop::{self, CropMode, Cropper};
@@ -65,7 +68,13 @@ pub struct Imported {
     pub test: usize,
     pub skipped_moving: usize,
     pub skipped_no_joint_state: usize,
+    /// Images whose head pose would come from a joint state that is not a number.
+    pub skipped_invalid_joint_state: usize,
+    /// Images that do not decode whole (a cut or damaged JPEG or PNG).
+    pub skipped_damaged: usize,
     pub skipped_no_face: usize,
+    /// What was wrong with the first damaged image.
+    pub first_damage: Option<String>,
     pub seconds: f64,
 }
 
@@ -74,20 +83,27 @@ pub struct Imported {
 pub enum Skip {
     Moving,
     NoJointState,
+    /// A joint state around the stamp holds a head angle that is not a number.
+    InvalidJointState,
 }
 
-/// Head angles at `t` from joint samples sorted by time (no two at the same time): linear
-/// between the samples around `t`, each within `max_gap` of it; `Err` when the head moved faster
-/// than `max_speed` (either joint, rad/s) on a segment touching `t`.
-pub fn head_at(samples: &[(u64, [f64; 2])], t: u64, max_gap: u64, max_speed: f64) -> Result<[f64; 2], Skip> {
+/// Head angles at `t` from joint samples sorted by time (no two at the same time; `None` a
+/// sample whose head angles are not numbers): linear between the samples around `t`, each
+/// within `max_gap` of it; `Err` when the head moved faster than `max_speed` (either joint,
+/// rad/s) on a segment touching `t`, or when a sample the pose would come from is not valid (the
+/// pose is never taken across one).
+pub fn head_at(samples: &[(u64, Option<[f64; 2]>)], t: u64, max_gap: u64, max_speed: f64) -> Result<[f64; 2], Skip> {
     let k = samples.partition_point(|s| s.0 < t);
-    let speed = |a: usize, b: usize| {
-        let (ta, qa) = samples[a];
-        let (tb, qb) = samples[b];
-        let dt = (tb - ta) as f64 * 1e-9;
-        (qb[0] - qa[0]).abs().max((qb[1] - qa[1]).abs()) / dt
+    // The speed between two valid samples; a segment to an invalid one says nothing of it.
+    let speed = |a: usize, b: usize| match (samples[a], samples[b]) {
+        ((ta, Some(qa)), (tb, Some(qb))) => {
+            let dt = (tb - ta) as f64 * 1e-9;
+            (qb[0] - qa[0]).abs().max((qb[1] - qa[1]).abs()) / dt
+        }
+        _ => 0.0,
     };
     if k < samples.len() && samples[k].0 == t {
+        let Some(q) = samples[k].1 else { return Err(Skip::InvalidJointState) };
         let mut v: f64 = 0.0;
         if k > 0 && t - samples[k - 1].0 <= max_gap {
             v = v.max(speed(k - 1, k));
@@ -95,7 +111,7 @@ pub fn head_at(samples: &[(u64, [f64; 2])], t: u64, max_gap: u64, max_speed: f64
         if k + 1 < samples.len() && samples[k + 1].0 - t <= max_gap {
             v = v.max(speed(k, k + 1));
         }
-        return if v > max_speed { Err(Skip::Moving) } else { Ok(samples[k].1) };
+        return if v > max_speed { Err(Skip::Moving) } else { Ok(q) };
     }
     if k == 0 || k == samples.len() {
         return Err(Skip::NoJointState);
@@ -104,6 +120,7 @@ pub fn head_at(samples: &[(u64, [f64; 2])], t: u64, max_gap: u64, max_speed: f64
     if t - t0 > max_gap || t1 - t > max_gap {
         return Err(Skip::NoJointState);
     }
+    let (Some(q0), Some(q1)) = (q0, q1) else { return Err(Skip::InvalidJointState) };
     if speed(k - 1, k) > max_speed {
         return Err(Skip::Moving);
     }
@@ -188,9 +205,38 @@ pub fn decode_image(m: &Image) -> Result<DynamicImage> {
     })
 }
 
+/// A JPEG decoded whole, or an error: the decoder's strict mode refuses data that ends early or
+/// holds a marker where none belongs (its lenient mode, `image`'s, fills what is missing with
+/// grey).
+fn decode_jpeg(data: &[u8]) -> Result<DynamicImage> {
+    use zune_core::bytestream::ZCursor;
+    use zune_core::colorspace::ColorSpace;
+    use zune_core::options::DecoderOptions;
+    let opts = DecoderOptions::default().set_strict_mode(true).set_max_width(16384).set_max_height(16384);
+    let mut d = zune_jpeg::JpegDecoder::new_with_options(ZCursor::new(data), opts);
+    // The decoder's messages may span lines: one line each.
+    let err = |e: zune_jpeg::errors::DecodeErrors| anyhow::anyhow!("{}", format!("{e:?}").split_whitespace().collect::<Vec<_>>().join(" "));
+    d.decode_headers().map_err(err)?;
+    let grey = d.input_colorspace() == Some(ColorSpace::Luma);
+    d.set_options(opts.jpeg_set_out_colorspace(if grey { ColorSpace::Luma } else { ColorSpace::RGB }));
+    let px = d.decode().map_err(err)?;
+    let info = d.info().context("no image size after decoding")?;
+    let (w, h) = (info.width as u32, info.height as u32);
+    let img = if grey {
+        GrayImage::from_raw(w, h, px).map(DynamicImage::ImageLuma8)
+    } else {
+        RgbImage::from_raw(w, h, px).map(DynamicImage::ImageRgb8)
+    };
+    img.context("the decoder gave fewer pixels than its image size")
+}
+
 pub fn decode_compressed(m: &CompressedImage) -> Result<DynamicImage> {
     let f = compressed_format(&m.format)?;
-    let img = image::load_from_memory_with_format(&m.data, f).with_context(|| format!("decoding a {} image", m.format))?;
+    let img = match f {
+        image::ImageFormat::Jpeg => decode_jpeg(&m.data),
+        _ => image::load_from_memory_with_format(&m.data, f).map_err(anyhow::Error::from),
+    }
+    .with_context(|| format!("decoding a {} image", m.format))?;
     Ok(match img {
         DynamicImage::ImageLuma8(_) | DynamicImage::ImageRgb8(_) => img,
         other => DynamicImage::ImageRgb8(other.to_rgb8()),
@@ -223,6 +269,27 @@ fn find_topics(topics: &[Topic], cfg: &ImportConfig) -> Result<bool> {
     Ok(compressed)
 }
 
+/// Removes the temporary folders (`.NAME.tmpPID`) that imports into `out` left beside it when
+/// they were killed: those whose process is gone. A folder of a running import is left alone.
+fn remove_stale_temps(parent: &Path, name: &str) {
+    let prefix = format!(".{name}.tmp");
+    let Ok(entries) = std::fs::read_dir(parent) else { return };
+    for e in entries.flatten() {
+        let file = e.file_name();
+        let Some(pid) = file.to_str().and_then(|f| f.strip_prefix(prefix.as_str())).and_then(|p| p.parse::<i32>().ok()) else {
+            continue;
+        };
+        if pid <= 0 || pid as u32 == std::process::id() || !e.file_type().is_ok_and(|t| t.is_dir()) {
+            continue;
+        }
+        // SAFETY: signal 0 only asks whether the process exists; nothing is sent.
+        let gone = unsafe { libc::kill(pid, 0) } == -1 && std::io::Error::last_os_error().raw_os_error() == Some(libc::ESRCH);
+        if gone {
+            let _ = std::fs::remove_dir_all(e.path());
+        }
+    }
+}
+
 /// Removes a folder when dropped, unless kept.
 struct TempDir(Option<PathBuf>);
 
@@ -247,8 +314,9 @@ pub fn import(cfg: &ImportConfig) -> Result<Imported> {
     let compressed = find_topics(&topics, cfg)?;
 
     // Pass 1: joint states, image stamps, every image checked.
-    let mut joints: Vec<(u64, [f64; 2])> = Vec::new();
+    let mut joints: Vec<(u64, Option<[f64; 2]>)> = Vec::new();
     let mut joint_msgs = 0usize;
+    let mut named_without_positions = 0usize;
     let mut names_seen: Vec<String> = Vec::new();
     let mut stamps: Vec<u64> = Vec::new();
     let [yaw_name, pitch_name] = &cfg.joint_names;
@@ -256,9 +324,21 @@ pub fn import(cfg: &ImportConfig) -> Result<Imported> {
         if topic == cfg.joints_topic {
             let m: JointState = msgs::decode(data).with_context(|| format!("a message on {topic}"))?;
             joint_msgs += 1;
+            let t = stamp(&m.header, log_time);
+            // A JointState's arrays are as long as its names, or empty (not measured).
+            if !m.position.is_empty() && m.position.len() != m.name.len() {
+                bail!(
+                    "joint state {joint_msgs} on {topic} (stamp {t} ns) has {} names and {} positions: a JointState's \
+                     positions are one per name, or none",
+                    m.name.len(),
+                    m.position.len()
+                );
+            }
             let at = |n: &str| m.name.iter().position(|x| x.as_str() == n).and_then(|i| m.position.get(i).copied());
+            let named = |n: &str| m.name.iter().any(|x| x.as_str() == n);
             match (at(yaw_name), at(pitch_name)) {
-                (Some(y), Some(p)) if y.is_finite() && p.is_finite() => joints.push((stamp(&m.header, log_time), [y, p])),
+                (Some(y), Some(p)) => joints.push((t, (y.is_finite() && p.is_finite()).then_some([y, p]))),
+                _ if named(yaw_name) && named(pitch_name) => named_without_positions += 1,
                 _ => {
                     if names_seen.is_empty() {
                         names_seen = m.name.clone();
@@ -279,6 +359,19 @@ pub fn import(cfg: &ImportConfig) -> Result<Imported> {
     if stamps.is_empty() {
         bail!("topic {} has no messages", cfg.image_topic);
     }
+    if joints.is_empty() && named_without_positions > 0 {
+        bail!(
+            "the {named_without_positions} messages on {} that name {yaw_name} and {pitch_name} carry no positions",
+            cfg.joints_topic
+        );
+    }
+    if joints.iter().all(|j| j.1.is_none()) && !joints.is_empty() {
+        bail!(
+            "every joint state on {} holds a head angle that is not a number ({} messages)",
+            cfg.joints_topic,
+            joints.len()
+        );
+    }
     if joints.is_empty() {
         bail!(
             "no message on {} names both {yaw_name} and {pitch_name} (names seen: {}): give --joint-names YAW,PITCH",
@@ -292,15 +385,19 @@ pub fn import(cfg: &ImportConfig) -> Result<Imported> {
     joints.dedup_by_key(|j| j.0);
     joints.reverse();
     let heads: Vec<Result<[f64; 2], Skip>> = stamps.iter().map(|&t| head_at(&joints, t, cfg.max_gap_ns, cfg.max_speed)).collect();
+    let skipped = |why: Skip| heads.iter().filter(|h| **h == Err(why)).count();
     let mut done = Imported {
         images: stamps.len(),
         joint_states: joint_msgs,
         frames: 0,
         train: 0,
         test: 0,
-        skipped_moving: heads.iter().filter(|h| **h == Err(Skip::Moving)).count(),
-        skipped_no_joint_state: heads.iter().filter(|h| **h == Err(Skip::NoJointState)).count(),
+        skipped_moving: skipped(Skip::Moving),
+        skipped_no_joint_state: skipped(Skip::NoJointState),
+        skipped_invalid_joint_state: skipped(Skip::InvalidJointState),
+        skipped_damaged: 0,
         skipped_no_face: 0,
+        first_damage: None,
         seconds: 0.0,
     };
 
@@ -308,6 +405,7 @@ pub fn import(cfg: &ImportConfig) -> Result<Imported> {
     let name = cfg.out.file_name().map_or("out".into(), |n| n.to_string_lossy().into_owned());
     let parent = cfg.out.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(parent).with_context(|| format!("cannot create {}", parent.display()))?;
+    remove_stale_temps(parent, &name);
     let tmp = parent.join(format!(".{name}.tmp{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&tmp);
     std::fs::create_dir_all(tmp.join("frames")).with_context(|| format!("cannot create {}", tmp.display()))?;
@@ -323,6 +421,7 @@ pub fn import(cfg: &ImportConfig) -> Result<Imported> {
     let mut i = 0usize;
     let mut size: Option<(u32, u32)> = None;
     let mut frames: Vec<(String, [f64; 2])> = Vec::new();
+    let mut first_damage: Option<String> = None;
     bag.for_each(&[cfg.image_topic.as_str()], &mut |topic, _, _, data| {
         let k = i;
         i += 1;
@@ -330,12 +429,23 @@ pub fn import(cfg: &ImportConfig) -> Result<Imported> {
             b.inc(1);
         }
         let Some(Ok(head)) = heads.get(k).copied() else { return Ok(()) };
-        let img = (if compressed {
-            decode_compressed(&msgs::decode(data)?)
+        let img = if compressed {
+            let m: CompressedImage = msgs::decode(data).with_context(|| format!("image {k} on {topic}"))?;
+            match decode_compressed(&m) {
+                Ok(img) => img,
+                // A damaged picture is no frame of the training set: counted, and the rest go on.
+                Err(e) => {
+                    if done.skipped_damaged == 0 {
+                        let why = format!("{e:#}").split_whitespace().collect::<Vec<_>>().join(" ");
+                        first_damage = Some(format!("image {k} on {topic}: {why}"));
+                    }
+                    done.skipped_damaged += 1;
+                    return Ok(());
+                }
+            }
         } else {
-            decode_image(&msgs::decode(data)?)
-        })
-        .with_context(|| format!("image {k} on {topic}"))?;
+            decode_image(&msgs::decode(data)?).with_context(|| format!("image {k} on {topic}"))?
+        };
         let s = (img.width(), img.height());
         if *size.get_or_insert(s) != s {
             bail!("image {k} on {topic} is {}x{}, the first was {}x{}", s.0, s.1, size.unwrap().0, size.unwrap().1);
@@ -360,12 +470,17 @@ pub fn import(cfg: &ImportConfig) -> Result<Imported> {
     if i != stamps.len() {
         bail!("the bag changed while it was read ({} images, then {i})", stamps.len());
     }
+    done.first_damage = first_damage;
     if frames.is_empty() {
         bail!(
-            "no image kept of {}: {} while the head moved, {} without a joint state, {} without a face",
+            "no image kept of {}: {} while the head moved, {} without a joint state, {} with a joint state that is not \
+             a number, {} damaged{}, {} without a face",
             done.images,
             done.skipped_moving,
             done.skipped_no_joint_state,
+            done.skipped_invalid_joint_state,
+            done.skipped_damaged,
+            done.first_damage.as_ref().map_or(String::new(), |d| format!(" ({d})")),
             done.skipped_no_face
         );
     }
@@ -439,7 +554,7 @@ mod tests {
     #[test]
     fn head_angles_interpolate_and_skips_follow_the_limits() {
         // Still at (0.1, 0) until 20 ms, then a move of 0.01 rad in 20 ms (0.5 rad/s).
-        let s = [(0, [0.1, 0.0]), (20 * MS, [0.1, 0.0]), (40 * MS, [0.11, 0.0]), (200 * MS, [0.11, 0.0])];
+        let s = [(0, Some([0.1, 0.0])), (20 * MS, Some([0.1, 0.0])), (40 * MS, Some([0.11, 0.0])), (200 * MS, Some([0.11, 0.0]))];
         assert_eq!(head_at(&s, 10 * MS, 50 * MS, 0.1), Ok([0.1, 0.0]));
         assert_eq!(head_at(&s, 0, 50 * MS, 0.1), Ok([0.1, 0.0]), "a sample's own time");
         assert_eq!(head_at(&s, 30 * MS, 50 * MS, 0.1), Err(Skip::Moving));
@@ -449,6 +564,32 @@ mod tests {
         assert_eq!(head_at(&s, 120 * MS, 50 * MS, 0.1), Err(Skip::NoJointState), "80 ms from both samples");
         assert_eq!(head_at(&s, 120 * MS, 100 * MS, 0.1), Ok([0.11, 0.0]));
         assert_eq!(head_at(&s, 201 * MS, 100 * MS, 0.1), Err(Skip::NoJointState), "after the last");
+    }
+
+    #[test]
+    fn no_pose_is_taken_across_an_invalid_joint_state() {
+        // Valid at 0 and 40 ms, not a number at 20 ms: nothing between 0 and 40 ms is
+        // interpolated (from 0 to 40 ms would say 0.05 at 20 ms), and no move is blamed.
+        let s = [(0, Some([0.0, 0.0])), (20 * MS, None), (40 * MS, Some([0.1, 0.0]))];
+        assert_eq!(head_at(&s, 10 * MS, 50 * MS, 0.1), Err(Skip::InvalidJointState));
+        assert_eq!(head_at(&s, 20 * MS, 50 * MS, 0.1), Err(Skip::InvalidJointState));
+        assert_eq!(head_at(&s, 30 * MS, 50 * MS, 0.1), Err(Skip::InvalidJointState));
+        // A valid sample's own time: its neighbour's invalid state says nothing of a move.
+        assert_eq!(head_at(&s, 0, 50 * MS, 0.1), Ok([0.0, 0.0]));
+        assert_eq!(head_at(&s, 40 * MS, 50 * MS, 0.1), Ok([0.1, 0.0]));
+    }
+
+    #[test]
+    fn a_cut_jpeg_is_an_error_not_grey_rows() {
+        let img = RgbImage::from_fn(64, 48, |x, y| image::Rgb([(x * 4) as u8, (y * 5) as u8, 90]));
+        let mut jpeg = Vec::new();
+        image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 90).encode_image(&img).unwrap();
+        let m = |data: Vec<u8>| CompressedImage { format: "jpeg".into(), data, ..Default::default() };
+        let whole = decode_compressed(&m(jpeg.clone())).unwrap();
+        assert_eq!((whole.width(), whole.height()), (64, 48));
+        for cut in [jpeg.len() * 85 / 100, jpeg.len() / 2, jpeg.len() / 3] {
+            assert!(decode_compressed(&m(jpeg[..cut].to_vec())).is_err(), "cut to {cut} of {} bytes", jpeg.len());
+        }
     }
 
     #[test]

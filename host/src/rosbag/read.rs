@@ -1,5 +1,5 @@
-//! Reading a rosbag2 recording: a bag folder (`metadata.yaml` with `.mcap` or `.db3` files, read in
-//! name order) or one `.mcap` / `.db3` file. MCAP through the `mcap` crate, SQLite3 through
+//! Reading a rosbag2 recording: a bag folder (`metadata.yaml` with `.mcap` or `.db3` files, the
+//! ones it lists, in its order) or one `.mcap` / `.db3` file. MCAP through the `mcap` crate, SQLite3 through
 //! `rusqlite` (its bundled SQLite). Messages come out raw (CDR bytes) with their topic's type.
 use anyhow::{bail, Context, Result};
 use std::collections::BTreeMap;
@@ -25,6 +25,8 @@ pub enum Storage {
 pub struct Bag {
     pub path: PathBuf,
     pub files: Vec<(PathBuf, Storage)>,
+    /// Storage files in the bag's folder that its metadata does not list: not read.
+    pub unlisted: Vec<PathBuf>,
 }
 
 fn storage_of(p: &Path) -> Option<Storage> {
@@ -44,11 +46,36 @@ fn yaml_value(text: &str, key: &str) -> Option<String> {
     })
 }
 
-/// A storage file's number in its bag (`name_12.mcap` -> 12), for ordering.
-fn file_index(p: &Path) -> (u64, PathBuf) {
-    let stem = p.file_stem().and_then(|s| s.to_str()).unwrap_or("");
-    let n = stem.rsplit('_').next().and_then(|d| d.parse().ok()).unwrap_or(0);
-    (n, p.to_path_buf())
+/// The storage files `metadata.yaml` lists under `relative_file_paths`, in its order: block
+/// items (`- name`, at the key's indentation or deeper, as rosbag2 and `rosbags` write them) or
+/// a flow list (`[a, b]`). `None` when the key is missing.
+fn yaml_file_list(text: &str) -> Option<Vec<String>> {
+    let unquote = |v: &str| v.trim().trim_matches(['"', '\'']).to_string();
+    let mut lines = text.lines();
+    let (indent, rest) = lines.by_ref().find_map(|l| {
+        let t = l.trim_start();
+        let v = t.strip_prefix("relative_file_paths")?.trim_start().strip_prefix(':')?;
+        Some((l.len() - t.len(), v.trim().to_string()))
+    })?;
+    if let Some(flow) = rest.strip_prefix('[') {
+        let inner = flow.trim_end().strip_suffix(']')?;
+        return Some(inner.split(',').map(unquote).filter(|v| !v.is_empty()).collect());
+    }
+    if !rest.is_empty() {
+        return Some(Vec::new());
+    }
+    let mut out = Vec::new();
+    for l in lines {
+        let t = l.trim_start();
+        if t.is_empty() || t.starts_with('#') {
+            continue;
+        }
+        match t.strip_prefix('-') {
+            Some(v) if l.len() - t.len() >= indent && (v.is_empty() || v.starts_with(' ')) => out.push(unquote(v)),
+            _ => break,
+        }
+    }
+    Some(out)
 }
 
 impl Bag {
@@ -57,16 +84,22 @@ impl Bag {
             let Some(s) = storage_of(path) else {
                 bail!("bag {}: not a bag folder, an .mcap or a .db3 file", path.display())
             };
-            return Ok(Bag { path: path.into(), files: vec![(path.into(), s)] });
+            return Ok(Bag { path: path.into(), files: vec![(path.into(), s)], unlisted: Vec::new() });
         }
         if !path.is_dir() {
+            if path.exists() {
+                bail!("bag {}: not a bag folder, an .mcap or a .db3 file (a device, FIFO or socket)", path.display());
+            }
             bail!("bag {} does not exist", path.display());
         }
         let meta = path.join("metadata.yaml");
         if !meta.is_file() {
             bail!("bag {}: no metadata.yaml (a rosbag2 folder has one)", path.display());
         }
-        let text = std::fs::read_to_string(&meta).with_context(|| format!("cannot read {}", meta.display()))?;
+        let bytes = std::fs::read(&meta).with_context(|| format!("cannot read {}", meta.display()))?;
+        let Ok(text) = String::from_utf8(bytes) else {
+            bail!("bag {}: {} is not rosbag2 metadata (not UTF-8 text)", path.display(), meta.display())
+        };
         // rosbag2's own compression wraps files (.mcap.zstd) or each message; neither is read.
         if let Some(m) = yaml_value(&text, "compression_mode").filter(|m| !m.is_empty() && m != "NONE") {
             let f = yaml_value(&text, "compression_format").unwrap_or_default();
@@ -75,24 +108,44 @@ impl Bag {
                 path.display()
             );
         }
-        let mut files: Vec<(u64, PathBuf)> = std::fs::read_dir(path)
+        // The files the metadata lists are the bag; another storage file beside them (a
+        // recording moved in, an old split) is not part of it.
+        if !text.lines().any(|l| l.trim_end() == "rosbag2_bagfile_information:") {
+            bail!(
+                "bag {}: {} is not rosbag2 metadata (no rosbag2_bagfile_information at its top)",
+                path.display(),
+                meta.display()
+            );
+        }
+        let listed = match yaml_file_list(&text) {
+            Some(l) if !l.is_empty() => l,
+            _ => bail!("bag {}: {} lists no storage files (relative_file_paths)", path.display(), meta.display()),
+        };
+        let mut files = Vec::new();
+        for name in &listed {
+            // Older rosbag2 versions wrote the bag folder's name in front: the file name is what
+            // counts (as the `rosbags` reader takes it).
+            let file = Path::new(name).file_name().map(|n| path.join(n));
+            let Some((p, s)) = file.and_then(|p| storage_of(&p).map(|s| (p, s))) else {
+                bail!("bag {}: {} lists {name:?}, not an .mcap or .db3 file", path.display(), meta.display())
+            };
+            if !p.is_file() {
+                bail!("bag {}: {} lists {name}, which is missing", path.display(), meta.display());
+            }
+            if !files.iter().any(|(q, _)| *q == p) {
+                files.push((p, s));
+            }
+        }
+        let mut unlisted: Vec<PathBuf> = std::fs::read_dir(path)
             .with_context(|| format!("cannot read {}", path.display()))?
             .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| storage_of(p).is_some())
-            .map(|p| file_index(&p))
+            .filter(|p| storage_of(p).is_some() && !files.iter().any(|(q, _)| q == p))
             .collect();
-        files.sort();
-        if files.is_empty() {
-            bail!("bag {}: no .mcap or .db3 file in it", path.display());
-        }
-        let files: Vec<(PathBuf, Storage)> = files.into_iter().map(|(_, p)| {
-            let s = storage_of(&p).expect("filtered");
-            (p, s)
-        }).collect();
+        unlisted.sort();
         if files.iter().any(|f| f.1 != files[0].1) {
-            bail!("bag {}: holds both .mcap and .db3 files", path.display());
+            bail!("bag {}: lists both .mcap and .db3 files", path.display());
         }
-        Ok(Bag { path: path.into(), files })
+        Ok(Bag { path: path.into(), files, unlisted })
     }
 
     pub fn storage(&self) -> Storage {
@@ -241,9 +294,12 @@ mod tests {
         let y = "rosbag2_bagfile_information:\n  version: 5\n  compression_format: \"\"\n  compression_mode: \"\"\n";
         assert_eq!(yaml_value(y, "compression_mode").as_deref(), Some(""));
         assert_eq!(yaml_value(y, "version").as_deref(), Some("5"));
-        let mut v = vec![file_index(Path::new("b_10.mcap")), file_index(Path::new("b_2.mcap"))];
-        v.sort();
-        assert_eq!(v[0].1, Path::new("b_2.mcap"));
+        let block = "rosbag2_bagfile_information:\n  relative_file_paths:\n  - b_0.mcap\n  - 'b_1.mcap'\n  starting_time: 0\n";
+        assert_eq!(yaml_file_list(block), Some(vec!["b_0.mcap".into(), "b_1.mcap".into()]));
+        let deeper = "rosbag2_bagfile_information:\n  relative_file_paths:\n    - x/b_0.db3\n  version: 4\n";
+        assert_eq!(yaml_file_list(deeper), Some(vec!["x/b_0.db3".into()]));
+        assert_eq!(yaml_file_list("relative_file_paths: [a.mcap, \"b.mcap\"]"), Some(vec!["a.mcap".into(), "b.mcap".into()]));
+        assert_eq!(yaml_file_list("version: 5\n"), None);
     }
 
     #[test]

@@ -24,6 +24,11 @@ impl McapLog {
         if path.is_dir() {
             bail!("cannot write {}: it is a folder", path.display());
         }
+        // Its folder is made as every output's is (see `fsio::write_with`).
+        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("cannot write {}: cannot create {}", path.display(), dir.display()))?;
+        }
         let tmp = crate::fsio::temp_beside(path);
         let f = std::fs::File::create(&tmp).with_context(|| format!("cannot write {}", path.display()))?;
         let w = mcap::WriteOptions::new()

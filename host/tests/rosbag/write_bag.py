@@ -8,8 +8,12 @@ as naoqi_driver publishes them.
 
 usage: write_bag.py DATASET OUT --storage mcap|sqlite3 --encoding E [--split train|all]
        [--image-hz 10] [--joint-hz 50] [--names HeadYaw,HeadPitch] [--hold-ms 30]
+       [--cut K:F ...] [--nan-ms A:B] [--short-positions N]
 E: mono8, rgb8, bgr8, yuv422 (UYVY), yuyv, jpeg, png, or any other string (written as an Image
 with that encoding and rgb8 bytes, for the bad-input tests).
+Damage, for the bad-input tests: --cut K:F keeps the first F (0..1) of image K's compressed bytes;
+--nan-ms A:B makes the head's joint states from A to B ms (inclusive) NaN; --short-positions N
+gives joint state N one position fewer than names.
 """
 import argparse
 import io
@@ -58,7 +62,12 @@ def main():
     ap.add_argument('--image-topic', default='/camera/image_raw')
     ap.add_argument('--hold-ms', type=float, default=30.0,
                     help='the head holds each pose this long before and after its frame')
+    ap.add_argument('--cut', action='append', default=[])
+    ap.add_argument('--nan-ms', default=None)
+    ap.add_argument('--short-positions', type=int, default=None)
     a = ap.parse_args()
+    cuts = {int(k): float(f) for k, f in (c.split(':') for c in a.cut)}
+    nan = tuple(float(x) * 1e6 for x in a.nan_ms.split(':')) if a.nan_ms else None
 
     ds = Path(a.dataset)
     index = json.loads((ds / 'dataset.json').read_text())
@@ -104,8 +113,11 @@ def main():
                 PilImage.fromarray(rgb).save(buf, format='JPEG', quality=95)
             else:
                 PilImage.fromarray(rgb).save(buf, format='PNG')
+            data = buf.getvalue()
+            if i in cuts:
+                data = data[:int(len(data) * cuts[i])]
             m = CompressedImage(header=header(t0 + t, 'camera'), format=a.encoding,
-                                data=np.frombuffer(buf.getvalue(), np.uint8))
+                                data=np.frombuffer(data, np.uint8))
         else:
             if a.encoding == 'mono8':
                 data, step = grey(rgb), w
@@ -121,10 +133,17 @@ def main():
     end = (len(frames) - 1) * image_dt + image_dt // 2
     names = ['LShoulderPitch', pitch_name, 'LShoulderRoll', yaw_name]
     t = 0
+    n = 0
     while t <= end:
         y, p = head(t)
+        if nan and nan[0] <= t <= nan[1]:
+            y = p = float('nan')
+        pos = [1.4, p, 0.13, y]
+        if n == a.short_positions:
+            pos = pos[:-1]
+        n += 1
         m = JointState(header=header(t0 + t, ''), name=names,
-                       position=np.array([1.4, p, 0.13, y], np.float64),
+                       position=np.array(pos, np.float64),
                        velocity=np.zeros(0, np.float64), effort=np.zeros(0, np.float64))
         msgs.append((t, '/joint_states', m))
         t += joint_dt
