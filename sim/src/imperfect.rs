@@ -217,6 +217,40 @@ impl Imperfections {
     }
 }
 
+/// The conditions in words, in the order they are applied (`as recorded` for none).
+impl std::fmt::Display for Imperfections {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        if self.is_none() {
+            return f.write_str("as recorded");
+        }
+        let c = self;
+        let mut parts = Vec::new();
+        if c.defocus > 0.0 {
+            parts.push(format!("defocus sigma {} px", c.defocus));
+        }
+        if c.motion.length_px > 0.0 {
+            parts.push(format!("motion blur {} px at {} deg", c.motion.length_px, c.motion.angle_deg));
+        }
+        if c.exposure != 1.0 {
+            parts.push(format!("exposure x{}", c.exposure));
+        }
+        if c.noise > 0.0 {
+            parts.push(format!("noise sd {} grey levels", c.noise));
+        }
+        if c.white_balance != [1.0; 3] {
+            let [r, g, b] = c.white_balance;
+            parts.push(format!("white balance R x{r:.3} G x{g:.3} B x{b:.3}"));
+        }
+        if c.gamma != 1.0 {
+            parts.push(format!("tone curve gamma {}", c.gamma));
+        }
+        if let Some(q) = c.jpeg {
+            parts.push(format!("JPEG quality {q}"));
+        }
+        f.write_str(&parts.join(", "))
+    }
+}
+
 /// The mean of `f` along a segment of `m.length_px` centred on each pixel, sampled every pixel
 /// or closer (bilinear, edges extended).
 fn smear(f: &image::Rgb32FImage, m: MotionBlur) -> image::Rgb32FImage {
