@@ -48,6 +48,18 @@ fn camera(c: &super::imperfect::CameraFlags) -> Result<()> {
     real("--gamma", c.gamma, lo as f64, hi as f64, "")?;
     let (lo, hi) = msr_sim::imperfect::Imperfections::KELVIN;
     real("--colour-temperature", c.colour_temperature, lo as f64, hi as f64, " K")?;
+    if !c.white_balance.is_empty() {
+        if c.white_balance.len() != 3 {
+            return Err(super::usage(format!(
+                "--white-balance takes three gains R,G,B, got {}",
+                c.white_balance.len()
+            )));
+        }
+        let (lo, hi) = msr_sim::imperfect::Imperfections::GAIN;
+        for g in &c.white_balance {
+            real("--white-balance", *g, lo as f64, hi as f64, " (a gain)")?;
+        }
+    }
     let (lo, hi) = msr_sim::imperfect::Imperfections::NOISE;
     real("--noise", c.noise, lo as f64, hi as f64, " grey levels")?;
     let (lo, hi) = msr_sim::imperfect::Imperfections::DEFOCUS;
@@ -66,7 +78,7 @@ fn camera_for_sim(c: &super::imperfect::CameraFlags, sim: bool) -> Result<()> {
     camera(c)?;
     if !sim && !c.imperfections(0).is_none() {
         return Err(super::usage(
-            "the camera flags (--exposure, --gamma, --colour-temperature, --noise, --defocus, \
+            "the camera flags (--exposure, --gamma, --colour-temperature, --white-balance, --noise, --defocus, \
              --motion-blur, --jpeg) change the sim's camera: give --sim",
         ));
     }

@@ -16,6 +16,10 @@ pub struct CameraFlags {
     /// set for 5500 K: lower is warmer (green and blue down), higher cooler
     #[arg(long, alias = "color-temperature", default_value_t = 5500.0)]
     pub colour_temperature: f64,
+    /// Camera: white balance as gains R,G,B (each 0.25..=4), e.g. 1.15,1,0.85 for a camera
+    /// balanced 15 % warm; in place of --colour-temperature
+    #[arg(long, value_name = "R,G,B", value_delimiter = ',', conflicts_with = "colour_temperature")]
+    pub white_balance: Vec<f64>,
     /// Camera: sensor noise, grey levels sd (0..=64), Gaussian, the same draws on every run
     #[arg(long, default_value_t = 0.0)]
     pub noise: f64,
@@ -43,6 +47,10 @@ impl CameraFlags {
             .with_exposure(self.exposure as f32)
             .with_gamma(self.gamma as f32)
             .with_colour_temperature(self.colour_temperature as f32)
+            .with_white_balance(match self.white_balance[..] {
+                [r, g, b] => [r as f32, g as f32, b as f32],
+                _ => msr_sim::light::tint_of_kelvin(self.colour_temperature as f32),
+            })
             .with_noise(self.noise as f32)
             .with_defocus(self.defocus as f32)
             .with_motion(self.motion_blur as f32, self.motion_angle as f32)
