@@ -251,15 +251,16 @@ impl std::fmt::Display for Imperfections {
     }
 }
 
-/// The mean of `f` along a segment of `m.length_px` centred on each pixel, sampled every pixel
-/// or closer (bilinear, edges extended).
+/// The mean of `f` along a segment of `m.length_px` centred on each pixel: a box of that width
+/// along the motion, integrated by the midpoint rule at a sample a pixel or closer (bilinear,
+/// edges extended; 5 px horizontal is the 5-tap box).
 fn smear(f: &image::Rgb32FImage, m: MotionBlur) -> image::Rgb32FImage {
     let (w, h) = f.dimensions();
-    let n = (m.length_px.ceil() as usize + 1).max(2);
+    let n = (m.length_px.ceil() as usize).max(2);
     let (sin, cos) = m.angle_deg.to_radians().sin_cos();
     let steps: Vec<(f32, f32)> = (0..n)
         .map(|i| {
-            let t = m.length_px * (i as f32 / (n - 1) as f32 - 0.5);
+            let t = m.length_px * ((i as f32 + 0.5) / n as f32 - 0.5);
             (t * cos, t * sin)
         })
         .collect();

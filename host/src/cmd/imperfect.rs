@@ -58,3 +58,114 @@ impl CameraFlags {
             .with_seed(seed)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::cmd::{check, exit_code, one_line, parse_from, Command};
+    use msr_sim::imperfect::{Imperfections, MotionBlur};
+
+    const ALL: [&str; 16] = [
+        "--exposure", "1.3", "--gamma", "0.8", "--colour-temperature", "4675", "--noise", "6",
+        "--defocus", "1", "--motion-blur", "5", "--motion-angle", "90", "--jpeg", "50",
+    ];
+
+    /// Each command line with the flags after its own required ones.
+    fn lines() -> Vec<Vec<&'static str>> {
+        [
+            vec!["msr", "dataset", "--out", "/tmp/x"],
+            vec!["msr", "mirror-test", "--model", "m"],
+            vec!["msr", "run", "--port", "p", "--model", "m", "--sim", "red"],
+            vec!["msr", "record", "--port", "p", "--sim", "red", "--count", "3", "--out", "/tmp/x"],
+            vec!["msr", "eval", "--model", "m", "--data", "d"],
+            vec!["msr", "detect", "--model", "m", "--image", "i.png", "--head-yaw", "0", "--head-pitch", "0"],
+        ]
+        .into()
+    }
+
+    fn flags_of(c: &Command) -> &super::CameraFlags {
+        match c {
+            Command::Dataset(a) => &a.imperfect,
+            Command::MirrorTest(a) => &a.imperfect,
+            Command::Run(a) => &a.imperfect,
+            Command::Record(a) => &a.imperfect,
+            Command::Eval(a) => &a.imperfect,
+            Command::Detect(a) => &a.imperfect,
+            _ => unreachable!(),
+        }
+    }
+
+    #[test]
+    fn every_command_takes_the_same_flags_to_the_same_model() {
+        let want = Imperfections::NONE
+            .with_exposure(1.3)
+            .with_gamma(0.8)
+            .with_colour_temperature(4675.0)
+            .with_noise(6.0)
+            .with_defocus(1.0)
+            .with_motion(5.0, 90.0)
+            .with_jpeg(Some(50))
+            .with_seed(7);
+        for line in lines() {
+            let cli = parse_from(line.iter().chain(ALL.iter()).copied()).unwrap_or_else(|e| panic!("{line:?}: {e}"));
+            assert_eq!(flags_of(&cli.command).imperfections(7), want, "{line:?}");
+            // Without the flags: nothing changes.
+            let plain = parse_from(line.iter().copied()).unwrap();
+            assert!(flags_of(&plain.command).imperfections(7).is_none(), "{line:?}");
+        }
+        let wb = parse_from(["msr", "eval", "--model", "m", "--data", "d", "--white-balance", "1.15,1,0.85"]).unwrap();
+        assert_eq!(flags_of(&wb.command).imperfections(0).white_balance, [1.15, 1.0, 0.85]);
+        assert!(parse_from(["msr", "eval", "--model", "m", "--data", "d", "--white-balance", "1,1,1", "--colour-temperature", "5000"]).is_err());
+        let m = parse_from(["msr", "dataset", "--out", "o", "--motion-blur", "3"]).unwrap();
+        assert_eq!(flags_of(&m.command).imperfections(0).motion, MotionBlur { length_px: 3.0, angle_deg: 0.0 });
+    }
+
+    #[test]
+    fn a_bad_value_is_one_line_naming_its_flag_with_exit_2() {
+        let cases: [(&str, &str, &str); 16] = [
+            ("--exposure", "0", "got 0"),
+            ("--exposure", "-1", "got -1"),
+            ("--exposure", "NaN", "got NaN"),
+            ("--exposure", "inf", "got inf"),
+            ("--exposure", "21", "got 21"),
+            ("--exposure", "1e308", "got 1e308"),
+            ("--noise", "-1", "got -1"),
+            ("--noise", "NaN", "got NaN"),
+            ("--noise", "inf", "got inf"),
+            ("--noise", "1e308", "got 1e308"),
+            ("--noise", "65", "got 65"),
+            ("--gamma", "0", "got 0"),
+            ("--colour-temperature", "100", "got 100"),
+            ("--defocus", "11", "got 11"),
+            ("--motion-blur", "-2", "got -2"),
+            ("--jpeg", "101", "got 101"),
+        ];
+        for line in lines() {
+            for (flag, v, says) in cases {
+                let cli = parse_from(line.iter().chain([flag, v].iter()).copied()).unwrap_or_else(|e| panic!("{line:?} {flag} {v}: {e}"));
+                let e = check::check(&cli.command).expect_err(&format!("{line:?} {flag} {v}"));
+                let msg = one_line(&e);
+                assert_eq!(exit_code(&e), 2, "{msg}");
+                assert!(msg.starts_with(&format!("{flag} must be")) && msg.ends_with(says), "{line:?}: {msg}");
+                assert!(!msg.contains('\n'));
+            }
+        }
+        let cli = parse_from(["msr", "eval", "--model", "m", "--data", "d", "--white-balance", "1,0,1"]).unwrap();
+        let e = check::check(&cli.command).unwrap_err();
+        assert_eq!((exit_code(&e), one_line(&e).as_str()), (2, "--white-balance must be a number in 0.25..=4 (a gain), got 0"));
+        let cli = parse_from(["msr", "eval", "--model", "m", "--data", "d", "--white-balance", "1,1"]).unwrap();
+        assert_eq!(exit_code(&check::check(&cli.command).unwrap_err()), 2);
+    }
+
+    #[test]
+    fn the_camera_flags_need_the_sim_on_run_and_record() {
+        for line in [
+            vec!["msr", "run", "--port", "p", "--model", "m", "--frames", "-", "--gamma", "0.8"],
+            vec!["msr", "record", "--port", "p", "--frames", "-", "--count", "3", "--out", "/tmp/x", "--jpeg", "50"],
+        ] {
+            let cli = parse_from(line.iter().copied()).unwrap();
+            let e = check::check(&cli.command).unwrap_err();
+            assert_eq!(exit_code(&e), 2);
+            assert!(one_line(&e).contains("give --sim"), "{}", one_line(&e));
+        }
+    }
+}

@@ -76,12 +76,12 @@ fn blur_keeps_the_mean_and_softens() {
     // Horizontal motion leaves a horizontal edge as it is, and smears a vertical one over
     // its length.
     let edge = RgbImage::from_fn(40, 40, |x, y| image::Rgb([if x < 20 { 0 } else { 200 }, if y < 20 { 0 } else { 200 }, 0]));
-    let m = Imperfections::NONE.with_motion(4.0, 0.0).apply(&edge, 0);
+    let m = Imperfections::NONE.with_motion(5.0, 0.0).apply(&edge, 0);
     for y in 0..40 {
         assert_eq!(m.get_pixel(30, y).0[1], edge.get_pixel(30, y).0[1]);
     }
     let row: Vec<u8> = (15..25).map(|x| m.get_pixel(x, 5).0[0]).collect();
-    // Five samples 1 px apart: the edge takes five pixels to climb.
+    // The 5-tap box: the edge takes five pixels to climb.
     assert_eq!(row, [0, 0, 0, 40, 80, 120, 160, 200, 200, 200], "{row:?}");
 }
 
