@@ -456,6 +456,10 @@ fn finish(cfg: &RecordConfig, frames: &[(String, [f64; 2])], controls: Option<st
         template: layout::TEMPLATE_FILE.into(),
         frames: records,
         camera_controls: controls,
+        imperfections: match cfg.source {
+            SourceConfig::Sim { camera, .. } if !camera.is_none() => Some(camera),
+            _ => None,
+        },
     };
     fsio::write(&cfg.out.join(layout::ANGLES_FILE), angles)?;
     fsio::write(&cfg.out.join(layout::INDEX_FILE), serde_json::to_vec_pretty(&index)?)

@@ -13,7 +13,7 @@ use std::path::Path;
 use std::process::Command;
 
 fn sim_camera(seed: u64) -> SourceConfig {
-    SourceConfig::Sim { robot: Robot::Red, count: None, seed, mark_from: None, light: Default::default() }
+    SourceConfig::Sim { robot: Robot::Red, count: None, seed, mark_from: None, light: Default::default(), camera: Default::default() }
 }
 
 fn index(dir: &Path) -> DatasetIndex {

@@ -3,6 +3,7 @@
 //! plus reach training pairs made by the IK. Deterministic: a seed gives the same bytes.
 use crate::body::{self, BodyPose};
 use crate::kin;
+use crate::imperfect::Imperfections;
 use crate::light::LightMode;
 use crate::layout::{self, DatasetIndex, FrameRecord, MarkRecord, Split};
 use crate::marks::Mark;
@@ -54,6 +55,9 @@ pub struct DatasetConfig {
     /// How the frames are lit: the calibrated light (the paper's session) or a light of
     /// their own per frame (`crate::light::Light::varied`).
     pub light: LightMode,
+    /// What the camera does to each frame ([`Imperfections`]; `NONE`: the frames as rendered,
+    /// their bytes unchanged), its noise drawn from the frame's own seed.
+    pub camera: Imperfections,
 }
 
 impl DatasetConfig {
@@ -69,6 +73,7 @@ impl DatasetConfig {
             unmarked_test_fraction: 0.2,
             scene: DatasetScene::Mirror,
             light: LightMode::Fixed,
+            camera: Imperfections::NONE,
         }
     }
 
@@ -193,7 +198,8 @@ pub fn write_dataset_with(
         } else {
             renderer.render_seen(camera, &pose, None, &p.var, full)
         };
-        written += write_png(&out.join(&file), rendered.rgb.as_raw(), body::WIDTH, body::HEIGHT, image::ExtendedColorType::Rgb8)?;
+        let rgb = cfg.camera.apply(&rendered.rgb, p.rng_seed ^ 0xCA3E_7A00);
+        written += write_png(&out.join(&file), rgb.as_raw(), body::WIDTH, body::HEIGHT, image::ExtendedColorType::Rgb8)?;
         angles.push_str(&format!("{:.10},{:.10}\n", p.yaw, p.pitch));
         frames.push(FrameRecord {
             file,
@@ -219,6 +225,7 @@ pub fn write_dataset_with(
         template: layout::TEMPLATE_FILE.to_string(),
         frames,
         camera_controls: None,
+        imperfections: (!cfg.camera.is_none()).then_some(cfg.camera),
     };
     let json = serde_json::to_vec_pretty(&index)?;
     std::fs::write(out.join(layout::INDEX_FILE), json)?;

@@ -80,6 +80,10 @@ pub struct DatasetIndex {
     /// (`exposure_absolute`, `gain`, `white_balance_temperature`); absent for other datasets.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera_controls: Option<std::collections::BTreeMap<String, i32>>,
+    /// The camera imperfections the frames were rendered through (`msr dataset` with a camera
+    /// flag, `msr record --sim`); absent when none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub imperfections: Option<crate::imperfect::Imperfections>,
 }
 
 impl DatasetIndex {

@@ -4,7 +4,8 @@
 //!   mark placement and kinematics share.
 //! - [`kin`]: forward and inverse kinematics, the touch judge.
 //! - [`render`], [`looks`], [`marks`]: mirror-view frames of the `red` and `skin` robots, marks;
-//!   [`light`]: the room's lamps, exposure, white balance and the camera's auto-exposure.
+//!   [`light`]: the room's lamps, exposure, white balance and the camera's auto-exposure;
+//!   [`imperfect`]: an ordinary camera's tone curve, white balance, noise, blur and JPEG.
 //! - [`dataset`]: datasets in the layout of [`layout`], reach training pairs.
 //! - [`servo`]: emulated servos on the servo bus, framed or (see [`dynamixel`]) as Dynamixel
 //!   X-series servos on Protocol 2.0; [`link`]: baud-paced links and a fault layer;
@@ -18,6 +19,7 @@ pub mod body;
 pub mod camera;
 pub mod dataset;
 pub mod dynamixel;
+pub mod imperfect;
 pub mod kin;
 pub mod layout;
 pub mod light;

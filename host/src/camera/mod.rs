@@ -66,8 +66,16 @@ pub enum SourceConfig {
     /// The sim's renderer for `robot`: `count` frames (`None`: for ever) at the head pose last
     /// given with [`FrameSource::head_moved`] (home at first), each with fresh camera noise; a
     /// random mark from frame `mark_from` on (`None`: never); lit as `light` plans, the frames
-    /// 100 ms apart.
-    Sim { robot: Robot, count: Option<usize>, seed: u64, mark_from: Option<usize>, light: msr_sim::light::LightPlan },
+    /// 100 ms apart; taken through `camera`'s imperfections (its motion blur scaled by the
+    /// head's speed between frames).
+    Sim {
+        robot: Robot,
+        count: Option<usize>,
+        seed: u64,
+        mark_from: Option<usize>,
+        light: msr_sim::light::LightPlan,
+        camera: msr_sim::imperfect::Imperfections,
+    },
     /// A YUV4MPEG2 stream on standard input.
     Y4mStdin,
     /// A V4L2 camera, e.g. `/dev/video0` (Linux), held still as `hold` says.
@@ -111,8 +119,8 @@ impl Default for SourceOptions {
 pub fn open(cfg: &SourceConfig, opts: &SourceOptions) -> Result<Frames> {
     let inner: Box<dyn FrameSource> = match cfg {
         SourceConfig::Folder(dir) => Box::new(FolderSource::open(dir)?),
-        SourceConfig::Sim { robot, count, seed, mark_from, light } => {
-            Box::new(SimSource::new(*robot, *count, *seed, *mark_from).with_light(*light))
+        SourceConfig::Sim { robot, count, seed, mark_from, light, camera } => {
+            Box::new(SimSource::new(*robot, *count, *seed, *mark_from).with_light(*light).with_camera(*camera))
         }
         SourceConfig::Y4mStdin => {
             Box::new(y4m::Y4mSource::spawn(std::io::stdin(), "stdin", opts.timeout))
@@ -239,6 +247,9 @@ pub struct SimSource {
     count: Option<usize>,
     next: usize,
     light: msr_sim::light::LightSchedule,
+    camera: msr_sim::imperfect::Imperfections,
+    /// The head pose of the last frame, for the motion blur.
+    last_head: Option<[f64; 2]>,
 }
 
 /// Simulated time between two frames of the sim source, for its light.
@@ -252,6 +263,12 @@ impl SimSource {
         // Drawn from the source's seed, apart from its noise.
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(self.rng.clone().gen::<u64>() ^ 0x119E_7002);
         self.light = msr_sim::light::LightSchedule::new(plan, frames * SIM_FRAME_US, &mut rng);
+        self
+    }
+
+    /// This source's frames through `camera`'s imperfections.
+    pub fn with_camera(mut self, camera: msr_sim::imperfect::Imperfections) -> SimSource {
+        self.camera = camera;
         self
     }
 
@@ -277,6 +294,8 @@ impl SimSource {
             count,
             next: 0,
             light: msr_sim::light::LightSchedule::new(msr_sim::light::LightPlan::Fixed, 1, &mut rand_chacha::ChaCha8Rng::seed_from_u64(0)),
+            camera: msr_sim::imperfect::Imperfections::NONE,
+            last_head: None,
         }
     }
 }
@@ -292,12 +311,17 @@ impl FrameSource for SimSource {
         let light = self.light.at(i as u64 * SIM_FRAME_US);
         let var = msr_sim::render::Variation::random(&mut self.rng).lit(light);
         let r = self.renderer.render(&self.pose, m, &var);
-        self.light.observed(&r.rgb);
+        let head = [self.pose.head_yaw, self.pose.head_pitch];
+        let dt = SIM_FRAME_US as f64 * 1e-6;
+        let speed = self.last_head.map_or([0.0; 2], |h| [(head[0] - h[0]) / dt, (head[1] - h[1]) / dt]);
+        self.last_head = Some(head);
+        let rgb = self.camera.moving(speed).apply(&r.rgb, i as u64);
+        self.light.observed(&rgb);
         let name = format!(
             "sim-{i:03}{}",
             m.map_or(String::new(), |m| format!(" ({} {})", m.colour, m.kind))
         );
-        Ok(Some(Frame { name, grey: crop::to_grey(&image::DynamicImage::ImageRgb8(r.rgb)) }))
+        Ok(Some(Frame { name, grey: crop::to_grey(&image::DynamicImage::ImageRgb8(rgb)) }))
     }
 
     fn head_moved(&mut self, head: [f64; 2]) {

@@ -40,6 +40,51 @@ fn line_noise(n: &super::line_noise::LineNoise) -> Result<()> {
     int("--burst-len", n.burst_len, 1, 65_536, " bytes")
 }
 
+/// The camera's imperfections, each in its flag's unit.
+fn camera(c: &super::imperfect::CameraFlags) -> Result<()> {
+    let (lo, hi) = msr_sim::imperfect::Imperfections::EXPOSURE;
+    real("--exposure", c.exposure, lo as f64, hi as f64, "")?;
+    let (lo, hi) = msr_sim::imperfect::Imperfections::GAMMA;
+    real("--gamma", c.gamma, lo as f64, hi as f64, "")?;
+    let (lo, hi) = msr_sim::imperfect::Imperfections::KELVIN;
+    real("--colour-temperature", c.colour_temperature, lo as f64, hi as f64, " K")?;
+    if !c.white_balance.is_empty() {
+        if c.white_balance.len() != 3 {
+            return Err(super::usage(format!(
+                "--white-balance takes three gains R,G,B, got {}",
+                c.white_balance.len()
+            )));
+        }
+        let (lo, hi) = msr_sim::imperfect::Imperfections::GAIN;
+        for g in &c.white_balance {
+            real("--white-balance", *g, lo as f64, hi as f64, " (a gain)")?;
+        }
+    }
+    let (lo, hi) = msr_sim::imperfect::Imperfections::NOISE;
+    real("--noise", c.noise, lo as f64, hi as f64, " grey levels")?;
+    let (lo, hi) = msr_sim::imperfect::Imperfections::DEFOCUS;
+    real("--defocus", c.defocus, lo as f64, hi as f64, " px")?;
+    let (lo, hi) = msr_sim::imperfect::Imperfections::MOTION;
+    real("--motion-blur", c.motion_blur, lo as f64, hi as f64, " px")?;
+    real("--motion-angle", c.motion_angle, -360.0, 360.0, " deg")?;
+    if let Some(q) = c.jpeg {
+        int("--jpeg", q, 1, 100, " (quality)")?;
+    }
+    Ok(())
+}
+
+/// Camera flags on a command whose frames may come from elsewhere than the sim: only with `--sim`.
+fn camera_for_sim(c: &super::imperfect::CameraFlags, sim: bool) -> Result<()> {
+    camera(c)?;
+    if !sim && !c.imperfections(0).is_none() {
+        return Err(super::usage(
+            "the camera flags (--exposure, --gamma, --colour-temperature, --white-balance, --noise, --defocus, \
+             --motion-blur, --jpeg) change the sim's camera: give --sim",
+        ));
+    }
+    Ok(())
+}
+
 /// The error's pooling radius and the pose grid, as `msr train` and `msr demo` take them.
 fn novelty_flags(pool: u8, pose_bins: u8) -> Result<()> {
     int("--pool", pool, 0, msr_shared::blob::MAX_POOL, " px (window radius; 0: per pixel)")?;
@@ -166,6 +211,7 @@ pub fn check(c: &Command) -> Result<()> {
             real("--test-fraction", a.test_fraction, 0.0, 1.0, "")?;
             real("--unmarked-test-fraction", a.unmarked_test_fraction, 0.0, 1.0, "")?;
             int("--reach-pairs", a.reach_pairs, 0, 100_000, " pairs")?;
+            camera(&a.imperfect)?;
             writable_dir("--out", &a.out)?;
         }
         Command::Train(a) => {
@@ -225,6 +271,7 @@ pub fn check(c: &Command) -> Result<()> {
             outputs(&ins, &[("--out", &a.out)])?;
         }
         Command::Detect(a) => {
+            camera(&a.imperfect)?;
             if let Some(p) = &a.png {
                 if !p.extension().is_some_and(|e| e.eq_ignore_ascii_case("png")) {
                     return Err(super::usage(format!("--png {} must end in .png (the picture is a PNG)", p.display())));
@@ -235,7 +282,7 @@ pub fn check(c: &Command) -> Result<()> {
         Command::Blobs(a) => {
             int("--min-area", a.min_area, 1, u32::MAX, " px")?;
         }
-        Command::Eval(_) => {}
+        Command::Eval(a) => camera(&a.imperfect)?,
         Command::Bench(a) => {
             int("--reps", a.reps, 1, 100_000, "")?;
             // --save-models names its files after the models: checked as they are written.
@@ -243,6 +290,7 @@ pub fn check(c: &Command) -> Result<()> {
         Command::MirrorTest(a) => {
             int("--trials", a.trials, 1, MAX_TRIALS, "")?;
             line_noise(&a.noise)?;
+            camera(&a.imperfect)?;
             real("--no-mark-share", a.no_mark_share, 0.0, 1.0, "")?;
             if let Some(ms) = a.disconnect_ms {
                 int("--disconnect-ms", ms, 0, 60_000, " ms")?;
@@ -263,6 +311,7 @@ pub fn check(c: &Command) -> Result<()> {
             int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
             int("--count", a.count, 1, MAX_FRAMES, " frames")?;
             int("--frame-timeout-ms", a.frame_timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
+            camera_for_sim(&a.imperfect, a.sim.is_some())?;
             if let Some(p) = &a.mcap {
                 let mut ins: Vec<(&str, &Path)> = vec![("--model", &a.model)];
                 ins.extend(a.frames.as_deref().map(|f| ("--frames", f)));
@@ -293,6 +342,7 @@ pub fn check(c: &Command) -> Result<()> {
             real("--test-fraction", a.test_fraction, 0.0, 1.0, "")?;
             int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
             int("--frame-timeout-ms", a.frame_timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
+            camera_for_sim(&a.imperfect, a.sim.is_some())?;
             if a.resume && a.force {
                 return Err(super::usage("--resume and --force contradict each other: give one"));
             }

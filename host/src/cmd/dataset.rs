@@ -40,6 +40,9 @@ pub struct Args {
     /// How the frames are lit: fixed (the calibrated light) or varied (a light per frame)
     #[arg(long, value_enum, default_value_t = super::light::DatasetLight::Fixed)]
     pub light: super::light::DatasetLight,
+    /// The camera's imperfections, on every frame
+    #[command(flatten)]
+    pub imperfect: super::imperfect::CameraFlags,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -61,6 +64,7 @@ pub fn run(args: Args) -> Result<()> {
         unmarked_test_fraction: args.unmarked_test_fraction,
         scene,
         light: args.light.into(),
+        camera: args.imperfect.imperfections(args.seed),
     };
     // The folder before the banner: an --out that cannot be made is the one line said.
     std::fs::create_dir_all(&args.out).with_context(|| format!("cannot create --out {}", args.out.display()))?;

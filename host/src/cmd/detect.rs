@@ -1,5 +1,5 @@
 //! `msr detect`: one camera frame through a model blob's pipeline, printed (and drawn).
-use crate::data::crop::load_grey;
+use crate::data::crop::{load_grey, load_through};
 use crate::detect::{cropper_of, detect_face, parse_blob, picture, read_blob, readable, to_json, EngineArg};
 use anyhow::{Context, Result};
 use msr_shared::joints::Joint;
@@ -28,6 +28,10 @@ pub struct Args {
     /// Which pipeline runs on the crop
     #[arg(long, value_enum, default_value_t = EngineArg::Fixed)]
     pub engine: EngineArg,
+    /// The camera's imperfections, on the frame (its colour, before grey, the scaling and the
+    /// crop; the noise the same draws on every run)
+    #[command(flatten)]
+    pub imperfect: super::imperfect::CameraFlags,
 }
 
 pub fn run(args: Args) -> Result<()> {
@@ -42,7 +46,9 @@ pub fn run(args: Args) -> Result<()> {
     // The same rule as `msr run`'s and `msr record`'s frames: the model's frame size, or larger
     // and scaled down; never scaled up.
     let size = crate::camera::SourceOptions::default().size;
-    let frame = crate::camera::fit(&load_grey(&args.image)?, size)
+    let camera = args.imperfect.imperfections(0);
+    let grey = if camera.is_none() { load_grey(&args.image)? } else { load_through(&args.image, &camera, 0)? };
+    let frame = crate::camera::fit(&grey, size)
         .with_context(|| format!("--image {}", args.image.display()))?;
     let face = cropper_of(&model)?.crop(&frame)?;
     let det = detect_face(&model, &face, head, args.engine)?;

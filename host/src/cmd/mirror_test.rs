@@ -31,6 +31,9 @@ pub struct Args {
     /// switches), auto-exposure (the camera's own gain loop)
     #[arg(long, value_enum, default_value_t = super::light::RunLight::Fixed)]
     pub light: super::light::RunLight,
+    /// The camera's imperfections, on every frame
+    #[command(flatten)]
+    pub imperfect: super::imperfect::CameraFlags,
     /// Run the trials one after another as one long run of robot time: the light's plan spans
     /// the whole run (see --light turn) and each trial's board takes over the previous one's
     /// clock and what it learnt of the room; the world is fresh each trial (in-process only)
@@ -177,6 +180,7 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     c.servo_bus = a.servo_bus;
     c.scene = a.scene;
     c.light = a.light.into();
+    c.camera = a.imperfect.imperfections(a.seed);
     c.log_bus = a.bus_log.is_some();
     c.learn_room = a.learn_room == OnOff::On;
     c.servo = msr_sim::servo::ServoConfig { encoder_noise: a.encoder_noise, ..a.servos.config() };

@@ -20,6 +20,7 @@ pub mod line_noise;
 pub mod status;
 pub mod import_bag;
 pub mod light;
+pub mod imperfect;
 pub mod camera_hold;
 
 use self::run as run_board;

@@ -22,6 +22,9 @@ pub struct Args {
     /// How the light changes over the --sim frames (10 a second of sim time)
     #[arg(long, value_enum, default_value_t = super::light::RunLight::Fixed, requires = "sim")]
     pub light: super::light::RunLight,
+    /// The --sim camera's imperfections
+    #[command(flatten)]
+    pub imperfect: super::imperfect::CameraFlags,
     /// The camera: `-` for a Y4M stream on standard input (e.g. `ffmpeg -f v4l2 -i /dev/video0
     /// -f yuv4mpegpipe -pix_fmt gray -`)
     #[arg(long, value_name = "-", conflicts_with = "camera")]
@@ -76,7 +79,14 @@ pub fn config(a: &Args) -> Result<RecordConfig> {
         (Some(p), _, _) if p.as_os_str() == "-" => SourceConfig::Y4mStdin,
         (Some(p), _, _) => return Err(super::usage(format!("--frames takes `-` (a Y4M stream on standard input), got {}", p.display()))),
         (None, Some(dev), _) => SourceConfig::Camera { dev: dev.clone(), hold: a.hold.hold()? },
-        (None, None, Some(robot)) => SourceConfig::Sim { robot, count: None, seed: a.seed, mark_from: None, light: a.light.into() },
+        (None, None, Some(robot)) => SourceConfig::Sim {
+            robot,
+            count: None,
+            seed: a.seed,
+            mark_from: None,
+            light: a.light.into(),
+            camera: a.imperfect.imperfections(a.seed),
+        },
         (None, None, None) => return Err(super::usage("give a camera: --sim red|skin, --frames - or --camera DEV")),
     };
     let mut c = RecordConfig::new(&a.port, source, a.count, &a.out);

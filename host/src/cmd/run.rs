@@ -48,6 +48,9 @@ pub struct Args {
     /// How the light changes over the --sim frames (10 a second of sim time)
     #[arg(long, value_enum, default_value_t = super::light::RunLight::Fixed, requires = "sim")]
     pub light: super::light::RunLight,
+    /// The --sim camera's imperfections
+    #[command(flatten)]
+    pub imperfect: super::imperfect::CameraFlags,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Frames per second (0.1..=1000)
@@ -81,7 +84,7 @@ pub fn sim_frames(robot: Robot, count: usize, seed: u64) -> Vec<(String, GrayIma
 
 /// `msr run --sim`'s source: at home, a random mark from the 4th frame on.
 pub fn sim_source(robot: Robot, count: usize, seed: u64) -> SourceConfig {
-    SourceConfig::Sim { robot, count: Some(count), seed, mark_from: Some(3), light: Default::default() }
+    SourceConfig::Sim { robot, count: Some(count), seed, mark_from: Some(3), light: Default::default(), camera: Default::default() }
 }
 
 fn collect(cfg: &SourceConfig) -> Result<Vec<(String, GrayImage)>> {
@@ -193,7 +196,9 @@ pub fn run(a: Args) -> Result<()> {
         (Some(p), _, _) => SourceConfig::frames_arg(p),
         (None, Some(dev), _) => SourceConfig::Camera { dev: dev.clone(), hold: a.hold.hold()? },
         (None, None, Some(robot)) => match sim_source(robot, a.count, a.seed) {
-            SourceConfig::Sim { robot, count, seed, mark_from, .. } => SourceConfig::Sim { robot, count, seed, mark_from, light: a.light.into() },
+            SourceConfig::Sim { robot, count, seed, mark_from, .. } => {
+                SourceConfig::Sim { robot, count, seed, mark_from, light: a.light.into(), camera: a.imperfect.imperfections(seed) }
+            }
             other => other,
         },
         (None, None, None) => return Err(super::usage("give --frames DIR|-, --camera DEV or --sim red|skin")),

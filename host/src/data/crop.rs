@@ -112,6 +112,14 @@ pub fn load_grey(path: &Path) -> Result<GrayImage> {
     Ok(to_grey(&img))
 }
 
+/// Reads a colour image file, takes it through `camera` (frame number `frame` for its noise),
+/// and converts it to grey; errors name the file.
+pub fn load_through(path: &Path, camera: &msr_sim::imperfect::Imperfections, frame: u64) -> Result<GrayImage> {
+    let img = image::open(path).with_context(|| format!("cannot read image {}", path.display()))?;
+    let rgb = camera.apply(&img.to_rgb8(), frame);
+    Ok(to_grey(&DynamicImage::ImageRgb8(rgb)))
+}
+
 /// Cross-correlation of `tpl` over every window of `frame` (row-major, `(fh-th+1) x (fw-tw+1)`),
 /// exact.
 ///

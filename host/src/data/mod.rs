@@ -11,7 +11,8 @@
 //! and only the crops are kept.
 pub mod crop;
 pub mod npy;
-use crate::data::crop::{crop_face_with, load_grey, CropBox, CropMode, Face};
+use crate::data::crop::{crop_face_with, load_grey, load_through, CropBox, CropMode, Face};
+use msr_sim::imperfect::Imperfections;
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use image::GrayImage;
 use msr_shared::joints::Joint;
@@ -143,6 +144,12 @@ impl Dataset {
 
     /// Loads only the frames of one split (`None`: all).
     pub fn load_split(path: &Path, only: Option<Split>, crop: CropMode) -> Result<Dataset> {
+        Self::load_through(path, only, crop, &Imperfections::NONE)
+    }
+
+    /// [`Dataset::load_split`], each colour frame taken through `camera` before it is turned to
+    /// grey and cropped (the frame's place in the index numbers its noise draws).
+    pub fn load_through(path: &Path, only: Option<Split>, crop: CropMode, camera: &Imperfections) -> Result<Dataset> {
         let (root, index) = locate(path)?;
         let other_robot_frames = match &index {
             Index::Sim(ix) => ix.frames.iter().filter(|f| f.seen_head.is_some()).count(),
@@ -168,10 +175,15 @@ impl Dataset {
         };
         // The whole index is checked, whichever split is read.
         check_index(&root, &robot, &pending, layout)?;
-        let pending: Vec<Pending> = pending.into_iter().filter(|p| only.is_none_or(|s| s == p.split)).collect();
+        let pending: Vec<(u64, Pending)> = pending
+            .into_iter()
+            .enumerate()
+            .filter(|(_, p)| only.is_none_or(|s| s == p.split))
+            .map(|(i, p)| (i as u64, p))
+            .collect();
         let template = load_grey(&root.join(&template_file))
             .with_context(|| format!("dataset {}: face template", root.display()))?;
-        let samples = parallel_map(&pending, |p| p.load(&template, crop, size))?;
+        let samples = parallel_map(&pending, |(i, p)| p.load(&template, crop, size, camera, *i))?;
         Ok(Dataset {
             root,
             layout,
@@ -340,14 +352,14 @@ fn published_frames(root: &Path, m: Manifest, only: Option<Split>) -> Result<Vec
 }
 
 impl Pending {
-    fn load(&self, template: &GrayImage, crop: CropMode, (fw, fh): (u32, u32)) -> Result<Sample> {
+    fn load(&self, template: &GrayImage, crop: CropMode, (fw, fh): (u32, u32), camera: &Imperfections, index: u64) -> Result<Sample> {
         let name = self.file.display();
         ensure!(
             self.head.iter().all(|a| a.is_finite()),
             "frame {name}: head angles {:?} are not finite",
             self.head
         );
-        let frame = load_grey(&self.file)?;
+        let frame = if camera.is_none() { load_grey(&self.file)? } else { load_through(&self.file, camera, index)? };
         ensure!(
             frame.dimensions() == (fw, fh),
             "frame {name} is {}x{}, the dataset says {fw}x{fh}",

@@ -35,6 +35,7 @@ use msr_shared::msg::{BoardToHost, Config, Detection, GateDecision, GateReport, 
 pub use scene::Scene;
 use scene::SceneState;
 use msr_sim::body::BodyPose;
+use msr_sim::imperfect::Imperfections;
 use msr_sim::light::{Light, LightPlan, LightSchedule};
 use msr_sim::link::{FaultConfig, LinkEnd};
 use msr_sim::render::{Renderer, Variation};
@@ -157,6 +158,9 @@ pub struct EpisodeConfig {
     /// How the emulated servos move and hold (encoder noise, sag, friction); each trial draws
     /// its encoder noise from its own seed.
     pub servo: ServoConfig,
+    /// The camera's imperfections (`msr mirror-test`'s camera flags); each trial draws its noise
+    /// from its own seed, and the motion blur follows the head's speed between frames.
+    pub camera: Imperfections,
 }
 
 /// A light plan drawn once for a run of trials, and where in it a trial starts.
@@ -194,6 +198,7 @@ impl EpisodeConfig {
             light_span: None,
             learn_room: true,
             servo: ServoConfig::default(),
+            camera: Imperfections::NONE,
         }
     }
 
@@ -517,11 +522,7 @@ impl Camera<'_> {
         rng: &mut ChaCha8Rng,
         light: Light,
     ) -> Result<(GrayImage, crop::Face)> {
-        let var = Variation::random(rng).lit(light);
-        let r = self.renderer.render(pose, mark, &var);
-        let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb));
-        let face = self.cropper.crop(&grey)?;
-        Ok((grey, face))
+        self.take([pose.head_yaw, pose.head_pitch], pose, mark, rng, light, &Imperfections::NONE, 0)
     }
 
     /// As [`Camera::shoot`] with the camera at head angles `camera` and the body in view at
@@ -534,9 +535,28 @@ impl Camera<'_> {
         rng: &mut ChaCha8Rng,
         light: Light,
     ) -> Result<(GrayImage, crop::Face)> {
+        self.take(camera, seen, mark, rng, light, &Imperfections::NONE, 0)
+    }
+
+    /// As [`Camera::shoot_seen`], the frame taken through `through` (frame number `frame` for
+    /// its noise).
+    #[allow(clippy::too_many_arguments)]
+    pub fn take(
+        &self,
+        camera: [f64; 2],
+        seen: &BodyPose,
+        mark: Option<&msr_sim::marks::Mark>,
+        rng: &mut ChaCha8Rng,
+        light: Light,
+        through: &Imperfections,
+        frame: u64,
+    ) -> Result<(GrayImage, crop::Face)> {
         let var = Variation::random(rng).lit(light);
         let full = [0, 0, msr_sim::body::WIDTH, msr_sim::body::HEIGHT];
-        let r = self.renderer.render_seen(camera, seen, mark, &var, full);
+        let mut r = self.renderer.render_seen(camera, seen, mark, &var, full);
+        if !through.is_none() {
+            r.rgb = through.apply(&r.rgb, frame);
+        }
         let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb));
         let face = self.cropper.crop(&grey)?;
         Ok((grey, face))
@@ -589,6 +609,10 @@ struct Scenario<'a> {
     light: LightSchedule,
     /// Where the trial starts in `light` (a plan that spans a run of trials).
     light_offset_us: u64,
+    /// The camera's imperfections, seeded for this trial.
+    imperfect: Imperfections,
+    /// When the last frame was taken and the camera's head angles then (for the motion blur).
+    last_shot: Option<(u64, [f64; 2])>,
 }
 
 impl Scenario<'_> {
@@ -676,18 +700,29 @@ impl Scenario<'_> {
             Some(t) => now.saturating_sub(t) >= FACE_MAX_AGE_PERIODS * period,
         };
         if now >= self.next_frame_us && ready {
-            let (grey, face, with_mark) = if self.scene.scene == Scene::Mirror {
-                let (grey, face) = self.camera.shoot(&w.body_pose(), self.mark.as_ref(), &mut self.rng, self.light.at(now + self.light_offset_us))?;
-                self.light.observed_grey(&grey);
-                (grey, face, self.mark.is_some())
+            let light = self.light.at(now + self.light_offset_us);
+            let pose = w.body_pose();
+            let (head, seen, mark) = if self.scene.scene == Scene::Mirror {
+                ([pose.head_yaw, pose.head_pitch], pose, self.mark.as_ref())
             } else {
-                let v = self.scene.view(now, &w.body_pose());
+                let v = self.scene.view(now, &pose);
                 // A delayed picture shows the mark once it had appeared by then.
-                let mark = self.mark.as_ref().filter(|_| v.as_of_us >= self.cfg.mark_at_us);
-                let (grey, face) = self.camera.shoot_seen(v.camera, &v.seen, mark, &mut self.rng, self.light.at(now + self.light_offset_us))?;
-                self.light.observed_grey(&grey);
-                (grey, face, mark.is_some())
+                (v.camera, v.seen, self.mark.as_ref().filter(|_| v.as_of_us >= self.cfg.mark_at_us))
             };
+            // The head's speed since the last frame smears this one.
+            let speed = match self.last_shot {
+                Some((t, h)) if now > t => {
+                    let dt = (now - t) as f64 * 1e-6;
+                    [(head[0] - h[0]) / dt, (head[1] - h[1]) / dt]
+                }
+                _ => [0.0; 2],
+            };
+            self.last_shot = Some((now, head));
+            let through = self.imperfect.moving(speed);
+            let frame = self.trial.frames_sent as u64;
+            let (grey, face) = self.camera.take(head, &seen, mark, &mut self.rng, light, &through, frame)?;
+            self.light.observed_grey(&grey);
+            let with_mark = mark.is_some();
             let logged = self.log.is_some().then(|| face.clone());
             let c = face.crop;
             let size = [c.width as u16, c.height as u16];
@@ -980,6 +1015,8 @@ pub fn run_trial_with<F: world::Firmware>(
         log: cfg.mcap.as_ref().map(|m| crate::rosbag::session::SessionLog::with_saliency(&m.0)),
         light,
         light_offset_us,
+        imperfect: cfg.camera.with_seed(seed ^ 0xCA3E_7A01),
+        last_shot: None,
     };
     let wcfg = cfg.world(seed);
     let (w, report) = world::run(

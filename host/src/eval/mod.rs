@@ -30,6 +30,7 @@ use crate::detect::pipeline::{Detection, Settings};
 use crate::models::predictor::FacePredictor;
 use anyhow::{ensure, Context, Result};
 use msr_shared::blob::{Model, CRC32};
+use msr_sim::imperfect::Imperfections;
 use msr_sim::layout::Split;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -92,6 +93,9 @@ pub struct Report {
     pub rows: Vec<Row>,
     pub absent: Vec<Absent>,
     pub quantized_agreement: Option<f64>,
+    /// What the camera did to the test frames (`msr eval`'s camera flags and `--range`).
+    #[serde(default)]
+    pub camera: Camera,
 }
 
 const WEIGHTINGS: [&str; 2] = ["sigma", "none"];
@@ -106,7 +110,8 @@ pub fn evaluate_with(blob_path: &Path, data: &Path, manifest: Option<&Path>) -> 
 }
 
 /// The grey range a camera codes its frames in.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Range {
     /// 0..=255, as the frames were recorded
     #[default]
@@ -124,57 +129,29 @@ pub fn code_range(grey: &mut [u8], range: Range) {
     }
 }
 
-/// Multiplies each grey level by `exposure` (rounded, clipped to 0..=255): a camera's exposure
-/// change after the crop was found.
-pub fn expose(grey: &mut [u8], exposure: f32) {
-    if exposure != 1.0 {
-        for g in grey {
-            *g = (*g as f32 * exposure).round().clamp(0.0, 255.0) as u8;
-        }
-    }
-}
-
-/// Adds Gaussian noise of `sigma` grey levels to each grey level (rounded, clipped to 0..=255),
-/// drawn from `seed`: a sensor noisier than the one the model was calibrated with.
-pub fn add_noise(grey: &mut [u8], sigma: f32, seed: u64) {
-    use rand::SeedableRng;
-    if sigma <= 0.0 {
-        return;
-    }
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
-    for g in grey {
-        let z = msr_sim::standard_normal(&mut rng);
-        *g = (*g as f64 + sigma as f64 * z).round().clamp(0.0, 255.0) as u8;
-    }
-}
-
-/// What a camera does to each test face before detection, one nuisance at a time or together:
-/// its exposure ([`expose`]), then sensor noise ([`add_noise`]), then its video coding
-/// ([`code_range`]). The default leaves the faces as recorded.
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// What a camera does to each test frame before detection: its imperfections on the colour
+/// frame before grey and the crop ([`Imperfections`], in a camera's own order), then its video
+/// coding of the grey ([`code_range`]). The default leaves the frames as recorded.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Camera {
-    /// Exposure factor, 0.05..=20 (1: as recorded).
-    pub exposure: f32,
-    /// Gaussian noise added, grey levels, 0..=64 (0: none).
-    pub noise: f32,
+    pub imperfect: Imperfections,
     /// Grey range the faces are coded in.
     pub range: Range,
 }
 
-impl Default for Camera {
-    fn default() -> Self {
-        Camera { exposure: 1.0, noise: 0.0, range: Range::Full }
+impl std::fmt::Display for Camera {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match (self.imperfect.is_none(), self.range) {
+            (_, Range::Full) => write!(f, "{}", self.imperfect),
+            (true, Range::Limited) => f.write_str("limited range (16..=235)"),
+            (false, Range::Limited) => write!(f, "{}, limited range (16..=235)", self.imperfect),
+        }
     }
 }
 
 /// [`evaluate_with`], every test face through `camera` first.
 pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, camera: &Camera) -> Result<Report> {
-    let Camera { exposure, noise, range } = *camera;
-    ensure!(
-        exposure.is_finite() && (0.05..=20.0).contains(&exposure),
-        "exposure must be in 0.05..=20, got {exposure}"
-    );
-    ensure!(noise.is_finite() && (0.0..=64.0).contains(&noise), "noise must be in 0..=64 grey levels, got {noise}");
+    camera.imperfect.check()?;
     let bytes = read_blob(blob_path)?;
     let model = parse_blob(&bytes, blob_path)?;
     let published = match manifest {
@@ -187,12 +164,10 @@ pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, came
     let mut published = published;
     // Crop as the host would for this model.
     let crop = crate::detect::crop_mode_of(&model);
-    let mut ds = Dataset::load_split(data, Some(Split::Test), crop)
+    let mut ds = Dataset::load_through(data, Some(Split::Test), crop, &camera.imperfect)
         .with_context(|| format!("cannot load dataset {}", data.display()))?;
-    for (i, s) in ds.samples.iter_mut().enumerate() {
-        expose(&mut s.face.grey, exposure);
-        add_noise(&mut s.face.grey, noise, i as u64);
-        code_range(&mut s.face.grey, range);
+    for s in ds.samples.iter_mut() {
+        code_range(&mut s.face.grey, camera.range);
     }
     let test: Vec<&Sample> = ds.split(Split::Test).collect();
     ensure!(
@@ -349,6 +324,7 @@ pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, came
         rows,
         absent,
         quantized_agreement,
+        camera: *camera,
     })
 }
 
@@ -624,8 +600,9 @@ pub fn markdown(r: &Report) -> String {
         )
     });
     let mut s = format!(
-        "Test split of {}: {} frames ({} marked, {} unmarked); threshold {}{region}, min area {}\n\n",
-        r.data, r.test_frames, r.marked, r.unmarked, r.threshold, r.min_area
+        "Test split of {}: {} frames ({} marked, {} unmarked); threshold {}{region}, min area {}\n\
+         Camera: {}\n\n",
+        r.data, r.test_frames, r.marked, r.unmarked, r.threshold, r.min_area, r.camera
     );
     s += "| model | weighting | engine | overlap/mark | a_i/(a_i+a_d) | hit rate | false alarms | image AUROC | pixel AUROC |\n";
     s += "|---|---|---|---|---|---|---|---|---|\n";
@@ -683,25 +660,14 @@ mod range_tests {
         assert_eq!(f, (0..=255).collect::<Vec<u8>>());
     }
 
-    /// The noise has the spread asked for (mean 0, standard deviation sigma, on grey 128 where
-    /// nothing clips), is the same for a seed and differs between seeds; 0 leaves the face.
+    /// The report states the conditions: in words for the table, by field in JSON.
     #[test]
-    fn noise_has_the_asked_spread_and_is_repeatable() {
-        let mut g = vec![128u8; 20_000];
-        add_noise(&mut g, 4.0, 3);
-        let n = g.len() as f64;
-        let mean = g.iter().map(|&v| v as f64).sum::<f64>() / n;
-        let sd = (g.iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>() / n).sqrt();
-        assert!((mean - 128.0).abs() < 0.1, "{mean}");
-        // Rounding adds 1/12 of a grey level squared to the variance.
-        assert!((sd - (16.0f64 + 1.0 / 12.0).sqrt()).abs() < 0.08, "{sd}");
-        let mut h = vec![128u8; 20_000];
-        add_noise(&mut h, 4.0, 3);
-        assert_eq!(g, h);
-        add_noise(&mut h, 0.0, 3);
-        assert_eq!(g, h);
-        let mut k = vec![128u8; 20_000];
-        add_noise(&mut k, 4.0, 4);
-        assert_ne!(g, k);
+    fn the_camera_is_stated_in_words_and_in_json() {
+        assert_eq!(Camera::default().to_string(), "as recorded");
+        let c = Camera { imperfect: Imperfections::NONE.with_gamma(0.8).with_jpeg(Some(50)), range: Range::Limited };
+        assert_eq!(c.to_string(), "tone curve gamma 0.8, JPEG quality 50, limited range (16..=235)");
+        let v = serde_json::to_value(c).unwrap();
+        assert_eq!((v["imperfect"]["gamma"].as_f64(), v["imperfect"]["jpeg"].as_u64(), v["range"].as_str()), (Some(0.800000011920929), Some(50), Some("limited")));
+        assert_eq!(serde_json::from_value::<Camera>(v).unwrap(), c);
     }
 }

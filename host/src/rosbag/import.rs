@@ -506,6 +506,7 @@ pub fn import(cfg: &ImportConfig) -> Result<Imported> {
         template: layout::TEMPLATE_FILE.into(),
         frames: records,
         camera_controls: None,
+        imperfections: None,
     };
     write_png(&tmp.join(layout::TEMPLATE_FILE), &DynamicImage::ImageLuma8(tpl))?;
     std::fs::write(tmp.join(layout::ANGLES_FILE), angles).with_context(|| format!("cannot write in {}", tmp.display()))?;
