@@ -21,6 +21,7 @@ pub mod status;
 pub mod import_bag;
 pub mod light;
 pub mod camera_hold;
+pub mod live;
 
 use self::run as run_board;
 use anyhow::Result;
