@@ -104,9 +104,8 @@ fn client(addr: &str, mode: &str) -> Child {
         .unwrap()
 }
 
-fn mirror_test(m: &Path) -> Vec<String> {
-    // Three trials (seed 2: the second has a reach), one at a time.
-    ["mirror-test", "--model", m.to_str().unwrap(), "--trials", "3", "--seed", "2", "--parallel", "1", "--json"]
+fn mirror_test(m: &Path, trials: &str) -> Vec<String> {
+    ["mirror-test", "--model", m.to_str().unwrap(), "--trials", trials, "--seed", "2", "--parallel", "1", "--json"]
         .map(String::from)
         .to_vec()
 }
@@ -120,7 +119,7 @@ fn without_live(mut v: Value) -> Value {
 fn a_foxglove_client_gets_every_channel_decoded_and_a_second_one_joins_mid_run() {
     let tmp = tempfile::tempdir().unwrap();
     let m = model(tmp.path());
-    let base = mirror_test(&m);
+    let base = mirror_test(&m, "3");
     let plain: Value = serde_json::from_str(&common::msr_ok(&base.iter().map(String::as_str).collect::<Vec<_>>())).unwrap();
     assert!(plain.get("live").is_none(), "no live figures without --live: {plain}");
 
@@ -184,7 +183,9 @@ fn a_foxglove_client_gets_every_channel_decoded_and_a_second_one_joins_mid_run()
 fn a_client_that_never_reads_has_its_drops_counted_and_stops_nothing() {
     let tmp = tempfile::tempdir().unwrap();
     let m = model(tmp.path());
-    let mut args = mirror_test(&m);
+    // Six trials: some 20 MB of messages, several times what the client's queue and the
+    // sockets' buffers hold.
+    let mut args = mirror_test(&m, "6");
     args.extend(["--live", "127.0.0.1:0", "--live-wait"].map(String::from));
     let run = Run::start(&args.iter().map(String::as_str).collect::<Vec<_>>());
     let addr = run.addr();
@@ -200,7 +201,7 @@ fn a_client_that_never_reads_has_its_drops_counted_and_stops_nothing() {
     assert_eq!(l["clients"], 1, "{l}");
     let (published, dropped) = (l["messages"].as_u64().unwrap(), l["dropped"].as_u64().unwrap());
     assert!(dropped > 0 && dropped < published, "{l}");
-    assert_eq!(live["trials"], 3);
+    assert_eq!(live["trials"], 6);
 }
 
 /// A one-board run's MCAP holds the board's status at each trial's end, as an in-process run's.

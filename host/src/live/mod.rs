@@ -86,6 +86,8 @@ impl ServerListener for Listener {
 
 /// A running live server.
 pub struct Live {
+    /// Held: the SDK's channels and server refer to their context weakly.
+    _ctx: Arc<Context>,
     addr: SocketAddr,
     by_topic: HashMap<&'static str, Arc<RawChannel>>,
     latch: Arc<(Mutex<Latch>, Condvar)>,
@@ -138,6 +140,7 @@ impl Live {
         let relay = relay::Relay::start(addr, upstream, relay::CLIENT_QUEUE_BYTES)
             .with_context(|| format!("--live {addr}"))?;
         Ok(Live {
+            _ctx: ctx,
             addr: relay.addr(),
             by_topic,
             latch,
