@@ -19,3 +19,4 @@ pub mod bench;
 pub mod report;
 pub mod demo;
 pub mod rosbag;
+pub mod live;

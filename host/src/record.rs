@@ -54,6 +54,8 @@ pub struct RecordConfig {
     pub progress: bool,
     /// Also write the recording as MCAP (`--mcap`).
     pub mcap: Option<PathBuf>,
+    /// Publish the recording live as it is made (`--live`).
+    pub live: Option<std::sync::Arc<crate::live::Live>>,
 }
 
 impl RecordConfig {
@@ -74,6 +76,7 @@ impl RecordConfig {
             frame_timeout: Duration::from_secs(5),
             progress: false,
             mcap: None,
+            live: None,
         }
     }
 }
@@ -307,7 +310,14 @@ pub fn record(cfg: &RecordConfig) -> Result<Recorded> {
         b
     });
     let mut tries = 0usize;
-    let mut mcap = cfg.mcap.as_ref().map(|_| (crate::rosbag::session::SessionLog::default(), std::time::Instant::now()));
+    let mut mcap = (cfg.mcap.is_some() || cfg.live.is_some()).then(|| {
+        let l = crate::rosbag::session::SessionLog::default();
+        let l = match &cfg.live {
+            Some(v) => l.live(v.clone(), cfg.mcap.is_none()),
+            None => l,
+        };
+        (l, std::time::Instant::now())
+    });
     while frames.len() < cfg.count {
         tries += 1;
         if tries > MAX_TRIES_PER_FRAME * cfg.count {

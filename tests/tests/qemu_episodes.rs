@@ -112,6 +112,30 @@ fn qemu_episodes_touch_marks_and_match_in_process() {
     assert!(output.contains("servo_watchdog_trips: 0"), "{output}");
 }
 
+/// A QEMU trial logged for `--mcap` ends with the board's status on `/board/status`, as an
+/// in-process trial's does.
+#[test]
+fn qemu_trial_log_has_the_board_status() {
+    if !available() {
+        return;
+    }
+    let robot = Robot::Red;
+    let blob = conv_model(robot);
+    let (cropper, renderer) = camera_parts(&blob, robot);
+    let mut cfg = EpisodeConfig::new(robot);
+    cfg.no_mark_share = 1.0;
+    cfg.watch_us = 500_000;
+    cfg.mcap = Some(msr_host::rosbag::session::LogModel(blob.clone().into()));
+    let mut board = QemuBoard::start(&blob).unwrap();
+    let t = board.trial(Camera { renderer: &renderer, cropper: &cropper }, &cfg, 0, episode::trial_seed(3, 0)).unwrap();
+    board.finish().unwrap();
+    let log = t.log.expect("a log with --mcap");
+    let status: Vec<_> = log.msgs.iter().filter(|m| m.topic == "/board/status").collect();
+    assert_eq!(status.len(), 1, "one status at the trial's end");
+    let d: msr_host::rosbag::msgs::DiagnosticArray = msr_host::rosbag::msgs::decode(&status[0].cdr).unwrap();
+    assert!(d.status[0].values.iter().any(|kv| kv.key == "frames"), "{d:?}");
+}
+
 /// The demo's way in: the model preloaded into the board's PSRAM by QEMU's generic loader, taken
 /// at start-up through the upload's checks. It runs as an uploaded one (the same trial as
 /// in-process), survives the resets between trials, and damaged bytes are refused by the board.

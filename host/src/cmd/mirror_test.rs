@@ -87,6 +87,9 @@ pub struct Args {
     /// annotations, joints, board status) for Foxglove or `ros2 bag play`
     #[arg(long, value_name = "FILE")]
     pub mcap: Option<PathBuf>,
+    // With --live the trials run one at a time unless --parallel says otherwise.
+    #[command(flatten)]
+    pub live: super::live::LiveFlags,
 }
 
 /// A switch.
@@ -209,6 +212,13 @@ pub fn run(a: Args) -> Result<()> {
         cfg.mcap = Some(crate::rosbag::session::LogModel(blob.clone().into()));
     }
     let quiet = a.json;
+    if a.live.live.is_some() && a.parallel.is_none() {
+        cfg.parallel = 1;
+    }
+    let live = a.live.start(quiet)?;
+    if let Some(l) = &live {
+        cfg.live = Some(crate::live::LiveTap { live: l.clone(), model: crate::rosbag::session::LogModel(blob.clone().into()) });
+    }
     // The gate the trials run with (the blob's, after --self-gate).
     let gate = msr_shared::blob::Model::parse(&blob).ok().and_then(|m| m.self_gate);
     if !quiet {
@@ -240,6 +250,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let mut s = episode::summarise(a.backend, a.robot, a.servo_bus, &trials);
     s.room = room;
+    s.live = a.live.finish(live);
     // The summary first: a failing --trials-out or --bus-log write (checked up front, but a disk
     // can fill) must not lose it.
     if a.json {
@@ -326,5 +337,5 @@ pub fn readable(s: &Summary) -> String {
         s.frames_superseded
     ) + &s.room.map_or(String::new(), |r| {
         format!("; {:.1} min of robot time on one board, {}", s.sim_s / 60.0, super::status::describe_room(&r))
-    })
+    }) + &s.live.map_or(String::new(), |l| format!("; {l}"))
 }

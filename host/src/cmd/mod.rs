@@ -22,6 +22,7 @@ pub mod import_bag;
 pub mod light;
 pub mod imperfect;
 pub mod camera_hold;
+pub mod live;
 
 use self::run as run_board;
 use anyhow::Result;

@@ -69,6 +69,8 @@ pub struct Args {
     /// angles) for Foxglove or `ros2 bag play`
     #[arg(long, value_name = "FILE")]
     pub mcap: Option<PathBuf>,
+    #[command(flatten)]
+    pub live: super::live::LiveFlags,
 }
 
 pub fn config(a: &Args) -> Result<RecordConfig> {
@@ -105,9 +107,14 @@ pub fn config(a: &Args) -> Result<RecordConfig> {
 }
 
 pub fn run(a: Args) -> Result<()> {
-    let c = config(&a)?;
+    let mut c = config(&a)?;
+    c.live = a.live.start(false)?;
     // The banner comes from `record` once the folder, the log, the camera and the port passed.
-    let r = record::record(&c)?;
+    let r = record::record(&c);
+    if let Some(stats) = a.live.finish(c.live.take()) {
+        eprintln!("{stats}");
+    }
+    let r = r?;
     println!("{}", serde_json::to_string(&r)?);
     eprintln!(
         "recorded {} frames ({} from an earlier run); skipped {} without a face, {} poses not \

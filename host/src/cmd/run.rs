@@ -70,6 +70,8 @@ pub struct Args {
     /// annotations, reported head, reach targets, board status) for Foxglove or `ros2 bag play`
     #[arg(long, value_name = "FILE")]
     pub mcap: Option<PathBuf>,
+    #[command(flatten)]
+    pub live: super::live::LiveFlags,
 }
 
 /// The frames of a folder, in name order.
@@ -236,7 +238,14 @@ pub fn run(a: Args) -> Result<()> {
         let runs = s.status(timeout)?.model_crc;
         crate::cmd::status::check_model(runs, model.crc32, &a.model)?;
     }
-    let mut log = a.mcap.as_ref().map(|_| crate::rosbag::session::SessionLog::with_saliency(&blob));
+    let live = a.live.start(a.json)?;
+    let mut log = (a.mcap.is_some() || live.is_some()).then(|| {
+        let l = crate::rosbag::session::SessionLog::with_saliency(&blob);
+        match &live {
+            Some(v) => l.live(v.clone(), a.mcap.is_none()),
+            None => l,
+        }
+    });
     let start = Instant::now();
     let us = || start.elapsed().as_micros() as u64;
     let mut head = [0f32; 2];
@@ -296,6 +305,13 @@ pub fn run(a: Args) -> Result<()> {
         }
     }
     // What was streamed is written even when the source failed.
+    if let Some(stats) = a.live.finish(live) {
+        if a.json {
+            println!("{}", serde_json::json!({ "live": stats }));
+        } else {
+            eprintln!("{stats}");
+        }
+    }
     if let (Some(p), Some(mut l)) = (&a.mcap, log) {
         l.close()?;
         let counts = crate::rosbag::session::write_logs(p, [&l])?;

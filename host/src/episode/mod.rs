@@ -148,6 +148,8 @@ pub struct EpisodeConfig {
     pub pace: Option<f64>,
     /// Log each trial for `--mcap` (its model draws the saliency image).
     pub mcap: Option<crate::rosbag::session::LogModel>,
+    /// Publish each trial's messages live as they happen (`--live`).
+    pub live: Option<crate::live::LiveTap>,
     /// How the light changes over each trial (`msr mirror-test --light`).
     pub light: LightPlan,
     /// The light's plan spans a run of trials rather than each trial ([`run_one_board`]).
@@ -194,6 +196,7 @@ impl EpisodeConfig {
                 .min(4),
             pace: None,
             mcap: None,
+            live: None,
             light: LightPlan::Fixed,
             light_span: None,
             learn_room: true,
@@ -434,6 +437,10 @@ pub struct Summary {
     /// What the board had learnt of the room at the end of a run on one board (`--one-board`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub room: Option<msr_shared::msg::RoomReport>,
+    /// What the live server served (`--live`): clients, messages, and those dropped for
+    /// clients that read too slowly.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub live: Option<crate::live::LiveStats>,
 }
 
 pub fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -493,6 +500,7 @@ pub fn summarise(backend: Backend, robot: Robot, bus: ServoBus, trials: &[Trial]
         scene_changed_frames: sum(|t| t.scene_changed_frames),
         sim_s: trials.iter().map(|t| t.sim_s).sum(),
         room: None,
+        live: None,
     }
 }
 
@@ -913,10 +921,7 @@ pub fn run_trial_inproc(
     trial.bus_bytes = log;
     // In-process the board's own counters are at hand (a GetStatus would report the same).
     let s = board.status();
-    add_board_counters(&mut trial, &s);
-    if let Some(l) = &mut trial.log {
-        l.status((trial.sim_s * 1e6) as u64, &s);
-    }
+    end_with_status(&mut trial, &s);
     Ok(trial)
 }
 
@@ -951,6 +956,14 @@ impl embedded_io::Write for Tee<'_> {
 
     fn flush(&mut self) -> Result<(), Self::Error> {
         embedded_io::Write::flush(self.inner)
+    }
+}
+
+/// A trial's end: the board's last status into its counters and, at the trial's end, its log.
+pub fn end_with_status(trial: &mut Trial, s: &Status) {
+    add_board_counters(trial, s);
+    if let Some(l) = &mut trial.log {
+        l.status((trial.sim_s * 1e6) as u64, s);
     }
 }
 
@@ -1012,7 +1025,7 @@ pub fn run_trial_with<F: world::Firmware>(
         status: None,
         detections: Vec::new(),
         frames_with_mark: 0,
-        log: cfg.mcap.as_ref().map(|m| crate::rosbag::session::SessionLog::with_saliency(&m.0)),
+        log: crate::rosbag::session::SessionLog::for_episode(cfg.mcap.as_ref(), cfg.live.as_ref()),
         light,
         light_offset_us,
         imperfect: cfg.camera.with_seed(seed ^ 0xCA3E_7A01),
@@ -1150,7 +1163,7 @@ pub fn run_one_board(
         let camera = Camera { renderer: &renderer, cropper: &cropper };
         let (mut trial, _) = run_trial_with(&mut fw, camera, &c, i, trial_seed(seed, i))?;
         let s = board.status();
-        add_board_counters(&mut trial, &s);
+        end_with_status(&mut trial, &s);
         carried = Some(board.room().clone());
         room = Some(s.room);
         offset_us += (trial.sim_s * 1e6) as u64;

@@ -312,7 +312,7 @@ impl QemuBoard {
             return Err(e.context(format!("trial {index}: QEMU board")));
         }
         let st = status(ls).with_context(|| format!("trial {index}"))?;
-        episode::add_board_counters(&mut trial, &st);
+        episode::end_with_status(&mut trial, &st);
         Ok(trial)
     }
 

@@ -1,5 +1,5 @@
 //! What a session (mirror-test trials, `msr run`, `msr record`) saw and did, as ROS 2 messages
-//! for `--mcap FILE`. Topics:
+//! for `--mcap FILE` and `--live` ([`crate::live`]). Topics:
 //!
 //! | topic | type | what |
 //! |---|---|---|
@@ -49,6 +49,10 @@ pub struct SessionLog {
     /// Parsed model and the firmware's workspace, for the saliency image.
     saliency: Option<(Vec<u8>, Box<msr_firmware::Workspace>)>,
     error: Option<String>,
+    /// Each message also goes out live (`--live`), its stamps moved by `base_ns`.
+    live: Option<(std::sync::Arc<crate::live::Live>, u64)>,
+    /// Published live only, not kept in `msgs` (no `--mcap`).
+    live_only: bool,
 }
 
 impl std::fmt::Debug for SessionLog {
@@ -72,9 +76,38 @@ impl SessionLog {
         SessionLog { saliency: Some((blob.to_vec(), Box::new(msr_firmware::Workspace::new()))), ..Default::default() }
     }
 
+    /// The log of a mirror-test trial: for `--mcap` (kept) and `--live` (published as it comes).
+    pub fn for_episode(mcap: Option<&LogModel>, live: Option<&crate::live::LiveTap>) -> Option<SessionLog> {
+        let model = mcap.or(live.map(|l| &l.model))?;
+        let log = SessionLog::with_saliency(&model.0);
+        Some(match live {
+            Some(l) => log.live(l.live.clone(), mcap.is_none()),
+            None => log,
+        })
+    }
+
+    /// Also publishes every message on `live`, stamped from now; `only`: keeps none.
+    pub fn live(mut self, live: std::sync::Arc<crate::live::Live>, only: bool) -> SessionLog {
+        self.live = Some((live, crate::live::now_ns()));
+        self.live_only = only;
+        self
+    }
+
     fn push<T: Serialize>(&mut self, t_ns: u64, topic: &'static str, type_name: &'static str, msg: &T) {
         match msgs::encode(msg) {
-            Ok(cdr) => self.msgs.push(Logged { t_ns, topic, type_name, cdr }),
+            Ok(cdr) => {
+                let m = Logged { t_ns, topic, type_name, cdr };
+                if let Some((live, base)) = &self.live {
+                    // A client never stops the session: publishing fails only on a topic
+                    // the server lacks, a bug reported like an encoding error.
+                    if let Err(e) = shift(&m, *base).and_then(|b| live.publish(topic, &b)) {
+                        self.error.get_or_insert(e.to_string());
+                    }
+                }
+                if !self.live_only {
+                    self.msgs.push(m);
+                }
+            }
             Err(e) => {
                 self.error.get_or_insert(format!("{topic}: {e}"));
             }
