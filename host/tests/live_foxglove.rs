@@ -16,12 +16,13 @@ use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::mpsc;
 
-const TOPICS: [&str; 10] = [
+const TOPICS: [&str; 11] = [
     "/board/head",
     "/board/status",
     "/camera/annotations",
     "/camera/image",
     "/face/image",
+    "/face/predicted",
     "/face/saliency",
     "/joint_commands",
     "/joint_states",

@@ -207,6 +207,7 @@ fn mirror_test_mcap_reads_whole_with_one_image_and_annotation_per_frame() {
     assert_eq!(count("/camera/image"), sent, "{}", r["topics"]);
     assert_eq!(count("/camera/annotations"), sent);
     assert_eq!(count("/face/image"), sent);
+    assert_eq!(count("/face/predicted"), sent);
     assert_eq!(count("/face/saliency"), sent);
     assert_eq!(count("/msr/trial"), 2);
     assert!(count("/board/status") >= 2);

@@ -91,6 +91,8 @@ fn msr_run_streams_a_frame_folder_and_uploads_over_the_pty() {
         json: true,
         mcap: None,
         light: msr_host::cmd::light::RunLight::Fixed,
+        imperfect: Default::default(),
+        live: Default::default(),
     };
     msr_host::cmd::run::run(args).unwrap();
     let served = board.stop().unwrap();

@@ -39,6 +39,23 @@ pub struct CameraFlags {
     pub jpeg: Option<i64>,
 }
 
+impl Default for CameraFlags {
+    /// The flags' own defaults: the calibration camera, no imperfection.
+    fn default() -> CameraFlags {
+        CameraFlags {
+            exposure: 1.0,
+            gamma: 1.0,
+            colour_temperature: 5500.0,
+            white_balance: Vec::new(),
+            noise: 0.0,
+            defocus: 0.0,
+            motion_blur: 0.0,
+            motion_angle: 0.0,
+            jpeg: None,
+        }
+    }
+}
+
 impl CameraFlags {
     /// The imperfections these flags ask for, the noise drawn from `seed` (checked ranges:
     /// [`super::check`]).
@@ -111,6 +128,8 @@ mod tests {
             // Without the flags: nothing changes.
             let plain = parse_from(line.iter().copied()).unwrap();
             assert!(flags_of(&plain.command).imperfections(7).is_none(), "{line:?}");
+            // The library's default is what the command line gives without flags.
+            assert_eq!(format!("{:?}", flags_of(&plain.command)), format!("{:?}", super::CameraFlags::default()));
         }
         let wb = parse_from(["msr", "eval", "--model", "m", "--data", "d", "--white-balance", "1.15,1,0.85"]).unwrap();
         assert_eq!(flags_of(&wb.command).imperfections(0).white_balance, [1.15, 1.0, 0.85]);

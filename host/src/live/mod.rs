@@ -26,9 +26,10 @@ use std::sync::{Arc, Condvar, Mutex};
 pub const DEFAULT_ADDR: &str = "127.0.0.1:8765";
 
 /// The topics a session publishes and their types (the table in [`crate::rosbag::session`]).
-pub const TOPICS: [(&str, &str); 10] = [
+pub const TOPICS: [(&str, &str); 11] = [
     ("/camera/image", msgs::IMAGE),
     ("/face/image", msgs::IMAGE),
+    ("/face/predicted", msgs::IMAGE),
     ("/face/saliency", msgs::IMAGE),
     ("/camera/annotations", msgs::IMAGE_ANNOTATIONS),
     ("/joint_states", msgs::JOINT_STATE),

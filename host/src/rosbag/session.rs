@@ -5,6 +5,7 @@
 //! |---|---|---|
 //! | `/camera/image` | sensor_msgs/msg/Image (mono8) | each camera frame streamed, grey, as cropped |
 //! | `/face/image` | sensor_msgs/msg/Image (mono8) | the face crop sent to the board |
+//! | `/face/predicted` | sensor_msgs/msg/Image (mono8) | the face the firmware pipeline's decoder predicts at the head pose of that crop (sim) |
 //! | `/face/saliency` | sensor_msgs/msg/Image (mono8) | the firmware pipeline's saliency on that crop, 128 = the threshold (sim) |
 //! | `/camera/annotations` | foxglove_msgs/msg/ImageAnnotations | one per frame: the crop box (grey), the mark's truth (green, sim), the board's blob box and centroid (red) |
 //! | `/joint_states` | sensor_msgs/msg/JointState | reported joint angles |
@@ -122,16 +123,18 @@ impl SessionLog {
         self.push(t, "/camera/image", msgs::IMAGE, &write::mono8(t, CAMERA, w, h, frame.as_raw().clone()));
         let c = face.crop;
         self.push(t, "/face/image", msgs::IMAGE, &write::mono8(t, "face", c.width, c.height, face.grey.clone()));
-        let saliency = self.saliency.as_mut().and_then(|(blob, ws)| {
+        let drawn = self.saliency.as_mut().and_then(|(blob, ws)| {
             let model = msr_shared::blob::Model::parse(blob).ok()?;
             let d = crate::detect::fixed::detect_with(ws, &model, face, head).ok()?;
+            let predicted: Vec<u8> = d.predicted.iter().map(|p| (p * 255.0).round().clamp(0.0, 255.0) as u8).collect();
             // Saliency is in sigma units; the blob's threshold maps to 128.
             let thr = model.novelty.threshold.max(1e-6);
-            Some(d.saliency.iter().map(|s| (s / thr * 128.0).clamp(0.0, 255.0) as u8).collect::<Vec<u8>>())
+            let saliency = d.saliency.iter().map(|s| (s / thr * 128.0).clamp(0.0, 255.0) as u8).collect::<Vec<u8>>();
+            Some((predicted, saliency))
         });
-        if let Some(px) = saliency {
-            let img = write::mono8(t, "face", c.width, c.height, px);
-            self.push(t, "/face/saliency", msgs::IMAGE, &img);
+        if let Some((predicted, saliency)) = drawn {
+            self.push(t, "/face/predicted", msgs::IMAGE, &write::mono8(t, "face", c.width, c.height, predicted));
+            self.push(t, "/face/saliency", msgs::IMAGE, &write::mono8(t, "face", c.width, c.height, saliency));
         }
         let crop = [c.x as f64, c.y as f64, (c.x + c.width) as f64 - 1.0, (c.y + c.height) as f64 - 1.0];
         // A frame id comes round again after 65536 frames: the older one is answered by then.
