@@ -345,7 +345,16 @@ pub fn run(a: Args) -> Result<()> {
     }
     let _ = std::io::stdout().flush();
     if st.mode == Mode::Halted {
-        bail!("{}", halted(&st, false));
+        if stopped_by_face_watchdog(&st) {
+            // The stream has ended: 500 ms after its last whole frame the board holds still, as
+            // on a robot whose camera stopped, and the closing status can come later than that
+            // (a slow or busy PC). A halt from the servos is an error; this one is the end.
+            if !a.json {
+                eprintln!("the board holds still since the stream ended (its face watchdog: no whole frame for 500 ms)");
+            }
+        } else {
+            bail!("{}", halted(&st, false));
+        }
     }
     if sent > 0 && answered == 0 {
         bail!("the board answered none of the {sent} frames (mode {:?}): see its status line above", st.mode);
@@ -353,9 +362,14 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
+/// Whether a halted board stopped for want of frames alone (its servos are well).
+fn stopped_by_face_watchdog(st: &msr_shared::msg::Status) -> bool {
+    st.face_watchdog_trips > 0 && st.servo_watchdog_trips == 0
+}
+
 /// What a halted board means and what brings it back.
 fn halted(st: &msr_shared::msg::Status, before: bool) -> String {
-    let why = if st.face_watchdog_trips > 0 && st.servo_watchdog_trips == 0 {
+    let why = if stopped_by_face_watchdog(st) {
         "its face watchdog tripped (no whole frame for 500 ms); whole frames bring it back"
     } else if st.servo_watchdog_trips > 0 {
         "its servo watchdog tripped (no servo state for 100 ms); servo states again bring it back"
