@@ -2,7 +2,7 @@
 //! mark placement and the kinematics: the body is a set of ellipsoids placed by forward
 //! kinematics, the mirror is the plane x = [`MIRROR_X`] of the torso frame, and the camera is the
 //! head's top camera (a pinhole with Nao's 60.97 degree horizontal field of view).
-use crate::kin::{self, LeftArm};
+use crate::kin::{self, LeftArm, HEAD_ELLIPSOID};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
 pub const WIDTH: u32 = 320;
@@ -13,9 +13,6 @@ pub const CX: f64 = (WIDTH as f64 - 1.0) / 2.0;
 pub const CY: f64 = (HEIGHT as f64 - 1.0) / 2.0;
 /// The mirror plane in the torso frame, chosen so that the face fills a 75 x 58 crop.
 pub const MIRROR_X: f64 = 0.29;
-
-/// The head shell in the head frame: centre and semi-axes (metres).
-pub const HEAD_ELLIPSOID: ([f64; 3], [f64; 3]) = ([0.0, 0.0, 0.060], [0.062, 0.066, 0.068]);
 
 /// Where marks go, in head-frame (y, z): the front of the face below the red cap and between
 /// the ears. Each mark's whole extent stays inside (see `marks`). Every point here is reachable by

@@ -2,7 +2,7 @@
 //!
 //! Each joint on the bus is one servo with the control-table items of
 //! [`msr_shared::dynamixel::table`] at their real addresses and sizes, moved by the same dynamics
-//! as the framed bus ([`crate::servo`]), so that the two buses differ only on the wire. A servo
+//! as the framed bus (`servo`), so that the two buses differ only on the wire. A servo
 //! answers only when asked (Ping, Read, Write to its ID, Sync Read naming it), after its Return
 //! Delay Time, and a Sync Read's answers follow one another in the order asked, each after the
 //! one before it; a servo that does not answer silences those after it in that Sync Read (the
@@ -26,7 +26,7 @@
 //!
 //! Faults to inject ([`DxlFault`]): a servo that stops answering from a given time, an overload
 //! from a given time; corrupted bytes come from the link's fault layer ([`crate::link`]).
-use crate::servo::Servo;
+use crate::actuator::{Servo, COUNT_RAD};
 use msr_shared::dynamixel::map::JointMapEntry;
 use msr_shared::dynamixel::table::{self, Item};
 use msr_shared::dynamixel::{self as dxl, error, Instruction, Receiver, RxCounters, Status};
@@ -370,7 +370,7 @@ impl DxlBus {
             // Present Velocity in units of 0.229 rev/min.
             let v = sign(&r.map) * s.velocity / (0.229 * std::f64::consts::TAU / 60.0);
             put(table::PRESENT_VELOCITY, v.round() as i32 as u32);
-            put(table::PRESENT_POSITION, raw(s.position + s.noise * crate::servo::COUNT_RAD) as u32);
+            put(table::PRESENT_POSITION, raw(s.position + s.noise * COUNT_RAD) as u32);
         }
         t
     }
@@ -520,8 +520,6 @@ pub fn parse_status(bytes: &[u8]) -> Vec<(u8, u8, Vec<u8>)> {
     }
     out
 }
-
-pub mod serve;
 
 #[cfg(test)]
 mod tests;

@@ -105,7 +105,7 @@ impl Mark {
         if let Some(p) = body::face_point(y, z) {
             return p;
         }
-        let (c, r) = body::HEAD_ELLIPSOID;
+        let (c, r) = crate::kin::HEAD_ELLIPSOID;
         let (u, v) = ((y - c[1]) / r[1], (z - c[2]) / r[2]);
         let k = 0.999 / (u * u + v * v).sqrt().max(1e-12);
         let (u, v) = if (u * k).is_finite() && (v * k).is_finite() { (u * k, v * k) } else { (0.0, 0.0) };
