@@ -6,11 +6,15 @@ use msr_shared::joints::Joint;
 pub const ENCODER_COUNTS: u32 = 4096;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
+/// Settings of the emulated servos and their bus.
 pub struct ServoConfig {
+    /// Time constant of the first-order response, seconds.
     pub time_constant_s: f64,
     /// Fraction of the URDF velocity limit the servo can reach.
     pub velocity_fraction: f64,
+    /// How often the bus reports every joint's state, microseconds.
     pub report_period_us: u64,
+    /// How long without a new target before a servo holds where it is, microseconds.
     pub hold_timeout_us: u64,
     /// Integration step.
     pub step_us: u64,
@@ -51,6 +55,7 @@ impl Default for ServoConfig {
 /// One joint's servo.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Servo {
+    /// The joint this servo drives.
     pub joint: Joint,
     pub(crate) min: f64,
     pub(crate) max: f64,
@@ -61,8 +66,11 @@ pub struct Servo {
     dead_band: f64,
     /// True (unquantised) position.
     pub position: f64,
+    /// The goal, radians, within the joint's limits.
     pub target: f64,
+    /// Whether the servo drives its joint (false: limp).
     pub stiff: bool,
+    /// Fault flags (`msr_shared::msg::fault`).
     pub faults: u8,
     /// Velocity over the last integration step (rad/s).
     pub velocity: f64,

@@ -36,9 +36,21 @@ use msr_shared::joints::Joint;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DxlFault {
     /// Never answers again (its writes still take effect: a broken return line).
-    Silent { id: u8, at_us: u64 },
+    /// Servo `id` stops answering from `at_us` on.
+    Silent {
+        /// The servo.
+        id: u8,
+        /// From when, microseconds.
+        at_us: u64,
+    },
     /// Overload shutdown: Hardware Error Status bit 5, torque off, Alert in every status.
-    Overload { id: u8, at_us: u64 },
+    /// Servo `id` reports an overload from `at_us` on.
+    Overload {
+        /// The servo.
+        id: u8,
+        /// From when, microseconds.
+        at_us: u64,
+    },
 }
 
 /// The emulated bus's settings.
@@ -49,9 +61,11 @@ pub struct DxlConfig {
     pub map: Vec<JointMapEntry>,
     /// Line speed, for the timing of answers.
     pub baud: u32,
+    /// Bits on the line per byte: 10 for 8N1.
     pub bits_per_byte: u32,
     /// Return Delay Time at power-up, units of 2 us (factory 250: 500 us).
     pub return_delay: u8,
+    /// Faults to inject.
     pub faults: Vec<DxlFault>,
 }
 
@@ -144,6 +158,7 @@ impl DxlBus {
         Ok(DxlBus { cfg, regs, rx: Receiver::new(), counters: DxlCounters::default(), byte_us, out: Vec::new() })
     }
 
+    /// What the bus has counted so far.
     pub fn counters(&self) -> DxlCounters {
         self.counters
     }

@@ -82,10 +82,15 @@ pub fn camera_pose(yaw: f64, pitch: f64) -> Isometry3<f64> {
 /// Left arm angles in chain order.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LeftArm {
+    /// LShoulderPitch, radians.
     pub shoulder_pitch: f64,
+    /// LShoulderRoll, radians.
     pub shoulder_roll: f64,
+    /// LElbowYaw, radians.
     pub elbow_yaw: f64,
+    /// LElbowRoll, radians.
     pub elbow_roll: f64,
+    /// LWristYaw, radians.
     pub wrist_yaw: f64,
 }
 
@@ -121,9 +126,13 @@ impl LeftArm {
 /// Points along the left arm in the torso frame.
 #[derive(Clone, Copy, Debug)]
 pub struct ArmPoints {
+    /// The shoulder joint.
     pub shoulder: Point3<f64>,
+    /// The elbow joint.
     pub elbow: Point3<f64>,
+    /// The wrist joint.
     pub wrist: Point3<f64>,
+    /// The fingertip (the URDF hand point).
     pub fingertip: Point3<f64>,
 }
 
@@ -181,9 +190,14 @@ pub fn judge_touch(held: &[Reach], mark_head: &Point3<f64>) -> (bool, f64) {
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
 pub enum IkError {
     #[error("mark point is not finite")]
+    /// The point has a coordinate that is not finite.
     NotFinite,
     #[error("no posture within the joint limits puts the fingertip on the point (best {best_mm:.1} mm)")]
-    Unreachable { best_mm: f64 },
+    /// No posture reaches the point; `best_mm` is the closest miss.
+    Unreachable {
+        /// The closest the fingertip came, millimetres.
+        best_mm: f64,
+    },
 }
 
 /// Head ellipsoid the arm must stay out of during a reach (head frame; centre, semi-axes).

@@ -16,6 +16,8 @@
 //!
 //! Examples: `cargo run -p msr-sim --example sim_pictures` (frames under
 //! `target/sim-pictures/`), `cargo run -p msr-sim --example sim_bench` (speeds).
+#![warn(missing_docs)]
+
 pub mod actuator;
 pub mod body;
 pub mod camera;

@@ -122,10 +122,12 @@ impl ServoBus {
         ServoBus::new(cfg, &start)
     }
 
+    /// Every servo, in bus order.
     pub fn servos(&self) -> &[Servo] {
         &self.servos
     }
 
+    /// The servo of joint `j`, if it is on the bus.
     pub fn servo(&self, j: Joint) -> Option<&Servo> {
         self.servos.iter().find(|s| s.joint == j)
     }
@@ -140,6 +142,7 @@ impl ServoBus {
         msr_shared::joints::REACH_JOINTS.map(|j| self.position(j))
     }
 
+    /// What the bus has counted.
     pub fn counters(&self) -> BusCounters {
         self.counters
     }

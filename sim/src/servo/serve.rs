@@ -9,7 +9,9 @@ use std::time::{Duration, Instant};
 /// What a serving session did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Served {
+    /// Bytes read from the line.
     pub bytes_in: u64,
+    /// Bytes written to the line.
     pub bytes_out: u64,
 }
 
