@@ -78,7 +78,7 @@
 //! reported head pose falls in ([`PoseGrid::bin`]), and the header's tables only for a
 //! non-finite pose. Why: the decoder errs more at some poses (the corners of the training
 //! poses) than at others, and one sigma for all poses either misses marks at the good poses
-//! or fires at the bad ones (issue 19). The section comes before the self gate's.
+//! or fires at the bad ones. The section comes before the self gate's.
 //! The writer uses version 5 only for a blob with bit 3, 4 or 5, and a version-5 blob has one
 //! of them.
 //!

@@ -31,7 +31,7 @@ pub enum DatasetScene {
     /// Another robot of the same look where the mirror image would be, its head at a pose of
     /// its own (drawn from the same range as ours, independently), marks on its face: the face
     /// does not follow the recorded head angles. Not for training; for measuring what a
-    /// decoder of the own image makes of another's face (the self gate's premise, issue 17).
+    /// decoder of the own image makes of another's face (the self gate's premise).
     /// Each frame's draws for our head, the split and the mark are the mirror dataset's of the
     /// same seed.
     Other,
