@@ -25,6 +25,10 @@ use msr_shared::msg::{
     Status, StoreReport,
 };
 use crate::light::Verdict;
+use head::{held, Head, Settle, Steady};
+
+mod head;
+pub use head::{HOLD_RAD, SETTLE_MARGIN_US, SETTLE_PERIODS, SETTLE_RAD, STILL_RAD};
 
 /// The room's offsets ([`crate::room`]) are saved to the store this often while they change.
 pub const ROOM_SAVE_MS: u64 = 5 * 60 * 1000;
@@ -32,46 +36,28 @@ pub const ROOM_SAVE_MS: u64 = 5 * 60 * 1000;
 pub const MAX_BYTES_PER_POLL: usize = 4096;
 /// Ask the servos for their state when none came for this long.
 pub const STATE_REQUEST_US: u64 = 20_000;
-/// The head holds still while both head servos' readings stay within this of where they were
-/// (two counts of a 12-bit encoder): a reading may flicker by a count or two at rest.
-pub const SETTLE_RAD: f32 = 0.0031;
-/// How far from the asked pose a head servo may hold (eight counts of a 12-bit encoder, 0.7
-/// degrees): a servo without an integral term holds off its goal by as much as its load
-/// takes back (gravity on the pitch), and sending it the goal again keeps it there.
-pub const HOLD_RAD: f32 = 0.0123;
-/// A head move has settled when both head servos report within [`HOLD_RAD`] of the asked pose
-/// and within [`STILL_RAD`] of where they were at the first of this many control periods in a
-/// row.
-pub const SETTLE_PERIODS: u8 = 4;
-/// One count of a 12-bit encoder: a servo still approaching where it holds moves by more than
-/// this over [`SETTLE_PERIODS`] periods until it is within about two counts of it (first order,
-/// a 30 ms time constant), so the angles a settled move reports are where the head holds.
-pub const STILL_RAD: f32 = 0.0016;
-/// How long past the move's planned duration the head may take to settle.
-pub const SETTLE_MARGIN_US: u64 = 1_000_000;
-
-/// Both head angles (yaw, pitch) within `band` of the other pose's (false with a NaN).
-fn within(band: f32, a: [f32; 2], b: [f32; 2]) -> bool {
-    (a[0] - b[0]).abs() <= band && (a[1] - b[1]).abs() <= band
-}
-
-/// A head pose asked for and not yet answered.
-#[derive(Clone, Copy, Debug, PartialEq)]
-struct HeadMove {
-    goal: [f32; 2],
-    since_us: u64,
-    deadline_us: u64,
-    settled_periods: u8,
-    /// The readings the periods counted in `settled_periods` stayed near.
-    still_at: [f32; 2],
-}
-
 /// The model in use, as far as the board needs to remember it between frames.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Loaded {
     crc: u32,
     face_w: u16,
     face_h: u16,
+}
+
+/// What the board counts, as `Status` reports it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Counts {
+    frames: u32,
+    detections: u32,
+    reaches: u32,
+    clamped_targets: u32,
+    /// Frames the photometric fit refused, by reason.
+    no_face: u32,
+    scene_changed: u32,
+}
+
+impl Counts {
+    const ZERO: Counts = Counts { frames: 0, detections: 0, reaches: 0, clamped_targets: 0, no_face: 0, scene_changed: 0 };
 }
 
 /// Everything but the big buffers and the receivers (split so a received message, which borrows
@@ -95,13 +81,7 @@ struct Core<S: ModelStore> {
     last_request_us: Option<u64>,
     stiffness_sent: bool,
     status_pending: bool,
-    frames: u32,
-    detections: u32,
-    reaches: u32,
-    clamped_targets: u32,
-    /// Frames the photometric fit refused, by reason.
-    no_face: u32,
-    scene_changed: u32,
+    counts: Counts,
     /// The servo bus speaks Dynamixel Protocol 2.0 with this master (`None`: framed).
     dxl: Option<Master>,
     /// The servo bus's protocol is known (see [`Board::await_servo_bus`]): until then nothing
@@ -116,7 +96,10 @@ struct Core<S: ModelStore> {
     last_reach: Option<Detection>,
     /// The time of the latest poll, for decisions made outside one.
     last_poll_us: u64,
-    head_move: Option<HeadMove>,
+    /// The head move the host waits on.
+    head: Head,
+    /// The head pose the pipeline was last given.
+    steady: Steady,
     /// `ModelBegin` was taken while the store erased: the `UploadAck` goes out once it is done.
     upload_ack_due: bool,
     /// `ModelCommit` came while the store was busy: it is carried out once it is done.
@@ -128,8 +111,6 @@ struct Core<S: ModelStore> {
     room_unsaved: bool,
     /// What `Status` says of the room (kept here: `status` does not see the workspace).
     room: RoomReport,
-    /// The head pose the pipeline was last given (NaN: none yet); see [`Core::steady`].
-    steady_head: [f32; 2],
 }
 
 /// The firmware. `S` holds the model blobs (see [`ModelStore`]).
@@ -167,25 +148,20 @@ impl<S: ModelStore> Board<S> {
                 last_request_us: None,
                 stiffness_sent: false,
                 status_pending: false,
-                frames: 0,
-                detections: 0,
-                reaches: 0,
-                clamped_targets: 0,
-                no_face: 0,
-                scene_changed: 0,
+                counts: Counts::ZERO,
                 dxl: None,
                 bus_known: true,
                 servo_mid_frame: false,
                 dxl_stopped: false,
                 last_reach: None,
                 last_poll_us: 0,
-                head_move: None,
+                head: Head::new(),
+                steady: Steady::new(),
                 upload_ack_due: false,
                 commit_due: false,
                 room_saved_ms: 0,
                 room_unsaved: false,
                 room: RoomReport { state: RoomState::Off, frames: 0, updates: 0, largest_q88: 0, at_limit: 0 },
-                steady_head: [f32::NAN; 2],
             },
         }
     }
@@ -442,21 +418,22 @@ impl<S: ModelStore> Core<S> {
         Status {
             mode: self.mode(),
             model_crc: self.loaded.map_or(0, |l| l.crc),
-            frames: self.frames,
-            detections: self.detections,
-            reaches: self.reaches,
+            frames: self.counts.frames,
+            detections: self.counts.detections,
+            reaches: self.counts.reaches,
             host_link: *host_rx.counters(),
             servo_link: *servo_rx.counters(),
             face_watchdog_trips: self.face_wd.trips,
             servo_watchdog_trips: self.servo_wd.trips,
             clamped_targets: self
+                .counts
                 .clamped_targets
                 .saturating_add(self.dxl.as_ref().map_or(0, |m| m.refused_targets)),
             frames_superseded: frame.superseded,
             chunks_ignored: frame.ignored,
             frame_crc_errors: frame.crc_errors,
-            no_face: self.no_face,
-            scene_changed: self.scene_changed,
+            no_face: self.counts.no_face,
+            scene_changed: self.counts.scene_changed,
             room: self.room,
         }
     }
@@ -681,13 +658,7 @@ impl<S: ModelStore> Core<S> {
         match result {
             Ok(periods) => {
                 let planned = periods as u64 * PERIOD_US;
-                self.head_move = Some(HeadMove {
-                    goal: head,
-                    since_us: now_us,
-                    deadline_us: now_us + planned + SETTLE_MARGIN_US,
-                    settled_periods: 0,
-                    still_at: head,
-                });
+                self.head.start(head, now_us, planned);
             }
             Err(e) => {
                 let detail = match e {
@@ -702,33 +673,17 @@ impl<S: ModelStore> Core<S> {
 
     /// After each control period: answers a head pose once the servos report it settled.
     fn check_head<H: Write>(&mut self, now_us: u64, host: &mut H) {
-        let Some(mut m) = self.head_move else { return };
-        let commanded = self.motion.commanded();
-        let reached = commanded.is_some_and(|c| c[0] == m.goal[0] && c[1] == m.goal[1]);
-        m.settled_periods = match (self.measured[0], self.measured[1]) {
-            (Some(y), Some(p)) if reached && within(HOLD_RAD, [y, p], m.goal) => {
-                if m.settled_periods > 0 && within(STILL_RAD, [y, p], m.still_at) {
-                    m.settled_periods.saturating_add(1)
-                } else {
-                    m.still_at = [y, p];
-                    1
-                }
+        match self.head.check(now_us, &self.measured, &self.motion) {
+            Settle::Idle => {}
+            Settle::Settled => {
+                let head = [self.measured[0].unwrap_or(0.0), self.measured[1].unwrap_or(0.0)];
+                self.host_tx.send(host, &BoardToHost::HeadAt { head });
             }
-            _ => 0,
-        };
-        if m.settled_periods >= SETTLE_PERIODS {
-            self.head_move = None;
-            let head = [self.measured[0].unwrap_or(0.0), self.measured[1].unwrap_or(0.0)];
-            self.host_tx.send(host, &BoardToHost::HeadAt { head });
-        } else if now_us >= m.deadline_us || self.motion.head_goal() != m.goal {
-            // Out of time, or a reach took the head elsewhere.
-            self.head_move = None;
-            let waited_ms = (now_us.saturating_sub(m.since_us) / 1000) as u32;
-            self.error(host, ErrorCode::HeadNotSettled, waited_ms);
-        } else {
+            Settle::NotSettled(waited_ms) => self.error(host, ErrorCode::HeadNotSettled, waited_ms),
             // A move the host asked for is finished, not cut short by the face watchdog.
-            self.face_wd.feed(now_us);
-            self.head_move = Some(m);
+            Settle::Moving => {
+                self.face_wd.feed(now_us);
+            }
         }
     }
 
@@ -815,33 +770,6 @@ impl<S: ModelStore> Core<S> {
         true
     }
 
-    /// The head pose for the pipeline: the one it was last given while both head servos report
-    /// within [`SETTLE_RAD`] (two counts) of it, else `head`, which becomes that pose. A servo
-    /// holding still may read the counts around its position by turns; each changed reading
-    /// would make the prediction again (the decoder, about 48 instructions a pixel), and the
-    /// room learns from no frame that did.
-    fn steady(&mut self, head: [f32; 2]) -> [f32; 2] {
-        if !within(SETTLE_RAD, head, self.steady_head) {
-            self.steady_head = head;
-        }
-        self.steady_head
-    }
-
-    /// Where the head holds, for the self gate's probe: the motion's head goal while both head
-    /// servos report within [`HOLD_RAD`] of it, else `reading`. A servo holding still holds
-    /// where it holds for that goal, while its reading may be a count or two off (encoder
-    /// noise, a holding loop's dither) or several (a pitch servo sagging under the head); a
-    /// probe centred on the reading would move the head by those counts, in pitch too, and
-    /// the gate would see its own image move (the level test).
-    fn held_head(&self, reading: [f32; 2]) -> [f32; 2] {
-        let g = self.motion.head_goal();
-        if within(HOLD_RAD, reading, g) {
-            g
-        } else {
-            reading
-        }
-    }
-
     fn on_frame<H: Write>(
         &mut self,
         now_us: u64,
@@ -850,7 +778,7 @@ impl<S: ModelStore> Core<S> {
         ws: &mut Workspace,
         host: &mut H,
     ) {
-        self.frames = self.frames.saturating_add(1);
+        self.counts.frames = self.counts.frames.saturating_add(1);
         if self.face_wd.feed(now_us) {
             self.motion.go_home();
         }
@@ -858,7 +786,7 @@ impl<S: ModelStore> Core<S> {
             // The probe's frames go to the gate only: no reach while the head moves.
             let step = match (self.measured[0], self.measured[1]) {
                 (Some(yaw), Some(pitch)) => {
-                    let head = self.steady([yaw, pitch]);
+                    let head = self.steady.pose([yaw, pitch]);
                     let salient = match (self.settings, self.store.active()) {
                         (Some(s), Some(bytes)) => Model::parse_trusted(bytes).ok().and_then(|m| {
                             pipeline::detect(ws, &m, &s, pixels, [h.crop_x, h.crop_y], head).ok()
@@ -890,7 +818,7 @@ impl<S: ModelStore> Core<S> {
             return;
         };
         let head = [yaw, pitch];
-        let steady = self.steady(head);
+        let steady = self.steady.pose(head);
         if self.store.busy() {
             // On a board the model's flash bank may be being erased: reading it would stall the
             // CPU (and the control period) until the erase ends. The next frame is read.
@@ -915,16 +843,16 @@ impl<S: ModelStore> Core<S> {
             }
         };
         if det.blob.is_some() {
-            self.detections = self.detections.saturating_add(1);
+            self.counts.detections = self.counts.detections.saturating_add(1);
         }
         let reason = match det.light.verdict {
             Verdict::Face => None,
             Verdict::NoFace => {
-                self.no_face = self.no_face.saturating_add(1);
+                self.counts.no_face = self.counts.no_face.saturating_add(1);
                 Some(NoDetection::NoFace)
             }
             Verdict::SceneChanged => {
-                self.scene_changed = self.scene_changed.saturating_add(1);
+                self.counts.scene_changed = self.counts.scene_changed.saturating_add(1);
                 Some(NoDetection::SceneChanged)
             }
         };
@@ -932,7 +860,7 @@ impl<S: ModelStore> Core<S> {
             g.observe(h.position(), yaw, det.salient_pixels);
         }
         let mut confirmed = false;
-        let held = self.held_head(head);
+        let held = held(head, self.motion.head_goal());
         if self.confirm.push(det.blob.is_some())
             && !self.servo_wd.tripped()
             && !self.face_wd.tripped()
@@ -945,8 +873,8 @@ impl<S: ModelStore> Core<S> {
             } else if let Some(target) = det.reach {
                 if self.motion.reach(target) {
                     confirmed = true;
-                    self.reaches = self.reaches.saturating_add(1);
-                    self.clamped_targets = self.clamped_targets.saturating_add(det.reach_clamped);
+                    self.counts.reaches = self.counts.reaches.saturating_add(1);
+                    self.counts.clamped_targets = self.counts.clamped_targets.saturating_add(det.reach_clamped);
                     self.confirm.reset();
                 }
             }
@@ -965,7 +893,7 @@ impl<S: ModelStore> Core<S> {
             && det.blob.is_none()
             && self.confirm.quiet()
             && self.motion.phase() == Phase::Observe
-            && self.head_move.is_none()
+            && !self.head.moving()
             && self.room.state == RoomState::Learning
         {
             if let Some(m) = self.store.active().and_then(|b| Model::parse_trusted(b).ok()) {
@@ -1019,7 +947,7 @@ impl<S: ModelStore> Core<S> {
                 self.host_tx.send(host, &BoardToHost::SelfGate(report));
                 match target {
                     Some(t) if self.motion.reach(t) => {
-                        self.reaches = self.reaches.saturating_add(1);
+                        self.counts.reaches = self.counts.reaches.saturating_add(1);
                         let head = [self.measured[0].unwrap_or(f32::NAN), self.measured[1].unwrap_or(f32::NAN)];
                         let d = Detection { frame, head, blob: None, confirmed: true, reach: Some(t), reason: None };
                         self.last_reach = Some(d);
@@ -1107,7 +1035,7 @@ impl<S: ModelStore> Core<S> {
                         position: a,
                     });
                 }
-                Err(_) => self.clamped_targets = self.clamped_targets.saturating_add(1),
+                Err(_) => self.counts.clamped_targets = self.counts.clamped_targets.saturating_add(1),
             }
         }
         self.servo_tx
@@ -1135,7 +1063,7 @@ impl<S: ModelStore> Core<S> {
                 // Radians first; the master checks raw counts after conversion.
                 match j.validate(a) {
                     Ok(a) => *o = Some(a),
-                    Err(_) => self.clamped_targets = self.clamped_targets.saturating_add(1),
+                    Err(_) => self.counts.clamped_targets = self.counts.clamped_targets.saturating_add(1),
                 }
             }
             t

@@ -32,8 +32,8 @@
 //!   the servo's rounding of the resting pose (up to half a pixel), so it cannot be tight;
 //!   `line_px` carries only the template match's noise. Another robot that stands still at a
 //!   pose whose camera-only gain happens to match the own image's, or that moved a little
-//!   between the rest and the probe, lies off the line by a few tenths of a pixel (issue 29:
-//!   such babblers passed the red gate 4 times in 200). The same gate also wants the face the
+//!   between the rest and the probe, lies off the line by a few tenths of a pixel (a
+//!   gate without this stage passed such babblers 4 times in 200 red trials). The same gate also wants the face the
 //!   model predicts at every probe frame: the pipeline's light fit finds it ([`crate::light`]'s
 //!   verdict `Face`). The own image turns with the head as the decoder predicts; another robot's
 //!   face does not, and at a pose where it matches the prediction too badly the fit refuses it
@@ -47,8 +47,8 @@
 //! all three); and, with a joint bound (`SelfGate::joint_tol`, blob layout 3), when the
 //! statistics' squared shares of their tolerances sum to at most it ([`joint`]): near one
 //! tolerance is the own image's noise, near several at once a stranger's luck (a babbling
-//! robot that held still at a pose whose gain came within the band passed the red box 3 times
-//! in about 1200 trials, issue 29). A probe starts only after the head has rested
+//! robot that held still at a pose whose gain came within the band passes a box of separate
+//! tolerances about 3 times in 1200 red trials). A probe starts only after the head has rested
 //! [`REST_BEFORE_PROBE_US`] since the last one: a delayed picture of the last probe must not
 //! replay in step with the next. Anything that stops the
 //! test (no frames, silent servos, a head that does not get there, the timeout) is undecided,
@@ -457,8 +457,8 @@ impl Gate {
         let unlike = used.iter().fold(0u8, |n, a| n.saturating_add(a.unlike));
         report.unlike = unlike;
         // The mark turns with the face: some of it is salient at a pose, [`MARK_KEPT`] of it at
-        // rest at least (a babbling robot whose mark vanished at both poses passed the red gate
-        // once in 200, issue 29).
+        // rest at least (without this test a babbling robot whose mark vanished at both poses
+        // passed the red gate once in 200).
         let kept = pr.acc[0].salient().max(pr.acc[1].salient());
         let marked = kept > 0.0 && kept >= MARK_KEPT * pr.rest.2;
         report.rest_px = rest_px;

@@ -2,25 +2,27 @@
 //! mark placement and the kinematics: the body is a set of ellipsoids placed by forward
 //! kinematics, the mirror is the plane x = [`MIRROR_X`] of the torso frame, and the camera is the
 //! head's top camera (a pinhole with Nao's 60.97 degree horizontal field of view).
-use crate::kin::{self, LeftArm};
+use crate::kin::{self, LeftArm, HEAD_ELLIPSOID};
 use nalgebra::{Isometry3, Matrix3, Point3, Vector3};
 
+/// Camera frame width, pixels.
 pub const WIDTH: u32 = 320;
+/// Camera frame height, pixels.
 pub const HEIGHT: u32 = 240;
 /// Nao's top camera: 60.97 degrees across 320 pixels.
 pub const FOCAL_PX: f64 = 271.57;
+/// Principal point's x, pixels (the frame's centre).
 pub const CX: f64 = (WIDTH as f64 - 1.0) / 2.0;
+/// Principal point's y, pixels (the frame's centre).
 pub const CY: f64 = (HEIGHT as f64 - 1.0) / 2.0;
 /// The mirror plane in the torso frame, chosen so that the face fills a 75 x 58 crop.
 pub const MIRROR_X: f64 = 0.29;
-
-/// The head shell in the head frame: centre and semi-axes (metres).
-pub const HEAD_ELLIPSOID: ([f64; 3], [f64; 3]) = ([0.0, 0.0, 0.060], [0.062, 0.066, 0.068]);
 
 /// Where marks go, in head-frame (y, z): the front of the face below the red cap and between
 /// the ears. Each mark's whole extent stays inside (see `marks`). Every point here is reachable by
 /// [`kin::ik_touch`] (tested).
 pub const FACE_Y: [f64; 2] = [-0.042, 0.042];
+/// Where marks go in head-frame z, metres (see [`FACE_Y`]).
 pub const FACE_Z: [f64; 2] = [0.030, 0.100];
 
 /// Largest head angle a dataset may use (radians): beyond it the face leaves the usual crop area.
@@ -28,6 +30,7 @@ pub const MAX_DATASET_HEAD_ANGLE: f64 = 0.35;
 
 /// The face crop size (the published template).
 pub const CROP_W: u32 = 75;
+/// Height of the face crop, pixels.
 pub const CROP_H: u32 = 58;
 /// Head-frame point at the centre of the face crop.
 pub const CROP_CENTRE_HEAD: [f64; 3] = [0.06, 0.0, 0.052];
@@ -35,19 +38,28 @@ pub const CROP_CENTRE_HEAD: [f64; 3] = [0.06, 0.0, 0.052];
 /// Which part of the body a primitive is; the looks colour by part.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Part {
+    /// The head shell.
     Head,
+    /// The neck.
     Neck,
+    /// The torso.
     Torso,
+    /// A shoulder.
     Shoulder,
+    /// An upper arm.
     UpperArm,
+    /// A forearm.
     Forearm,
 }
 
 /// An ellipsoid: `local = to_unit * (world - centre)` maps it onto the unit sphere.
 #[derive(Clone, Copy, Debug)]
 pub struct Ellipsoid {
+    /// Which body part this is.
     pub part: Part,
+    /// Centre in the torso frame.
     pub centre: Point3<f64>,
+    /// Maps a point's offset from the centre into the unit sphere's frame.
     pub to_unit: Matrix3<f64>,
     /// Local frame of the part (torso <- part), for textures.
     pub frame: Isometry3<f64>,
@@ -110,9 +122,13 @@ impl Ellipsoid {
 /// The robot's pose as far as the picture goes.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BodyPose {
+    /// HeadYaw, radians.
     pub head_yaw: f64,
+    /// HeadPitch, radians.
     pub head_pitch: f64,
+    /// The left arm's joints.
     pub left_arm: LeftArm,
+    /// The right arm's joints, in the left arm's convention mirrored across the torso's x-z plane.
     pub right_arm: LeftArm,
 }
 

@@ -14,9 +14,11 @@ use rand_chacha::ChaCha8Rng;
 
 /// One captured frame.
 pub struct Capture {
+    /// The rendered frame.
     pub frame: Rendered,
     /// Top-left of the face crop in the frame.
     pub crop_origin: [u32; 2],
+    /// The grey face crop.
     pub crop: GrayImage,
     /// The head angles the frame was rendered at (true, not encoder readings).
     pub head: [f64; 2],
@@ -39,6 +41,7 @@ pub struct Camera {
 }
 
 impl Camera {
+    /// A camera on the world of `robot`, its noise drawn from `seed`.
     pub fn new(robot: Robot, seed: u64) -> Camera {
         let light = LightSchedule::new(LightPlan::Fixed, 1, &mut ChaCha8Rng::seed_from_u64(0));
         Camera { renderer: Renderer::new(robot), rng: ChaCha8Rng::seed_from_u64(seed), light }
@@ -51,6 +54,7 @@ impl Camera {
         self
     }
 
+    /// The renderer it draws frames with.
     pub fn renderer(&self) -> &Renderer {
         &self.renderer
     }

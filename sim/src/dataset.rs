@@ -31,16 +31,20 @@ pub enum DatasetScene {
     /// Another robot of the same look where the mirror image would be, its head at a pose of
     /// its own (drawn from the same range as ours, independently), marks on its face: the face
     /// does not follow the recorded head angles. Not for training; for measuring what a
-    /// decoder of the own image makes of another's face (the self gate's premise, issue 17).
+    /// decoder of the own image makes of another's face (the self gate's premise).
     /// Each frame's draws for our head, the split and the mark are the mirror dataset's of the
     /// same seed.
     Other,
 }
 
 #[derive(Clone, Debug, PartialEq)]
+/// What a synthetic dataset holds and how it is drawn.
 pub struct DatasetConfig {
+    /// The robot in the mirror.
     pub robot: Robot,
+    /// Number of frames.
     pub count: usize,
+    /// Seed of every random draw.
     pub seed: u64,
     /// Head angles are uniform in +-this, radians.
     pub max_head_angle: f64,
@@ -51,6 +55,7 @@ pub struct DatasetConfig {
     /// Share of test frames left without a mark. The paper marks every test image; a few
     /// unmarked ones are what false-alarm rates and image-level AUROC are measured on.
     pub unmarked_test_fraction: f64,
+    /// What stands in front of the camera.
     pub scene: DatasetScene,
     /// How the frames are lit: the calibrated light (the paper's session) or a light of
     /// their own per frame (`crate::light::Light::varied`).
@@ -267,8 +272,11 @@ pub fn render_marked<R: Rng>(
 /// A reach training pair: the mark's pixel at head (0, 0) and the IK posture that touches it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ReachPair {
+    /// The mark's pixel at head pose (0, 0).
     pub pixel: [f64; 2],
+    /// The mark's point in the head frame, metres.
     pub point_head: [f64; 3],
+    /// The reach joints' angles that put the fingertip on the point.
     pub joints: kin::Reach,
 }
 

@@ -2,7 +2,7 @@
 //!
 //! Each joint on the bus is one servo with the control-table items of
 //! [`msr_shared::dynamixel::table`] at their real addresses and sizes, moved by the same dynamics
-//! as the framed bus ([`crate::servo`]), so that the two buses differ only on the wire. A servo
+//! as the framed bus (`servo`), so that the two buses differ only on the wire. A servo
 //! answers only when asked (Ping, Read, Write to its ID, Sync Read naming it), after its Return
 //! Delay Time, and a Sync Read's answers follow one another in the order asked, each after the
 //! one before it; a servo that does not answer silences those after it in that Sync Read (the
@@ -26,7 +26,7 @@
 //!
 //! Faults to inject ([`DxlFault`]): a servo that stops answering from a given time, an overload
 //! from a given time; corrupted bytes come from the link's fault layer ([`crate::link`]).
-use crate::servo::Servo;
+use crate::actuator::{Servo, COUNT_RAD};
 use msr_shared::dynamixel::map::JointMapEntry;
 use msr_shared::dynamixel::table::{self, Item};
 use msr_shared::dynamixel::{self as dxl, error, Instruction, Receiver, RxCounters, Status};
@@ -36,9 +36,21 @@ use msr_shared::joints::Joint;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DxlFault {
     /// Never answers again (its writes still take effect: a broken return line).
-    Silent { id: u8, at_us: u64 },
+    /// Servo `id` stops answering from `at_us` on.
+    Silent {
+        /// The servo.
+        id: u8,
+        /// From when, microseconds.
+        at_us: u64,
+    },
     /// Overload shutdown: Hardware Error Status bit 5, torque off, Alert in every status.
-    Overload { id: u8, at_us: u64 },
+    /// Servo `id` reports an overload from `at_us` on.
+    Overload {
+        /// The servo.
+        id: u8,
+        /// From when, microseconds.
+        at_us: u64,
+    },
 }
 
 /// The emulated bus's settings.
@@ -49,9 +61,11 @@ pub struct DxlConfig {
     pub map: Vec<JointMapEntry>,
     /// Line speed, for the timing of answers.
     pub baud: u32,
+    /// Bits on the line per byte: 10 for 8N1.
     pub bits_per_byte: u32,
     /// Return Delay Time at power-up, units of 2 us (factory 250: 500 us).
     pub return_delay: u8,
+    /// Faults to inject.
     pub faults: Vec<DxlFault>,
 }
 
@@ -144,6 +158,7 @@ impl DxlBus {
         Ok(DxlBus { cfg, regs, rx: Receiver::new(), counters: DxlCounters::default(), byte_us, out: Vec::new() })
     }
 
+    /// What the bus has counted so far.
     pub fn counters(&self) -> DxlCounters {
         self.counters
     }
@@ -370,7 +385,7 @@ impl DxlBus {
             // Present Velocity in units of 0.229 rev/min.
             let v = sign(&r.map) * s.velocity / (0.229 * std::f64::consts::TAU / 60.0);
             put(table::PRESENT_VELOCITY, v.round() as i32 as u32);
-            put(table::PRESENT_POSITION, raw(s.position + s.noise * crate::servo::COUNT_RAD) as u32);
+            put(table::PRESENT_POSITION, raw(s.position + s.noise * COUNT_RAD) as u32);
         }
         t
     }
@@ -520,8 +535,6 @@ pub fn parse_status(bytes: &[u8]) -> Vec<(u8, u8, Vec<u8>)> {
     }
     out
 }
-
-pub mod serve;
 
 #[cfg(test)]
 mod tests;

@@ -35,6 +35,7 @@ pub struct MotionBlur {
 }
 
 impl MotionBlur {
+    /// No motion blur.
     pub const NONE: MotionBlur = MotionBlur { length_px: 0.0, angle_deg: 0.0 };
 }
 
@@ -72,8 +73,11 @@ impl Default for Imperfections {
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[error("camera {field} must be in {range}, got {got}")]
 pub struct OutOfRange {
+    /// The field out of range.
     pub field: &'static str,
+    /// Its allowed range, as text.
     pub range: &'static str,
+    /// The value given.
     pub got: String,
 }
 
@@ -91,19 +95,26 @@ impl Imperfections {
     };
     /// Ranges of the fields (inclusive).
     pub const EXPOSURE: (f32, f32) = (0.05, 20.0);
+    /// Range of the gain.
     pub const GAIN: (f32, f32) = (0.25, 4.0);
+    /// Range of the gamma.
     pub const GAMMA: (f32, f32) = (0.2, 5.0);
+    /// Range of the noise, grey levels RMS.
     pub const NOISE: (f32, f32) = (0.0, 64.0);
+    /// Range of the defocus blur, pixels.
     pub const DEFOCUS: (f32, f32) = (0.0, 10.0);
+    /// Range of the motion blur's length, pixels.
     pub const MOTION: (f32, f32) = (0.0, 50.0);
     /// Colour temperatures `with_colour_temperature` takes, K.
     pub const KELVIN: (f32, f32) = (2000.0, 12000.0);
     /// The colour temperature the camera is balanced for, K (the sim's, `light::tint_of_kelvin`).
     pub const BALANCED_KELVIN: f32 = 5500.0;
 
+    /// The same camera with this exposure.
     pub fn with_exposure(self, exposure: f32) -> Self {
         Imperfections { exposure, ..self }
     }
+    /// The same camera with these white-balance gains (red, green, blue).
     pub fn with_white_balance(self, white_balance: [f32; 3]) -> Self {
         Imperfections { white_balance, ..self }
     }
@@ -112,21 +123,27 @@ impl Imperfections {
     pub fn with_colour_temperature(self, kelvin: f32) -> Self {
         self.with_white_balance(crate::light::tint_of_kelvin(kelvin))
     }
+    /// The same camera with this gamma.
     pub fn with_gamma(self, gamma: f32) -> Self {
         Imperfections { gamma, ..self }
     }
+    /// The same camera with this noise.
     pub fn with_noise(self, noise: f32) -> Self {
         Imperfections { noise, ..self }
     }
+    /// The same camera with this defocus blur.
     pub fn with_defocus(self, defocus: f32) -> Self {
         Imperfections { defocus, ..self }
     }
+    /// The same camera with this motion blur.
     pub fn with_motion(self, length_px: f32, angle_deg: f32) -> Self {
         Imperfections { motion: MotionBlur { length_px, angle_deg }, ..self }
     }
+    /// The same camera with this JPEG quality (`None`: no JPEG).
     pub fn with_jpeg(self, jpeg: Option<u8>) -> Self {
         Imperfections { jpeg, ..self }
     }
+    /// The same camera with this noise seed.
     pub fn with_seed(self, seed: u64) -> Self {
         Imperfections { seed, ..self }
     }

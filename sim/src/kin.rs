@@ -7,11 +7,15 @@
 //!
 //! Joints that the reach does not drive sit at [`ARM_FIXED`]: LElbowYaw = -0.3 tilts the elbow so
 //! that LElbowRoll bends the forearm inwards and a little upwards, in front of the face; of the
-//! values tried (0 to -pi/2) it is the one that reaches the whole mark area ([`crate::body::FACE_Y`],
-//! [`crate::body::FACE_Z`]) within the limits. LWristYaw = 0. The end effector is the URDF hand point (`LWristYaw` + (57.75, 0, -12.31) mm),
+//! values tried (0 to -pi/2) it is the one that reaches the whole mark area (`body::FACE_Y`,
+//! `body::FACE_Z`) within the limits. LWristYaw = 0. The end effector is the URDF hand point (`LWristYaw` + (57.75, 0, -12.31) mm),
 //! called the fingertip here.
 use msr_shared::joints::{Joint, HOME_POSTURE};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
+
+/// The head shell in the head frame: centre and semi-axes (metres); the renderer draws it and
+/// the reach keeps the arm out of it.
+pub const HEAD_ELLIPSOID: ([f64; 3], [f64; 3]) = ([0.0, 0.0, 0.060], [0.062, 0.066, 0.068]);
 
 /// Torso to HeadYaw.
 pub const NECK_OFFSET_Z: f64 = 0.1265;
@@ -78,10 +82,15 @@ pub fn camera_pose(yaw: f64, pitch: f64) -> Isometry3<f64> {
 /// Left arm angles in chain order.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LeftArm {
+    /// LShoulderPitch, radians.
     pub shoulder_pitch: f64,
+    /// LShoulderRoll, radians.
     pub shoulder_roll: f64,
+    /// LElbowYaw, radians.
     pub elbow_yaw: f64,
+    /// LElbowRoll, radians.
     pub elbow_roll: f64,
+    /// LWristYaw, radians.
     pub wrist_yaw: f64,
 }
 
@@ -117,9 +126,13 @@ impl LeftArm {
 /// Points along the left arm in the torso frame.
 #[derive(Clone, Copy, Debug)]
 pub struct ArmPoints {
+    /// The shoulder joint.
     pub shoulder: Point3<f64>,
+    /// The elbow joint.
     pub elbow: Point3<f64>,
+    /// The wrist joint.
     pub wrist: Point3<f64>,
+    /// The fingertip (the URDF hand point).
     pub fingertip: Point3<f64>,
 }
 
@@ -177,17 +190,22 @@ pub fn judge_touch(held: &[Reach], mark_head: &Point3<f64>) -> (bool, f64) {
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
 pub enum IkError {
     #[error("mark point is not finite")]
+    /// The point has a coordinate that is not finite.
     NotFinite,
     #[error("no posture within the joint limits puts the fingertip on the point (best {best_mm:.1} mm)")]
-    Unreachable { best_mm: f64 },
+    /// No posture reaches the point; `best_mm` is the closest miss.
+    Unreachable {
+        /// The closest the fingertip came, millimetres.
+        best_mm: f64,
+    },
 }
 
 /// Head ellipsoid the arm must stay out of during a reach (head frame; centre, semi-axes).
-/// Same numbers as the rendered head (see `body`), slightly grown.
+/// [`HEAD_ELLIPSOID`], slightly grown.
 fn arm_clear_of_head(q: &Reach, margin: f64) -> f64 {
     let pts = arm_points(&LeftArm::from_reach(q), 1.0);
     let inv = head_pose(q[0], q[1]).inverse();
-    let (c, r) = crate::body::HEAD_ELLIPSOID;
+    let (c, r) = HEAD_ELLIPSOID;
     let mut pen = 0.0;
     for p in [pts.elbow, pts.wrist] {
         let h = inv * p;

@@ -16,16 +16,24 @@
 //! ```
 use serde::{Deserialize, Serialize};
 
+/// The dataset's index file.
 pub const INDEX_FILE: &str = "dataset.json";
+/// The head angles of every frame, one line a frame.
 pub const ANGLES_FILE: &str = "head_angles.csv";
+/// The face template used to crop.
 pub const TEMPLATE_FILE: &str = "template.png";
+/// Reach training pairs: the mark centroids.
 pub const REACH_CENTROIDS_FILE: &str = "reach_centroids.csv";
+/// Reach training pairs: the joint angles.
 pub const REACH_JOINTS_FILE: &str = "reach_joints.csv";
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
+/// Which split a frame belongs to.
 pub enum Split {
+    /// The training split.
     Train,
+    /// The test split.
     Test,
 }
 
@@ -36,6 +44,7 @@ pub struct MarkRecord {
     pub shape: String,
     /// Colour name, e.g. "green".
     pub colour: String,
+    /// Colour, RGB.
     pub rgb: [u8; 3],
     /// Inclusive box in full-frame pixels: [x0, y0, x1, y1].
     pub box_xyxy_inclusive: [u32; 4],
@@ -55,9 +64,13 @@ pub struct MarkRecord {
 pub struct FrameRecord {
     /// Path of the frame PNG, relative to the dataset folder.
     pub file: String,
+    /// HeadYaw the frame was taken at, radians.
     pub head_yaw: f64,
+    /// HeadPitch the frame was taken at, radians.
     pub head_pitch: f64,
+    /// The split the frame is in.
     pub split: Split,
+    /// The mark on the face, if any.
     pub mark: Option<MarkRecord>,
     /// Another robot's head (yaw, pitch) when the frame shows another robot, not the mirror
     /// image (`msr dataset --scene other`); absent for the own mirror image.
@@ -70,11 +83,15 @@ pub struct FrameRecord {
 pub struct DatasetIndex {
     /// "red" or "skin" for sim datasets; free text for recordings.
     pub robot: String,
+    /// Seed the dataset was drawn with.
     pub seed: u64,
+    /// Frame width, pixels.
     pub width: u32,
+    /// Frame height, pixels.
     pub height: u32,
     /// Path of the face template, relative to the dataset folder.
     pub template: String,
+    /// Every frame, in file order.
     pub frames: Vec<FrameRecord>,
     /// The V4L2 camera controls a recording was held at (`msr record --camera`), by name
     /// (`exposure_absolute`, `gain`, `white_balance_temperature`); absent for other datasets.
@@ -87,6 +104,7 @@ pub struct DatasetIndex {
 }
 
 impl DatasetIndex {
+    /// The frames of split `s`, with their indices.
     pub fn split(&self, s: Split) -> impl Iterator<Item = (usize, &FrameRecord)> {
         self.frames.iter().enumerate().filter(move |(_, f)| f.split == s)
     }

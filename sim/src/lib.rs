@@ -7,7 +7,8 @@
 //!   [`light`]: the room's lamps, exposure, white balance and the camera's auto-exposure;
 //!   [`imperfect`]: an ordinary camera's tone curve, white balance, noise, blur and JPEG.
 //! - [`dataset`]: datasets in the layout of [`layout`], reach training pairs.
-//! - [`servo`]: emulated servos on the servo bus, framed or (see [`dynamixel`]) as Dynamixel
+//! - [`actuator`]: one joint's emulated servo (motion, friction, sag, encoder); [`servo`]: the
+//!   emulated servo bus, framed or (see [`dynamixel`]) as Dynamixel
 //!   X-series servos on Protocol 2.0; [`link`]: baud-paced links and a fault layer;
 //!   [`pty`]: a pseudo-terminal for `serialport` hosts.
 //! - [`world`]: the world and the firmware on two threads in lock-step simulated time;
@@ -15,6 +16,9 @@
 //!
 //! Examples: `cargo run -p msr-sim --example sim_pictures` (frames under
 //! `target/sim-pictures/`), `cargo run -p msr-sim --example sim_bench` (speeds).
+#![warn(missing_docs)]
+
+pub mod actuator;
 pub mod body;
 pub mod camera;
 pub mod dataset;

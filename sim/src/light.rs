@@ -35,6 +35,7 @@ impl Light {
         tint: [1.0; 3],
     };
 
+    /// Direction of the key lamp, as a vector.
     pub fn key_dir(&self) -> Vector3<f64> {
         Vector3::new(self.key_dir[0], self.key_dir[1], self.key_dir[2])
     }
@@ -140,6 +141,7 @@ pub enum LightMode {
 }
 
 impl LightMode {
+    /// The mode's name on the command line and in reports.
     pub fn name(self) -> &'static str {
         match self {
             LightMode::Fixed => "fixed",
@@ -190,6 +192,7 @@ pub enum LightPlan {
 }
 
 impl LightPlan {
+    /// The plan's name on the command line and in reports.
     pub fn name(self) -> &'static str {
         match self {
             LightPlan::Fixed => "fixed",
@@ -205,6 +208,7 @@ impl LightPlan {
 /// gain loop when the plan has one.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LightSchedule {
+    /// The plan drawn.
     pub plan: LightPlan,
     duration_us: u64,
     /// Drift: the exposure's change at the end. Step: the key lamp's factor after the switch.
@@ -294,6 +298,7 @@ impl LightSchedule {
 /// a share of the way each frame (a first-order lag), within limits.
 #[derive(Clone, Debug, PartialEq)]
 pub struct AutoExposure {
+    /// The gain now.
     pub gain: f32,
     /// Mean grey (0..255) the loop aims for: the calibrated scene's.
     pub target: f32,
@@ -305,6 +310,7 @@ impl AutoExposure {
     /// Mean grey of the calibrated mirror view at home (both robots: 190..200).
     pub const TARGET: f32 = 196.0;
 
+    /// The loop at gain 1, aiming at [`AutoExposure::TARGET`].
     pub fn new() -> AutoExposure {
         AutoExposure { gain: 1.0, target: Self::TARGET, rate: 0.15 }
     }

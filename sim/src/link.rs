@@ -23,16 +23,19 @@ pub struct FaultConfig {
     pub drop_rate: f64,
     /// Probability, per byte, that a burst starts: `burst_len` bytes replaced by random ones.
     pub burst_rate: f64,
+    /// Bytes a burst replaces.
     pub burst_len: u32,
     /// Windows `(start_us, duration_us)` in which the line is dead: every byte is lost.
     pub disconnects: Vec<(u64, u64)>,
 }
 
 impl FaultConfig {
+    /// Only bit errors, at `rate` per bit.
     pub fn ber(rate: f64) -> FaultConfig {
         FaultConfig { bit_error_rate: rate, ..Default::default() }
     }
 
+    /// Only one dead window of `duration_us` from `start_us`.
     pub fn disconnect(start_us: u64, duration_us: u64) -> FaultConfig {
         FaultConfig { disconnects: vec![(start_us, duration_us)], ..Default::default() }
     }
@@ -60,11 +63,17 @@ impl FaultConfig {
 /// What the fault layer did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct FaultCounters {
+    /// Bytes that passed through.
     pub bytes: u64,
+    /// Bits flipped.
     pub bits_flipped: u64,
+    /// Bytes dropped.
     pub bytes_dropped: u64,
+    /// Bursts started.
     pub bursts: u64,
+    /// Bytes replaced by bursts.
     pub burst_bytes: u64,
+    /// Bytes lost to dead windows.
     pub disconnect_bytes: u64,
 }
 
@@ -77,10 +86,12 @@ pub struct Faults {
 }
 
 impl Faults {
+    /// A fault layer drawing from `seed`.
     pub fn new(cfg: FaultConfig, seed: u64) -> Faults {
         Faults { cfg, rng: ChaCha8Rng::seed_from_u64(seed), burst_left: 0, counters: FaultCounters::default() }
     }
 
+    /// What the layer has counted.
     pub fn counters(&self) -> FaultCounters {
         self.counters
     }
@@ -129,12 +140,15 @@ impl Faults {
 /// A link's line settings.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LinkConfig {
+    /// Line speed, bits per second.
     pub baud: u32,
     /// Bits on the line per byte: 10 for 8N1.
     pub bits_per_byte: u32,
     /// Faults from end A to end B and back.
     pub a_to_b: FaultConfig,
+    /// Faults from end B to end A.
     pub b_to_a: FaultConfig,
+    /// Seed of the fault draws.
     pub seed: u64,
     /// Bytes a sender may queue; more are dropped and counted as overflow.
     pub tx_capacity: usize,
@@ -210,10 +224,15 @@ impl Lane {
 /// Counters of one direction, as seen from the sending end.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct LaneStats {
+    /// Bytes the sender queued.
     pub sent: u64,
+    /// Bytes the receiver got.
     pub delivered: u64,
+    /// Bytes on the line now.
     pub in_flight: u64,
+    /// Bytes dropped because the queue was full.
     pub overflow: u64,
+    /// What the fault layer did.
     pub faults: FaultCounters,
 }
 
@@ -262,6 +281,7 @@ impl LinkEnd {
         self.now_us = self.now_us.max(now_us);
     }
 
+    /// The link's clock, microseconds.
     pub fn now_us(&self) -> u64 {
         self.now_us
     }
@@ -365,6 +385,7 @@ pub struct FaultyStream<S> {
 }
 
 impl<S> FaultyStream<S> {
+    /// Wraps `inner`, with faults `tx` on what is written, `rx` on what is read, timed by `clock`.
     pub fn new(inner: S, tx: Faults, rx: Faults, clock: Box<dyn FnMut() -> u64 + Send>) -> Self {
         FaultyStream { inner, tx, rx, clock }
     }
@@ -375,14 +396,17 @@ impl<S> FaultyStream<S> {
         Self::new(inner, tx, rx, Box::new(move || t0.elapsed().as_micros() as u64))
     }
 
+    /// The wrapped stream.
     pub fn inner(&mut self) -> &mut S {
         &mut self.inner
     }
 
+    /// What the fault layer did to written bytes.
     pub fn tx_counters(&self) -> FaultCounters {
         self.tx.counters()
     }
 
+    /// What the fault layer did to read bytes.
     pub fn rx_counters(&self) -> FaultCounters {
         self.rx.counters()
     }

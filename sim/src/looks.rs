@@ -11,14 +11,19 @@ use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
+/// The robots the sim draws.
 pub enum Robot {
+    /// The published red Nao.
     Red,
+    /// A robot in matte grey covers tiled with round skin taxels.
     Skin,
 }
 
 impl Robot {
+    /// Every robot.
     pub const ALL: [Robot; 2] = [Robot::Red, Robot::Skin];
 
+    /// The robot's name on the command line and in datasets.
     pub fn name(self) -> &'static str {
         match self {
             Robot::Red => "red",
@@ -52,9 +57,13 @@ pub const AMBIENT: f32 = 0.45;
 /// How a surface point reflects and glows, colours in 0..1.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Surface {
+    /// Diffuse colour, linear RGB.
     pub albedo: [f32; 3],
+    /// Specular strength.
     pub specular: f32,
+    /// Specular exponent.
     pub shininess: i32,
+    /// Light the material emits, linear RGB.
     pub emission: [f32; 3],
 }
 
@@ -96,6 +105,7 @@ pub struct Look {
 }
 
 impl Look {
+    /// The look of `robot`, its eye LEDs at brightness `eye_led`.
     pub fn of(robot: Robot, eye_led: f32) -> Look {
         Look { robot, eye_led: eye_led.clamp(0.0, 1.0) }
     }

@@ -8,11 +8,22 @@ use nalgebra::Point3;
 use rand::Rng;
 
 #[derive(Clone, Copy, Debug, PartialEq)]
+/// A mark's outline.
 pub enum Shape {
     /// Axis-aligned rectangle, half sizes (y, z) in metres.
-    Rect { half_w: f64, half_h: f64 },
+    /// A rectangle of these half sizes, metres.
+    Rect {
+        /// Half the width, metres.
+        half_w: f64,
+        /// Half the height, metres.
+        half_h: f64,
+    },
     /// Regular hexagon with two vertices on the y axis; circumradius in metres.
-    Hexagon { radius: f64 },
+    /// A regular hexagon of this circumradius, metres.
+    Hexagon {
+        /// Circumradius, metres.
+        radius: f64,
+    },
 }
 
 /// One mark.
@@ -20,8 +31,11 @@ pub enum Shape {
 pub struct Mark {
     /// "rectangle", "hexagon", "postit", "vbar" or "hbar".
     pub kind: &'static str,
+    /// Colour name.
     pub colour: &'static str,
+    /// Colour, RGB.
     pub rgb: [u8; 3],
+    /// Outline.
     pub shape: Shape,
     /// Centre in the head frame (y, z).
     pub centre_yz: [f64; 2],
@@ -105,7 +119,7 @@ impl Mark {
         if let Some(p) = body::face_point(y, z) {
             return p;
         }
-        let (c, r) = body::HEAD_ELLIPSOID;
+        let (c, r) = crate::kin::HEAD_ELLIPSOID;
         let (u, v) = ((y - c[1]) / r[1], (z - c[2]) / r[2]);
         let k = 0.999 / (u * u + v * v).sqrt().max(1e-12);
         let (u, v) = if (u * k).is_finite() && (v * k).is_finite() { (u * k, v * k) } else { (0.0, 0.0) };

@@ -17,6 +17,7 @@ pub struct Pty {
 }
 
 impl Pty {
+    /// Opens a new pseudo-terminal.
     pub fn open() -> anyhow::Result<Pty> {
         let (mut master, slave) = TTYPort::pair()?;
         let path = slave.name().ok_or_else(|| anyhow::anyhow!("the PTY has no path"))?;
@@ -44,6 +45,7 @@ impl Pty {
         Ok(buf)
     }
 
+    /// Writes all of `bytes` to the pseudo-terminal.
     pub fn write_all(&mut self, bytes: &[u8]) -> std::io::Result<()> {
         self.master.write_all(bytes)?;
         self.master.flush()
@@ -52,12 +54,16 @@ impl Pty {
 
 /// Copies between a PTY and a simulated link end.
 pub struct PtyBridge {
+    /// The pseudo-terminal.
     pub pty: Pty,
+    /// Bytes carried from the pseudo-terminal to the link.
     pub to_link: u64,
+    /// Bytes carried from the link to the pseudo-terminal.
     pub to_pty: u64,
 }
 
 impl PtyBridge {
+    /// A bridge over `pty` with zero counts.
     pub fn new(pty: Pty) -> PtyBridge {
         PtyBridge { pty, to_link: 0, to_pty: 0 }
     }

@@ -123,7 +123,13 @@ pub enum ImageError {
     /// Built before one of its sources last changed: the firmware it runs is not the firmware
     /// this `msr` was built with (after a `git pull`, say), and its trials would differ from
     /// in-process ones, or its protocol from this host's, for no reason a user could see.
-    Stale { image: PathBuf, source: PathBuf },
+    /// `image` is older than `source`.
+    Stale {
+        /// The image.
+        image: PathBuf,
+        /// The newer source file.
+        source: PathBuf,
+    },
 }
 
 impl std::fmt::Display for ImageError {
@@ -202,6 +208,7 @@ pub struct QemuExit {
     pub code: Option<i32>,
     /// What QEMU and the image printed (stdout then stderr).
     pub output: String,
+    /// Whether the run hit its time limit.
     pub timed_out: bool,
 }
 

@@ -52,7 +52,9 @@ impl Variation {
 
 /// One rendered frame and, when a mark was drawn, its ground truth in pixels.
 pub struct Rendered {
+    /// The frame, RGB.
     pub rgb: RgbImage,
+    /// Where the mark was drawn, if there was one.
     pub mark: Option<MarkPixels>,
 }
 
@@ -61,6 +63,7 @@ pub struct Rendered {
 pub struct MarkPixels {
     /// Full-frame mask, 255 on mark pixels.
     pub mask: GrayImage,
+    /// Number of mark pixels.
     pub pixels: u32,
     /// Inclusive [x0, y0, x1, y1]; all zero when no pixel shows.
     pub box_xyxy: [u32; 4],
@@ -79,6 +82,7 @@ pub struct Renderer {
 }
 
 impl Renderer {
+    /// A renderer of `robot`.
     pub fn new(robot: Robot) -> Renderer {
         let mut rays = Vec::with_capacity((WIDTH * HEIGHT) as usize);
         let mut background = Vec::with_capacity(rays.capacity());
@@ -95,6 +99,7 @@ impl Renderer {
         Renderer { robot, rays, background, normal_table }
     }
 
+    /// The robot it draws.
     pub fn robot(&self) -> Robot {
         self.robot
     }

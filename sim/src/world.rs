@@ -15,6 +15,7 @@ use std::sync::{Condvar, Mutex};
 
 /// The firmware side: called once a tick with the time and its two link ends.
 pub trait Firmware: Send {
+    /// Runs the firmware for one tick at `now_us`.
     fn poll(&mut self, now_us: u64, host: &mut LinkEnd, servo: &mut LinkEnd);
 }
 
@@ -25,12 +26,15 @@ impl<F: FnMut(u64, &mut LinkEnd, &mut LinkEnd) + Send> Firmware for F {
 }
 
 #[derive(Clone, Debug, PartialEq)]
+/// Settings of the world: tick, links and servos.
 pub struct WorldConfig {
+    /// Simulated time per tick, microseconds.
     pub tick_us: u64,
     /// Host link: end A is the world (the PC's side), end B the firmware.
     pub host_link: LinkConfig,
     /// Servo bus: end A is the firmware, end B the servos.
     pub servo_link: LinkConfig,
+    /// The servos' settings.
     pub servo: ServoConfig,
     /// The servos speak Dynamixel Protocol 2.0 (`None`: the framed protocol).
     pub dynamixel: Option<crate::dynamixel::DxlConfig>,
@@ -63,7 +67,9 @@ impl WorldConfig {
 
 /// The world side: servos on the servo bus, and the PC's end of the host link.
 pub struct World {
+    /// Simulated time, microseconds.
     pub now_us: u64,
+    /// The servos on the servo bus.
     pub servos: ServoBus,
     /// The world's end of the host link; the scenario sends and receives on it.
     pub host: LinkEnd,
@@ -109,26 +115,39 @@ impl World {
 /// What the scenario tells the world after each tick.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Flow {
+    /// Go on to the next tick.
     Continue,
+    /// End the run.
     Stop,
 }
 
 /// How a run went.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RunReport {
+    /// Simulated time at the end, microseconds.
     pub end_us: u64,
+    /// Ticks run.
     pub ticks: u64,
+    /// Wall-clock seconds the run took.
     pub wall_s: f64,
     /// Simulated time over wall time.
     pub speedup: f64,
 }
 
 #[derive(Debug, thiserror::Error)]
+/// Why a run failed.
 pub enum RunError {
     #[error("bad world settings: {0}")]
+    /// The world's settings are invalid.
     Config(String),
     #[error("the firmware panicked at {at_us} us: {message}")]
-    FirmwarePanic { at_us: u64, message: String },
+    /// The firmware panicked at `at_us`.
+    FirmwarePanic {
+        /// Simulated time of the panic, microseconds.
+        at_us: u64,
+        /// The panic's message.
+        message: String,
+    },
 }
 
 /// Builds the world (servos at home) and runs it with `firmware` on its own thread until the

@@ -3,7 +3,7 @@
 //! - writing, for the same instructions, the same bytes as the firmware's bus master.
 use msr_firmware::dynamixel::{Master, Stage};
 use msr_shared::dynamixel::map::default_map;
-use msr_sim::dynamixel::serve::{serve, servos};
+use msr_sim::servo::serve::{serve, servos};
 use msr_sim::dynamixel::{DxlConfig, STALL_OVERLOAD_US};
 use msr_sim::pty::Pty;
 use std::sync::atomic::{AtomicBool, Ordering};

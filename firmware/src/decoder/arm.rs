@@ -20,6 +20,27 @@
 
 use super::{Activate, AsmAct};
 
+/// `acc + a.lo * b.lo + a.hi * b.hi` (signed halves), wrapping.
+#[inline(always)]
+pub(crate) fn smlad(a: u32, b: u32, acc: i32) -> i32 {
+    #[cfg(target_arch = "arm")]
+    {
+        let r: i32;
+        // SAFETY: SMLAD only reads its three registers and writes one (ARMv7E-M DSP).
+        unsafe {
+            core::arch::asm!("smlad {r}, {a}, {b}, {c}", r = lateout(reg) r, a = in(reg) a, b = in(reg) b,
+                c = in(reg) acc, options(pure, nomem, nostack));
+        }
+        r
+    }
+    #[cfg(not(target_arch = "arm"))]
+    {
+        let lo = (a as u16 as i16 as i32) * (b as u16 as i16 as i32);
+        let hi = ((a >> 16) as u16 as i16 as i32) * ((b >> 16) as u16 as i16 as i32);
+        acc.wrapping_add(lo).wrapping_add(hi)
+    }
+}
+
 /// Most groups of four words a row may have here (the unrolled block's length).
 pub(crate) const MAX_GROUPS: usize = 16;
 
@@ -361,8 +382,7 @@ use portable::*;
 
 #[cfg(not(target_arch = "arm"))]
 mod portable {
-    use super::Job;
-    use crate::decoder::fast::smlad;
+    use super::{smlad, Job};
 
     /// The table step of the assembly: tanh (rounded to out_shift) or grey.
     unsafe fn step(job: &Job, acc: i32, grey: bool) -> i16 {

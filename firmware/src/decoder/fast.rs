@@ -9,32 +9,13 @@
 //!   share each weight pair (packed from i8 or i16 weights). Border outputs, whose taps fall
 //!   outside the input, take the generic path.
 //!
-//! [`smlad`] is the instruction on ARM and the same wrapping sum elsewhere: bit-identical.
+//! [`smlad`] (in `super::arm`) is the instruction on ARM and the same wrapping sum elsewhere:
+//! bit-identical.
 
+use super::arm::smlad;
 use super::kernels::{Table, Taps, MAX_K};
 use super::Activate;
 use msr_shared::blob::Layer;
-
-/// `acc + a.lo * b.lo + a.hi * b.hi` (signed halves), wrapping.
-#[inline(always)]
-pub(crate) fn smlad(a: u32, b: u32, acc: i32) -> i32 {
-    #[cfg(target_arch = "arm")]
-    {
-        let r: i32;
-        // SAFETY: SMLAD only reads its three registers and writes one (ARMv7E-M DSP).
-        unsafe {
-            core::arch::asm!("smlad {r}, {a}, {b}, {c}", r = lateout(reg) r, a = in(reg) a, b = in(reg) b,
-                c = in(reg) acc, options(pure, nomem, nostack));
-        }
-        r
-    }
-    #[cfg(not(target_arch = "arm"))]
-    {
-        let lo = (a as u16 as i16 as i32) * (b as u16 as i16 as i32);
-        let hi = ((a >> 16) as u16 as i16 as i32) * ((b >> 16) as u16 as i16 as i32);
-        acc.wrapping_add(lo).wrapping_add(hi)
-    }
-}
 
 /// `acc + sum_i smlad(w[i], x[i])` over 4-word groups with LDM (Cortex-M4): 8 MACs in 8
 /// instructions. `x` and `w` are word-aligned slices of equal length, a multiple of 4.

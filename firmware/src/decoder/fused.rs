@@ -27,7 +27,7 @@
 //! them (padding, packing, phases, crop) is tested against the layer-by-layer path.
 
 use super::arm::{dense2_i8_x4, pair_i8, I8_BLOCK, I8_MAX_IN};
-use super::fast::smlad;
+use super::arm::smlad;
 use super::kernels::{AnyWeights, Table};
 use super::{AsmAct, Requant};
 use crate::room::{self, rows::Packed};
@@ -492,7 +492,7 @@ use portable::*;
 #[cfg(not(target_arch = "arm"))]
 mod portable {
     use super::{Conv4Job, Px4Job, BLOCK, C, STRIDE};
-    use crate::decoder::fast::smlad;
+    use crate::decoder::arm::smlad;
 
     /// SXTB16 of `w` rotated right by `rot` bits.
     fn sxtb16(w: u32, rot: u32) -> u32 {

@@ -471,7 +471,7 @@ fn the_return_stage_catches_a_face_off_the_line_that_the_rest_test_allows() {
     assert_eq!((r.decision, t), (GateDecision::Pass, Some(TARGET)), "{r:?}");
     assert!(r.line_px < 0.03, "{}", r.line_px);
     assert_eq!(r.elapsed_ms, 900);
-    // Another robot that moved a little on its own before the probe (issue 29): the right gain,
+    // Another robot that moved a little on its own before the probe: the right gain,
     // its rest 0.5 px off the line, and there it stays. The two-stage gate passes it ...
     let (r, t) = done(run_back(two, [120.75; 3], [101.28; 2], [139.22; 2], [120.75; 2]));
     assert_eq!((r.decision, t), (GateDecision::Pass, Some(TARGET)), "{r:?}");
@@ -591,7 +591,7 @@ fn a_probe_near_several_tolerances_at_once_is_rejected() {
     let (r, t) = done(run_back(three, [120.3; 3], [101.03; 2], [138.97; 2], [120.16; 2]));
     assert_eq!((r.decision, t), (GateDecision::Pass, Some(TARGET)), "{r:?}");
     // The same, and the gain 0.85 of its tolerance off too: every statistic inside its own
-    // tolerance, their joint 1.61 past the bound (issue 29's babblers passed the box so).
+    // tolerance, their joint 1.61 past the bound (how babblers pass a box of separate tolerances).
     let (r, t) = done(run_back(three, [120.431; 3], [101.0; 2], [139.2625; 2], [120.291; 2]));
     assert!(((r.gain_ratio - 1.0).abs() - 0.0085).abs() < 2e-4, "{}", r.gain_ratio);
     assert!(r.line_px < 0.2 && r.rest_px < 0.6, "{r:?}");

@@ -2,7 +2,7 @@
 //! Dynamixel software (Dynamixel Wizard, DynamixelSDK, the `dynamixel2` crate) can ping, read
 //! and write them. With no `--port`, on a new pseudo-terminal whose path it prints.
 use anyhow::{Context, Result};
-use msr_sim::dynamixel::serve::{serve, servos};
+use msr_sim::servo::serve::{serve, servos};
 use msr_sim::dynamixel::DxlConfig;
 use msr_sim::Robot;
 use std::io::Write;

@@ -254,7 +254,7 @@ fn a_mark_off_the_head_gets_a_point_on_its_edge() {
     for c in [[0.5, 0.06], [0.0, -1.0], [f64::NAN, 0.0], [0.0, 0.06]] {
         m.centre_yz = c;
         let p = m.point_head();
-        let (cc, r) = body::HEAD_ELLIPSOID;
+        let (cc, r) = crate::kin::HEAD_ELLIPSOID;
         let s = ((p.x - cc[0]) / r[0]).powi(2) + ((p.y - cc[1]) / r[1]).powi(2) + ((p.z - cc[2]) / r[2]).powi(2);
         assert!((s - 1.0).abs() < 1e-9 && p.x >= 0.0, "{c:?} -> {p:?}");
     }

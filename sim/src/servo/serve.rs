@@ -1,5 +1,6 @@
 //! The emulated servos on a real serial line (a PTY, or a port), in real time, so that any
 //! Dynamixel software (DynamixelSDK, Dynamixel Wizard, the `dynamixel2` crate) can talk to them.
+use crate::dynamixel::DxlConfig;
 use crate::servo::{ServoBus, ServoConfig};
 use std::io::{Read, Write};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -8,12 +9,14 @@ use std::time::{Duration, Instant};
 /// What a serving session did.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Served {
+    /// Bytes read from the line.
     pub bytes_in: u64,
+    /// Bytes written to the line.
     pub bytes_out: u64,
 }
 
 /// The robot's servos at home, speaking Protocol 2.0 with `cfg`.
-pub fn servos(cfg: super::DxlConfig) -> Result<ServoBus, String> {
+pub fn servos(cfg: DxlConfig) -> Result<ServoBus, String> {
     ServoBus::at_home(ServoConfig::default()).with_dynamixel(cfg)
 }
 
