@@ -300,42 +300,7 @@ pub fn describe(t: &Trial) -> String {
     )
 }
 
+/// The summary's one line (its [`Display`](std::fmt::Display)).
 pub fn readable(s: &Summary) -> String {
-    let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
-    let early = if s.ended_before_mark > 0 {
-        format!(", {} ended before the mark appeared", s.ended_before_mark)
-    } else {
-        String::new()
-    };
-    format!(
-        "{} {} ({} servo bus, scene {}): {} trials, {} reaches, self gate {} pass / {} reject / {} undecided, \
-         touched {}/{} marked ({} %), false reaches {} ({} trials without a mark{early}), \
-         median touch error {} mm, median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, \
-         watchdog trips {}; face link: goodput {:.0} B/s, {} chunks sent again, {} frames superseded",
-        s.backend,
-        s.robot,
-        s.servo_bus,
-        s.scene,
-        s.trials,
-        s.reaches,
-        s.gate_passes,
-        s.gate_rejects,
-        s.gate_undecided,
-        s.touched,
-        s.marked_trials,
-        f(s.touch_rate.map(|r| 100.0 * r)),
-        s.false_reaches,
-        s.no_mark_trials,
-        f(s.median_touch_error_mm),
-        f(s.latency_ms_median),
-        s.limit_violations,
-        s.crc_errors,
-        s.resyncs,
-        s.watchdog_trips,
-        s.goodput_bytes_per_s,
-        s.retransmissions,
-        s.frames_superseded
-    ) + &s.room.map_or(String::new(), |r| {
-        format!("; {:.1} min of robot time on one board, {}", s.sim_s / 60.0, super::status::describe_room(&r))
-    }) + &s.live.map_or(String::new(), |l| format!("; {l}"))
+    s.to_string()
 }

@@ -443,6 +443,51 @@ pub struct Summary {
     pub live: Option<crate::live::LiveStats>,
 }
 
+impl std::fmt::Display for Summary {
+    /// One line: the counts, rates and medians, the face link, the room and the live view.
+    fn fmt(&self, out: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = self;
+        let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
+        let early = if s.ended_before_mark > 0 {
+            format!(", {} ended before the mark appeared", s.ended_before_mark)
+        } else {
+            String::new()
+        };
+        let line = format!(
+            "{} {} ({} servo bus, scene {}): {} trials, {} reaches, self gate {} pass / {} reject / {} undecided, \
+             touched {}/{} marked ({} %), false reaches {} ({} trials without a mark{early}), \
+             median touch error {} mm, median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, \
+             watchdog trips {}; face link: goodput {:.0} B/s, {} chunks sent again, {} frames superseded",
+            s.backend,
+            s.robot,
+            s.servo_bus,
+            s.scene,
+            s.trials,
+            s.reaches,
+            s.gate_passes,
+            s.gate_rejects,
+            s.gate_undecided,
+            s.touched,
+            s.marked_trials,
+            f(s.touch_rate.map(|r| 100.0 * r)),
+            s.false_reaches,
+            s.no_mark_trials,
+            f(s.median_touch_error_mm),
+            f(s.latency_ms_median),
+            s.limit_violations,
+            s.crc_errors,
+            s.resyncs,
+            s.watchdog_trips,
+            s.goodput_bytes_per_s,
+            s.retransmissions,
+            s.frames_superseded
+        ) + &s.room.map_or(String::new(), |r| {
+            format!("; {:.1} min of robot time on one board, {}", s.sim_s / 60.0, crate::describe::describe_room(&r))
+        }) + &s.live.map_or(String::new(), |l| format!("; {l}"));
+        out.write_str(&line)
+    }
+}
+
 pub fn median(mut v: Vec<f64>) -> Option<f64> {
     if v.is_empty() {
         return None;
