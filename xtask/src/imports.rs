@@ -442,6 +442,9 @@ pub fn show(m: &Module) -> String {
 mod tests {
     use super::*;
 
+    /// The crates whose imports must run one way: (folder, crate name in paths).
+    const CRATES: [(&str, &str); 1] = [("host", "msr_host")];
+
     fn src(krate: &str) -> PathBuf {
         crate::root().join(krate).join("src")
     }
@@ -451,6 +454,19 @@ mod tests {
         let g = graph(&src("host"), "msr_host");
         let bad: Vec<String> = naming(&g, &["cmd"]).iter().map(|(m, t)| format!("{} names {}", show(m), show(t))).collect();
         assert!(bad.is_empty(), "library modules outside cmd/ that use it: {bad:#?}");
+    }
+
+    #[test]
+    fn no_circle_of_imports() {
+        let mut found = Vec::new();
+        for (dir, name) in CRATES {
+            for (cycle, set) in circles(&graph(&src(dir), name)) {
+                let c: Vec<String> = cycle.iter().map(show).collect();
+                let s: Vec<String> = set.iter().map(show).collect();
+                found.push(format!("{dir}: {} (all of: {})", c.join(" -> "), s.join(", ")));
+            }
+        }
+        assert!(found.is_empty(), "circles of imports:\n{}", found.join("\n"));
     }
 
     /// A crate written into a temporary folder, to test the checker on circles it must find.

@@ -217,7 +217,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let live = a.live.start(quiet)?;
     if let Some(l) = &live {
-        cfg.live = Some(crate::live::LiveTap { live: l.clone(), model: crate::rosbag::session::LogModel(blob.clone().into()) });
+        cfg.live = Some(crate::rosbag::session::LiveTap { live: l.clone(), model: crate::rosbag::session::LogModel(blob.clone().into()) });
     }
     // The gate the trials run with (the blob's, after --self-gate).
     let gate = msr_shared::blob::Model::parse(&blob).ok().and_then(|m| m.self_gate);

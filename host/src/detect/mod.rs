@@ -4,7 +4,7 @@ pub mod pipeline;
 pub mod fixed;
 pub mod blobs;
 use crate::data::crop::{CropBox, CropMode, Cropper, Face};
-use crate::quant::import::{Dense, DenseDecoder};
+use crate::models::dense::{Dense, DenseDecoder};
 use crate::detect::pipeline::{Detection, FloatEngine, Settings, JOINTS};
 use crate::models::predictor::FacePredictor;
 use anyhow::{bail, ensure, Context, Result};

@@ -149,7 +149,7 @@ pub struct EpisodeConfig {
     /// Log each trial for `--mcap` (its model draws the saliency image).
     pub mcap: Option<crate::rosbag::session::LogModel>,
     /// Publish each trial's messages live as they happen (`--live`).
-    pub live: Option<crate::live::LiveTap>,
+    pub live: Option<crate::rosbag::session::LiveTap>,
     /// How the light changes over each trial (`msr mirror-test --light`).
     pub light: LightPlan,
     /// The light's plan spans a run of trials rather than each trial ([`run_one_board`]).
