@@ -93,8 +93,8 @@ pub struct BenchModel {
 
 /// Reads a blob and names it by its architecture.
 pub fn from_file(path: &Path) -> Result<BenchModel> {
-    let blob = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let model = Model::parse(&blob).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let blob = crate::fsio::read_blob(path)?;
+    let model = Model::parse(&blob).map_err(|e| anyhow::anyhow!("model {}: {e}", path.display()))?;
     let name = arch_name(&model).unwrap_or_else(|| {
         path.file_stem().map_or("model".into(), |s| s.to_string_lossy().into_owned())
     });

@@ -204,7 +204,7 @@ pub fn run(a: Args) -> Result<()> {
         bail!("--trials must be at least 1");
     }
     let cfg = config(&a)?;
-    let raw = episode::read_model(&a.model)?;
+    let raw = crate::fsio::read_blob(&a.model)?;
     check_robot(&raw, a.robot)?;
     let blob = gated_blob(raw, a.self_gate, a.robot)?;
     let mut cfg = cfg;

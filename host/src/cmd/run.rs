@@ -127,7 +127,7 @@ pub fn run(a: Args) -> Result<()> {
     if !(a.fps.is_finite() && a.fps > 0.0) {
         bail!("--fps must be positive");
     }
-    let blob = crate::episode::read_model(&a.model)?;
+    let blob = crate::fsio::read_blob(&a.model)?;
     let model = msr_shared::blob::Model::parse(&blob).map_err(|e| anyhow!("model: {e}"))?;
     let cropper = crate::detect::cropper_of(&model)?;
     let timeout = Duration::from_millis(a.timeout_ms);

@@ -21,10 +21,6 @@ pub enum EngineArg {
     Float,
 }
 
-pub fn read_blob(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).with_context(|| format!("cannot read model {}", path.display()))
-}
-
 pub fn parse_blob<'a>(bytes: &'a [u8], path: &Path) -> Result<Model<'a>> {
     Model::parse(bytes).map_err(|e| anyhow::anyhow!("model {}: {e}", path.display()))
 }

@@ -24,7 +24,7 @@ pub mod qemu;
 pub mod scene;
 pub mod sim_board;
 use crate::data::crop;
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, Result};
 use image::{DynamicImage, GrayImage};
 
 use msr_firmware::Board;
@@ -1216,13 +1216,6 @@ pub fn run_one_board(
         trials.push(trial);
     }
     Ok((trials, room.unwrap_or(msr_firmware::room::Room::new().report(false))))
-}
-
-/// Reads a model blob and checks it parses.
-pub fn read_model(path: &std::path::Path) -> Result<Vec<u8>> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading model {}", path.display()))?;
-    Model::parse(&bytes).map_err(|e| anyhow!("model {}: {e}", path.display()))?;
-    Ok(bytes)
 }
 
 #[cfg(test)]

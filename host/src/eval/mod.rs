@@ -24,7 +24,8 @@
 //! weighting) agree: both find nothing, or both find a blob with centroids at most 1 px apart.
 pub mod metrics;
 use crate::data::{Dataset, Sample};
-use crate::detect::{dequantized_decoder, float_engine_of, parse_blob, read_blob};
+use crate::detect::{dequantized_decoder, float_engine_of, parse_blob};
+use crate::fsio::read_blob;
 use crate::eval::metrics::{auroc, detection_score};
 use crate::detect::pipeline::{Detection, Settings};
 use crate::models::predictor::FacePredictor;
