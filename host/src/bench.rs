@@ -1,4 +1,4 @@
-//! `msr bench`: instruction counts, memory and code size of the firmware pipeline.
+//! The firmware pipeline's benchmark: instruction counts, memory and code size.
 //!
 //! Two backends:
 //! - `qemu` (default): the benchmark image (`msr-qemu-bench`) runs under QEMU's mps2-an386

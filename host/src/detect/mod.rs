@@ -1,5 +1,5 @@
-//! `msr detect`: find a mark in one camera frame with a model blob: template crop on the host,
-//! then the pipeline on the crop (the firmware's fixed-point code by default).
+//! Detection in one camera frame with a model blob: template crop on the host, then the pipeline
+//! on the crop (the firmware's fixed-point code by default).
 pub mod pipeline;
 pub mod fixed;
 pub mod blobs;

@@ -1,4 +1,4 @@
-//! `msr eval`: detection on a dataset's test split, the paper's table.
+//! The paper's table: detection on a dataset's test split.
 //!
 //! Rows: model (decoder, autoencoder) x weighting (sigma: the blob's statistics; none: Sigma = I,
 //! i.e. sigma = 1 grey level everywhere, the paper's ablation) x engine (float, fixed). The fixed

@@ -1,4 +1,4 @@
-//! `msr import`: the published model (safetensors decoder and reach network, .npy error
+//! Importing the published model (safetensors decoder and reach network, .npy error
 //! statistics, face template, threshold) -> a fixed-point model blob the firmware runs.
 //!
 //! The manifest (`shared/data/nao-red-real/manifest.json`) names every file and tensor; nothing is

@@ -1,8 +1,8 @@
-//! `msr train`: train a decoder or autoencoder on a dataset and calibrate its error statistics.
+//! Training: a decoder or autoencoder fitted to a dataset, and its error statistics calibrated.
 //!
 //! Output folder (other commands rely on it):
-//! - `{name}.mpk`: the burn record (burnpack format: burn 0.22 dropped the MessagePack recorders,
-//!   the name is kept), `name` = `decoder` or `autoencoder`;
+//! - `{name}.mpk`: the burn record in burn's burnpack format (the `.mpk` name is what the other
+//!   commands look for), `name` = `decoder` or `autoencoder`;
 //! - `{name}.json`: [`ModelInfo`] (architecture, face size, hyper-parameters, per-epoch losses,
 //!   training seconds, novelty parameters and how the threshold was chosen);
 //! - `{name}_mu.npy`, `{name}_sigma.npy`: float64 `h x w` error statistics in grey levels, like the
