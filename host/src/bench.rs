@@ -1,4 +1,4 @@
-//! `msr bench`: instruction counts, memory and code size of the firmware pipeline.
+//! The firmware pipeline's benchmark: instruction counts, memory and code size.
 //!
 //! Two backends:
 //! - `qemu` (default): the benchmark image (`msr-qemu-bench`) runs under QEMU's mps2-an386
@@ -93,8 +93,8 @@ pub struct BenchModel {
 
 /// Reads a blob and names it by its architecture.
 pub fn from_file(path: &Path) -> Result<BenchModel> {
-    let blob = std::fs::read(path).with_context(|| format!("reading {}", path.display()))?;
-    let model = Model::parse(&blob).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    let blob = crate::fsio::read_blob(path)?;
+    let model = Model::parse(&blob).map_err(|e| anyhow::anyhow!("model {}: {e}", path.display()))?;
     let name = arch_name(&model).unwrap_or_else(|| {
         path.file_stem().map_or("model".into(), |s| s.to_string_lossy().into_owned())
     });

@@ -1,6 +1,6 @@
 //! The demo: from nothing to a report: dataset, training, reach, quantization, evaluation,
 //! episodes, the real-frame check, a benchmark, `report.json` ([`DemoReport`]) and `index.html`.
-//! `msr demo` (`crate::cmd::demo`) runs it with a [`DemoConfig`] made from its flags.
+//! `DemoConfig` in, `DemoReport` out; the command line makes the [`DemoConfig`] from its flags.
 //!
 //! Every step calls the other modules' library functions; each prints a progress line with its
 //! time. What the demo does differently from the paper's full protocol, and why, is printed and
@@ -264,7 +264,7 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
     let quiet = |_: &episode::Trial| {};
     let trials = episode::run_inproc(&blob, &cfg, a.trials, a.seed, &quiet)?;
     let inproc = episode::summarise(Backend::Inproc, a.robot, a.servo_bus, &trials);
-    p.done("episodes_inproc_s", &crate::cmd::mirror_test::readable(&inproc));
+    p.done("episodes_inproc_s", &inproc.to_string());
     let self_gate = if a.gate_trials > 0 {
         p.start(&format!(
             "   the self gate: {} trials in each scene (the mirror, another robot, a delayed picture), {}",
@@ -295,7 +295,7 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
         ));
         match qemu_episodes(&blob, &cfg, &mirror.trials, a.qemu_trials, a.seed) {
             Ok((s, matching, note)) => {
-                p.done("episodes_qemu_s", &format!("{}; {note}", crate::cmd::mirror_test::readable(&s)));
+                p.done("episodes_qemu_s", &format!("{s}; {note}"));
                 mirror.qemu = Some(s);
                 mirror.qemu_matching_inproc = Some(matching);
                 notes.push(format!("QEMU episodes: {note}."));

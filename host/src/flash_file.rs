@@ -1,4 +1,4 @@
-//! An emulated board's flash kept in a file (`msr serve --flash FILE`): the firmware's emulated
+//! An emulated board's flash kept in a file: the firmware's emulated
 //! NOR flash ([`msr_firmware::store::emu`]) over bytes that are written through to the file at
 //! every program and erase, so a killed server leaves the file as a power cut at that moment
 //! would leave the flash (the firmware's store is tested against every such cut). The file is

@@ -146,6 +146,13 @@ pub fn read(path: &Path) -> Result<Vec<u8>> {
     std::fs::read(path).with_context(|| format!("cannot read {}", path.display()))
 }
 
+/// A model blob file's bytes, once they parse as a model (the one reader of model files).
+pub fn read_blob(path: &Path) -> Result<Vec<u8>> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read model {}", path.display()))?;
+    msr_shared::blob::Model::parse(&bytes).map_err(|e| anyhow::anyhow!("model {}: {e}", path.display()))?;
+    Ok(bytes)
+}
+
 /// `cannot write X: cannot write X: why` -> `cannot write X: why`.
 fn dedupe(e: anyhow::Error) -> anyhow::Error {
     let msgs: Vec<String> = e.chain().map(|c| c.to_string()).collect();

@@ -2,6 +2,12 @@
 //!
 //! `cmd` holds the command shells (arguments, `run`, printing); the other modules are the library
 //! they call, arranged by role.
+//!
+//! The rule of the layers: the library never names `cmd`. Flag names, usage errors and exit codes
+//! live in `cmd/`; the library takes typed configurations and returns typed errors (e.g.
+//! [`train::ConfigError`], which `cmd` words with the flags' names) and values that print
+//! themselves (the episode [`episode::Summary`] is `Display`). The imports between the files run
+//! one way, with no circle. `cargo test -p xtask` checks both from the source text.
 pub mod cmd;
 pub mod fsio;
 pub mod data;
@@ -14,6 +20,7 @@ pub mod episode;
 pub mod camera;
 pub mod record;
 pub mod session;
+pub mod describe;
 pub mod flash_file;
 pub mod bench;
 pub mod report;

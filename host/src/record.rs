@@ -1,4 +1,4 @@
-//! Recording a training set on the robot itself, the paper's head babbling (`msr record`): the
+//! Recording a training set on the robot itself, the paper's head babbling: the
 //! host asks the board for a head pose drawn uniformly within the range, waits until the board
 //! says the servos settled there, grabs the next camera frame, and stores it with the head angles
 //! the servos reported (not the ones asked for), in the dataset layout `msr train` reads

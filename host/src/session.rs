@@ -1,4 +1,4 @@
-//! A board on a serial port: the host side of the host link as `msr run` and `msr record` use it.
+//! A board on a serial port: the host side of the host link.
 //!
 //! Opens the port with `serialport`, paces writes to the line rate (a PTY or a USB bridge without
 //! flow control would otherwise let a large upload overrun the board's receive buffers), uploads a

@@ -92,7 +92,7 @@ proptest! {
             }
             Ok(())
         };
-        named(msr_host::episode::read_model(&p).map(|_| ()))?;
+        named(msr_host::fsio::read_blob(&p).map(|_| ()))?;
         named(msr_host::data::crop::load_grey(&p).map(|_| ()))?;
         named(msr_host::data::npy::read(&p).map(|_| ()))?;
         named(msr_host::data::npy::read_shaped(&p, (58, 75)).map(|_| ()))?;

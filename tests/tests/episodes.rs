@@ -165,11 +165,11 @@ fn bad_models_are_clear_errors() {
     let dir = std::env::temp_dir().join(format!("msr-episodes-bad-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let missing = dir.join("missing.msrm");
-    let e = episode::read_model(&missing).unwrap_err();
+    let e = msr_host::fsio::read_blob(&missing).unwrap_err();
     assert!(format!("{e:#}").contains("missing.msrm"), "{e:#}");
     let junk = dir.join("junk.msrm");
     std::fs::write(&junk, b"MSRM but not a model").unwrap();
-    let e = episode::read_model(&junk).unwrap_err();
+    let e = msr_host::fsio::read_blob(&junk).unwrap_err();
     assert!(format!("{e:#}").contains("junk.msrm"), "{e:#}");
     let e =
         episode::run_inproc(b"junk", &EpisodeConfig::new(Robot::Red), 1, 0, &|_| {}).unwrap_err();

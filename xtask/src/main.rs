@@ -11,6 +11,9 @@
 //!
 //! `cargo xtask setup` does steps 1 only. Every step says what it runs.
 
+#[cfg(test)]
+mod imports;
+
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 

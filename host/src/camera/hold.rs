@@ -1,5 +1,5 @@
 //! Holding a camera still: its automatic exposure, gain and white balance switched to manual at
-//! fixed values, so that the picture changes only when the room does (issue 26).
+//! fixed values, so that the picture changes only when the room does.
 //!
 //! The decision is a pure function ([`plan`]) over a description of the driver's controls
 //! ([`Control`]) and the values to hold; the V4L2 device code (`v4l2.rs`) builds the description

@@ -1,6 +1,7 @@
 //! `msr detect`: one camera frame through a model blob's pipeline, printed (and drawn).
 use crate::data::crop::{load_grey, load_through};
-use crate::detect::{cropper_of, detect_face, parse_blob, picture, read_blob, readable, to_json, EngineArg};
+use crate::detect::{cropper_of, detect_face, parse_blob, picture, readable, to_json, EngineArg};
+use crate::fsio::read_blob;
 use anyhow::{Context, Result};
 use msr_shared::joints::Joint;
 use std::path::PathBuf;

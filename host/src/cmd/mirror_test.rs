@@ -204,7 +204,7 @@ pub fn run(a: Args) -> Result<()> {
         bail!("--trials must be at least 1");
     }
     let cfg = config(&a)?;
-    let raw = episode::read_model(&a.model)?;
+    let raw = crate::fsio::read_blob(&a.model)?;
     check_robot(&raw, a.robot)?;
     let blob = gated_blob(raw, a.self_gate, a.robot)?;
     let mut cfg = cfg;
@@ -217,7 +217,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let live = a.live.start(quiet)?;
     if let Some(l) = &live {
-        cfg.live = Some(crate::live::LiveTap { live: l.clone(), model: crate::rosbag::session::LogModel(blob.clone().into()) });
+        cfg.live = Some(crate::rosbag::session::LiveTap { live: l.clone(), model: crate::rosbag::session::LogModel(blob.clone().into()) });
     }
     // The gate the trials run with (the blob's, after --self-gate).
     let gate = msr_shared::blob::Model::parse(&blob).ok().and_then(|m| m.self_gate);
@@ -300,42 +300,7 @@ pub fn describe(t: &Trial) -> String {
     )
 }
 
+/// The summary's one line (its [`Display`](std::fmt::Display)).
 pub fn readable(s: &Summary) -> String {
-    let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
-    let early = if s.ended_before_mark > 0 {
-        format!(", {} ended before the mark appeared", s.ended_before_mark)
-    } else {
-        String::new()
-    };
-    format!(
-        "{} {} ({} servo bus, scene {}): {} trials, {} reaches, self gate {} pass / {} reject / {} undecided, \
-         touched {}/{} marked ({} %), false reaches {} ({} trials without a mark{early}), \
-         median touch error {} mm, median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, \
-         watchdog trips {}; face link: goodput {:.0} B/s, {} chunks sent again, {} frames superseded",
-        s.backend,
-        s.robot,
-        s.servo_bus,
-        s.scene,
-        s.trials,
-        s.reaches,
-        s.gate_passes,
-        s.gate_rejects,
-        s.gate_undecided,
-        s.touched,
-        s.marked_trials,
-        f(s.touch_rate.map(|r| 100.0 * r)),
-        s.false_reaches,
-        s.no_mark_trials,
-        f(s.median_touch_error_mm),
-        f(s.latency_ms_median),
-        s.limit_violations,
-        s.crc_errors,
-        s.resyncs,
-        s.watchdog_trips,
-        s.goodput_bytes_per_s,
-        s.retransmissions,
-        s.frames_superseded
-    ) + &s.room.map_or(String::new(), |r| {
-        format!("; {:.1} min of robot time on one board, {}", s.sim_s / 60.0, super::status::describe_room(&r))
-    }) + &s.live.map_or(String::new(), |l| format!("; {l}"))
+    s.to_string()
 }

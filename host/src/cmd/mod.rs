@@ -186,7 +186,10 @@ pub fn usage(msg: impl Into<String>) -> anyhow::Error {
 
 /// The exit code for an error: 2 when a flag value was at fault, else 1.
 pub fn exit_code(e: &anyhow::Error) -> u8 {
-    if e.chain().any(|c| c.is::<Usage>()) {
+    let train_usage = |c: &(dyn std::error::Error + 'static)| {
+        c.downcast_ref::<crate::train::ConfigError>().is_some_and(train::is_usage)
+    };
+    if e.chain().any(|c| c.is::<Usage>() || train_usage(c)) {
         2
     } else {
         1
@@ -198,7 +201,11 @@ pub fn exit_code(e: &anyhow::Error) -> u8 {
 pub fn one_line(e: &anyhow::Error) -> String {
     let mut out = String::new();
     for c in e.chain() {
-        let m = c.to_string();
+        // The library names a configuration's fields; the user typed flags.
+        let m = match c.downcast_ref::<crate::train::ConfigError>() {
+            Some(t) => train::flag_text(t),
+            None => c.to_string(),
+        };
         let m = m.trim();
         if m.is_empty() || out.ends_with(m) {
             continue;

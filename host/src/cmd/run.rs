@@ -98,61 +98,7 @@ fn collect(cfg: &SourceConfig) -> Result<Vec<(String, GrayImage)>> {
     Ok(out)
 }
 
-/// One readable line for a board message.
-pub fn describe(m: &BoardToHost) -> String {
-    match m {
-        BoardToHost::Detection(d) => {
-            let none = match d.reason {
-                Some(r) => format!("no detection: {r:?}"),
-                None => "no mark".to_string(),
-            };
-            let blob = d.blob.map_or(none, |b| {
-                format!("mark at ({:.1}, {:.1}), {} px, box {:?}", b.centroid[0], b.centroid[1], b.area, b.box_xyxy)
-            });
-            let reach = match (d.confirmed, d.reach) {
-                (true, Some(r)) => format!("; REACH {:?}", r.map(|v| (v * 1000.0).round() / 1000.0)),
-                _ => String::new(),
-            };
-            format!("frame {}: head ({:.3}, {:.3}) rad, {blob}{reach}", d.frame, d.head[0], d.head[1])
-        }
-        BoardToHost::Error { code, detail } => format!("error {code:?} (detail {detail})"),
-        BoardToHost::Status(s) => format!(
-            "status: {:?}, model crc {:08x}, {} frames, {} detections, {} reaches, host link {} CRC errors / {} resyncs, \
-             servo bus {} CRC errors / {} resyncs, watchdog trips face {} servo {}, clamped targets {}, \
-             frames refused NoFace {} SceneChanged {}; {}",
-            s.mode,
-            s.model_crc,
-            s.frames,
-            s.detections,
-            s.reaches,
-            s.host_link.crc_errors,
-            s.host_link.resyncs(),
-            s.servo_link.crc_errors,
-            s.servo_link.resyncs(),
-            s.face_watchdog_trips,
-            s.servo_watchdog_trips,
-            s.clamped_targets,
-            s.no_face,
-            s.scene_changed,
-            crate::cmd::status::describe_room(&s.room)
-        ),
-        BoardToHost::ModelAccepted { crc32 } => format!("model accepted, crc {crc32:08x}"),
-        BoardToHost::Pong { nonce } => format!("pong {nonce}"),
-        BoardToHost::ServoBus(r) => format!("servo bus: {r:?}"),
-        BoardToHost::HeadAt { head } => format!(
-            "head settled at yaw {:.3} deg, pitch {:.3} deg",
-            head[0].to_degrees(),
-            head[1].to_degrees()
-        ),
-        BoardToHost::FrameAck(a) => format!("frame {} round {}: {:?}", a.frame, a.round, a.state),
-        BoardToHost::UploadAck { next } => format!("upload: the board wants byte {next} next"),
-        BoardToHost::Store(r) => crate::cmd::status::describe_store(r),
-        BoardToHost::SelfGate(g) => format!(
-            "self gate at frame {}: {:?}, gain ratio {:.3}, rest {:.2} px, hold {:.2} px, level {:.2} px, line {:.2} px, {} frames unlike the prediction, frames {:?}, {} ms",
-            g.frame, g.decision, g.gain_ratio, g.rest_px, g.hold_px, g.level_px, g.line_px, g.unlike, g.frames, g.elapsed_ms
-        ),
-    }
-}
+pub use crate::describe::describe;
 
 fn print(m: &BoardToHost, json: bool) -> Result<()> {
     if json {
@@ -163,11 +109,25 @@ fn print(m: &BoardToHost, json: bool) -> Result<()> {
     Ok(())
 }
 
+/// Refuses a board that runs another model than `want` (from `path`).
+pub fn check_model(runs: u32, want: u32, path: &Path) -> Result<()> {
+    if runs == want {
+        return Ok(());
+    }
+    if runs == 0 {
+        bail!("the board has no model; give --upload to upload {}", path.display());
+    }
+    bail!(
+        "the board runs model {runs:08x}, not {want:08x} of {}: give --upload to upload it, or the model the board runs",
+        path.display()
+    )
+}
+
 pub fn run(a: Args) -> Result<()> {
     if !(a.fps.is_finite() && a.fps > 0.0) {
         bail!("--fps must be positive");
     }
-    let blob = crate::episode::read_model(&a.model)?;
+    let blob = crate::fsio::read_blob(&a.model)?;
     let model = msr_shared::blob::Model::parse(&blob).map_err(|e| anyhow!("model: {e}"))?;
     let cropper = crate::detect::cropper_of(&model)?;
     let timeout = Duration::from_millis(a.timeout_ms);
@@ -236,7 +196,7 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         // Frames cropped with one model's template and read with another's: refuse.
         let runs = s.status(timeout)?.model_crc;
-        crate::cmd::status::check_model(runs, model.crc32, &a.model)?;
+        check_model(runs, model.crc32, &a.model)?;
     }
     let live = a.live.start(a.json)?;
     let mut log = (a.mcap.is_some() || live.is_some()).then(|| {
@@ -394,4 +354,18 @@ pub fn drain(r: &mut dyn Read) -> Vec<u8> {
         out.extend_from_slice(&buf[..n]);
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn refuses_another_model() {
+        let p = std::path::Path::new("m.msrm");
+        assert!(check_model(5, 5, p).is_ok());
+        let e = check_model(4, 5, p).unwrap_err().to_string();
+        assert!(e.contains("runs model 00000004, not 00000005 of m.msrm"), "{e}");
+        assert!(check_model(0, 5, p).unwrap_err().to_string().contains("no model"));
+    }
 }

@@ -41,7 +41,7 @@ pub struct Args {
 
 pub fn run(a: Args) -> Result<()> {
     let model = match &a.model {
-        Some(p) => Some(crate::episode::read_model(p)?),
+        Some(p) => Some(crate::fsio::read_blob(p)?),
         None => None,
     };
     let mut cfg = ServeConfig::new(a.backend, model);

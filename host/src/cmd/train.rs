@@ -122,10 +122,49 @@ pub fn run(a: Args) -> Result<()> {
     crate::train::run(a.config())
 }
 
+/// A [`ConfigError`](crate::train::ConfigError) in the words of the flags that set the fields.
+pub(crate) fn flag_text(e: &crate::train::ConfigError) -> String {
+    use crate::train::ConfigError as E;
+    match e {
+        E::MinArea => "--min-area must be at least 1".into(),
+        E::Percentile(p) => format!("--threshold-percentile must be within 0..=100, got {p}"),
+        E::PoseBins { got, most } => format!("--pose-bins must be 0 (off) or 2..={most}, got {got}"),
+        E::ConvSizesWithoutConv => "--conv-hidden and --conv-channels are for --arch conv".into(),
+        E::NoNormalTestFrames { data } => format!(
+            "--threshold-percentile needs normal held-out frames, but the test split of {} has no unmarked frame",
+            data.display()
+        ),
+        E::FewFramesPerPoseCell { pose_bins, default, cells, data, fewest, total } => format!(
+            "--pose-bins {pose_bins} (the default is {default}) needs at least 2 unmarked training frames in each of \
+             the {cells} head-pose cells, but dataset {} has {fewest} in one ({total} in all); pass --pose-bins 0 (one \
+             set of statistics for all poses) or fewer cells, or render more frames",
+            data.display()
+        ),
+    }
+}
+
+/// Whether the error is a flag given where it has no meaning (exit code 2, like clap's).
+pub(crate) fn is_usage(e: &crate::train::ConfigError) -> bool {
+    matches!(e, crate::train::ConfigError::ConvSizesWithoutConv)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::cmd::parse_args;
+
+    #[test]
+    fn config_errors_are_worded_with_the_flags() {
+        use crate::train::ConfigError;
+        let e = anyhow::Error::new(ConfigError::ConvSizesWithoutConv).context("training");
+        assert_eq!(crate::cmd::one_line(&e), "training: --conv-hidden and --conv-channels are for --arch conv");
+        assert_eq!(crate::cmd::exit_code(&e), 2);
+        let e = anyhow::Error::new(ConfigError::PoseBins { got: 1, most: 5 });
+        assert_eq!(crate::cmd::one_line(&e), "--pose-bins must be 0 (off) or 2..=5, got 1");
+        assert_eq!(crate::cmd::exit_code(&e), 1);
+        // The library's own words name the configuration's fields, not flags.
+        assert!(!ConfigError::ConvSizesWithoutConv.to_string().contains("--"));
+    }
 
     #[test]
     fn flag_defaults_are_the_library_defaults() {

@@ -1,10 +1,10 @@
-//! `msr detect`: find a mark in one camera frame with a model blob: template crop on the host,
-//! then the pipeline on the crop (the firmware's fixed-point code by default).
+//! Detection in one camera frame with a model blob: template crop on the host, then the pipeline
+//! on the crop (the firmware's fixed-point code by default).
 pub mod pipeline;
 pub mod fixed;
 pub mod blobs;
 use crate::data::crop::{CropBox, CropMode, Cropper, Face};
-use crate::quant::import::{Dense, DenseDecoder};
+use crate::models::dense::{Dense, DenseDecoder};
 use crate::detect::pipeline::{Detection, FloatEngine, Settings, JOINTS};
 use crate::models::predictor::FacePredictor;
 use anyhow::{bail, ensure, Context, Result};
@@ -19,10 +19,6 @@ pub enum EngineArg {
     Fixed,
     /// Float reference (dense decoders only), from the blob's dequantized weights
     Float,
-}
-
-pub fn read_blob(path: &Path) -> Result<Vec<u8>> {
-    std::fs::read(path).with_context(|| format!("cannot read model {}", path.display()))
 }
 
 pub fn parse_blob<'a>(bytes: &'a [u8], path: &Path) -> Result<Model<'a>> {

@@ -24,7 +24,7 @@ pub mod qemu;
 pub mod scene;
 pub mod sim_board;
 use crate::data::crop;
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, Result};
 use image::{DynamicImage, GrayImage};
 
 use msr_firmware::Board;
@@ -149,7 +149,7 @@ pub struct EpisodeConfig {
     /// Log each trial for `--mcap` (its model draws the saliency image).
     pub mcap: Option<crate::rosbag::session::LogModel>,
     /// Publish each trial's messages live as they happen (`--live`).
-    pub live: Option<crate::live::LiveTap>,
+    pub live: Option<crate::rosbag::session::LiveTap>,
     /// How the light changes over each trial (`msr mirror-test --light`).
     pub light: LightPlan,
     /// The light's plan spans a run of trials rather than each trial ([`run_one_board`]).
@@ -441,6 +441,51 @@ pub struct Summary {
     /// clients that read too slowly.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub live: Option<crate::live::LiveStats>,
+}
+
+impl std::fmt::Display for Summary {
+    /// One line: the counts, rates and medians, the face link, the room and the live view.
+    fn fmt(&self, out: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let s = self;
+        let f = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.1}"));
+        let early = if s.ended_before_mark > 0 {
+            format!(", {} ended before the mark appeared", s.ended_before_mark)
+        } else {
+            String::new()
+        };
+        let line = format!(
+            "{} {} ({} servo bus, scene {}): {} trials, {} reaches, self gate {} pass / {} reject / {} undecided, \
+             touched {}/{} marked ({} %), false reaches {} ({} trials without a mark{early}), \
+             median touch error {} mm, median latency {} ms, limit violations {}, CRC errors {}, resyncs {}, \
+             watchdog trips {}; face link: goodput {:.0} B/s, {} chunks sent again, {} frames superseded",
+            s.backend,
+            s.robot,
+            s.servo_bus,
+            s.scene,
+            s.trials,
+            s.reaches,
+            s.gate_passes,
+            s.gate_rejects,
+            s.gate_undecided,
+            s.touched,
+            s.marked_trials,
+            f(s.touch_rate.map(|r| 100.0 * r)),
+            s.false_reaches,
+            s.no_mark_trials,
+            f(s.median_touch_error_mm),
+            f(s.latency_ms_median),
+            s.limit_violations,
+            s.crc_errors,
+            s.resyncs,
+            s.watchdog_trips,
+            s.goodput_bytes_per_s,
+            s.retransmissions,
+            s.frames_superseded
+        ) + &s.room.map_or(String::new(), |r| {
+            format!("; {:.1} min of robot time on one board, {}", s.sim_s / 60.0, crate::describe::describe_room(&r))
+        }) + &s.live.map_or(String::new(), |l| format!("; {l}"));
+        out.write_str(&line)
+    }
 }
 
 pub fn median(mut v: Vec<f64>) -> Option<f64> {
@@ -1171,13 +1216,6 @@ pub fn run_one_board(
         trials.push(trial);
     }
     Ok((trials, room.unwrap_or(msr_firmware::room::Room::new().report(false))))
-}
-
-/// Reads a model blob and checks it parses.
-pub fn read_model(path: &std::path::Path) -> Result<Vec<u8>> {
-    let bytes = std::fs::read(path).with_context(|| format!("reading model {}", path.display()))?;
-    Model::parse(&bytes).map_err(|e| anyhow!("model {}: {e}", path.display()))?;
-    Ok(bytes)
 }
 
 #[cfg(test)]

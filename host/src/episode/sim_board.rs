@@ -1,4 +1,4 @@
-//! A simulated board on a pseudo-terminal (`msr serve`): the in-process firmware, or the
+//! A simulated board on a pseudo-terminal: the in-process firmware, or the
 //! firmware image in QEMU, with the sim's servos, its host link bridged to a PTY, in real time,
 //! so that `msr run --port PATH` (or any `serialport` code) talks to it exactly as it would to a
 //! board on a USB serial port.

@@ -1,4 +1,4 @@
-//! `msr eval`: detection on a dataset's test split, the paper's table.
+//! The paper's table: detection on a dataset's test split.
 //!
 //! Rows: model (decoder, autoencoder) x weighting (sigma: the blob's statistics; none: Sigma = I,
 //! i.e. sigma = 1 grey level everywhere, the paper's ablation) x engine (float, fixed). The fixed
@@ -24,7 +24,8 @@
 //! weighting) agree: both find nothing, or both find a blob with centroids at most 1 px apart.
 pub mod metrics;
 use crate::data::{Dataset, Sample};
-use crate::detect::{dequantized_decoder, float_engine_of, parse_blob, read_blob};
+use crate::detect::{dequantized_decoder, float_engine_of, parse_blob};
+use crate::fsio::read_blob;
 use crate::eval::metrics::{auroc, detection_score};
 use crate::detect::pipeline::{Detection, Settings};
 use crate::models::predictor::FacePredictor;

@@ -220,14 +220,6 @@ impl Drop for Live {
     }
 }
 
-/// A session's live output: the server and how a session log shifts its stamps onto it.
-#[derive(Clone, Debug)]
-pub struct LiveTap {
-    pub live: Arc<Live>,
-    /// The model blob whose pipeline draws `/face/saliency`.
-    pub model: crate::rosbag::session::LogModel,
-}
-
 /// Nanoseconds since the Unix epoch, now.
 pub fn now_ns() -> u64 {
     std::time::SystemTime::now()

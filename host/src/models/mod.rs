@@ -5,6 +5,7 @@
 //! be rebuilt and every layer maps one-to-one onto a blob layer kind: Dense, ConvTranspose2d, Crop.
 //! Activations: tanh inside, sigmoid on the last layer (as the paper and the published code).
 pub mod act;
+pub mod dense;
 pub mod predictor;
 use anyhow::{bail, ensure, Result};
 use burn::module::Param;

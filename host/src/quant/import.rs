@@ -1,4 +1,4 @@
-//! `msr import`: the published model (safetensors decoder and reach network, .npy error
+//! Importing the published model (safetensors decoder and reach network, .npy error
 //! statistics, face template, threshold) -> a fixed-point model blob the firmware runs.
 //!
 //! The manifest (`shared/data/nao-red-real/manifest.json`) names every file and tensor; nothing is
@@ -8,11 +8,12 @@ use crate::data::crop::load_grey;
 use crate::data::npy;
 use crate::models::predictor::FacePredictor;
 use crate::models::FloatLayer;
+pub use crate::models::dense::{Dense, DenseDecoder};
 use crate::quant::quantize::{out_shift_for, q8_8, quantize_stack, ShiftPolicy};
 use anyhow::{bail, ensure, Context, Result};
 use image::GrayImage;
 use msr_shared::blob::{
-    Activation, CropMode, LayerKind, LayerSpec, ModelSpec, Normalisation, Novelty, Reach, Shape, Sided,
+    Activation, CropMode, LayerSpec, ModelSpec, Normalisation, Novelty, Reach, Shape, Sided,
     REACH_HIDDEN, REACH_IN, REACH_OUT,
 };
 use serde::Deserialize;
@@ -213,81 +214,6 @@ struct ManifestReach {
     input_max: [f32; REACH_IN],
     output_min: [f32; REACH_OUT],
     output_max: [f32; REACH_OUT],
-}
-
-// ---------------------------------------------------------------------------------------------
-// Float models.
-
-/// A fully connected layer, PyTorch `Linear` layout.
-#[derive(Clone, Debug, PartialEq)]
-pub struct Dense {
-    pub n_in: usize,
-    pub n_out: usize,
-    /// `[out][in]`, row-major.
-    pub w: Vec<f32>,
-    pub b: Vec<f32>,
-    pub act: Activation,
-}
-
-impl Dense {
-    /// The layer in the quantizer's form, writing `output` (a vector, or the face for the
-    /// last layer).
-    pub fn to_float_layer(&self, output: Shape) -> FloatLayer {
-        FloatLayer {
-            kind: LayerKind::Dense,
-            activation: self.act,
-            input: Shape { c: self.n_in as u16, h: 1, w: 1 },
-            output,
-            kernel: 0,
-            stride: 0,
-            padding: 0,
-            crop: [0, 0],
-            weights: self.w.clone(),
-            bias: self.b.clone(),
-        }
-    }
-
-    pub fn forward(&self, x: &[f32]) -> Vec<f32> {
-        (0..self.n_out)
-            .map(|o| {
-                let row = &self.w[o * self.n_in..(o + 1) * self.n_in];
-                let z = self.b[o] + row.iter().zip(x).map(|(w, x)| w * x).sum::<f32>();
-                crate::models::activate(self.act, z)
-            })
-            .collect()
-    }
-}
-
-
-/// A fully connected decoder from [HeadYaw, HeadPitch] to a face (the published 2-12-64-128-4350).
-#[derive(Clone, Debug, PartialEq)]
-pub struct DenseDecoder {
-    pub layers: Vec<Dense>,
-    pub face_h: usize,
-    pub face_w: usize,
-}
-
-impl DenseDecoder {
-    pub fn arch(&self) -> String {
-        let mut s = self
-            .layers
-            .first()
-            .map(|l| l.n_in.to_string())
-            .unwrap_or_default();
-        for l in &self.layers {
-            s += &format!("-{}", l.n_out);
-        }
-        s
-    }
-}
-
-impl FacePredictor for DenseDecoder {
-    fn face_size(&self) -> (usize, usize) {
-        (self.face_h, self.face_w)
-    }
-    fn predict(&self, head: [f32; 2], _face: &[f32]) -> Vec<f32> {
-        self.layers.iter().fold(head.to_vec(), |x, l| l.forward(&x))
-    }
 }
 
 /// The published model, as float.

@@ -1,4 +1,4 @@
-//! `msr quantize`: turn a trained model into a fixed-point model blob and compare it with float.
+//! A trained model into a fixed-point model blob, compared with float.
 //!
 //! `msr quantize --train DIR --reach FILE [--threshold T] [--weights auto|i8|i16] [--data DIR]
 //! --out MODEL.msrm` reads the decoder of a `msr train` output folder (`decoder.json`, `.mpk`,

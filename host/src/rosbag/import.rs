@@ -1,5 +1,5 @@
-//! `msr import-bag`: a rosbag2 recording (camera images and joint states) into the dataset layout
-//! `msr train` reads, as `msr record` writes it (robot "recorded", a seeded split, full frames that
+//! A rosbag2 recording (camera images and joint states) into the dataset layout that training
+//! reads and recording writes (robot "recorded", a seeded split, full frames that
 //! the loader crops with the template).
 //!
 //! Two passes over the bag. The first reads every message of the two topics: it checks the types

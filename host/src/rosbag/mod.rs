@@ -1,6 +1,5 @@
-//! ROS 2 recordings in and out (issue 28): `msr import-bag` reads rosbag2 (MCAP or SQLite3) into a
-//! dataset; `--mcap` on the session commands writes what a session saw and did as an MCAP file
-//! that Foxglove opens and `ros2 bag play` plays.
+//! ROS 2 recordings in and out: rosbag2 (MCAP or SQLite3) read into a dataset, and a session's
+//! log (what it saw and did) written as an MCAP file that Foxglove opens and `ros2 bag play` plays.
 pub mod import;
 pub mod msgs;
 pub mod read;

@@ -78,7 +78,7 @@ impl SessionLog {
     }
 
     /// The log of a mirror-test trial: for `--mcap` (kept) and `--live` (published as it comes).
-    pub fn for_episode(mcap: Option<&LogModel>, live: Option<&crate::live::LiveTap>) -> Option<SessionLog> {
+    pub fn for_episode(mcap: Option<&LogModel>, live: Option<&LiveTap>) -> Option<SessionLog> {
         let model = mcap.or(live.map(|l| &l.model))?;
         let log = SessionLog::with_saliency(&model.0);
         Some(match live {
@@ -308,6 +308,15 @@ impl SessionLog {
         let commanded: Vec<f64> = servos.iter().map(|s| s.target).collect();
         self.joints(t_us, &names, &reported, &commanded);
     }
+}
+
+/// A session's live output: the server and the model whose pipeline draws `/face/saliency`.
+#[derive(Clone, Debug)]
+pub struct LiveTap {
+    /// The live view's server.
+    pub live: std::sync::Arc<crate::live::Live>,
+    /// The model blob whose pipeline draws `/face/saliency`.
+    pub model: LogModel,
 }
 
 /// The model blob a mirror-test logs its saliency with (`EpisodeConfig::mcap`).

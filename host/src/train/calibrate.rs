@@ -46,7 +46,7 @@ pub const DEFAULT_SIGMA_FLOOR: f64 = 0.5;
 /// whose error changes sign from pixel to pixel). Per pixel (0, the paper; `--pool 0`) the skin
 /// robot's marks away from the observe posture stayed under the threshold (hit rate 0.51-0.60
 /// over three seeds; pooled 0.97-0.995). Pooling alone raises the false alarms (0.00-0.04 ->
-/// 0.02-0.10), hence [`DEFAULT_POSE_BINS`] with it (issue 19).
+/// 0.02-0.10), hence [`DEFAULT_POSE_BINS`] with it.
 pub const DEFAULT_POOL: u8 = 2;
 /// The head-pose grid (cells per angle) that `msr train` and `msr demo` measure the error
 /// statistics over: 3, a 3 x 3 grid over the training poses (about 115 training frames a cell of

@@ -1,8 +1,8 @@
-//! `msr train`: train a decoder or autoencoder on a dataset and calibrate its error statistics.
+//! Training: a decoder or autoencoder fitted to a dataset, and its error statistics calibrated.
 //!
 //! Output folder (other commands rely on it):
-//! - `{name}.mpk`: the burn record (burnpack format: burn 0.22 dropped the MessagePack recorders,
-//!   the name is kept), `name` = `decoder` or `autoencoder`;
+//! - `{name}.mpk`: the burn record in burn's burnpack format (the `.mpk` name is what the other
+//!   commands look for), `name` = `decoder` or `autoencoder`;
 //! - `{name}.json`: [`ModelInfo`] (architecture, face size, hyper-parameters, per-epoch losses,
 //!   training seconds, novelty parameters and how the threshold was chosen);
 //! - `{name}_mu.npy`, `{name}_sigma.npy`: float64 `h x w` error statistics in grey levels, like the
@@ -21,6 +21,7 @@
 //! applies the calibrated novelty policy (`policy`), which may lower the threshold and turn on the
 //! fragment merge, and rewrites `{name}.json`.
 use self::calibrate::{ErrorStats, NoveltyParams};
+pub use self::error::ConfigError;
 use crate::data::{Dataset, Sample};
 use crate::models::{ArchKind, Autoencoder, Decoder, DecoderSpec, FloatLayer};
 use crate::models::predictor::FacePredictor;
@@ -32,6 +33,7 @@ use msr_sim::layout::Split;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 
+pub mod error;
 pub mod fit;
 pub mod plot;
 pub mod policy;
@@ -84,8 +86,8 @@ pub enum DeviceArg {
 }
 
 /// What [`run`] trains, on what, and how: `TrainConfig::new(data, out)` gives the defaults of
-/// `msr train` (the published conv decoder's recipe); `with_*` changes one. `msr train` builds it
-/// from its flags (`crate::cmd::train`), `msr demo` and the tests in code.
+/// `msr train` (the published conv decoder's recipe); `with_*` changes one. The command line
+/// builds it from its flags; the demo and the tests build it in code.
 #[derive(burn::config::Config, Debug)]
 pub struct TrainConfig {
     /// Dataset folder (sim layout or the published manifest layout).
@@ -343,9 +345,9 @@ fn samples<'a>(it: impl Iterator<Item = &'a Sample>, keep_marked: bool) -> Sampl
 
 /// Trains, calibrates and writes the output folder (see the module doc).
 pub fn run(args: TrainConfig) -> Result<()> {
-    ensure!(args.min_area >= 1, "--min-area must be at least 1");
+    ensure!(args.min_area >= 1, ConfigError::MinArea);
     if let Some(p) = args.threshold_percentile {
-        ensure!((0.0..=100.0).contains(&p), "--threshold-percentile must be within 0..=100, got {p}");
+        ensure!((0.0..=100.0).contains(&p), ConfigError::Percentile(p));
     }
     let novelty = NoveltyParams {
         normalisation: match args.normalisation {
@@ -364,9 +366,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
     novelty.check()?;
     ensure!(
         args.pose_bins == 0 || (2..=msr_shared::blob::MAX_POSE_BINS).contains(&args.pose_bins),
-        "--pose-bins must be 0 (off) or 2..={}, got {}",
-        msr_shared::blob::MAX_POSE_BINS,
-        args.pose_bins
+        ConfigError::PoseBins { got: args.pose_bins, most: msr_shared::blob::MAX_POSE_BINS }
     );
     let hp = HyperParams {
         epochs: args.epochs,
@@ -410,8 +410,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
     if args.threshold_percentile.is_some() {
         ensure!(
             ds.split(Split::Test).any(|s| s.mark.is_none()),
-            "--threshold-percentile needs normal held-out frames, but the test split of {} has no unmarked frame",
-            args.data.display()
+            ConfigError::NoNormalTestFrames { data: args.data.clone() }
         );
     }
     // The pose grid spans the training poses, so every cell holds about as many frames; each
@@ -427,14 +426,14 @@ pub fn run(args: TrainConfig) -> Result<()> {
         let fewest = per_cell.iter().copied().min().unwrap_or(0);
         ensure!(
             fewest >= 2,
-            "--pose-bins {n} (the default is {d}) needs at least 2 unmarked training frames in each of the {c} head-pose \
-             cells, but dataset {} has {fewest} in one ({} in all); pass --pose-bins 0 (one set of statistics for all \
-             poses) or fewer cells, or render more frames",
-            args.data.display(),
-            train.len(),
-            n = args.pose_bins,
-            d = calibrate::DEFAULT_POSE_BINS,
-            c = grid.len(),
+            ConfigError::FewFramesPerPoseCell {
+                pose_bins: args.pose_bins,
+                default: calibrate::DEFAULT_POSE_BINS,
+                cells: grid.len(),
+                data: args.data.clone(),
+                fewest,
+                total: train.len(),
+            }
         );
         Some(grid)
     } else {
@@ -447,7 +446,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
             DecoderSpec::conv_with(h, w, hid.unwrap_or(d.dense[0]), ch.unwrap_or(c))
         }
         (ArchKind::Mlp, None, None) => DecoderSpec::mlp(h, w),
-        (ArchKind::Mlp, _, _) => return Err(crate::cmd::usage("--conv-hidden and --conv-channels are for --arch conv")),
+        (ArchKind::Mlp, _, _) => return Err(ConfigError::ConvSizesWithoutConv.into()),
     };
     if !args.quiet {
         eprintln!(
@@ -496,11 +495,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
         None => ThresholdPolicy { kind: "fixed".into(), percentile: None, frames: None, n_frames: 0 },
         Some(p) => {
             let normal: Vec<&Sample> = ds.split(Split::Test).filter(|s| s.mark.is_none()).collect();
-            ensure!(
-                !normal.is_empty(),
-                "--threshold-percentile needs normal held-out frames, but the test split of {} has no unmarked frame",
-                args.data.display()
-            );
+            ensure!(!normal.is_empty(), ConfigError::NoNormalTestFrames { data: args.data.clone() });
             let heads: Vec<[f32; 2]> = normal.iter().map(|s| s.head).collect();
             let faces: Vec<Vec<f32>> = normal.iter().map(|s| s.face_unit()).collect();
             let preds = net.predict_batch(&heads, &faces);

@@ -1,4 +1,4 @@
-//! The calibrated novelty policy (`msr demo` applies it; `msr train` alone keeps the paper's
+//! The calibrated novelty policy (the demo applies it; training alone keeps the paper's
 //! settings): per robot, a threshold and a fragment merge chosen from a fixed list of
 //! candidates, twice, on frames rendered with a seed of their own ([`frames`]: normal frames,
 //! and frames with random marks drawn as in the episodes):

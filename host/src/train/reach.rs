@@ -1,4 +1,4 @@
-//! `msr train-reach`: train the 2-10-5 reach network from mark positions to joint angles.
+//! The 2-10-5 reach network, from mark positions to joint angles, and its training.
 //!
 //! As the published code: inputs (mark centre x, y in full-frame pixels) and outputs (HeadYaw,
 //! HeadPitch, LShoulderPitch, LShoulderRoll, LElbowRoll in radians) min-max scaled to [0, 1] from
@@ -665,8 +665,8 @@ mod tests {
     }
 
     /// Leave-one-out RMS on the 70 real pairs of the published recipe (10^4 iterations, no
-    /// penalty: `msr train-reach` before issue 29), and of the same network in PyTorch (Adam lr
-    /// 0.01, 3000 full-batch steps, min-max scaling as published), as issue 29 gives them.
+    /// penalty), and of the same network in PyTorch (Adam lr 0.01, 3000 full-batch steps,
+    /// min-max scaling as published): the figures this recipe is measured against.
     const PUBLISHED_RECIPE_LOO_RMS: [f64; O] = [0.216, 0.212, 0.192, 0.134, 0.097];
     const PYTORCH_LOO_RMS: [f64; O] = [0.193, 0.173, 0.154, 0.093, 0.081];
 

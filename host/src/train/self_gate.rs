@@ -27,14 +27,14 @@ pub struct GateCalibration {
     /// The statistics have long tails (a mark now and then moves the template's best match by
     /// half a pixel), so the tolerances come from their root mean square, not their largest
     /// value: over 96 draws the RMS moved by under 10 % between seeds, where 1.5 times the
-    /// largest of 24 moved the gain's band from 2.46 % to 2.99 % (red, issue 29).
+    /// largest of 24 moved the gain's band from 2.46 % to 2.99 % (red).
     pub draws: usize,
     pub seed: u64,
     /// From the head settled at a pose (the board's reported yaw near it) to a frame of it on
     /// the board: the frame's transfer (75 x 58 at 921600 baud: 47 ms), the servo settling to
     /// well under a pixel (five 30 ms time constants; 100 ms left the face still moving by up
     /// to 0.8 px between the two frames of a hold, and the gate refused its own mirror image in
-    /// 5 of 19 red and 33 of 36 skin trials, issue 29) and a margin.
+    /// 5 of 19 red and 33 of 36 skin trials) and a margin.
     pub latency_ms: u16,
     pub timeout_ms: u16,
     pub min_frames: u8,
@@ -246,7 +246,7 @@ pub fn calibrate(robot: Robot, cropper: &Cropper, c: &GateCalibration) -> Result
     // Each statistic its own tolerance: the rest distance carries the encoder's rounding of
     // the resting yaw (up to half a pixel), the hold and the level only the template match's
     // noise (at most about half of that over the draws); one tolerance sized by the rest let
-    // babbling robots through on the hold or the level (3 of 111, red, issue 17).
+    // babbling robots through on the hold or the level (3 of 111, red).
     // The line distance back at the rest has no encoder rounding in it (the servo goes to the
     // reported yaw it is sent to): the match's noise only, like the hold and the level.
     let tol = |f: fn(&(f64, f64, f64, f64)) -> f64| (c.sigmas * rms(&mut stats.iter().map(f))).max(step) as f32;
