@@ -75,8 +75,7 @@ fn msr_run_streams_a_frame_folder_and_uploads_over_the_pty() {
     }
     let board = SimBoard::start(None).unwrap();
     let args = msr_host::cmd::run::Args {
-        port: board.path().to_string(),
-        baud: 921_600,
+        line: msr_host::cmd::BoardLine { port: board.path().to_string(), baud: 921_600 },
         model: model_path.clone(),
         upload: true,
         frames: Some(frames.clone()),

@@ -140,6 +140,17 @@ pub(crate) fn encoder_noise(s: &str) -> Result<f64, String> {
     number_within(s, 0.0..=4.0, "a noise between 0 and 4 counts")
 }
 
+/// The board's serial line: the flags of the commands that talk to a board.
+#[derive(clap::Args, Debug, Clone)]
+pub struct BoardLine {
+    /// Serial port of the board (e.g. /dev/ttyACM0, or the PTY `msr serve` printed)
+    #[arg(long)]
+    pub port: String,
+    /// Line rate, baud (1200..=20000000)
+    #[arg(long, default_value_t = 921_600)]
+    pub baud: u32,
+}
+
 /// How the emulated servos hold: the flags `msr serve` and `msr mirror-test` share.
 #[derive(clap::Args, Debug, Clone)]
 pub struct ServoHold {

@@ -9,12 +9,8 @@ use std::time::Duration;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Serial port of the board (or the PTY `msr serve` printed)
-    #[arg(long)]
-    pub port: String,
-    /// Line rate, baud
-    #[arg(long, default_value_t = 921_600)]
-    pub baud: u32,
+    #[command(flatten)]
+    pub line: super::BoardLine,
     /// The camera is the sim's renderer of this robot (red or skin), at the head angles the
     /// servos report
     #[arg(long, value_name = "ROBOT", conflicts_with = "frames")]
@@ -91,8 +87,8 @@ pub fn config(a: &Args) -> Result<RecordConfig> {
         },
         (None, None, None) => return Err(super::usage("give a camera: --sim red|skin, --frames - or --camera DEV")),
     };
-    let mut c = RecordConfig::new(&a.port, source, a.count, &a.out);
-    c.baud = a.baud;
+    let mut c = RecordConfig::new(&a.line.port, source, a.count, &a.out);
+    c.baud = a.line.baud;
     c.range_deg = a.range_deg;
     c.seed = a.seed;
     c.resume = a.resume;

@@ -17,12 +17,9 @@ use std::time::{Duration, Instant};
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Serial port of the board (e.g. /dev/ttyACM0, or a PTY the sim serves)
-    #[arg(long)]
-    pub port: String,
-    /// Line rate, baud (1200..=20000000); a face crop must cross the line within a frame period
-    #[arg(long, default_value_t = 921_600)]
-    pub baud: u32,
+    /// The board's line; at `--baud` a face crop must cross it within a frame period
+    #[command(flatten)]
+    pub line: super::BoardLine,
     /// Model blob (.msrm): its face template crops the frames
     #[arg(long)]
     pub model: PathBuf,
@@ -140,12 +137,12 @@ pub fn run(a: Args) -> Result<()> {
             &vec![0u8; model.face_w as usize * model.face_h as usize],
         )
         .map_err(|e| anyhow!("model face size: {e}"))?;
-    let frame_s = face_wire.len() as f64 * 10.0 / a.baud as f64;
+    let frame_s = face_wire.len() as f64 * 10.0 / a.line.baud as f64;
     if frame_s > period.as_secs_f64() {
         bail!(
             "at --baud {} a face crop ({} bytes on the wire) takes {frame_s:.2} s, longer than the \
              frame period {:.2} s of --fps {}: raise --baud or lower --fps",
-            a.baud,
+            a.line.baud,
             face_wire.len(),
             period.as_secs_f64(),
             a.fps
@@ -171,7 +168,7 @@ pub fn run(a: Args) -> Result<()> {
         ..SourceOptions::default()
     };
     let mut frames = camera::open(&source, &opts)?;
-    let mut s = Session::open(&a.port, a.baud)?;
+    let mut s = Session::open(&a.line.port, a.line.baud)?;
     // A halted board is said so before its answers (or their absence) are read.
     if !a.upload {
         if let Ok(st) = s.status(timeout) {
@@ -182,13 +179,13 @@ pub fn run(a: Args) -> Result<()> {
     }
     if a.upload {
         // An upload takes about 11 bits a byte on the line; allow for it.
-        let line = Duration::from_secs_f64(blob.len() as f64 * 11.0 / a.baud as f64);
+        let line = Duration::from_secs_f64(blob.len() as f64 * 11.0 / a.line.baud as f64);
         if !a.json {
             eprintln!(
                 "uploading {} bytes, about {:.1} s at {} baud",
                 blob.len(),
                 line.as_secs_f64(),
-                a.baud
+                a.line.baud
             );
         }
         let crc = s.upload(&blob, timeout)?;

@@ -9,12 +9,8 @@ use std::time::Duration;
 
 #[derive(clap::Args, Debug)]
 pub struct Args {
-    /// Serial port of the board (e.g. /dev/ttyACM0, or a PTY `msr serve` printed)
-    #[arg(long)]
-    pub port: String,
-    /// Line rate, baud
-    #[arg(long, default_value_t = 921_600)]
-    pub baud: u32,
+    #[command(flatten)]
+    pub line: super::BoardLine,
     /// How long to wait for each answer, milliseconds
     #[arg(long, default_value_t = 2000)]
     pub timeout_ms: u64,
@@ -50,7 +46,7 @@ impl RoomAction {
 
 pub fn run(a: Args) -> Result<()> {
     let timeout = Duration::from_millis(a.timeout_ms);
-    let mut s = Session::open(&a.port, a.baud)?;
+    let mut s = Session::open(&a.line.port, a.line.baud)?;
     if let Some(r) = a.room {
         s.room(r.command(), timeout)?;
     }
