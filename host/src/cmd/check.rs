@@ -140,20 +140,17 @@ fn writable(flag: &str, p: &Path) -> Result<()> {
         bail!("{flag} {} is a folder, not a file", p.display());
     }
     fsio::refuse_special(p).map_err(|e| anyhow::anyhow!("{flag} {e}"))?;
-    let mut dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    while !dir.exists() {
-        match dir.parent().filter(|d| !d.as_os_str().is_empty()) {
-            Some(up) => dir = up,
-            None => {
-                dir = Path::new(".");
-                break;
-            }
-        }
-    }
+    let dir = nearest_existing(p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new(".")));
+    takes_new_files(flag, p, dir, fsio::temp_beside(p).file_name().unwrap_or_default())
+}
+
+/// Whether `dir`, the nearest existing folder of the output `p`, is a folder that takes a new
+/// file (named `probe`, made and removed again).
+fn takes_new_files(flag: &str, p: &Path, dir: &Path, probe: &std::ffi::OsStr) -> Result<()> {
     if !dir.is_dir() {
         bail!("{flag} {}: {} is not a folder", p.display(), dir.display());
     }
-    let probe = dir.join(fsio::temp_beside(p).file_name().unwrap_or_default());
+    let probe = dir.join(probe);
     std::fs::OpenOptions::new()
         .write(true)
         .create_new(true)
@@ -163,32 +160,24 @@ fn writable(flag: &str, p: &Path) -> Result<()> {
     Ok(())
 }
 
+/// `dir` or the nearest of its parents that exists (`.` when none of a relative path does).
+fn nearest_existing(dir: &Path) -> &Path {
+    let mut dir = dir;
+    while !dir.exists() {
+        match dir.parent().filter(|d| !d.as_os_str().is_empty()) {
+            Some(up) => dir = up,
+            None => return Path::new("."),
+        }
+    }
+    dir
+}
+
 /// An output folder: a folder (or none yet) whose nearest existing folder takes new files.
 fn writable_dir(flag: &str, p: &Path) -> Result<()> {
     if p.exists() && !p.is_dir() {
         bail!("{flag} {} is a file, not a folder", p.display());
     }
-    let mut dir = p;
-    while !dir.exists() {
-        match dir.parent().filter(|d| !d.as_os_str().is_empty()) {
-            Some(up) => dir = up,
-            None => {
-                dir = Path::new(".");
-                break;
-            }
-        }
-    }
-    if !dir.is_dir() {
-        bail!("{flag} {}: {} is not a folder", p.display(), dir.display());
-    }
-    let probe = dir.join(format!(".msr-probe.tmp{}", std::process::id()));
-    std::fs::OpenOptions::new()
-        .write(true)
-        .create_new(true)
-        .open(&probe)
-        .with_context(|| format!("{flag} {}: cannot write in {}", p.display(), dir.display()))?;
-    let _ = std::fs::remove_file(&probe);
-    Ok(())
+    takes_new_files(flag, p, nearest_existing(p), format!(".msr-probe.tmp{}", std::process::id()).as_ref())
 }
 
 /// Output files: writable, not an input, not each other.
@@ -306,7 +295,7 @@ pub fn check(c: &Command) -> Result<()> {
             outputs(&[("--model", &a.model)], &outs)?;
         }
         Command::Run(a) => {
-            int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
+            int("--baud", a.line.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
             real("--fps", a.fps, FPS_RANGE.0, FPS_RANGE.1, " frames per second")?;
             int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
             int("--count", a.count, 1, MAX_FRAMES, " frames")?;
@@ -334,7 +323,7 @@ pub fn check(c: &Command) -> Result<()> {
             line_noise(&a.noise)?;
         }
         Command::Record(a) => {
-            int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
+            int("--baud", a.line.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
             int("--count", a.count, 1, MAX_FRAMES, " frames")?;
             // The sim and the joint table bound the pose; the range is in degrees.
             let max_deg = (msr_sim::body::MAX_DATASET_HEAD_ANGLE.to_degrees() * 100.0).floor() / 100.0;
@@ -352,7 +341,7 @@ pub fn check(c: &Command) -> Result<()> {
             }
         }
         Command::Status(a) => {
-            int("--baud", a.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
+            int("--baud", a.line.baud, BAUD_RANGE.0, BAUD_RANGE.1, " baud")?;
             int("--timeout-ms", a.timeout_ms, 1, MAX_TIMEOUT_MS, " ms")?;
         }
         Command::Template(a) => {
