@@ -80,82 +80,53 @@ impl FastActivation for Flex {
 
 impl<C: CheckpointStrategy> FastActivation for Autodiff<Flex, C> {
     fn fast_tanh(x: FloatTensor<Self>) -> FloatTensor<Self> {
-        #[derive(Debug)]
-        struct TanhBackward;
-
-        impl Backward<Flex, 1> for TanhBackward {
-            /// The output y.
-            type State = FlexTensor;
-
-            fn backward(
-                self,
-                ops: Ops<Self::State, 1>,
-                grads: &mut Gradients,
-                _: &mut Checkpointer,
-            ) {
-                let y = ops.state;
-                unary::<Flex, _>(ops.parents, ops.node, grads, |g| {
-                    if y.dtype() != DType::F32 {
-                        let one_minus = Flex::float_add_scalar(
-                            Flex::float_neg(Flex::float_mul(y.clone(), y)),
-                            1f32.into(),
-                        );
-                        return Flex::float_mul(g, one_minus);
-                    }
-                    zip(y, g, |y, g| g * (1.0 - y * y))
-                });
-            }
-        }
-
-        match TanhBackward
-            .prepare::<C>([x.node()])
-            .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(prep) => {
-                let y = Flex::fast_tanh(x.into_primitive());
-                prep.finish(y.clone(), y)
-            }
-            OpsKind::UnTracked(prep) => prep.finish(Flex::fast_tanh(x.into_primitive())),
-        }
+        from_output::<C>(FromOutput::Tanh, x)
     }
 
     fn fast_sigmoid(x: FloatTensor<Self>) -> FloatTensor<Self> {
-        #[derive(Debug)]
-        struct SigmoidBackward;
+        from_output::<C>(FromOutput::Sigmoid, x)
+    }
+}
 
-        impl Backward<Flex, 1> for SigmoidBackward {
-            /// The output y.
-            type State = FlexTensor;
+/// An activation whose backward pass needs only its output `y`, which the forward saves.
+#[derive(Debug, Clone, Copy)]
+enum FromOutput {
+    /// `g (1 - y^2)`.
+    Tanh,
+    /// `g y (1 - y)`, flex's own `sigmoid_backward`.
+    Sigmoid,
+}
 
-            fn backward(
-                self,
-                ops: Ops<Self::State, 1>,
-                grads: &mut Gradients,
-                _: &mut Checkpointer,
-            ) {
-                let y = ops.state;
-                unary::<Flex, _>(ops.parents, ops.node, grads, |g| {
-                    if y.dtype() != DType::F32 {
-                        return Flex::sigmoid_backward(y, g);
-                    }
-                    // flex's own sigmoid_backward, the same expression.
-                    zip(y, g, |s, g| g * s * (1.0 - s))
-                });
+impl Backward<Flex, 1> for FromOutput {
+    /// The output y.
+    type State = FlexTensor;
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _: &mut Checkpointer) {
+        let y = ops.state;
+        unary::<Flex, _>(ops.parents, ops.node, grads, |g| match (self, y.dtype() == DType::F32) {
+            (FromOutput::Tanh, true) => zip(y, g, |y, g| g * (1.0 - y * y)),
+            (FromOutput::Tanh, false) => {
+                let one_minus = Flex::float_add_scalar(Flex::float_neg(Flex::float_mul(y.clone(), y)), 1f32.into());
+                Flex::float_mul(g, one_minus)
             }
-        }
+            (FromOutput::Sigmoid, true) => zip(y, g, |s, g| g * s * (1.0 - s)),
+            (FromOutput::Sigmoid, false) => Flex::sigmoid_backward(y, g),
+        });
+    }
+}
 
-        match SigmoidBackward
-            .prepare::<C>([x.node()])
-            .compute_bound()
-            .stateful()
-        {
-            OpsKind::Tracked(prep) => {
-                let y = Flex::fast_sigmoid(x.into_primitive());
-                prep.finish(y.clone(), y)
-            }
-            OpsKind::UnTracked(prep) => prep.finish(Flex::fast_sigmoid(x.into_primitive())),
+/// The activation `kind` of `x` on flex, its output saved for the backward pass when tracked.
+fn from_output<C: CheckpointStrategy>(kind: FromOutput, x: FloatTensor<Autodiff<Flex, C>>) -> FloatTensor<Autodiff<Flex, C>> {
+    let forward = |x: FlexTensor| match kind {
+        FromOutput::Tanh => Flex::fast_tanh(x),
+        FromOutput::Sigmoid => Flex::fast_sigmoid(x),
+    };
+    match kind.prepare::<C>([x.node()]).compute_bound().stateful() {
+        OpsKind::Tracked(prep) => {
+            let y = forward(x.into_primitive());
+            prep.finish(y.clone(), y)
         }
+        OpsKind::UnTracked(prep) => prep.finish(forward(x.into_primitive())),
     }
 }
 
