@@ -83,8 +83,8 @@ use crate::blob::{Normalisation, Sided};
 use serde::{Deserialize, Serialize};
 
 pub use face::{
-    crop_sub, is_older, ChunkSet, CropAt, FrameAck, FrameHeader, FrameState, BITMAP_BYTES, CHUNK, MAX_FRAME_CHUNKS,
-    MIN_CHUNK, STALE_WINDOW, SUB_MAX, SUB_PER_PX,
+    crop_sub, is_older, ChunkSet, CropAt, FrameAck, FrameHeader, FrameState, BITMAP_BYTES, CHUNK,
+    MAX_FRAME_CHUNKS, MIN_CHUNK, STALE_WINDOW, SUB_MAX, SUB_PER_PX,
 };
 pub use servo::{fault, BoardToServo, JointState, JointTarget, ServoToBoard, MAX_BUS_JOINTS};
 

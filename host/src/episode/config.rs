@@ -74,7 +74,8 @@ pub struct EpisodeConfig {
     pub scene: Scene,
     /// The servo bus's protocol; the PC tells the board at the start of each trial.
     pub servo_bus: ServoBus,
-    /// Keep the bytes the board sends on the servo bus (each trial's [`Trial::bus_bytes`](super::Trial::bus_bytes)).
+    /// Keep the bytes the board sends on the servo bus (each trial's
+    /// [`Trial::bus_bytes`](super::Trial::bus_bytes)).
     pub log_bus: bool,
     /// Share of trials with no mark.
     pub no_mark_share: f64,
@@ -102,7 +103,8 @@ pub struct EpisodeConfig {
     pub live: Option<crate::rosbag::session::LiveTap>,
     /// How the light changes over each trial (`msr mirror-test --light`).
     pub light: LightPlan,
-    /// The light's plan spans a run of trials rather than each trial ([`run_one_board`](super::run_one_board)).
+    /// The light's plan spans a run of trials rather than each trial
+    /// ([`run_one_board`](super::run_one_board)).
     pub light_span: Option<LightSpan>,
     /// Let the board learn the room's light (its online self-calibration); off: the PC tells
     /// it to freeze at the start of each trial, so it keeps the model's own statistics.

@@ -30,10 +30,15 @@ mod summary;
 
 pub use config::{Backend, EpisodeConfig, FaultLinks, LightSpan, ServoBus};
 pub use msr_firmware::model::HeapStore;
-pub use runners::{inproc_board, run_inproc, run_one_board, run_trial_inproc, trial_seed, InprocBoard, Tee};
+pub use runners::{
+    inproc_board, run_inproc, run_one_board, run_trial_inproc, trial_seed, InprocBoard, Tee,
+};
 pub use scenario::{
-    run_trial_with, Camera, ARM_UP_FRAME_PERIOD_US, FACE_ACK_TIMEOUT_US, FACE_MAX_AGE_PERIODS, HELD_TOLERANCE_RAD,
-    SAMPLE_US,
+    run_trial_with, Camera, ARM_UP_FRAME_PERIOD_US, FACE_ACK_TIMEOUT_US, FACE_MAX_AGE_PERIODS,
+    HELD_TOLERANCE_RAD, SAMPLE_US,
 };
 pub use scene::Scene;
-pub use summary::{add_board_counters, add_gate_joints, end_with_status, median, summarise, GateRecord, Summary, Trial};
+pub use summary::{
+    add_board_counters, add_gate_joints, end_with_status, median, summarise, GateRecord, Summary,
+    Trial,
+};

@@ -124,7 +124,8 @@ pub struct Trial {
     pub link: LinkStats,
     pub sim_s: f64,
     pub wall_s: f64,
-    /// What the board sent on the servo bus, when [`EpisodeConfig::log_bus`](super::EpisodeConfig::log_bus).
+    /// What the board sent on the servo bus, when
+    /// [`EpisodeConfig::log_bus`](super::EpisodeConfig::log_bus).
     #[serde(skip)]
     pub bus_bytes: Vec<u8>,
     /// The trial as ROS 2 messages, when [`EpisodeConfig::mcap`](super::EpisodeConfig::mcap).

@@ -52,7 +52,8 @@ impl From<[u16; 2]> for CropAt {
     }
 }
 
-/// Announces a face image; its pixels follow in [`HostToBoard::FrameChunk`](super::HostToBoard::FrameChunk)s.
+/// Announces a face image; its pixels follow in
+/// [`HostToBoard::FrameChunk`](super::HostToBoard::FrameChunk)s.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct FrameHeader {
     /// Frame number chosen by the host; chunks name it.
