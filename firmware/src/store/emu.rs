@@ -7,7 +7,7 @@
 //! somewhere between old and new, bit by bit; an erase leaves arbitrary bytes in the whole
 //! sector) and every later operation fails, as on a board whose supply is gone.
 
-use super::MappedFlash;
+use super::flash::MappedFlash;
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };
