@@ -146,28 +146,7 @@ impl SimBoard {
                             Err(e) => io_error = Some(e),
                         }
                     };
-                    let mut pty_error = None;
-                    let r = world::run(
-                        &cfg,
-                        &mut fw,
-                        |w: &mut World| {
-                            if let Err(e) = bridge.pump(&mut w.host) {
-                                pty_error = Some(e);
-                                return Flow::Stop;
-                            }
-                            if stop2.load(Ordering::SeqCst) {
-                                Flow::Stop
-                            } else {
-                                Flow::Continue
-                            }
-                        },
-                        u64::MAX / 2,
-                    )
-                    .map_err(|e| anyhow!("{e}"))?;
-                    if let Some(e) = pty_error {
-                        bail!("PTY: {e}");
-                    }
-                    r
+                    run_served(&cfg, &mut fw, &mut bridge, &stop2)?
                 };
                 if let Some(e) = io_error {
                     return Err(e.context("the QEMU board"));
@@ -212,32 +191,12 @@ impl SimBoard {
         let thread = std::thread::Builder::new().name("sim-board".into()).spawn(
             move || -> Result<Served> {
                 let mut bridge = PtyBridge::new(pty);
-                let mut io_error = None;
                 cfg.host_link.a_to_b = faults.clone();
                 cfg.host_link.b_to_a = faults;
                 let (w, _) = {
                     let mut fw = |now: u64, h: &mut LinkEnd, s: &mut LinkEnd| board.poll(now, h, s);
-                    world::run(
-                        &cfg,
-                        &mut fw,
-                        |w: &mut World| {
-                            if let Err(e) = bridge.pump(&mut w.host) {
-                                io_error = Some(e);
-                                return Flow::Stop;
-                            }
-                            if stop2.load(Ordering::SeqCst) {
-                                Flow::Stop
-                            } else {
-                                Flow::Continue
-                            }
-                        },
-                        u64::MAX / 2,
-                    )
-                    .map_err(|e| anyhow!("{e}"))?
+                    run_served(&cfg, &mut fw, &mut bridge, &stop2)?
                 };
-                if let Some(e) = io_error {
-                    return Err(anyhow!("PTY: {e}"));
-                }
                 Ok(Served {
                     status: board.status(),
                     limit_violations: w.servos.counters().limit_violations,
@@ -298,4 +257,31 @@ fn inproc_or_empty(blob: Option<&[u8]>) -> Box<Board<crate::episode::HeapStore>>
         Some(b) => inproc_board(b),
         None => Box::new(msr_firmware::Board::new(crate::episode::HeapStore::new(None, 2 * 1024 * 1024))),
     }
+}
+
+/// Runs the world `cfg` with `fw` as its board until `stop` is set, the PC's end of the host
+/// link pumped through the PTY at every step; a PTY error ends it as an error.
+fn run_served<F: world::Firmware>(cfg: &WorldConfig, fw: &mut F, bridge: &mut PtyBridge, stop: &AtomicBool) -> Result<(World, world::RunReport)> {
+    let mut pty_error = None;
+    let r = world::run(
+        cfg,
+        fw,
+        |w: &mut World| {
+            if let Err(e) = bridge.pump(&mut w.host) {
+                pty_error = Some(e);
+                return Flow::Stop;
+            }
+            if stop.load(Ordering::SeqCst) {
+                Flow::Stop
+            } else {
+                Flow::Continue
+            }
+        },
+        u64::MAX / 2,
+    )
+    .map_err(|e| anyhow!("{e}"))?;
+    if let Some(e) = pty_error {
+        bail!("PTY: {e}");
+    }
+    Ok(r)
 }
