@@ -221,12 +221,7 @@ impl ModelSpec {
                 pad(&mut o);
             }
         }
-        let total = o.len() as u32;
-        o[8..12].copy_from_slice(&total.to_le_bytes());
-        let crc = CRC32.checksum(&o[16..]);
-        o[12..16].copy_from_slice(&crc.to_le_bytes());
-        Model::parse(&o)?;
-        Ok(o)
+        seal(o)
     }
 }
 
@@ -282,6 +277,12 @@ pub fn set_self_gate(bytes: &[u8], gate: Option<SelfGate>) -> Result<Vec<u8>, Bl
     };
     o[4..6].copy_from_slice(&version.to_le_bytes());
     o[22..24].copy_from_slice(&flags.to_le_bytes());
+    seal(o)
+}
+
+/// Writes a blob's total length and its CRC-32 (of everything after the CRC) into its header,
+/// and checks that the parser takes it.
+fn seal(mut o: Vec<u8>) -> Result<Vec<u8>, BlobError> {
     let total = o.len() as u32;
     o[8..12].copy_from_slice(&total.to_le_bytes());
     let crc = CRC32.checksum(&o[16..]);
