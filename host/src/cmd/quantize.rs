@@ -1,6 +1,8 @@
-//! `msr quantize`: flags to a [`QuantizeConfig`], then [`quantize::quantize`], then the report.
+//! `msr quantize`: flags to a [`QuantizeConfig`], then [`quantize::quantize`], the self gate
+//! ([`self_gate::gate_quantized`]) unless `--no-self-gate`, then the report.
 use crate::quant::quantize::{self, QuantizeConfig, WeightArg};
-use anyhow::Result;
+use crate::train::self_gate::{self, GateCalibration, GatedReport};
+use anyhow::{Context, Result};
 use std::path::PathBuf;
 
 #[derive(clap::Args, Debug)]
@@ -35,19 +37,28 @@ impl Args {
     /// The library's configuration for these flags.
     pub fn config(&self) -> QuantizeConfig {
         let mut c = QuantizeConfig::new(self.train.clone(), self.reach.clone(), self.out.clone())
-            .with_weights(self.weights)
-            .with_self_gate(!self.no_self_gate);
+            .with_weights(self.weights);
         c.threshold = self.threshold;
         c.data = self.data.clone();
         c
     }
 }
 
+/// Quantizes, gates (unless `--no-self-gate`) and prints the report, as one line or as JSON.
 pub fn run(args: Args) -> Result<()> {
-    let report = quantize::quantize(&args.config())?;
-    if args.json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
+    let quantized = quantize::quantize(&args.config())?;
+    let gated = if args.no_self_gate {
+        let r = GatedReport::ungated(quantized);
+        r.write()?;
+        r
     } else {
+        self_gate::gate_quantized(quantized, &GateCalibration::default())
+            .context("calibrating the self gate (--no-self-gate leaves it out)")?
+    };
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&gated)?);
+    } else {
+        let report = &gated.quantized;
         println!(
             "wrote {} ({} bytes, {} weights, {} MACs): PSNR {:.1} dB over {} poses{}; detection agreement {:.1} % on {} test frames (float {}, fixed {} detections), centroid difference max {} px",
             report.blob,

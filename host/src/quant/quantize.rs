@@ -3,7 +3,7 @@
 //! `msr quantize --train DIR --reach FILE [--threshold T] [--weights auto|i8|i16] [--data DIR]
 //! --out MODEL.msrm` reads the decoder of a `msr train` output folder (`decoder.json`, `.mpk`,
 //! `_mu.npy`, `_sigma.npy`, `template.png`) and a `msr train-reach` network, and writes the blob
-//! plus a report `MODEL.msrm.json`.
+//! plus a report `MODEL.msrm.json` (written with the self gate's step).
 //!
 //! Fixed point (semantics in `msr_shared::blob`):
 //! - the head angles enter with [`HEAD_IN_SHIFT`] fraction bits;
@@ -96,10 +96,6 @@ pub struct QuantizeConfig {
     pub weights: WeightArg,
     /// Dataset for the float-vs-fixed report (default: the one the model was trained on).
     pub data: Option<PathBuf>,
-    /// The self gate (`true`, the default): the blob carries a gate calibrated on the dataset's
-    /// robot (`train::self_gate`); `false`: a confirmed mark is reached at once, as the paper.
-    #[config(default = true)]
-    pub self_gate: bool,
 }
 
 /// Largest magnitude of a layer's input that the previous layer can produce.
@@ -472,11 +468,13 @@ pub struct Report {
     pub centroid_diff_px_mean: Option<f64>,
     pub threshold: f64,
     pub psnr_target_db: f64,
-    /// The self gate's calibration; `null` with `--no-self-gate`.
-    pub self_gate: Option<crate::train::self_gate::GateCalibReport>,
+    /// The robot of the dataset the report was measured on (`red`, `skin`, or a real robot's
+    /// name): the self gate, a later step (`train::self_gate::gate_quantized`), is calibrated on it.
+    pub robot: String,
 }
 
-/// Quantizes, writes the blob and its report (`{out}.json`), and returns the report.
+/// Quantizes, writes the blob and returns the report; the report is written beside the blob
+/// (`{out}.json`) by the step that ends the model, the self gate's (`train::self_gate::GatedReport`).
 pub fn quantize(args: &QuantizeConfig) -> Result<Report> {
     let model = train::load(&args.train, "decoder")
         .with_context(|| format!("loading the trained decoder from {}", args.train.display()))?;
@@ -497,23 +495,7 @@ pub fn quantize(args: &QuantizeConfig) -> Result<Report> {
     ensure!(!ds.samples.is_empty(), "dataset {} has no test frames", data_path.display());
     let heads: Vec<[f32; 2]> = ds.samples.iter().map(|s| s.head).collect();
 
-    let mut chosen = choose(&layers, &x, &heads, args.weights)?;
-    let self_gate = if !args.self_gate {
-        None
-    } else {
-        let robot: msr_sim::Robot = ds.robot.parse().map_err(|_| {
-            anyhow::anyhow!(
-                "the self gate is calibrated on rendered frames of a sim robot, and dataset {} is of robot {:?}; pass --no-self-gate",
-                data_path.display(),
-                ds.robot
-            )
-        })?;
-        let cal = crate::train::self_gate::GateCalibration::default();
-        let (blob, report) = crate::train::self_gate::attach(&chosen.blob, robot, &cal)
-            .context("calibrating the self gate (--no-self-gate leaves it out)")?;
-        chosen.blob = blob;
-        Some(report)
-    };
+    let chosen = choose(&layers, &x, &heads, args.weights)?;
     if let Some(dir) = args.out.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }
@@ -561,11 +543,8 @@ pub fn quantize(args: &QuantizeConfig) -> Result<Report> {
         centroid_diff_px_mean: (!diffs.is_empty()).then(|| diffs.iter().sum::<f64>() / diffs.len() as f64),
         threshold: x.novelty.threshold,
         psnr_target_db: PSNR_TARGET_DB,
-        self_gate,
+        robot: ds.robot.clone(),
     };
-    let json = serde_json::to_string_pretty(&report)?;
-    let report_path = PathBuf::from(format!("{}.json", args.out.display()));
-    crate::fsio::write(&report_path, &json)?;
     Ok(report)
 }
 

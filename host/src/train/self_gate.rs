@@ -294,6 +294,52 @@ pub fn attach(blob: &[u8], robot: Robot, c: &GateCalibration) -> Result<(Vec<u8>
     Ok((out, report))
 }
 
+/// A quantization report with the self gate's calibration beside it (`null` without a gate), as
+/// `MODEL.msrm.json` holds it.
+#[derive(Debug, Serialize)]
+pub struct GatedReport {
+    /// The float-against-fixed report of the quantization.
+    #[serde(flatten)]
+    pub quantized: crate::quant::quantize::Report,
+    /// What the gate's calibration measured; `None` for a blob without a gate.
+    pub self_gate: Option<GateCalibReport>,
+}
+
+impl GatedReport {
+    /// A report of a blob left without a gate.
+    pub fn ungated(quantized: crate::quant::quantize::Report) -> Self {
+        Self { quantized, self_gate: None }
+    }
+
+    /// Writes the report beside its blob (`MODEL.msrm.json`).
+    pub fn write(&self) -> Result<()> {
+        let path = format!("{}.json", self.quantized.blob);
+        crate::fsio::write(std::path::Path::new(&path), serde_json::to_string_pretty(self)?)
+    }
+}
+
+/// The step after quantization: calibrates a self gate on the robot of the report's dataset,
+/// rewrites the report's blob with it (its size and CRC in the report follow) and writes the report
+/// beside the blob. The dataset must be of a sim robot: the calibration renders its frames.
+pub fn gate_quantized(mut quantized: crate::quant::quantize::Report, c: &GateCalibration) -> Result<GatedReport> {
+    let robot: Robot = quantized.robot.parse().map_err(|_| {
+        anyhow::anyhow!(
+            "the self gate is calibrated on rendered frames of a sim robot, and the model's dataset is of robot {:?}",
+            quantized.robot
+        )
+    })?;
+    let path = std::path::PathBuf::from(&quantized.blob);
+    let blob = crate::fsio::read(&path)?;
+    let (gated, report) = attach(&blob, robot, c)?;
+    crate::fsio::write(&path, &gated)?;
+    let model = Model::parse(&gated).map_err(|e| anyhow::anyhow!("model blob: {e}"))?;
+    quantized.blob_bytes = gated.len();
+    quantized.crc32 = format!("{:08x}", model.crc32);
+    let out = GatedReport { quantized, self_gate: Some(report) };
+    out.write()?;
+    Ok(out)
+}
+
 /// `blob` without a self gate: the paper's behaviour, a confirmed mark reached at once.
 pub fn detach(blob: &[u8]) -> Result<Vec<u8>> {
     set_self_gate(blob, None).map_err(|e| anyhow::anyhow!("model blob: {e}"))
