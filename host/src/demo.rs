@@ -25,6 +25,7 @@ use std::time::Instant;
 pub struct DemoConfig {
     /// Output folder.
     pub out: PathBuf,
+    /// The sim robot the demo trains and tests.
     #[config(default = "Robot::Red")]
     pub robot: Robot,
     /// Face crop of the trained models: sub-pixel, or pixel (the published code).
@@ -44,6 +45,7 @@ pub struct DemoConfig {
     pub qemu_trials: usize,
     /// Folder of real frames in the published layout (default `../shared/data/nao-red-real`).
     pub real: Option<PathBuf>,
+    /// Seed of everything the demo draws (frames, marks, training, trials).
     #[config(default = 0)]
     pub seed: u64,
     /// The servo bus of the episodes.

@@ -6,11 +6,13 @@ use msr_shared::blob::CropMode;
 use msr_sim::Robot;
 use std::path::PathBuf;
 
+/// The flags of `msr demo`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Output folder
     #[arg(long, default_value = "demo-out")]
     pub out: PathBuf,
+    /// The sim robot the demo trains and tests
     #[arg(long, default_value = "red")]
     pub robot: Robot,
     /// Face crop of the trained models: subpixel, or pixel (the published code)
@@ -31,6 +33,7 @@ pub struct Args {
     /// Folder of real frames in the published layout, for the real-frame check
     #[arg(long)]
     pub real: Option<PathBuf>,
+    /// Seed of everything the demo draws (frames, marks, training, trials)
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// The servo bus of the episodes
@@ -84,6 +87,7 @@ impl Args {
     }
 }
 
+/// Runs the demo, or with `--html-only` writes its page again from the results in its folder.
 pub fn run(a: Args) -> Result<()> {
     if a.html_only {
         demo::rewrite_html(&a.out)?;

@@ -5,6 +5,7 @@ use crate::train::self_gate::{self, GateCalibration, GatedReport};
 use anyhow::{Context, Result};
 use std::path::PathBuf;
 
+/// The flags of `msr quantize`.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Output folder of `msr train` (its decoder is quantized)
@@ -16,6 +17,7 @@ pub struct Args {
     /// Threshold in saliency units (default: the one chosen at training)
     #[arg(long)]
     pub threshold: Option<f64>,
+    /// The weights' integer type in the blob
     #[arg(long, value_enum, default_value_t = WeightArg::Auto)]
     pub weights: WeightArg,
     /// Dataset for the float-vs-fixed report (default: the one the model was trained on)

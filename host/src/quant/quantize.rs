@@ -71,11 +71,14 @@ pub enum ShiftPolicy {
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum, Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
+/// The weights' integer type in the blob.
 pub enum WeightArg {
     /// i16 if the blob fits a board upload slot (faster on the M4), else i8 if it keeps the
     /// PSNR target, else i16
     Auto,
+    /// i8 weights: half the bytes, about a third more instructions per MAC on the M4
     I8,
+    /// i16 weights: the fast ones on the M4 (SMLAD takes i16 pairs directly)
     I16,
 }
 
@@ -92,6 +95,7 @@ pub struct QuantizeConfig {
     pub out: PathBuf,
     /// Threshold in saliency units (default: the one chosen at training).
     pub threshold: Option<f64>,
+    /// The weights' integer type (default: [`WeightArg::Auto`]).
     #[config(default = "WeightArg::Auto")]
     pub weights: WeightArg,
     /// Dataset for the float-vs-fixed report (default: the one the model was trained on).
@@ -317,10 +321,15 @@ pub fn float_faces(layers: &[FloatLayer], heads: &[[f32; 2]]) -> Vec<Vec<f64>> {
 
 /// Everything but the decoder layers.
 pub struct Extras {
+    /// The face's size in pixels, `(height, width)`.
     pub face: (usize, usize),
+    /// The calibrated novelty settings: threshold, pooling, blob rules.
     pub novelty: NoveltyParams,
+    /// The prediction error's statistics (mu, sigma per pixel and pose cell), in grey levels.
     pub stats: ErrorStats,
+    /// The reach network and its scaling.
     pub reach: Reach,
+    /// The face template `(width, height, grey pixels)` the board crops with, if the model has one.
     pub template: Option<(u16, u16, Vec<u8>)>,
     /// How the host crops with the template.
     pub crop: CropMode,
@@ -382,9 +391,13 @@ pub fn blob_of(layers: Vec<LayerSpec>, x: &Extras) -> Result<Vec<u8>> {
 
 /// The chosen quantization and its PSNR on the calibration poses.
 pub struct Chosen {
+    /// The model blob's bytes.
     pub blob: Vec<u8>,
+    /// Each layer's output shift (fraction bits of its output).
     pub out_shifts: Vec<i8>,
+    /// Whether the weights are i8 (else i16).
     pub i8_weights: bool,
+    /// PSNR (dB) of the fixed-point decoder's faces against float's on the calibration poses.
     pub psnr_db: f64,
     /// PSNR with i8 weights (when tried).
     pub psnr_i8_db: Option<f64>,
@@ -449,24 +462,42 @@ fn choose_within(layers: &[FloatLayer], x: &Extras, heads: &[[f32; 2]], weights:
     Ok(Chosen { blob, out_shifts: shifts, i8_weights: false, psnr_db: p, psnr_i8_db })
 }
 
+/// The float model against the fixed-point blob: what `MODEL.msrm.json` reports.
 #[derive(Serialize, Debug)]
 pub struct Report {
+    /// The blob's path.
     pub blob: String,
+    /// The blob's size in bytes.
     pub blob_bytes: usize,
+    /// The blob's CRC-32, hex, as the board reports it.
     pub crc32: String,
+    /// The weights' type, `i8` or `i16`.
     pub weights: &'static str,
+    /// Each layer's output shift (fraction bits).
     pub out_shifts: Vec<i8>,
+    /// Multiply-accumulates of one decoder run.
     pub decoder_macs: u64,
+    /// PSNR (dB) of the fixed-point faces against float's over the test split's head poses.
     pub psnr_db: f64,
+    /// The same with i8 weights, where they were tried.
     pub psnr_i8_db: Option<f64>,
+    /// Head poses the PSNR was measured over.
     pub psnr_poses: usize,
+    /// Test frames of the detection comparison.
     pub test_frames: usize,
+    /// Fraction of test frames where float and fixed agree (both nothing, or centroids within 1 px).
     pub detection_agreement: f64,
+    /// Test frames where float detects a mark.
     pub float_detections: usize,
+    /// Test frames where the fixed-point pipeline detects a mark.
     pub fixed_detections: usize,
+    /// Largest centroid difference (px) where both detect; `None` if never both.
     pub centroid_diff_px_max: Option<f64>,
+    /// Mean centroid difference (px) where both detect.
     pub centroid_diff_px_mean: Option<f64>,
+    /// The detection threshold in the blob, in saliency units.
     pub threshold: f64,
+    /// The PSNR (dB) that i8 weights must keep to be chosen by `auto`.
     pub psnr_target_db: f64,
     /// The robot of the dataset the report was measured on (`red`, `skin`, or a real robot's
     /// name): the self gate, a later step (`train::self_gate::gate_quantized`), is calibrated on it.

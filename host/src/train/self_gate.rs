@@ -29,6 +29,7 @@ pub struct GateCalibration {
     /// value: over 96 draws the RMS moved by under 10 % between seeds, where 1.5 times the
     /// largest of 24 moved the gain's band from 2.46 % to 2.99 % (red).
     pub draws: usize,
+    /// Seed of the probes' marks, light and noise: the same seed, the same gate.
     pub seed: u64,
     /// From the head settled at a pose (the board's reported yaw near it) to a frame of it on
     /// the board: the frame's transfer (75 x 58 at 921600 baud: 47 ms), the servo settling to
@@ -36,7 +37,9 @@ pub struct GateCalibration {
     /// to 0.8 px between the two frames of a hold, and the gate refused its own mirror image in
     /// 5 of 19 red and 33 of 36 skin trials) and a margin.
     pub latency_ms: u16,
+    /// A probe not decided within this is undecided and the board does not reach (ms).
     pub timeout_ms: u16,
+    /// Frames the board needs at each probe pose.
     pub min_frames: u8,
     /// Each tolerance is this many times its statistic's root mean square over the draws (the
     /// box: no own image of 470 red and 453 skin mirror trials reached 4 on any statistic).
@@ -103,12 +106,15 @@ impl Default for GateCalibration {
 /// What calibration measured.
 #[derive(Clone, Debug, Serialize)]
 pub struct GateCalibReport {
+    /// The gate calibrated, as the blob stores it.
     pub gate: SelfGateJson,
-    /// Per draw: measured gain (px/rad), and the rest distance, hold range and level move
-    /// (px) the board computes.
+    /// Per draw: the measured gain (px/rad).
     pub gains: Vec<f64>,
+    /// Per draw: the resting face's distance from the probe's line (px), as the board computes it.
     pub rest_px: Vec<f64>,
+    /// Per draw: the face's largest x range while the head holds (px).
     pub hold_px: Vec<f64>,
+    /// Per draw: the face's largest vertical move at a probe pose from its rest (px).
     pub level_px: Vec<f64>,
     /// With a return stage: the face back at the rest, its distance from the poses' line (px).
     pub line_px: Vec<f64>,
@@ -119,18 +125,27 @@ pub struct GateCalibReport {
 /// [`SelfGate`] for reports.
 #[derive(Clone, Debug, Serialize)]
 pub struct SelfGateJson {
+    /// The probe's head yaw offset (rad).
     pub amplitude_rad: f32,
+    /// The face's expected x move per radian of head yaw (px/rad, signed).
     pub gain_px_per_rad: f32,
+    /// Largest relative error of the measured gain.
     pub gain_tol: f32,
+    /// Largest distance of the resting face from the probe's line (px).
     pub rest_tol_px: f32,
+    /// Largest x range of the face while the head holds (px).
     pub hold_tol_px: f32,
+    /// Largest vertical move of the face at a probe pose (px).
     pub level_tol_px: f32,
     /// `null`: no return stage.
     pub line_tol_px: Option<f32>,
     /// `null`: no joint bound.
     pub joint_tol: Option<f32>,
+    /// The robot's latency from a head pose to a frame of it on the board (ms).
     pub latency_ms: u16,
+    /// A probe not decided within this is undecided (ms).
     pub timeout_ms: u16,
+    /// Frames needed at each probe pose.
     pub min_frames: u8,
 }
 
