@@ -1,5 +1,5 @@
 #!/bin/sh
-# Issue 28's done-when: a 1300-frame sim dataset, its training frames written as ROS 2 bags by the
+# The rosbag import measured end to end: a 1300-frame sim dataset, its training frames written as ROS 2 bags by the
 # Python `rosbags` package (rgb8 images at 10 Hz, joint states at 50 Hz; MCAP and SQLite3),
 # imported with `msr import-bag`; then `msr train` + `msr quantize` + `msr eval` on the imported
 # dataset and on the folder dataset, both evaluated on the folder dataset's marked test split.

@@ -1,4 +1,4 @@
-//! Where a trained decoder's error comes from, per head pose and per pixel (issue 19's diagnosis).
+//! Where a trained decoder's error comes from, per head pose and per pixel.
 //!
 //! `cargo run --release -p msr-host --example pose_error -- DATASET TRAIN_DIR [K]`
 //!

@@ -180,7 +180,7 @@ fn detect_and_eval_refuse_bad_input() {
             "--head-pitch",
             "0",
         ],
-        // Issue 30: one rule for every path, the model's frame size or larger.
+        // One rule for every path, the model's frame size or larger.
         "60x40, smaller than the 320x240",
     );
 
@@ -313,7 +313,7 @@ fn eval_on_the_real_frames_shows_sigma_weighting_matters() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Issue 13: every case found by trying `msr` as a new user with bad input. Each refusal happens
+// Every case found by trying `msr` as a new user with bad input. Each refusal happens
 // before any work (no model, port or dataset is needed to reach it) and is one line.
 
 /// Exit code, stdout, stderr.

@@ -1,4 +1,4 @@
-//! Bad input, second round (issue 30): the live paths (`msr run` against an emulated board),
+//! Bad input on the live paths (`msr run` against an emulated board),
 //! the files around the outputs, and figures that were silently wrong. Each test names the case
 //! it was found with and checks its class.
 mod common;

@@ -1,4 +1,4 @@
-//! Property tests of bad input (issue 13): `msr`'s argument parser and argument checks, and its
+//! Property tests of bad input: `msr`'s argument parser and argument checks, and its
 //! file readers, fed random values and bytes, never panic and answer with one line naming the
 //! problem; a few runs of the `msr` binary itself also exit with 1 or 2 and change no input.
 //!

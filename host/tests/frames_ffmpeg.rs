@@ -42,7 +42,7 @@ fn msr_run(model: &Path, frames: &str, stdin: Stdio) -> (Output, Vec<Value>) {
         .lines()
         .filter_map(|l| serde_json::from_str::<Value>(l).ok())
         .filter_map(|v| v.get("Detection").cloned())
-        // Each session numbers its frames from its own start (issue 30): compare the rest.
+        // Each session numbers its frames from its own start: compare the rest.
         .map(|mut d| {
             d.as_object_mut().map(|o| o.remove("frame"));
             d

@@ -162,7 +162,7 @@ fn msr_template_cuts_an_inclusive_box() {
     let t = image::open(&out).unwrap().to_luma8();
     assert_eq!(t.dimensions(), (75, 58));
     assert_eq!(t.get_pixel(0, 0).0[0], 210);
-    // A box that does not parse is a usage error (exit 2, issue 30); one past the frame is not.
+    // A box that does not parse is a usage error (exit 2); one past the frame is not.
     for (b, what, code) in [("10,10,5,20", "left of x0", 2), ("0,0,400,10", "leaves the 320x240", 1), ("1,2,3", "four numbers", 2)] {
         let o = msr(&["template", "--frame", frame.to_str().unwrap(), "--box", b, "--out", out.to_str().unwrap()]);
         let err = String::from_utf8_lossy(&o.stderr);

@@ -1,5 +1,5 @@
 //! `msr run` against an emulated board (`msr serve`'s in-process board on a PTY), with the
-//! first round's bad-input properties extended to the live path (issue 30): random frames
+//! first round's bad-input properties extended to the live path: random frames
 //! (sizes, content), stalls of the stream, boards reset or left halted between runs. Whatever
 //! happens: no panic; a failure is one line; a success accounts for every frame, and no frame
 //! the board did not answer is reported as answered.

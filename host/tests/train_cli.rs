@@ -138,7 +138,7 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     assert_eq!(msr_shared::blob::Model::parse(&plain).unwrap().self_gate, None);
     assert_eq!(msr_shared::blob::set_self_gate(&bytes, None).unwrap(), plain);
 
-    // Issue 30: a folder whose parts come from two runs is refused when read (each part's
+    // A folder whose parts come from two runs is refused when read (each part's
     // CRC-32 is in decoder.json), and a folder in use by another run is refused.
     let mixed = tmp.path().join("mixed");
     std::fs::create_dir(&mixed).unwrap();

@@ -53,7 +53,7 @@ fn trained_model_of(robot: Robot, arch: ArchKind) -> Vec<u8> {
     };
     // The key names every setting the blob depends on that has changed since models were first
     // cached, so that a model made under other defaults is never taken for this one: the error
-    // pooling and the pose cells (defaults since issue 19; before, per pixel and one set).
+    // pooling and the pose cells (their older defaults were per pixel and one set).
     let (pool, pose_bins) = (train::calibrate::DEFAULT_POOL, train::calibrate::DEFAULT_POSE_BINS);
     let key = format!("{}-{kind}f{TRAIN_FRAMES}-e{TRAIN_EPOCHS}-subpixel-pool{pool}-bins{pose_bins}-v3", robot.name());
     let dir = cache_dir();
