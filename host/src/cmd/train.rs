@@ -140,6 +140,8 @@ pub(crate) fn flag_text(e: &crate::train::ConfigError) -> String {
              set of statistics for all poses) or fewer cells, or render more frames",
             data.display()
         ),
+        E::LightGradient(g) => format!("--light-gradient must be in 0..0.5 (a share of the grey level), got {g}"),
+        E::LightGamma(g) => format!("--light-gamma must be in 0..0.5, got {g}"),
     }
 }
 

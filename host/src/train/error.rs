@@ -20,6 +20,10 @@ pub enum ConfigError {
     NoNormalTestFrames { data: PathBuf },
     /// A head-pose cell has fewer than 2 unmarked training frames (a standard deviation needs 2).
     FewFramesPerPoseCell { pose_bins: u8, default: u8, cells: usize, data: PathBuf, fewest: usize, total: usize },
+    /// The light copies' gradient is not within 0..0.5 (a share of the grey level).
+    LightGradient(f32),
+    /// The light copies' gamma is not within 0..0.5.
+    LightGamma(f32),
 }
 
 impl fmt::Display for ConfigError {
@@ -41,6 +45,8 @@ impl fmt::Display for ConfigError {
                  to 0 (one set of statistics for all poses) or fewer cells, or render more frames",
                 data.display()
             ),
+            Self::LightGradient(g) => write!(f, "light_gradient must be in 0..0.5 (a share of the grey level), got {g}"),
+            Self::LightGamma(g) => write!(f, "light_gamma must be in 0..0.5, got {g}"),
         }
     }
 }

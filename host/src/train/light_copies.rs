@@ -24,7 +24,7 @@
 //! the head pose only), so copies are made for decoders; an autoencoder takes none. Seeded:
 //! the same recording and seed give the same statistics.
 
-use anyhow::{ensure, Result};
+use super::error::ConfigError;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
@@ -56,13 +56,13 @@ impl LightCopies {
     pub const DEFAULT: LightCopies = LightCopies { copies: 4, gradient: 0.07, gamma: 0.2, seed: 0 };
 
     /// Amplitudes that keep a copy a face: finite, a gradient under 0.5, a gamma under 0.5.
-    pub fn check(&self) -> Result<()> {
-        ensure!(
-            self.gradient.is_finite() && (0.0..0.5).contains(&self.gradient),
-            "--light-gradient must be in 0..0.5 (a share of the grey level), got {}",
-            self.gradient
-        );
-        ensure!(self.gamma.is_finite() && (0.0..0.5).contains(&self.gamma), "--light-gamma must be in 0..0.5, got {}", self.gamma);
+    pub fn check(&self) -> Result<(), ConfigError> {
+        if !(self.gradient.is_finite() && (0.0..0.5).contains(&self.gradient)) {
+            return Err(ConfigError::LightGradient(self.gradient));
+        }
+        if !(self.gamma.is_finite() && (0.0..0.5).contains(&self.gamma)) {
+            return Err(ConfigError::LightGamma(self.gamma));
+        }
         Ok(())
     }
 

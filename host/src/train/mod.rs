@@ -265,7 +265,7 @@ pub fn lock_out(dir: &Path) -> Result<OutLock> {
     match f.try_lock() {
         Ok(()) => Ok(OutLock(f)),
         Err(std::fs::TryLockError::WouldBlock) => {
-            bail!("{} is in use by another msr run (it holds {}): wait for it, or give another --out", dir.display(), p.display())
+            bail!("{} is in use by another msr run (it holds {}): wait for it, or give another output folder", dir.display(), p.display())
         }
         Err(std::fs::TryLockError::Error(e)) => Err(e).with_context(|| format!("cannot lock {}", p.display())),
     }
@@ -391,7 +391,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
     // The decoder learns the robot's own face as the mirror shows it at each head pose.
     ensure!(
         ds.other_robot_frames == 0,
-        "dataset {} shows another robot in {} frames (`msr dataset --scene other`): the decoder \
+        "dataset {} shows another robot in {} frames (a scene with another robot): the decoder \
          learns the robot's own face in the mirror; train on a mirror dataset",
         args.data.display(),
         ds.other_robot_frames
@@ -403,7 +403,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
     // The test MSE is the figure training reports; without test frames it would be NaN.
     ensure!(
         !test.is_empty(),
-        "dataset {} has no test frames: the test MSE needs some (msr dataset/record --test-fraction above 0)",
+        "dataset {} has no test frames: the test MSE needs some (make it with a test fraction above 0)",
         args.data.display()
     );
     // Fail before training, not after, when the policy has nothing to work on.
