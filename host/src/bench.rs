@@ -361,7 +361,7 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
     ensure!(
         qemu::qemu_available(),
         "{} is not installed: install qemu-system-arm (Debian: apt-get install qemu-system-arm) \
-         or use --backend host",
+         or bench on the host",
         qemu::qemu_binary()
     );
     let model = Model::parse(&m.blob).map_err(|e| anyhow::anyhow!("{}: {e}", m.source))?;

@@ -158,13 +158,60 @@ fn template(cfg: &RecordConfig) -> Result<GrayImage> {
     if let SourceConfig::Sim { robot, .. } = cfg.source {
         return Ok(msr_sim::render::Renderer::new(robot).template());
     }
-    bail!(
-        "no face template: give --template FILE, or make {} with `msr template --frame F --box \
-         x0,y0,x1,y1 --out {}`",
-        in_out.display(),
-        in_out.display()
-    )
+    Err(OutError::NoTemplate(in_out).into())
 }
+
+/// Why the output folder cannot take this recording as configured. The words name the
+/// configuration's fields (`force`, `resume`, `count`); the command line says the same with its
+/// flags.
+#[derive(Debug, Clone, PartialEq)]
+pub enum OutError {
+    /// `out` is a file.
+    NotAFolder(PathBuf),
+    /// `out` holds a finished recording or dataset, and `force` is off.
+    Finished(PathBuf),
+    /// `out` holds an unfinished recording, and neither `resume` nor `force` is on.
+    Unfinished(PathBuf),
+    /// `out` holds files, but no recording.
+    NotEmpty(PathBuf),
+    /// The unfinished recording's log disagrees with its folder (`what` says how): only recording
+    /// again over it (`force`) helps.
+    BadLog {
+        /// The log file.
+        log: PathBuf,
+        /// How the log and the folder disagree.
+        what: String,
+    },
+    /// No face template: none configured, none in `out` (the path it would have) and no sim camera.
+    NoTemplate(PathBuf),
+    /// The unfinished recording already holds more frames than `count`.
+    TooMany {
+        /// The log file.
+        log: PathBuf,
+        /// Frames the log lists.
+        frames: usize,
+        /// The configured count.
+        count: usize,
+    },
+}
+
+impl std::fmt::Display for OutError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::NotAFolder(p) => write!(f, "the output {} is a file, not a folder", p.display()),
+            Self::Finished(p) => write!(f, "{} holds a finished recording (or dataset): set force to record over it", p.display()),
+            Self::Unfinished(p) => {
+                write!(f, "{} holds an unfinished recording: set resume to continue it, or force to start again", p.display())
+            }
+            Self::NotEmpty(p) => write!(f, "{} is not empty and holds no recording: give a new folder", p.display()),
+            Self::BadLog { log, what } => write!(f, "{}: {what}: set force to record again", log.display()),
+            Self::NoTemplate(p) => write!(f, "no face template: configure one, or make {}", p.display()),
+            Self::TooMany { log, frames, count } => write!(f, "{} holds {frames} frames, more than the count {count}", log.display()),
+        }
+    }
+}
+
+impl std::error::Error for OutError {}
 
 /// Checks `out` before anything is sent or changed: a finished recording is kept unless
 /// `force`, an unfinished one needs `resume` (or `force`) and a log that [`check_log`] passes.
@@ -174,21 +221,21 @@ fn check_out(cfg: &RecordConfig) -> Result<Vec<Entry>> {
     let index = out.join(layout::INDEX_FILE);
     let log = out.join(LOG_FILE);
     if out.exists() && !out.is_dir() {
-        bail!("--out {} is a file, not a folder", out.display());
+        return Err(OutError::NotAFolder(out.clone()).into());
     }
     if cfg.force {
         return Ok(Vec::new());
     } else if index.exists() {
-        bail!("{} holds a finished recording (or dataset): --force to record over it", out.display());
+        return Err(OutError::Finished(out.clone()).into());
     } else if log.exists() {
         if !cfg.resume {
-            bail!("{} holds an unfinished recording: --resume to continue it, --force to start again", out.display());
+            return Err(OutError::Unfinished(out.clone()).into());
         }
         let entries = read_log(&log)?;
         check_log(out, &log, &entries, cfg.count)?;
         return Ok(entries);
     } else if out.is_dir() && std::fs::read_dir(out)?.any(|e| e.is_ok_and(|e| e.file_name() != layout::TEMPLATE_FILE)) {
-        bail!("{} is not empty and holds no recording: give a new folder", out.display());
+        return Err(OutError::NotEmpty(out.clone()).into());
     }
     Ok(Vec::new())
 }
@@ -229,21 +276,21 @@ fn check_log(out: &Path, log: &Path, entries: &[Entry], count: usize) -> Result<
         let Entry::Frame { file, head } = e else { continue };
         let want = format!("frames/{k:06}.png");
         if *file != want {
-            bail!(
-                "{}: kept frame {} is {file:?}, a recording writes {want:?} (a frame missing, twice, \
-                 or outside the folder): --force to record again",
-                log.display(),
+            let what = format!(
+                "kept frame {} is {file:?}, a recording writes {want:?} (a frame missing, twice, or outside the folder)",
                 k + 1
             );
+            return Err(OutError::BadLog { log: log.to_path_buf(), what }.into());
         }
         check_head(*head).with_context(|| format!("{}: frame {file}", log.display()))?;
         if !out.join(file).is_file() {
-            bail!("{}: frame {file} is listed but {} is missing: --force to record again", log.display(), out.join(file).display());
+            let what = format!("frame {file} is listed but {} is missing", out.join(file).display());
+            return Err(OutError::BadLog { log: log.to_path_buf(), what }.into());
         }
         k += 1;
     }
     if k > count {
-        bail!("{} holds {k} frames, more than --count {count}", log.display());
+        return Err(OutError::TooMany { log: log.to_path_buf(), frames: k, count }.into());
     }
     Ok(())
 }

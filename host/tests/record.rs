@@ -105,8 +105,11 @@ fn an_interrupted_recording_resumes_where_it_stopped() {
     std::fs::remove_file(out.join("dataset.json")).unwrap();
     std::fs::remove_file(out.join("head_angles.csv")).unwrap();
     cfg.count = 9;
-    let e = record::record(&cfg).unwrap_err().to_string();
-    assert!(e.contains("unfinished recording") && e.contains("--resume"), "{e}");
+    let e = record::record(&cfg).unwrap_err();
+    assert_eq!(e.downcast_ref::<record::OutError>(), Some(&record::OutError::Unfinished(out.clone())), "{e}");
+    // The command line words it with its flags.
+    let line = msr_host::cmd::one_line(&e);
+    assert!(line.contains("unfinished recording") && line.contains("--resume"), "{line}");
     cfg.resume = true;
     let r = record::record(&cfg).unwrap();
     assert_eq!((r.resumed, r.frames), (5, 4));

@@ -39,6 +39,15 @@ pub struct Args {
 }
 
 /// `--joint-names YAW,PITCH`.
+/// An [`UnnamedJoints`](crate::rosbag::import::UnnamedJoints) in the words of the flag.
+pub(crate) fn flag_text(e: &crate::rosbag::import::UnnamedJoints) -> String {
+    let [yaw, pitch] = &e.names;
+    format!(
+        "no message on {} names both {yaw} and {pitch} (names seen: {}): give --joint-names YAW,PITCH",
+        e.topic, e.seen
+    )
+}
+
 pub fn joint_names(s: &str) -> Result<[String; 2]> {
     match s.split(',').map(str::trim).collect::<Vec<_>>().as_slice() {
         [y, p] if !y.is_empty() && !p.is_empty() && y != p => Ok([y.to_string(), p.to_string()]),

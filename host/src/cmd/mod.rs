@@ -213,9 +213,14 @@ pub fn one_line(e: &anyhow::Error) -> String {
     let mut out = String::new();
     for c in e.chain() {
         // The library names a configuration's fields; the user typed flags.
-        let m = match c.downcast_ref::<crate::train::ConfigError>() {
-            Some(t) => train::flag_text(t),
-            None => c.to_string(),
+        let m = if let Some(t) = c.downcast_ref::<crate::train::ConfigError>() {
+            train::flag_text(t)
+        } else if let Some(t) = c.downcast_ref::<crate::record::OutError>() {
+            record::flag_text(t)
+        } else if let Some(t) = c.downcast_ref::<crate::rosbag::import::UnnamedJoints>() {
+            import_bag::flag_text(t)
+        } else {
+            c.to_string()
         };
         let m = m.trim();
         if m.is_empty() || out.ends_with(m) {

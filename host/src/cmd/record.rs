@@ -102,6 +102,24 @@ pub fn config(a: &Args) -> Result<RecordConfig> {
     Ok(c)
 }
 
+/// An [`OutError`](record::OutError) in the words of the flags that set the fields.
+pub(crate) fn flag_text(e: &record::OutError) -> String {
+    use record::OutError as E;
+    match e {
+        E::NotAFolder(p) => format!("--out {} is a file, not a folder", p.display()),
+        E::Finished(p) => format!("{} holds a finished recording (or dataset): --force to record over it", p.display()),
+        E::Unfinished(p) => format!("{} holds an unfinished recording: --resume to continue it, --force to start again", p.display()),
+        E::NotEmpty(_) => e.to_string(),
+        E::BadLog { log, what } => format!("{}: {what}: --force to record again", log.display()),
+        E::NoTemplate(p) => format!(
+            "no face template: give --template FILE, or make {} with `msr template --frame F --box x0,y0,x1,y1 --out {}`",
+            p.display(),
+            p.display()
+        ),
+        E::TooMany { log, frames, count } => format!("{} holds {frames} frames, more than --count {count}", log.display()),
+    }
+}
+
 pub fn run(a: Args) -> Result<()> {
     let mut c = config(&a)?;
     c.live = a.live.start(false)?;

@@ -29,7 +29,7 @@ pub const ROBOT_NAMES: [&str; 3] = ["red", "skin", "recorded"];
 fn check_index(root: &Path, robot: &str, pending: &[Pending], layout: Layout) -> Result<()> {
     if layout == Layout::Sim && !ROBOT_NAMES.contains(&robot) {
         bail!(
-            "dataset {} says robot {robot:?}: msr dataset --robot makes red or skin, msr record makes recorded",
+            "dataset {} says robot {robot:?}: a sim dataset's robot is red or skin, a recording's is recorded",
             root.display()
         );
     }

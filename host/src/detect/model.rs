@@ -59,7 +59,7 @@ pub fn dequantized_decoder(model: &Model) -> Result<DenseDecoder> {
     for (i, l) in model.layers.iter().enumerate() {
         if l.kind != LayerKind::Dense {
             bail!(
-                "layer {i} is {:?}: the float engine runs dense decoders only (use --engine fixed)",
+                "layer {i} is {:?}: the float engine runs dense decoders only (the fixed engine runs every decoder)",
                 l.kind
             );
         }

@@ -88,7 +88,7 @@ impl SimBoard {
             Backend::Qemu => {
                 // `msr serve`'s flags give a burst length even without bursts: ask what they do.
                 if !cfg.host_faults.is_clean() {
-                    bail!("host-link faults are emulated for the in-process board only (--backend inproc)");
+                    bail!("host-link faults are emulated for the in-process board only");
                 }
                 // Checked (or created, erased) and locked here, so that a wrong file or one in use
                 // is refused in one line before QEMU starts; the image then reads it and writes

@@ -124,7 +124,7 @@ impl Live {
                 .message_encoding("cdr")
                 .schema(Schema::new(ty, "ros2msg", def.into_bytes()))
                 .build_raw()
-                .map_err(|e| anyhow!("--live: channel {topic}: {e}"))?;
+                .map_err(|e| anyhow!("the live view: channel {topic}: {e}"))?;
             latch.channels.insert(ch.id(), (ch.clone(), None));
             by_topic.insert(topic, ch);
         }
@@ -136,10 +136,10 @@ impl Live {
             .bind("127.0.0.1", 0)
             .listener(Arc::new(Listener(latch.clone())))
             .start_blocking()
-            .map_err(|e| anyhow!("--live: cannot start the Foxglove server: {e}"))?;
+            .map_err(|e| anyhow!("the live view: cannot start the Foxglove server: {e}"))?;
         let upstream = SocketAddr::from(([127, 0, 0, 1], server.port()));
         let relay = relay::Relay::start(addr, upstream, relay::CLIENT_QUEUE_BYTES)
-            .with_context(|| format!("--live {addr}"))?;
+            .with_context(|| format!("the live view at {addr}"))?;
         Ok(Live {
             _ctx: ctx,
             addr: relay.addr(),
@@ -164,7 +164,7 @@ impl Live {
     /// Publishes one CDR message (ROS 2 encapsulation header included) on `topic`; it becomes
     /// the channel's latest. A topic not in [`TOPICS`] is an error of the caller's.
     pub fn publish(&self, topic: &str, cdr: &[u8]) -> Result<()> {
-        let ch = self.by_topic.get(topic).ok_or_else(|| anyhow!("--live: no channel {topic}"))?;
+        let ch = self.by_topic.get(topic).ok_or_else(|| anyhow!("the live view: no channel {topic}"))?;
         {
             let mut l = self.latch.0.lock().unwrap_or_else(|e| e.into_inner());
             if let Some((_, latest)) = l.channels.get_mut(&ch.id()) {

@@ -301,13 +301,38 @@ impl Drop for TempDir {
     }
 }
 
+/// No joint state of the bag names both head joints of `joint_names`: the bag calls them
+/// otherwise. The command line says which flag names them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct UnnamedJoints {
+    /// The joint-state topic.
+    pub topic: String,
+    /// The yaw and pitch names looked for.
+    pub names: [String; 2],
+    /// The joint names the topic's messages hold, comma-separated (`none` if none).
+    pub seen: String,
+}
+
+impl std::fmt::Display for UnnamedJoints {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let [yaw, pitch] = &self.names;
+        write!(
+            f,
+            "no message on {} names both {yaw} and {pitch} (names seen: {}): set joint_names to the bag's yaw and pitch joints",
+            self.topic, self.seen
+        )
+    }
+}
+
+impl std::error::Error for UnnamedJoints {}
+
 /// Imports the bag. Nothing is written unless the whole import succeeds.
 pub fn import(cfg: &ImportConfig) -> Result<Imported> {
     let t_start = std::time::Instant::now();
     if cfg.out.exists() && !(cfg.out.is_dir() && std::fs::read_dir(&cfg.out)?.next().is_none()) {
-        bail!("--out {} exists and is not an empty folder: give a new one", cfg.out.display());
+        bail!("the output folder {} exists and is not empty: give a new one", cfg.out.display());
     }
-    let tpl = crop::load_grey(&cfg.template).context("--template")?;
+    let tpl = crop::load_grey(&cfg.template).context("the face template")?;
     let cropper = Cropper::new(tpl.clone(), CropMode::Subpixel);
     let bag = Bag::open(&cfg.bag)?;
     let topics = bag.topics()?;
@@ -373,11 +398,8 @@ pub fn import(cfg: &ImportConfig) -> Result<Imported> {
         );
     }
     if joints.is_empty() {
-        bail!(
-            "no message on {} names both {yaw_name} and {pitch_name} (names seen: {}): give --joint-names YAW,PITCH",
-            cfg.joints_topic,
-            if names_seen.is_empty() { "none".into() } else { names_seen.join(", ") }
-        );
+        let seen = if names_seen.is_empty() { "none".into() } else { names_seen.join(", ") };
+        return Err(UnnamedJoints { topic: cfg.joints_topic.clone(), names: [yaw_name.to_string(), pitch_name.to_string()], seen }.into());
     }
     joints.sort_by_key(|j| j.0);
     // The last of samples with the same stamp.

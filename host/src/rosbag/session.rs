@@ -235,7 +235,7 @@ impl SessionLog {
             self.annotate(p, None);
         }
         match self.error.take() {
-            Some(e) => anyhow::bail!("--mcap: {e}"),
+            Some(e) => anyhow::bail!("the MCAP log: {e}"),
             None => Ok(()),
         }
     }
