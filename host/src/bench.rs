@@ -59,6 +59,7 @@ use serde_json::{json, Value};
 
 use crate::models::{ArchKind, DecoderSpec};
 
+/// Where the pipeline is benchmarked.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Backend {
     /// The Cortex-M4 image under QEMU: emulated instructions.
@@ -67,19 +68,27 @@ pub enum Backend {
     Host,
 }
 
+/// The weight type of the synthetic blobs.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SynthWeights {
+    /// 8-bit weights: the same values scaled to 7 bits.
     I8,
+    /// 16-bit weights.
     I16,
 }
 
 /// Face size of the default models (the published crop).
 pub const FACE: (u16, u16) = (58, 75);
-/// Targets from the firmware issue.
+/// The board's budgets the QEMU figures are held to: most decoder instructions per
+/// multiply-accumulate.
 pub const TARGET_INSTR_PER_MAC: f64 = 1.0;
+/// Most instructions per face pixel for the stages after the decoder.
 pub const TARGET_POST_DECODER_PER_PIXEL: f64 = 30.0;
+/// Most static RAM of the board image (.data, .bss, .uninit), bytes.
 pub const TARGET_STATIC_RAM: u64 = 64 * 1024;
+/// Most stack the benchmark run may reach, bytes.
 pub const TARGET_STACK: u64 = 8 * 1024;
+/// Most code of the board image (vector table, .text, .rodata), bytes.
 pub const TARGET_CODE: u64 = 128 * 1024;
 
 /// One model to benchmark.
@@ -88,6 +97,7 @@ pub struct BenchModel {
     pub name: String,
     /// `"synthetic"` or the file it came from.
     pub source: String,
+    /// The model blob's bytes.
     pub blob: Vec<u8>,
 }
 
@@ -421,13 +431,13 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
     let code = board.code;
     let flash = code + board.data_init + m.blob.len() as u64;
     let per_mac = stages[0] as f64 / macs.max(1) as f64;
-    // After the decoder, as every bench before reported it: the threshold table of a new pose
-    // cell included (each bench frame is at another pose). A frame at the pose before (the
-    // robot observing with its head still) does without it: `held_pose`.
+    // After the decoder: the threshold table of a new pose cell included (each bench frame is at
+    // another pose). A frame at the pose before (the robot observing with its head still) does
+    // without it: `held_pose`.
     let held = (stages[1] + stages[2] + stages[3]) as f64 / pixels;
     // The mean is over the bench's frames, two of them marked; the costliest alone (a marked
     // frame: the extent and the blob) is `held_pose_worst`.
-    // Required: read as 0, an older image would have called the target met.
+    // Required: read as 0, an image that does not report it would call the target met.
     let held_worst = r["held_max"]
         .as_u64()
         .context("the benchmark image reports no held_max: it is older than this msr (cargo xtask images)")?

@@ -8,6 +8,7 @@
 //! [`train::ConfigError`], which `cmd` words with the flags' names) and values that print
 //! themselves (the episode [`episode::Summary`] is `Display`). The imports between the files run
 //! one way, with no circle. `cargo test -p xtask` checks both from the source text.
+#![warn(missing_docs)]
 pub mod cmd;
 pub mod fsio;
 pub mod data;

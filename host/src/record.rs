@@ -1,13 +1,13 @@
 //! Recording a training set on the robot itself, the paper's head babbling: the
 //! host asks the board for a head pose drawn uniformly within the range, waits until the board
 //! says the servos settled there, grabs the next camera frame, and stores it with the head angles
-//! the servos reported (not the ones asked for), in the dataset layout `msr train` reads
+//! the servos reported (not the ones asked for), in the dataset layout that training reads
 //! (`msr_sim::layout`, robot "recorded", a seeded train/test split).
 //!
 //! On disk while it runs: `frames/NNNNNN.png` and `recording.csv` (one line per pose tried:
 //! `frame,FILE,yaw,pitch` or `skip,REASON,yaw,pitch`), each frame's line appended after its PNG
 //! is whole. `dataset.json` and `head_angles.csv` are written last: a folder without them is an
-//! unfinished recording, which `--resume` continues and `msr train` refuses.
+//! unfinished recording, which a resumed recording continues and training refuses.
 use crate::camera::{self, Frames, SourceConfig, SourceOptions};
 use crate::session::Session;
 use crate::data::crop::{self, CropMode, Cropper};
@@ -32,14 +32,19 @@ pub const MAX_TRIES_PER_FRAME: usize = 4;
 /// What to record.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RecordConfig {
+    /// The board's serial port.
     pub port: String,
+    /// The serial line's rate, bits per second.
     pub baud: u32,
+    /// The camera the frames come from.
     pub source: SourceConfig,
     /// Frames to keep.
     pub count: usize,
+    /// The dataset folder written.
     pub out: PathBuf,
     /// Head angles are drawn uniformly in +-range, degrees.
     pub range_deg: f64,
+    /// Seed of the head poses drawn and of the train/test split.
     pub seed: u64,
     /// Continue an unfinished recording in `out`.
     pub resume: bool,
@@ -47,10 +52,13 @@ pub struct RecordConfig {
     pub force: bool,
     /// The face template (grey PNG); default `out/template.png`, or the sim's for a sim camera.
     pub template: Option<PathBuf>,
+    /// Share of the frames in the test split (0 to 1).
     pub test_fraction: f64,
     /// Longest wait for the board's answer to a head pose.
     pub head_timeout: Duration,
+    /// Longest wait for a camera frame.
     pub frame_timeout: Duration,
+    /// Prints a banner and shows a progress bar on stderr.
     pub progress: bool,
     /// Also write the recording as MCAP (`--mcap`).
     pub mcap: Option<PathBuf>,
@@ -59,6 +67,8 @@ pub struct RecordConfig {
 }
 
 impl RecordConfig {
+    /// A recording with the defaults: 921 600 baud, head within +-5 degrees, seed 0, a fifth of
+    /// the frames for testing, 5 s timeouts, no MCAP or live output.
     pub fn new(port: &str, source: SourceConfig, count: usize, out: &Path) -> RecordConfig {
         RecordConfig {
             port: port.into(),
@@ -84,6 +94,7 @@ impl RecordConfig {
 /// What a recording did.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Recorded {
+    /// Frames taken by this run.
     pub frames: usize,
     /// Frames taken by an earlier, interrupted run.
     pub resumed: usize,

@@ -22,17 +22,21 @@ use std::path::Path;
 /// `report.json`: what `msr demo` found.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct DemoReport {
+    /// The simulated robot the demo ran with.
     pub robot: msr_sim::Robot,
     /// The paper's table on the test split.
     pub eval: crate::eval::Report,
+    /// The mirror-test episodes, in process and under QEMU.
     pub mirror_test: MirrorTestReport,
     /// The published model on the real frames; `None` when there were none (`real_skipped` says).
     pub real: Option<RealCheck>,
+    /// Why the real frames were not checked (`None` when they were).
     pub real_skipped: Option<String>,
     /// `msr bench --backend host` for the demo's model, as that command prints it.
     pub bench: Value,
     /// Seconds per step (`dataset_s`, `train_decoder_s`, ...) and `total_s`.
     pub timings: BTreeMap<String, f64>,
+    /// What the decoder's and the autoencoder's training reported.
     pub training: Training,
     /// The reach network's fit on its 70 sim pairs, per joint.
     pub reach_fit_rms_rad: [f64; 5],
@@ -48,24 +52,30 @@ pub struct DemoReport {
 pub struct SelfGateReport {
     /// The gate passes a gain ratio (measured over calibrated) within `1 -+ gain_tol`.
     pub gain_tol: f32,
+    /// Largest distance of the resting face from the probe's line, pixels.
     pub rest_tol_px: f32,
-    /// The hold's and the level's own tolerances (0 in reports from before they had them).
+    /// Largest x range of the face while the head holds, pixels (0 in a report without it).
     #[serde(default)]
     pub hold_tol_px: f32,
+    /// Largest vertical move of the face at a probe pose from its rest, pixels (0 in a report
+    /// without it).
     #[serde(default)]
     pub level_tol_px: f32,
-    /// The return stage's line tolerance (`None`: a two-stage gate, or a report from before).
+    /// The return stage's line tolerance, pixels (`None`: a two-stage gate, or a report without
+    /// it).
     #[serde(default)]
     pub line_tol_px: Option<f32>,
-    /// The joint bound (`None`: the box alone, or a report from before).
+    /// The joint bound (`None`: the box alone, or a report without it).
     #[serde(default)]
     pub joint_tol: Option<f32>,
+    /// The trials in each scene.
     pub scenes: Vec<SceneReport>,
 }
 
 /// One scene's trials with the gate.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct SceneReport {
+    /// The scene's trials summed up.
     pub summary: Summary,
     /// Every decision's gain ratio, the statistic the gate tests.
     pub gain_ratios: Vec<f32>,
@@ -74,13 +84,16 @@ pub struct SceneReport {
 /// The two trained models' `{name}.json`.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Training {
+    /// The decoder's summary: head angles to the face.
     pub decoder: ModelInfo,
+    /// The autoencoder's summary: a 2-d code, then the same decoder.
     pub autoencoder: ModelInfo,
 }
 
 /// The demo's mirror-test episodes.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct MirrorTestReport {
+    /// The in-process trials summed up.
     pub inproc: Summary,
     /// The in-process trials one by one.
     pub trials: Vec<Trial>,
@@ -96,9 +109,13 @@ pub struct MirrorTestReport {
 /// unmarked frames.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct RealCheck {
+    /// Real frames with a mark.
     pub marked: usize,
+    /// Marked frames whose detected blob has its centroid in the mark's box.
     pub hits: usize,
+    /// Real frames without a mark.
     pub unmarked: usize,
+    /// Unmarked frames with a detected blob.
     pub false_alarms: usize,
 }
 
@@ -355,6 +372,8 @@ fn value<T: Serialize>(x: &T) -> Value {
     serde_json::to_value(x).unwrap_or(Value::Null)
 }
 
+/// Writes `index.html` and its pictures into `out` from `report`, the demo's model blob and its
+/// dataset folder `data`.
 pub fn write_html(out: &Path, report: &DemoReport, blob: &[u8], data: &Path) -> Result<()> {
     let pics = out.join("pictures");
     std::fs::create_dir_all(&pics)?;

@@ -87,6 +87,8 @@ pub const ACK_TIMEOUT: Duration = Duration::from_millis(25);
 pub const UPLOAD_TRIES: usize = 8;
 
 impl Session {
+    /// Opens the serial port at `path` (8N1 at `baud` bits/s) and ends any frame a killed client
+    /// left half-sent.
     pub fn open(path: &str, baud: u32) -> Result<Session> {
         if baud == 0 {
             bail!("baud rate must be positive");
@@ -157,6 +159,7 @@ impl Session {
         Ok(())
     }
 
+    /// Encodes one message in the host link's framing and sends it at the line rate.
     pub fn send_message(&mut self, msg: &HostToBoard) -> Result<()> {
         let bytes = self.host.encode(msg);
         self.send(&bytes)
@@ -390,6 +393,7 @@ impl Session {
         }
     }
 
+    /// Asks for the board's status and waits up to `timeout` for it.
     pub fn status(&mut self, timeout: Duration) -> Result<Status> {
         self.status_and_before(timeout).map(|(_, st)| st)
     }

@@ -16,15 +16,22 @@ use std::collections::BTreeMap;
 /// A control this holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 pub enum Ctl {
+    /// `V4L2_CID_EXPOSURE_AUTO`: the automatic exposure's mode (a menu).
     ExposureAuto,
+    /// `V4L2_CID_EXPOSURE_ABSOLUTE`: the exposure time, 100 us units.
     ExposureAbsolute,
+    /// `V4L2_CID_AUTOGAIN`: the automatic gain, on or off.
     Autogain,
+    /// `V4L2_CID_GAIN`: the gain, in the driver's units.
     Gain,
+    /// `V4L2_CID_AUTO_WHITE_BALANCE`: the automatic white balance, on or off.
     AutoWhiteBalance,
+    /// `V4L2_CID_WHITE_BALANCE_TEMPERATURE`: the white balance, kelvin.
     WhiteBalanceTemperature,
 }
 
 impl Ctl {
+    /// Every control this holds, automatic switch before the value it drives.
     pub const ALL: [Ctl; 6] = [
         Ctl::ExposureAuto,
         Ctl::ExposureAbsolute,
@@ -55,16 +62,24 @@ pub const EXPOSURE_MANUAL: i32 = 1;
 /// menu's valid entries).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Control {
+    /// Which control.
     pub ctl: Ctl,
+    /// The values it takes: a number, a switch or a menu.
     pub kind: Kind,
+    /// Its least value.
     pub min: i32,
+    /// Its greatest value.
     pub max: i32,
+    /// The driver refuses writes to it (`V4L2_CTRL_FLAG_READ_ONLY`).
     pub read_only: bool,
 }
 
+/// The type of a control's value, as the driver reports it.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Kind {
+    /// A number from `min` to `max`.
     Integer,
+    /// A switch: 0 off, 1 on.
     Boolean,
     /// The valid entries of a menu (drivers may leave gaps).
     Menu(Vec<i32>),
@@ -86,13 +101,16 @@ const GROUPS: [Group; 3] = [
 /// Writes for one group, in order; a write that the driver refuses skips the rest of its group.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Step {
+    /// The group, as notes name it: `exposure`, `gain` or `white balance`.
     pub what: &'static str,
+    /// The controls to set and their values, in the order to write them.
     pub writes: Vec<(Ctl, i32)>,
 }
 
 /// What [`plan`] decided.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Plan {
+    /// The writes, group by group.
     pub steps: Vec<Step>,
     /// One line for each group left as it is, or held without a value to store.
     pub notes: Vec<String>,

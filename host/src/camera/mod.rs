@@ -17,7 +17,9 @@ use std::time::Duration;
 /// One grey camera frame and a name to report it by.
 #[derive(Clone, Debug)]
 pub struct Frame {
+    /// Where the frame came from: its file's path, or the source's name and frame number.
     pub name: String,
+    /// The frame's pixels, 8-bit grey.
     pub grey: GrayImage,
 }
 
@@ -25,6 +27,7 @@ pub struct Frame {
 /// that closed between frames) and an error when a frame cannot be had (a stream cut mid-frame,
 /// a camera that stopped delivering).
 pub trait FrameSource {
+    /// The next frame, `Ok(None)` at the end of the source.
     fn next_frame(&mut self) -> Result<Option<Frame>>;
     /// The head now stands at (yaw, pitch), radians. Only a rendered camera cares: a real one
     /// sees the head move by itself.
@@ -46,7 +49,12 @@ pub enum Hold {
     Off,
     /// Lets them run for `frames` frames, then switches them to manual ([`hold::plan`]) at the
     /// values they reached, or at `values` (a recording's `camera_controls`).
-    Settle { frames: u32, values: Option<BTreeMap<String, i32>> },
+    Settle {
+        /// Frames the automatics run for before the hold.
+        frames: u32,
+        /// Values to hold, by control name; `None`: the values the automatics reached.
+        values: Option<BTreeMap<String, i32>>,
+    },
 }
 
 /// Frames the automatics run for before the camera is held: about 1 s at 30 fps.
@@ -69,17 +77,29 @@ pub enum SourceConfig {
     /// 100 ms apart; taken through `camera`'s imperfections (its motion blur scaled by the
     /// head's speed between frames).
     Sim {
+        /// The robot drawn.
         robot: Robot,
+        /// Frames to give before the end; `None`: for ever.
         count: Option<usize>,
+        /// Seed of the mark, the camera noise and the light's draws.
         seed: u64,
+        /// The first frame (from 0) that shows the mark; `None`: no mark.
         mark_from: Option<usize>,
+        /// How the light changes over the frames.
         light: msr_sim::light::LightPlan,
+        /// The camera's imperfections (exposure, white balance, noise, blur, JPEG) the frames
+        /// are taken through.
         camera: msr_sim::imperfect::Imperfections,
     },
     /// A YUV4MPEG2 stream on standard input.
     Y4mStdin,
     /// A V4L2 camera, e.g. `/dev/video0` (Linux), held still as `hold` says.
-    Camera { dev: PathBuf, hold: Hold },
+    Camera {
+        /// The device node, e.g. `/dev/video0`.
+        dev: PathBuf,
+        /// What is done with the camera's automatic exposure, gain and white balance.
+        hold: Hold,
+    },
 }
 
 impl SourceConfig {
@@ -154,10 +174,13 @@ pub struct Frames {
 }
 
 impl Frames {
+    /// `inner`'s frames, each scaled to `size` (width, height) pixels by [`fit`].
     pub fn new(inner: Box<dyn FrameSource>, size: [u32; 2]) -> Frames {
         Frames { inner, size, scaled: 0 }
     }
 
+    /// The source's next frame at the model's size, `Ok(None)` at its end; a frame that cannot
+    /// be brought to that size is an error.
     pub fn next_frame(&mut self) -> Result<Option<Frame>> {
         let Some(mut f) = self.inner.next_frame()? else { return Ok(None) };
         if f.grey.dimensions() != (self.size[0], self.size[1]) {
@@ -167,14 +190,17 @@ impl Frames {
         Ok(Some(f))
     }
 
+    /// Tells the source the head now stands at (yaw, pitch), radians ([`FrameSource::head_moved`]).
     pub fn head_moved(&mut self, head: [f64; 2]) {
         self.inner.head_moved(head);
     }
 
+    /// Drops the frames the source read ahead ([`FrameSource::discard_buffered`]).
     pub fn discard_buffered(&mut self) {
         self.inner.discard_buffered();
     }
 
+    /// The camera controls the source holds ([`FrameSource::camera_controls`]).
     pub fn camera_controls(&self) -> Option<BTreeMap<String, i32>> {
         self.inner.camera_controls()
     }
@@ -216,6 +242,7 @@ pub struct FolderSource {
 }
 
 impl FolderSource {
+    /// The PNG files (any case of `.png`) of `dir`; a folder without one is an error.
     pub fn open(dir: &Path) -> Result<FolderSource> {
         let mut files: Vec<PathBuf> = std::fs::read_dir(dir)
             .with_context(|| format!("reading frame folder {}", dir.display()))?
@@ -272,6 +299,8 @@ impl SimSource {
         self
     }
 
+    /// `robot` at home under a fixed light, `count` frames (`None`: for ever), its draws from
+    /// `seed`, the mark shown from frame `mark_from` on (`None`: never).
     pub fn new(robot: Robot, count: Option<usize>, seed: u64, mark_from: Option<usize>) -> SimSource {
         use rand::SeedableRng;
         let renderer = msr_sim::render::Renderer::new(robot);

@@ -1,4 +1,4 @@
-//! V4L2 cameras (`--camera /dev/videoN`): the capture formats this takes and their conversion
+//! V4L2 cameras (`/dev/videoN`): the capture formats this takes and their conversion
 //! to grey, and (Linux) a `FrameSource` on the pure-Rust `linuxvideo` crate.
 //!
 //! Formats, as the V4L2 specification lays them out: `GREY` (one byte per pixel, rows of
@@ -11,12 +11,16 @@ use image::GrayImage;
 /// A capture format this converts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PixelFormat {
+    /// `GREY`: one byte of luma per pixel.
     Grey,
+    /// `YUYV`: 4:2:2 packed, `Y0 Cb Y1 Cr` per two pixels.
     Yuyv,
+    /// `UYVY`: 4:2:2 packed, `Cb Y0 Cr Y1` per two pixels.
     Uyvy,
 }
 
 impl PixelFormat {
+    /// The format a V4L2 four-character code names, `None` for one this does not convert.
     pub fn from_fourcc(f: &[u8; 4]) -> Option<PixelFormat> {
         match f {
             b"GREY" => Some(PixelFormat::Grey),
@@ -26,6 +30,7 @@ impl PixelFormat {
         }
     }
 
+    /// The format's V4L2 four-character code.
     pub fn fourcc(self) -> [u8; 4] {
         match self {
             PixelFormat::Grey => *b"GREY",
@@ -34,6 +39,7 @@ impl PixelFormat {
         }
     }
 
+    /// Bytes a pixel takes in a row: 1 for grey, 2 for the 4:2:2 formats.
     pub fn bytes_per_pixel(self) -> usize {
         match self {
             PixelFormat::Grey => 1,
@@ -126,6 +132,9 @@ mod device {
     }
 
     impl V4lSource {
+        /// Opens the camera at `path` in the first of GREY, YUYV, UYVY it offers, at `size`
+        /// (width, height) pixels and `fps` frames a second (0: its own rate), waiting at most
+        /// `timeout` for a frame, and holds its automatics as `hold` says.
         pub fn open(path: &Path, size: [u32; 2], fps: f64, timeout: Duration, hold: &Hold) -> Result<V4lSource> {
             let name = path.display().to_string();
             let dev = Device::open(path).with_context(|| format!("opening camera {name}"))?;

@@ -5,8 +5,11 @@ use anyhow::{Context, Result};
 use serde_json::Value;
 use std::path::PathBuf;
 
+/// `msr bench`'s flags: where to measure, which blobs, and how to print the figures.
 #[derive(clap::Args, Debug)]
 pub struct Args {
+    /// Where the pipeline runs: the Cortex-M4 image in QEMU (instruction counts) or this PC
+    /// (nanoseconds)
     #[arg(long, value_enum, default_value = "qemu")]
     pub backend: Backend,
     /// Model blob(s) to benchmark; default: synthetic conv and published-MLP blobs, 58 x 75.
@@ -28,6 +31,7 @@ pub struct Args {
     pub weights: SynthWeights,
 }
 
+/// Benchmarks the models (given or synthetic) on the chosen backend and prints a table or JSON.
 pub fn run(args: Args) -> Result<()> {
     let models = if args.model.is_empty() {
         let i8w = args.weights == SynthWeights::I8;

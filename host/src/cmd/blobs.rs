@@ -4,6 +4,7 @@ use anyhow::{ensure, Context, Result};
 use serde_json::json;
 use std::path::PathBuf;
 
+/// `msr blobs`'s flags: the mask, the smallest blob listed, the output format.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The mask: any PNG; non-zero pixels (after conversion to grey) are set
@@ -17,6 +18,7 @@ pub struct Args {
     pub json: bool,
 }
 
+/// Reads the mask PNG and prints its blobs of at least `--min-area` pixels.
 pub fn run(args: Args) -> Result<()> {
     ensure!(args.min_area >= 1, "--min-area must be at least 1");
     let img = image::open(&args.mask)

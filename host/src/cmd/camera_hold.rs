@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+/// What `--camera-hold` does with a V4L2 camera's automatic controls.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum HoldMode {
     /// Let them run for --settle-frames frames, then switch them to manual at the values they
@@ -16,6 +17,7 @@ pub enum HoldMode {
     Off,
 }
 
+/// The camera-hold flags of the commands that take `--camera`.
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct HoldArgs {
     /// With --camera: what to do with the camera's automatic exposure, gain and white balance
@@ -41,6 +43,8 @@ impl HoldArgs {
         Ok(())
     }
 
+    /// The hold these flags ask for; a usage error for `--camera-controls` with `--camera-hold
+    /// off`, or for a recording that stores no controls.
     pub fn hold(&self) -> Result<Hold> {
         match (self.camera_hold.unwrap_or_default(), &self.camera_controls) {
             (HoldMode::Off, Some(_)) => Err(super::usage("--camera-controls holds the camera: it does not go with --camera-hold off")),

@@ -5,6 +5,7 @@ use msr_sim::dataset::{write_dataset_with, DatasetConfig, DatasetScene};
 use msr_sim::Robot;
 use std::path::PathBuf;
 
+/// `msr dataset`'s flags: the robot, the frames, the splits, the scene, the light and the camera.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Which robot: red (the real red Nao's look) or skin (grey covers with skin taxels)
@@ -45,6 +46,7 @@ pub struct Args {
     pub imperfect: super::imperfect::CameraFlags,
 }
 
+/// Renders the dataset into `--out` and says what it wrote.
 pub fn run(args: Args) -> Result<()> {
     let scene = match args.scene {
         Scene::Mirror => DatasetScene::Mirror,

@@ -6,6 +6,7 @@ use anyhow::{Context, Result};
 use msr_shared::joints::Joint;
 use std::path::PathBuf;
 
+/// `msr detect`'s flags: the model, the frame with its head angles, the engine and the outputs.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The model blob (.msrm)
@@ -35,6 +36,8 @@ pub struct Args {
     pub imperfect: super::imperfect::CameraFlags,
 }
 
+/// Checks the head angles, crops the frame's face, detects, and prints the result (a line or
+/// JSON), with the picture when `--png` asks for it.
 pub fn run(args: Args) -> Result<()> {
     let head = [args.head_yaw, args.head_pitch];
     // The angles the servos can report: finite and inside Nao's head limits.

@@ -3,6 +3,7 @@ use crate::eval;
 use anyhow::Result;
 use std::path::PathBuf;
 
+/// `msr eval`'s flags: the model, the dataset, the published manifest, the camera and the format.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The model blob (.msrm)
@@ -28,6 +29,7 @@ pub struct Args {
     pub range: eval::Range,
 }
 
+/// Evaluates the blob on the dataset's test split and prints the table (markdown or JSON).
 pub fn run(args: Args) -> Result<()> {
     let camera = eval::Camera { imperfect: args.imperfect.imperfections(0), range: args.range };
     let report = eval::evaluate_lit(&args.model, &args.data, args.manifest.as_deref(), &camera)?;

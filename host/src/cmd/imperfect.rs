@@ -4,6 +4,7 @@
 //! (in [`super::check`]), in the unit each flag names.
 use msr_sim::imperfect::Imperfections;
 
+/// The camera-imperfection flags, each in the unit its help names.
 #[derive(clap::Args, Debug, Clone)]
 pub struct CameraFlags {
     /// Camera: exposure factor (0.05..=20), on the colour frame before grey (clipped at 255)

@@ -4,6 +4,7 @@ use anyhow::Result;
 use msr_shared::blob::Sided;
 use std::path::PathBuf;
 
+/// `msr import`'s flags: the published manifest, the output blob and the novelty settings.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The published manifest.json
@@ -19,9 +20,12 @@ pub struct Args {
     pub sided: SidedArg,
 }
 
+/// Which saliency `--sided` asks for.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SidedArg {
+    /// (e - mu) / sigma: only an error above the mean counts
     One,
+    /// |e - mu| / sigma, the published code: an error on either side of the mean counts
     Two,
 }
 
@@ -37,6 +41,8 @@ impl Args {
     }
 }
 
+/// Imports the published model into a blob and prints what it wrote and how close the fixed
+/// point comes to float.
 pub fn run(args: Args) -> Result<()> {
     let r = import::import(&args.config())?;
     println!(

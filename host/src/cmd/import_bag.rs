@@ -4,6 +4,8 @@ use crate::rosbag::import::{self, ImportConfig};
 use anyhow::{bail, Result};
 use std::path::PathBuf;
 
+/// `msr import-bag`'s flags: the bag, its topics and joint names, the template, the output and
+/// what frames to skip.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The bag: a rosbag2 folder (metadata.yaml with .mcap or .db3 files), or one .mcap or .db3
@@ -55,6 +57,7 @@ pub fn joint_names(s: &str) -> Result<[String; 2]> {
     }
 }
 
+/// The library's configuration for these flags (a bad `--joint-names` is an error).
 pub fn config(a: &Args) -> Result<ImportConfig> {
     let mut c = ImportConfig::new(&a.bag, &a.image_topic, &a.joints_topic, &a.template, &a.out);
     c.joint_names = joint_names(&a.joint_names)?;
@@ -66,6 +69,7 @@ pub fn config(a: &Args) -> Result<ImportConfig> {
     Ok(c)
 }
 
+/// Imports the bag, prints the import's report as JSON and a summary of what was skipped.
 pub fn run(a: Args) -> Result<()> {
     let c = config(&a)?;
     let r = import::import(&c)?;

@@ -5,7 +5,7 @@ use msr_sim::light::{LightMode, LightPlan};
 /// How a dataset's frames are lit.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum DatasetLight {
-    /// The calibrated light: the same bytes as before light was part of the sim
+    /// The calibrated light on every frame
     #[default]
     Fixed,
     /// A light of its own per frame: exposure +-30 %, key lamp 0.55..1.45 and turned a little,

@@ -2,6 +2,7 @@
 //! (in [`super::check`]), one way to the sim's [`FaultConfig`].
 use msr_sim::link::FaultConfig;
 
+/// The noisy-line flags: bit errors and bursts on the emulated links.
 #[derive(clap::Args, Debug, Clone)]
 pub struct LineNoise {
     /// Bit-error rate on both directions of the link (a noisy line), errors per bit

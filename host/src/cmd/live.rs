@@ -5,6 +5,7 @@ use anyhow::Result;
 use std::net::SocketAddr;
 use std::sync::Arc;
 
+/// The `--live` and `--live-wait` flags.
 #[derive(clap::Args, Debug, Clone, Default)]
 pub struct LiveFlags {
     /// Serve the session live to Foxglove (the --mcap topics over the Foxglove WebSocket

@@ -6,6 +6,8 @@ use anyhow::{bail, Result};
 use msr_sim::Robot;
 use std::path::PathBuf;
 
+/// `msr mirror-test`'s flags: the model, the trials, the world, the links, the servos and the
+/// outputs.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The model blob (.msrm), with its face template and reach network
@@ -14,10 +16,14 @@ pub struct Args {
     /// Trials to run (1..=100000)
     #[arg(long, default_value_t = 20)]
     pub trials: usize,
+    /// Seed of the trials (which are marked, the marks, the scene, the light, the link faults,
+    /// the camera noise); the same seed gives the same trials
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// What runs the firmware: this process, or the thumbv7em image in qemu-system-arm
     #[arg(long, value_enum, default_value_t = Backend::Inproc)]
     pub backend: Backend,
+    /// Which robot: red (the real red Nao's look) or skin (grey covers with skin taxels)
     #[arg(long, default_value = "red")]
     pub robot: Robot,
     /// The servo bus's protocol
@@ -68,6 +74,7 @@ pub struct Args {
     /// as a real one can
     #[arg(long, default_value_t = 0.0, value_parser = super::encoder_noise)]
     pub encoder_noise: f64,
+    /// How the emulated servos hold their goals.
     #[command(flatten)]
     pub servos: super::ServoHold,
     /// Share of trials without a mark
@@ -87,6 +94,7 @@ pub struct Args {
     /// annotations, joints, board status) for Foxglove or `ros2 bag play`
     #[arg(long, value_name = "FILE")]
     pub mcap: Option<PathBuf>,
+    /// Serving the trials live to Foxglove.
     // With --live the trials run one at a time unless --parallel says otherwise.
     #[command(flatten)]
     pub live: super::live::LiveFlags,
@@ -95,7 +103,9 @@ pub struct Args {
 /// A switch.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum OnOff {
+    /// Enabled
     On,
+    /// Disabled
     Off,
 }
 
@@ -166,6 +176,7 @@ pub fn check_robot(blob: &[u8], robot: Robot) -> Result<()> {
     }
 }
 
+/// The episodes' configuration for these flags; an error for a flag the backend cannot honour.
 pub fn config(a: &Args) -> Result<EpisodeConfig> {
     if !(0.0..=1.0).contains(&a.no_mark_share) {
         bail!("--no-mark-share must be in 0..=1, got {}", a.no_mark_share);
@@ -199,6 +210,8 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     Ok(c)
 }
 
+/// Runs the trials, printing one line per trial and then the summary (a line or JSON), and
+/// writes the files the flags ask for.
 pub fn run(a: Args) -> Result<()> {
     if a.trials == 0 {
         bail!("--trials must be at least 1");

@@ -28,6 +28,7 @@ use self::run as run_board;
 use anyhow::Result;
 use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 
+/// The whole `msr` command line: one subcommand and its flags.
 #[derive(Parser, Debug)]
 #[command(
     name = "msr",
@@ -35,10 +36,12 @@ use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
     about = "Mirror self-recognition: a robot learns its face in a mirror, finds a mark, reaches for it"
 )]
 pub struct Cli {
+    /// The subcommand to run, with its flags.
     #[command(subcommand)]
     pub command: Command,
 }
 
+/// The subcommands of `msr`, each with the flags of its own module.
 #[derive(Subcommand, Debug)]
 pub enum Command {
     /// Render a mirror dataset (frames, head angles, splits, marks) for one robot

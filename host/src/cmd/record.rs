@@ -7,8 +7,10 @@ use msr_sim::Robot;
 use std::path::PathBuf;
 use std::time::Duration;
 
+/// `msr record`'s flags: the board's line, the camera, the recording and the outputs.
 #[derive(clap::Args, Debug)]
 pub struct Args {
+    /// The board that moves the head.
     #[command(flatten)]
     pub line: super::BoardLine,
     /// The camera is the sim's renderer of this robot (red or skin), at the head angles the
@@ -29,6 +31,7 @@ pub struct Args {
     /// (--camera-hold); the values are stored in dataset.json
     #[arg(long, value_name = "DEV", conflicts_with = "sim")]
     pub camera: Option<PathBuf>,
+    /// How a V4L2 camera is held.
     #[command(flatten)]
     pub hold: super::camera_hold::HoldArgs,
     /// Frames to keep
@@ -40,6 +43,7 @@ pub struct Args {
     /// Head angles drawn uniformly within +-this, degrees
     #[arg(long, default_value_t = 5.0)]
     pub range_deg: f64,
+    /// Seed of the head poses, the train/test split and the --sim frames
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Continue an unfinished recording in --out
@@ -65,10 +69,13 @@ pub struct Args {
     /// angles) for Foxglove or `ros2 bag play`
     #[arg(long, value_name = "FILE")]
     pub mcap: Option<PathBuf>,
+    /// Serving the recording live to Foxglove.
     #[command(flatten)]
     pub live: super::live::LiveFlags,
 }
 
+/// The library's configuration for these flags; a usage error when no camera is given or the
+/// camera flags do not go together.
 pub fn config(a: &Args) -> Result<RecordConfig> {
     if a.camera.is_none() {
         a.hold.check_unused()?;
@@ -120,6 +127,7 @@ pub(crate) fn flag_text(e: &record::OutError) -> String {
     }
 }
 
+/// Records, prints the recording's report as JSON and a summary of what was skipped.
 pub fn run(a: Args) -> Result<()> {
     let mut c = config(&a)?;
     c.live = a.live.start(false)?;

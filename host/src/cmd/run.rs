@@ -15,6 +15,7 @@ use std::io::{Read, Write};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+/// `msr run`'s flags: the board's line, the model, the frames' source, the pace and the outputs.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// The board's line; at `--baud` a face crop must cross it within a frame period
@@ -33,6 +34,7 @@ pub struct Args {
     /// (--camera-hold)
     #[arg(long, conflicts_with = "sim", value_name = "DEV")]
     pub camera: Option<PathBuf>,
+    /// How a V4L2 camera is held.
     #[command(flatten)]
     pub hold: super::camera_hold::HoldArgs,
     /// Render frames from the sim instead, of this robot (red or skin): at home, a random mark
@@ -48,6 +50,7 @@ pub struct Args {
     /// The --sim camera's imperfections
     #[command(flatten)]
     pub imperfect: super::imperfect::CameraFlags,
+    /// Seed of the --sim frames (the mark, the light, the camera noise)
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Frames per second (0.1..=1000)
@@ -67,6 +70,7 @@ pub struct Args {
     /// annotations, reported head, reach targets, board status) for Foxglove or `ros2 bag play`
     #[arg(long, value_name = "FILE")]
     pub mcap: Option<PathBuf>,
+    /// Serving the session live to Foxglove.
     #[command(flatten)]
     pub live: super::live::LiveFlags,
 }
@@ -120,6 +124,8 @@ pub fn check_model(runs: u32, want: u32, path: &Path) -> Result<()> {
     )
 }
 
+/// Streams the frames to the board (after an upload, with `--upload`) and prints each answer
+/// and the link's figures at the end.
 pub fn run(a: Args) -> Result<()> {
     if !(a.fps.is_finite() && a.fps > 0.0) {
         bail!("--fps must be positive");

@@ -9,6 +9,8 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+/// `msr serve`'s flags: the backend, the robot, the model, the link's faults, the flash file and
+/// the servos.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// What runs the firmware: this process, or the thumbv7em image in qemu-system-arm
@@ -35,10 +37,13 @@ pub struct Args {
     /// a model committed there runs instead of --model
     #[arg(long, value_name = "FILE")]
     pub flash: Option<PathBuf>,
+    /// How the emulated servos hold their goals.
     #[command(flatten)]
     pub servos: super::ServoHold,
 }
 
+/// Starts the emulated board, prints its PTY's path on stdout, and serves until interrupted or
+/// `--seconds` have passed.
 pub fn run(a: Args) -> Result<()> {
     let model = match &a.model {
         Some(p) => Some(crate::fsio::read_blob(p)?),

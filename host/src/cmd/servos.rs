@@ -9,14 +9,17 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::sync::atomic::AtomicBool;
 
+/// The protocol the emulated servos speak.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum Bus {
     /// Dynamixel Protocol 2.0: XM430-W350 servos, IDs of the default joint map
     Dynamixel,
 }
 
+/// `msr servos`'s flags: the bus, the robot, the port, how long, and the byte log.
 #[derive(clap::Args, Debug)]
 pub struct Args {
+    /// The servos' protocol
     #[arg(long, value_enum, default_value_t = Bus::Dynamixel)]
     pub bus: Bus,
     /// The robot whose servos these are (both robots have the same joints and IDs)
@@ -36,6 +39,8 @@ pub struct Args {
     pub bus_log: Option<PathBuf>,
 }
 
+/// Serves the robot's servos on `--port` or a new PTY (whose path it prints) until interrupted
+/// or `--seconds` have passed.
 pub fn run(a: Args) -> Result<()> {
     let Bus::Dynamixel = a.bus;
     let cfg = DxlConfig { baud: a.baud, ..DxlConfig::default() };

@@ -7,8 +7,10 @@ use anyhow::Result;
 use msr_shared::msg::{BoardToHost, RoomCommand};
 use std::time::Duration;
 
+/// `msr status`'s flags: the board's line, the wait, the format, and a room action.
 #[derive(clap::Args, Debug)]
 pub struct Args {
+    /// The board to ask.
     #[command(flatten)]
     pub line: super::BoardLine,
     /// How long to wait for each answer, milliseconds
@@ -27,13 +29,18 @@ pub struct Args {
 /// What `--room` asks.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum RoomAction {
+    /// Stop learning, keep what was learnt
     Freeze,
+    /// Learn again
     Resume,
+    /// Back to the model's calibrated statistics, the saved ones dropped
     Reset,
+    /// Save what was learnt into the board's flash store now
     Save,
 }
 
 impl RoomAction {
+    /// The message that asks the board for this action.
     pub fn command(self) -> RoomCommand {
         match self {
             RoomAction::Freeze => RoomCommand::Freeze,
@@ -44,6 +51,7 @@ impl RoomAction {
     }
 }
 
+/// Asks the board (after the `--room` action, if any) for its store and status, and prints them.
 pub fn run(a: Args) -> Result<()> {
     let timeout = Duration::from_millis(a.timeout_ms);
     let mut s = Session::open(&a.line.port, a.line.baud)?;

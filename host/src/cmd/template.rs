@@ -5,6 +5,7 @@ use crate::fsio;
 use anyhow::{bail, Result};
 use std::path::PathBuf;
 
+/// `msr template`'s flags: the frame, the face's box and the output.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// A camera frame (any image; taken as grey)
@@ -39,6 +40,7 @@ fn box_arg(s: &str) -> Result<[u32; 4], String> {
     parse_box(s).map_err(|e| e.to_string())
 }
 
+/// Cuts the box out of the frame and writes it as a PNG.
 pub fn run(a: Args) -> Result<()> {
     let [x0, y0, x1, y1] = a.r#box;
     let frame = crop::load_grey(&a.frame)?;

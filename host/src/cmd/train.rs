@@ -6,13 +6,16 @@ use anyhow::Result;
 use msr_shared::blob::CropMode;
 use std::path::PathBuf;
 
+/// `msr train`'s flags: the dataset, the model, the training recipe and the calibration.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// Dataset folder (sim layout or the published manifest layout)
     #[arg(long)]
     pub data: PathBuf,
+    /// What to train: a decoder (head angles to face) or an autoencoder (face to face)
     #[arg(long, value_enum, default_value_t = ModelKind::Decoder)]
     pub model: ModelKind,
+    /// The network: a small conv decoder or the published fully connected one
     #[arg(long, value_enum, default_value_t = ArchKind::Conv)]
     pub arch: ArchKind,
     /// Conv decoder only: dense units after the input (default 32)
@@ -27,17 +30,22 @@ pub struct Args {
     /// Output folder
     #[arg(long)]
     pub out: PathBuf,
+    /// Passes over the training frames
     #[arg(long, default_value_t = 50)]
     pub epochs: usize,
+    /// Frames per minibatch
     #[arg(long, default_value_t = 128)]
     pub batch: usize,
+    /// Adam's learning rate before any decay
     #[arg(long, default_value_t = 0.005)]
     pub lr: f64,
     /// Multiply the learning rate by --lr-decay every this many epochs
     #[arg(long, default_value_t = 10)]
     pub lr_step: usize,
+    /// The factor the learning rate is multiplied by every --lr-step epochs
     #[arg(long, default_value_t = 0.5)]
     pub lr_decay: f64,
+    /// Seed of the initial weights, the minibatch shuffle and the light copies
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Saliency normaliser
@@ -79,6 +87,7 @@ pub struct Args {
     /// The light copies' largest change of the tone curve's exponent (0..0.5)
     #[arg(long, default_value_t = LightCopies::DEFAULT.gamma)]
     pub light_gamma: f32,
+    /// Where burn trains
     #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
     pub device: DeviceArg,
     /// No progress bars
@@ -118,6 +127,7 @@ impl Args {
     }
 }
 
+/// Trains and calibrates the model the flags describe.
 pub fn run(a: Args) -> Result<()> {
     crate::train::run(a.config())
 }

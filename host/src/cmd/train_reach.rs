@@ -3,6 +3,7 @@ use crate::train::reach::{self, fmt_rms, ReachConfig, PUBLISHED_FIT_RMS};
 use anyhow::Result;
 use std::path::PathBuf;
 
+/// `msr train-reach`'s flags: the pairs, the output and the training recipe.
 #[derive(clap::Args, Debug)]
 pub struct Args {
     /// CSV of mark positions, one `x,y` row per pair (full-frame pixels)
@@ -17,8 +18,10 @@ pub struct Args {
     /// Full-batch Adam iterations (the published recipe: 10000 with --weight-decay 0)
     #[arg(long, default_value_t = reach::DEFAULT_ITERATIONS)]
     pub iterations: usize,
+    /// Adam's learning rate
     #[arg(long, default_value_t = 0.01)]
     pub lr: f64,
+    /// Seed of the initial weights (restart r uses seed + r)
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Train from this many seeds and keep the lowest (penalised) training loss (1: the
@@ -48,6 +51,7 @@ impl Args {
     }
 }
 
+/// Trains the reach network and prints its fit (and leave-one-out) RMS beside the published one.
 pub fn run(a: Args) -> Result<()> {
     let side = reach::run(&a.config())?;
     let how = match side.weight_decay_choice {

@@ -63,6 +63,7 @@ pub const MANIFEST_FILE: &str = "manifest.json";
 /// The ground truth of one mark.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MarkTruth {
+    /// The mark's colour name, e.g. "green".
     pub colour: String,
     /// e.g. "rectangle"; "pasted" for the published real frames.
     pub shape: String,
@@ -96,8 +97,11 @@ pub struct Sample {
     pub file: PathBuf,
     /// [HeadYaw, HeadPitch], radians.
     pub head: [f32; 2],
+    /// Whether the frame is for training or for testing.
     pub split: Split,
+    /// The face crop and where it was cut.
     pub face: Face,
+    /// The mark on the face, `None` for a clean frame.
     pub mark: Option<MarkTruth>,
 }
 
@@ -106,6 +110,7 @@ impl Sample {
     pub fn face_unit(&self) -> Vec<f32> {
         self.face.unit()
     }
+    /// Where the face was cut from the frame, full-frame pixels.
     pub fn crop(&self) -> CropBox {
         self.face.crop
     }
@@ -114,14 +119,18 @@ impl Sample {
 /// Which layout a dataset was read from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Layout {
+    /// The sim's `dataset.json`, with mark masks (sim datasets and recordings).
     Sim,
+    /// The published `manifest.json` of real frames, marks given by their box.
     Published,
 }
 
 /// A loaded dataset.
 #[derive(Clone, Debug)]
 pub struct Dataset {
+    /// The dataset folder, which the index's paths are relative to.
     pub root: PathBuf,
+    /// Which index file it was read from.
     pub layout: Layout,
     /// "red"/"skin" for sim data, free text for recordings.
     pub robot: String,
@@ -129,7 +138,9 @@ pub struct Dataset {
     pub template: GrayImage,
     /// How the crops were made.
     pub crop: CropMode,
+    /// Size (width, height) of every frame, pixels.
     pub frame_size: (u32, u32),
+    /// The frames read, cropped, in index order.
     pub samples: Vec<Sample>,
     /// Frames that show another robot, not the mirror image (`msr dataset --scene other`).
     pub other_robot_frames: usize,
@@ -204,6 +215,7 @@ impl Dataset {
         )
     }
 
+    /// The samples of split `s`, in order.
     pub fn split(&self, s: Split) -> impl Iterator<Item = &Sample> {
         self.samples.iter().filter(move |x| x.split == s)
     }
@@ -261,34 +273,51 @@ fn locate(path: &Path) -> Result<(PathBuf, Index)> {
 /// What the published `manifest.json` says about frames (other sections are read by `import`).
 #[derive(Deserialize, Debug)]
 pub struct Manifest {
+    /// The camera's frame size.
     pub camera: Camera,
+    /// How faces are cropped: the template.
     pub face_crop: FaceCrop,
+    /// The frames, each with its head angles and mark.
     pub images: Vec<ManifestImage>,
 }
 
+/// The manifest's `camera` section: the size of every frame.
 #[derive(Deserialize, Debug)]
 pub struct Camera {
+    /// Frame width, pixels.
     pub width: u32,
+    /// Frame height, pixels.
     pub height: u32,
 }
 
+/// The manifest's `face_crop` section.
 #[derive(Deserialize, Debug)]
 pub struct FaceCrop {
+    /// The face template's file, relative to the dataset folder.
     pub template: String,
 }
 
+/// One frame of the manifest.
 #[derive(Deserialize, Debug)]
 pub struct ManifestImage {
+    /// The frame's PNG file, relative to the dataset folder.
     pub file: String,
+    /// HeadYaw when the frame was taken, radians.
     pub head_yaw: f64,
+    /// HeadPitch when the frame was taken, radians.
     pub head_pitch: f64,
+    /// The mark pasted on the frame, `None` for a clean frame.
     pub mark: Option<ManifestMark>,
 }
 
+/// A mark of the manifest: a pasted rectangle, so its box is its mask.
 #[derive(Deserialize, Debug)]
 pub struct ManifestMark {
+    /// The mark's colour name, e.g. "green".
     pub colour: String,
+    /// Box `[x0, y0, x1, y1]`, inclusive, full-frame pixels.
     pub box_xyxy_inclusive: [u32; 4],
+    /// Mark pixels in the frame.
     pub pixels: u32,
 }
 

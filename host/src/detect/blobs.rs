@@ -12,7 +12,9 @@ use std::cell::RefCell;
 /// it was found in (face or full frame; see [`Blob::offset`]); boxes are inclusive.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Blob {
+    /// Pixels in the blob.
     pub area: u32,
+    /// Bounding box `[x0, y0, x1, y1]`, pixels, inclusive.
     pub box_xyxy: [u32; 4],
     /// Mean of the pixel coordinates (x, y).
     pub centroid: [f64; 2],

@@ -4,7 +4,7 @@
 //! [`model`]: what the host takes from a blob (its template, crop, float engine and decoder);
 //! [`pipeline`]: the float engine and the one definition of the error and the saliency;
 //! [`fixed`]: the firmware's engine; [`blobs`]: the blob stage after the mask; [`report`]: a
-//! detection as JSON and as a line; [`picture`]: a detection drawn.
+//! detection as JSON and as a line; [`picture`](mod@picture): a detection drawn.
 pub mod blobs;
 pub mod fixed;
 pub mod model;

@@ -123,6 +123,7 @@ pub fn pooled_error<T: Float>(signed: &[T], w: usize, pool: u8) -> Vec<T> {
 /// Everything one run of the pipeline on one frame produced.
 #[derive(Clone, Debug)]
 pub struct Detection {
+    /// Where the face was cut from the frame, full-frame pixels.
     pub crop: CropBox,
     /// The predicted face, grey/255, row-major.
     pub predicted: Vec<f32>,
@@ -173,10 +174,13 @@ pub struct FloatEngine {
     pub mu: Vec<f32>,
     /// Grey levels, floor applied (the normaliser adds only [`MIN_SIGMA`]).
     pub sigma: Vec<f32>,
+    /// Novelty settings (threshold, normaliser, sides, smallest blob, merge) away from `region`.
     pub settings: Settings,
     /// Settings of their own near one head pose (the blob's `PoseRegion`).
     pub region: Option<PoseRegion>,
+    /// The reach network from a mark's centroid to joint angles; `None`: no joints reported.
     pub reach: Option<Reach>,
+    /// The face's width, pixels (the row length of `mu`, `sigma` and the faces).
     pub face_w: usize,
     /// The error's pooling radius ([`pooled_error`]).
     pub pool: u8,
@@ -188,8 +192,11 @@ pub struct FloatEngine {
 /// mu and sigma (grey levels, floor applied) per cell of a head-pose grid.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PoseTables {
+    /// The grid over (HeadYaw, HeadPitch) whose cells the tables follow.
     pub grid: PoseGrid,
+    /// Mean error per cell, grey levels, row-major, face size.
     pub mu: Vec<Vec<f32>>,
+    /// Error standard deviation per cell, grey levels, floor applied, row-major, face size.
     pub sigma: Vec<Vec<f32>>,
 }
 

@@ -70,6 +70,8 @@ pub fn reason(d: &Detection) -> Option<&'static str> {
     }
 }
 
+/// One detection as a readable line: the face crop and the mark (area, box, centroid, the reach's
+/// joint angles in radians), or why the frame detected nothing.
 pub fn readable(d: &Detection) -> String {
     let c = d.crop;
     if let Some(r) = reason(d) {

@@ -20,6 +20,7 @@ pub enum Backend {
 }
 
 impl Backend {
+    /// The backend's name as the command line and the JSON summary spell it.
     pub fn name(self) -> &'static str {
         match self {
             Backend::Inproc => "inproc",
@@ -39,6 +40,7 @@ pub enum ServoBus {
 }
 
 impl ServoBus {
+    /// The protocol's name as the command line and the JSON summary spell it.
     pub fn name(self) -> &'static str {
         match self {
             ServoBus::Framed => "framed",
@@ -46,6 +48,7 @@ impl ServoBus {
         }
     }
 
+    /// The protocol as the board's `UseServoBus` message names it.
     pub fn kind(self) -> ServoBusKind {
         match self {
             ServoBus::Framed => ServoBusKind::Framed,
@@ -69,6 +72,7 @@ pub enum FaultLinks {
 /// How trials run.
 #[derive(Clone, Debug)]
 pub struct EpisodeConfig {
+    /// The robot the renderer draws (its looks); the model must be one trained on it.
     pub robot: Robot,
     /// What stands in front of the robot.
     pub scene: Scene,
@@ -79,6 +83,7 @@ pub struct EpisodeConfig {
     pub log_bus: bool,
     /// Share of trials with no mark.
     pub no_mark_share: f64,
+    /// Time between the camera frames the PC sends, simulated microseconds.
     pub frame_period_us: u64,
     /// When the mark appears.
     pub mark_at_us: u64,
@@ -129,6 +134,8 @@ pub struct LightSpan {
 }
 
 impl EpisodeConfig {
+    /// The defaults for `robot`: the mirror scene on the framed bus, no faults, a frame every
+    /// 100 ms, the mark at 0.4 s on 80 % of trials, up to 4 trials at once.
     pub fn new(robot: Robot) -> EpisodeConfig {
         EpisodeConfig {
             robot,
@@ -157,7 +164,8 @@ impl EpisodeConfig {
         }
     }
 
-    /// Faults on both directions of the chosen links (added to what is there).
+    /// Faults on both directions of the chosen links: `f`'s rates and bursts replace theirs, its
+    /// disconnects are added to theirs.
     pub fn with_faults(mut self, f: &FaultConfig, on: FaultLinks) -> Self {
         let add = |to: &mut FaultConfig| {
             to.bit_error_rate = f.bit_error_rate;

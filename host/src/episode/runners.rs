@@ -12,6 +12,8 @@ use msr_sim::render::Renderer;
 /// The in-process firmware: a board with the model built in.
 pub type InprocBoard = Board<HeapStore>;
 
+/// A fresh in-process board running `blob` as its built-in model, with room for uploads of up
+/// to 512 KiB.
 pub fn inproc_board(blob: &[u8]) -> Box<InprocBoard> {
     Box::new(Board::new(HeapStore::new(Some(blob), 512 * 1024)))
 }
@@ -46,7 +48,9 @@ pub fn run_trial_inproc(
 
 /// A servo bus end that keeps a copy of what is written to it.
 pub struct Tee<'a> {
+    /// The bus end that reads and writes go to.
     pub inner: &'a mut LinkEnd,
+    /// Every byte written to `inner`, in order.
     pub log: &'a mut Vec<u8>,
 }
 

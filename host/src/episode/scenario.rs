@@ -32,6 +32,7 @@ pub const FACE_MAX_AGE_PERIODS: u64 = 2;
 
 /// Renders and crops camera frames of one robot.
 pub struct Camera<'a> {
+    /// Draws the robot's frames (its looks, the light, the mark).
     pub renderer: &'a Renderer,
     /// The model's template and crop mode.
     pub cropper: &'a crop::Cropper,

@@ -12,7 +12,7 @@ use std::collections::VecDeque;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Scene {
-    /// The robot's own mirror image (today's test).
+    /// The robot's own mirror image (the mirror test proper).
     #[default]
     Mirror,
     /// A second robot of the same look where the mirror image would be, holding still or
@@ -24,6 +24,7 @@ pub enum Scene {
 }
 
 impl Scene {
+    /// The scene's name as the command line and each trial's JSON spell it.
     pub fn name(self) -> &'static str {
         match self {
             Scene::Mirror => "mirror",
@@ -44,6 +45,7 @@ pub const BABBLE_DWELL_US: (u64, u64) = (300_000, 1_200_000);
 
 /// One trial's scene state.
 pub struct SceneState {
+    /// Which scene the trial plays.
     pub scene: Scene,
     rng: ChaCha8Rng,
     /// Other: the other robot babbles (else it holds still at home).
@@ -68,6 +70,8 @@ pub struct View {
 }
 
 impl SceneState {
+    /// The scene at a trial's start, its draws (whether the other robot babbles, the delay)
+    /// taken from `rng`, a stream of the trial's own.
     pub fn new(scene: Scene, mut rng: ChaCha8Rng) -> SceneState {
         let (babbles, delay_us) = match scene {
             Scene::Mirror => (false, 0),

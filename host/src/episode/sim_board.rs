@@ -22,15 +22,21 @@ use std::thread::JoinHandle;
 /// What the served board did, when it stopped.
 #[derive(Debug)]
 pub struct Served {
+    /// The board's own status when the world stopped (its counters, model and room).
     pub status: Status,
+    /// Servo targets the emulated servos refused: outside a joint's limits, not finite, or for
+    /// a joint with no limits.
     pub limit_violations: u32,
+    /// Bytes carried from the PTY to the board's host link.
     pub to_board_bytes: u64,
+    /// Bytes carried from the board's host link to the PTY.
     pub from_board_bytes: u64,
     /// Seconds of the board's clock (the world's): behind the wall clock when the board cannot
     /// keep up (QEMU's emulated UARTs move tens of KB/s; the link's 921600 baud is 92 KB/s).
     pub board_s: f64,
 }
 
+/// A board served behind a pseudo-terminal on a thread of its own, until stopped or dropped.
 pub struct SimBoard {
     path: String,
     stop: Arc<AtomicBool>,
@@ -42,12 +48,14 @@ pub struct SimBoard {
 /// What `msr serve` serves.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ServeConfig {
+    /// What runs the firmware: in-process or the image in QEMU.
     pub backend: Backend,
     /// The model the board starts with (built in, or uploaded to QEMU before serving).
     pub model: Option<Vec<u8>>,
     /// Faults on the host link (both directions, between the PTY and the board; in-process
     /// board only), seeded by `seed`: a noisy USB-serial line to test a host against.
     pub host_faults: FaultConfig,
+    /// Seed of the links' fault draws.
     pub seed: u64,
     /// The board's flash in this file (created when missing): uploads and statistics survive
     /// a restart. Without it an upload lives in RAM until the server stops.

@@ -15,6 +15,7 @@ pub struct GateRecord {
     pub decision: String,
     /// `null` when undecided before both probe poses (NaN on the wire).
     pub gain_ratio: Option<f32>,
+    /// Distance of the resting face from the probe's line, pixels (`null` as above).
     pub rest_px: Option<f32>,
     /// Largest range of the face's x while the head held (rest, each pose), pixels.
     #[serde(default)]
@@ -31,7 +32,9 @@ pub struct GateRecord {
     pub unlike: u8,
     /// Mean salient pixels at rest and at the two probe poses.
     pub salient: [Option<f32>; 3],
+    /// Frames used at the two probe poses.
     pub frames: [u8; 2],
+    /// From the mark's confirmation to the decision, milliseconds of board time.
     pub elapsed_ms: u16,
     /// The statistics' squared shares of the model gate's tolerances, summed
     /// (`msr_firmware::self_gate::joint`; the gate passes at most its `joint_tol`): how near the
@@ -42,6 +45,8 @@ pub struct GateRecord {
 }
 
 impl GateRecord {
+    /// The record of the board's report `g`, received at simulated time `at_us` (microseconds);
+    /// NaN statistics become `None`.
     pub fn of(at_us: u64, g: &GateReport) -> GateRecord {
         let finite = |v: f32| v.is_finite().then_some(v);
         GateRecord {
@@ -85,6 +90,7 @@ pub fn add_gate_joints(trials: &mut [Trial], gate: &msr_shared::blob::SelfGate) 
 /// One trial's outcome (`Default`: nothing happened yet).
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct Trial {
+    /// The trial's place in its run, from 0 (its seed comes from it).
     pub index: usize,
     /// The scene (`mirror`, `other`, `delayed`).
     pub scene: String,
@@ -105,6 +111,7 @@ pub struct Trial {
     pub reached: bool,
     /// A reach while no mark was on the face.
     pub false_reach: bool,
+    /// The held reach touched the mark (every judged sample within 20 mm of it).
     pub touched: bool,
     /// Worst fingertip-to-mark distance while held (marked trials with a held reach).
     pub touch_error_mm: Option<f64>,
@@ -114,15 +121,25 @@ pub struct Trial {
     pub reach_target: Option<[f32; 5]>,
     /// Why a marked trial failed, for finding the stage at fault.
     pub failure: Option<String>,
+    /// Camera frames the PC shot and sent to the board.
     pub frames_sent: u32,
+    /// Board answers with a blob (a candidate mark), confirmed or not.
     pub detections: u32,
+    /// Servo targets the emulated servos refused: outside a joint's limits, not finite, or for
+    /// a joint with no limits.
     pub limit_violations: u32,
+    /// Frames that failed their CRC, at every end of both links (PC, board, servos).
     pub crc_errors: u32,
+    /// Damaged frames dropped and resynchronised past (CRC, COBS, size, content), at every end
+    /// of both links.
     pub resyncs: u32,
+    /// Trips of the board's face and servo watchdogs.
     pub watchdog_trips: u32,
     /// The PC's face-frame delivery: frames delivered and superseded, bytes, chunks resent.
     pub link: LinkStats,
+    /// Simulated time the trial ran, seconds.
     pub sim_s: f64,
+    /// Wall-clock time the trial took, seconds.
     pub wall_s: f64,
     /// What the board sent on the servo bus, when
     /// [`EpisodeConfig::log_bus`](super::EpisodeConfig::log_bus).
@@ -132,9 +149,10 @@ pub struct Trial {
     #[serde(skip)]
     pub log: Option<crate::rosbag::session::SessionLog>,
     /// Frames the board answered with no detection because the photometric fit refused them
-    /// (`NoFace`, `SceneChanged`).
+    /// as `NoFace` (the crop does not follow the predicted face).
     #[serde(default)]
     pub no_face_frames: u32,
+    /// Frames the photometric fit refused as `SceneChanged` (light outside what it explains).
     #[serde(default)]
     pub scene_changed_frames: u32,
 }
@@ -142,31 +160,51 @@ pub struct Trial {
 /// The summary `msr mirror-test --json` prints, exactly these keys.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Summary {
+    /// What ran the firmware: `inproc` or `qemu`.
     pub backend: String,
+    /// The robot drawn: `red` or `skin`.
     pub robot: String,
+    /// The servo bus's protocol: `framed` or `dynamixel`.
     pub servo_bus: String,
     /// The scene of the trials.
     pub scene: String,
+    /// Trials run.
     pub trials: usize,
     /// Trials in which a reach started, marked or not.
     pub reaches: usize,
-    /// The self gate's decisions over all trials.
+    /// The self gate's pass decisions over all trials.
     pub gate_passes: usize,
+    /// The self gate's reject decisions over all trials.
     pub gate_rejects: usize,
+    /// The self gate's undecided reports over all trials (a timeout, a face lost...).
     pub gate_undecided: usize,
+    /// Trials in which a mark appeared on the face.
     pub marked_trials: usize,
+    /// Marked trials whose held reach touched the mark.
     pub touched: usize,
     /// Touched / marked trials; `null` when no trial had a mark.
     pub touch_rate: Option<f64>,
+    /// Trials that never had a mark, not counting those drawn to get one that ended before it
+    /// appeared.
     pub no_mark_trials: usize,
     /// Trials drawn to get a mark that ended (a false reach) before it appeared.
     pub ended_before_mark: usize,
+    /// Reaches while no mark was on the face, over all trials.
     pub false_reaches: usize,
+    /// Median of the marked trials' worst fingertip-to-mark distance while held, millimetres;
+    /// `null` without a held reach.
     pub median_touch_error_mm: Option<f64>,
+    /// Median simulated time from the mark appearing to the reach starting, over the marked
+    /// trials that reached, milliseconds.
     pub latency_ms_median: Option<f64>,
+    /// Servo targets refused by the emulated servos, over all trials ([`Trial::limit_violations`]).
     pub limit_violations: u64,
+    /// Frames that failed their CRC at every end of both links, over all trials.
     pub crc_errors: u64,
+    /// Damaged frames dropped and resynchronised past at every end of both links, over all
+    /// trials.
     pub resyncs: u64,
+    /// Trips of the board's face and servo watchdogs, over all trials.
     pub watchdog_trips: u64,
     /// Face bytes the board took whole per simulated second, over all trials.
     pub goodput_bytes_per_s: f64,
@@ -174,9 +212,10 @@ pub struct Summary {
     pub retransmissions: u64,
     /// Face frames given up unfinished for a newer one.
     pub frames_superseded: u64,
-    /// Frames refused by the photometric fit, over all trials: `NoFace`, `SceneChanged`.
+    /// Frames refused by the photometric fit as `NoFace`, over all trials.
     #[serde(default)]
     pub no_face_frames: u64,
+    /// Frames refused by the photometric fit as `SceneChanged`, over all trials.
     #[serde(default)]
     pub scene_changed_frames: u64,
     /// Robot time of all trials, seconds.
@@ -236,6 +275,7 @@ impl std::fmt::Display for Summary {
     }
 }
 
+/// The median of `v` (the mean of the middle two for an even count); `None` when empty.
 pub fn median(mut v: Vec<f64>) -> Option<f64> {
     if v.is_empty() {
         return None;
@@ -253,6 +293,8 @@ fn gate_count(trials: &[Trial], f: fn(&str) -> bool) -> usize {
     trials.iter().flat_map(|t| &t.gate).filter(|g| f(&g.decision)).count()
 }
 
+/// The summary of `trials`, run with `backend` on `robot` over `bus`; `room` and `live` are
+/// left for the caller to fill.
 pub fn summarise(backend: Backend, robot: Robot, bus: ServoBus, trials: &[Trial]) -> Summary {
     let marked: Vec<&Trial> = trials.iter().filter(|t| t.mark.is_some()).collect();
     let touched = marked.iter().filter(|t| t.touched).count();

@@ -36,16 +36,29 @@ use msr_sim::layout::Split;
 use serde::{Deserialize, Serialize};
 use std::path::Path;
 
+/// One row of the table: one model, weighting and engine scored over the test frames. A score
+/// is `None` where its frames are missing (no marked or no unmarked frame).
 #[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct Row {
+    /// `"decoder"` or `"autoencoder"`.
     pub model: String,
+    /// `"sigma"` (the statistics' sigma) or `"none"` (sigma = 1 grey level everywhere).
     pub weighting: String,
+    /// `"float"` or `"fixed"` (the firmware's pipeline on the blob).
     pub engine: String,
+    /// Mean over marked frames of the winning blob's box pixels on the mark over the mark's
+    /// pixels; a frame without a detection counts 0.
     pub overlap_over_mark_area: Option<f64>,
+    /// Mean over marked frames of a_i / (a_i + a_d): salient pixels on the mark over all salient
+    /// pixels; a frame with nothing salient counts 0.
     pub precision_ai_over_ai_ad: Option<f64>,
+    /// Share of marked frames whose winning blob's centroid lies on the mark.
     pub hit_rate: Option<f64>,
+    /// Share of unmarked frames with a detection.
     pub false_alarm_rate: Option<f64>,
+    /// AUROC of marked against unmarked frames, each scored by its detection score.
     pub image_auroc: Option<f64>,
+    /// AUROC of every face pixel of every test frame, mark against not, scored by its saliency.
     pub pixel_auroc: Option<f64>,
     /// Where the model of this row came from.
     pub source: String,
@@ -72,27 +85,45 @@ pub struct Wrong {
     pub verdict: Option<String>,
 }
 
+/// A row of the table that could not be made, and why.
 #[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct Absent {
+    /// `"decoder"` or `"autoencoder"`.
     pub model: String,
+    /// `"sigma"` or `"none"`.
     pub weighting: String,
+    /// `"float"` or `"fixed"`.
     pub engine: String,
+    /// Why the row could not be made.
     pub reason: String,
 }
 
+/// The evaluation of one model blob on one dataset's test split: its rows, the rows it could
+/// not make, and the conditions they were scored under.
 #[derive(Serialize, Deserialize, Debug, Clone)]
 pub struct Report {
+    /// The dataset's folder.
     pub data: String,
+    /// The model blob's path.
     pub blob: String,
+    /// Frames in the test split.
     pub test_frames: usize,
+    /// Test frames with a mark.
     pub marked: usize,
+    /// Test frames without a mark.
     pub unmarked: usize,
+    /// The blob's saliency threshold, in units of its normaliser.
     pub threshold: f32,
     /// The blob's own settings near one head pose, when it has them.
     pub region: Option<msr_shared::blob::PoseRegion>,
+    /// The blob's smallest blob that counts as a detection, pixels.
     pub min_area: u16,
+    /// The rows that could be made.
     pub rows: Vec<Row>,
+    /// The rows that could not be made, with the reason.
     pub absent: Vec<Absent>,
+    /// Share of test frames where the float and fixed decoder rows (sigma weighting) agree: both
+    /// find nothing, or both a blob with centroids at most 1 px apart; `None` without both rows.
     pub quantized_agreement: Option<f64>,
     /// What the camera did to the test frames (`msr eval`'s camera flags and `--range`).
     #[serde(default)]
@@ -101,6 +132,8 @@ pub struct Report {
 
 const WEIGHTINGS: [&str; 2] = ["sigma", "none"];
 
+/// The table for the model blob at `blob_path` on the test split of the dataset at `data`, the
+/// frames as recorded.
 pub fn evaluate(blob_path: &Path, data: &Path) -> Result<Report> {
     evaluate_with(blob_path, data, None)
 }
@@ -135,6 +168,7 @@ pub fn code_range(grey: &mut [u8], range: Range) {
 /// coding of the grey ([`code_range`]). The default leaves the frames as recorded.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Camera {
+    /// The imperfections on each colour frame, before grey and the crop.
     pub imperfect: Imperfections,
     /// Grey range the faces are coded in.
     pub range: Range,
@@ -587,6 +621,8 @@ fn blob_float_decoder(model: &Model) -> Result<FloatModel, String> {
     })
 }
 
+/// The report as markdown: the conditions, the table, the quantized agreement, the absent rows
+/// and where each row's model came from.
 pub fn markdown(r: &Report) -> String {
     let f = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.3}"));
     let region = r.region.map_or(String::new(), |g| {

@@ -1,13 +1,13 @@
-//! `--live [ADDR]`: a session's messages served as they happen over the Foxglove WebSocket
+//! A live view: a session's messages served as they happen over the Foxglove WebSocket
 //! protocol, for the Foxglove app to connect to. The channels are the topics, types and `ros2msg`
-//! schemas of `--mcap` ([`crate::rosbag::session`]), messages in CDR, so a layout made for a
-//! recording works live.
+//! schemas of a session's MCAP file ([`crate::rosbag::session`]), messages in CDR, so a layout
+//! made for a recording works live.
 //!
 //! Foxglove's SDK (`foxglove`, its WebSocket server) speaks the protocol on a private loopback
-//! port; clients connect to [`relay`] at ADDR, which passes the bytes through and holds what goes
-//! out to each client in a queue of its own. A client that reads too slowly has its oldest
-//! message data dropped there, and counted (the SDK drops on its own queues too, but does not
-//! say how many). Publishing never waits on a client: it is a queue push.
+//! port; clients connect to [`relay`] at the public address, which passes the bytes through
+//! and holds what goes out to each client in a queue of its own. A client that reads too slowly
+//! has its oldest message data dropped there, and counted (the SDK drops on its own queues too,
+//! but does not say how many). Publishing never waits on a client: it is a queue push.
 //!
 //! A client that subscribes gets the channel's latest message at once (the state is latched),
 //! then every message after it.
@@ -196,6 +196,7 @@ impl Live {
         self.relay.wait_idle();
     }
 
+    /// The figures so far: clients that connected, messages published, messages dropped.
     pub fn stats(&self) -> LiveStats {
         LiveStats {
             clients: self.relay.clients_total(),

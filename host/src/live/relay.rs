@@ -32,6 +32,7 @@ struct Shared {
     idle: Condvar,
 }
 
+/// A running relay: its listening thread and the clients it serves.
 pub struct Relay {
     addr: SocketAddr,
     shared: Arc<Shared>,
@@ -61,18 +62,22 @@ impl Relay {
         Ok(Relay { addr, shared, accept: Mutex::new(Some(accept)) })
     }
 
+    /// The address clients connect to (the port chosen when 0 was asked for).
     pub fn addr(&self) -> SocketAddr {
         self.addr
     }
 
+    /// Clients that have connected since the start.
     pub fn clients_total(&self) -> u64 {
         self.shared.clients_total.load(Ordering::SeqCst)
     }
 
+    /// Message Data frames dropped from slow clients' queues, all clients together.
     pub fn dropped(&self) -> u64 {
         self.shared.dropped.load(Ordering::SeqCst)
     }
 
+    /// Clients connected now.
     pub fn active(&self) -> usize {
         self.shared.active.lock().unwrap_or_else(|e| e.into_inner()).len()
     }

@@ -7,11 +7,15 @@ use msr_shared::blob::{Activation, LayerKind, Shape};
 /// A fully connected layer, PyTorch `Linear` layout.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Dense {
+    /// Inputs.
     pub n_in: usize,
+    /// Outputs.
     pub n_out: usize,
     /// `[out][in]`, row-major.
     pub w: Vec<f32>,
+    /// One bias per output.
     pub b: Vec<f32>,
+    /// The function applied to each output.
     pub act: Activation,
 }
 
@@ -33,6 +37,7 @@ impl Dense {
         }
     }
 
+    /// The layer's `n_out` outputs for the `n_in` inputs `x`, activated.
     pub fn forward(&self, x: &[f32]) -> Vec<f32> {
         (0..self.n_out)
             .map(|o| {
@@ -48,12 +53,16 @@ impl Dense {
 /// A fully connected decoder from [HeadYaw, HeadPitch] to a face (the published 2-12-64-128-4350).
 #[derive(Clone, Debug, PartialEq)]
 pub struct DenseDecoder {
+    /// The layers, first to last; the last gives the face's `face_h * face_w` pixels.
     pub layers: Vec<Dense>,
+    /// Height of the predicted face, pixels.
     pub face_h: usize,
+    /// Width of the predicted face, pixels.
     pub face_w: usize,
 }
 
 impl DenseDecoder {
+    /// The layer widths from input to output, e.g. `2-12-64-128-4350`.
     pub fn arch(&self) -> String {
         let mut s = self
             .layers

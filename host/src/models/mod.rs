@@ -34,8 +34,11 @@ pub struct ConvStack {
     pub base: [usize; 3],
     /// Output channels of each ConvTranspose2d stage (the last is 1).
     pub channels: Vec<usize>,
+    /// Side of every stage's square kernel, pixels.
     pub kernel: usize,
+    /// Upsampling step of every stage, pixels.
     pub stride: usize,
+    /// Pixels every stage trims from each side of its output (PyTorch's `padding`).
     pub padding: usize,
     /// Top-left corner of the face window cut from the last stage's output.
     pub crop: [usize; 2],
@@ -44,10 +47,13 @@ pub struct ConvStack {
 /// Everything needed to rebuild a decoder's layers.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
 pub struct DecoderSpec {
+    /// Height of the predicted face, pixels.
     pub face_h: usize,
+    /// Width of the predicted face, pixels.
     pub face_w: usize,
     /// Widths of the dense layers after the 2 inputs. Without a conv stack the last is h*w.
     pub dense: Vec<usize>,
+    /// The transposed convolutions after the dense layers; `None` for an MLP decoder.
     pub conv: Option<ConvStack>,
 }
 
@@ -91,6 +97,7 @@ impl DecoderSpec {
         }
     }
 
+    /// The default decoder of family `kind` for a `face_h` x `face_w` face.
     pub fn new(kind: ArchKind, face_h: usize, face_w: usize) -> Self {
         match kind {
             ArchKind::Conv => Self::conv(face_h, face_w),
@@ -98,6 +105,7 @@ impl DecoderSpec {
         }
     }
 
+    /// The family: conv when the spec has a conv stack.
     pub fn kind(&self) -> ArchKind {
         if self.conv.is_some() {
             ArchKind::Conv
@@ -239,13 +247,17 @@ fn deconv(rng: &mut ChaCha8Rng, c_in: usize, c_out: usize, s: &ConvStack, device
 /// A decoder: head angles `[B, 2]` -> faces `[B, h*w]` in (0, 1).
 #[derive(Module, Debug)]
 pub struct Decoder {
+    /// The dense layers, first to last.
     pub dense: Vec<Linear>,
+    /// The transposed convolutions after them (empty for an MLP).
     pub deconv: Vec<ConvTranspose2d>,
+    /// The spec the layers were built from.
     #[module(skip)]
     pub spec: DecoderSpec,
 }
 
 impl Decoder {
+    /// The layers `spec` describes, initialised as PyTorch does from a stream seeded `seed`.
     pub fn new(spec: &DecoderSpec, seed: u64, device: &Device) -> Result<Self> {
         spec.layer_shapes()?;
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -266,6 +278,7 @@ impl Decoder {
         Ok(Decoder { dense, deconv: deconvs, spec: spec.clone() })
     }
 
+    /// Head angles `[B, 2]` (radians) -> predicted faces `[B, h*w]`, grey levels in (0, 1).
     pub fn forward(&self, heads: Tensor<2>) -> Tensor<2> {
         let [b, _] = heads.dims();
         let n_dense = self.dense.len();
@@ -334,13 +347,18 @@ fn to_vec(d: TensorData) -> Result<Vec<f32>> {
 /// Encoder of the autoencoder: (h*w) -> 128 -> 64 -> 12 -> 2, tanh inside, no activation on the code.
 pub const ENCODER_WIDTHS: [usize; 4] = [128, 64, 12, 2];
 
+/// The autoencoder: faces -> 2-d codes -> faces, the decoder taking the code in place of the
+/// head angles.
 #[derive(Module, Debug)]
 pub struct Autoencoder {
+    /// The dense layers of [`ENCODER_WIDTHS`], first to last.
     pub encoder: Vec<Linear>,
+    /// The decoder from the code back to the face.
     pub decoder: Decoder,
 }
 
 impl Autoencoder {
+    /// The encoder and a decoder of `spec`, initialised as PyTorch does from `seed`.
     pub fn new(spec: &DecoderSpec, seed: u64, device: &Device) -> Result<Self> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x5eed_e4c0);
         let mut encoder = Vec::new();
@@ -365,6 +383,7 @@ impl Autoencoder {
         x
     }
 
+    /// Faces `[B, h*w]` -> their reconstructions `[B, h*w]`, grey levels in (0, 1).
     pub fn forward(&self, faces: Tensor<2>) -> Tensor<2> {
         self.decoder.forward(self.encode(faces))
     }
@@ -374,16 +393,25 @@ impl Autoencoder {
 /// ConvTranspose2d `[in_c][out_c][k][k]`; bias per output element (Dense) or channel (conv).
 #[derive(Clone, Debug, PartialEq)]
 pub struct FloatLayer {
+    /// What the layer computes: Dense, ConvTranspose2d, Crop...
     pub kind: LayerKind,
+    /// The function applied to its output.
     pub activation: Activation,
+    /// Shape of its input (channels, height, width).
     pub input: Shape,
+    /// Shape of its output (channels, height, width).
     pub output: Shape,
+    /// Convolutions only: side of the square kernel, pixels (0 otherwise).
     pub kernel: usize,
+    /// Convolutions only: the upsampling factor (0 otherwise).
     pub stride: usize,
+    /// Convolutions only: PyTorch's `padding`, pixels (0 otherwise).
     pub padding: usize,
     /// Crop only: top, left.
     pub crop: [usize; 2],
+    /// The weights in the layout above (empty for a crop).
     pub weights: Vec<f32>,
+    /// The biases, one per output element (Dense) or channel (conv); empty for a crop.
     pub bias: Vec<f32>,
 }
 

@@ -37,18 +37,27 @@ pub struct ImportConfig {
 /// What [`import`] wrote and how close its fixed point is to the float decoder.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct ImportReport {
+    /// Size of the blob written, bytes.
     pub blob_bytes: usize,
+    /// The decoder's layer widths, input first (`2-12-64-128-4350`).
     pub arch: String,
+    /// Layers of the decoder.
     pub layers: usize,
     /// Per layer `w_shift.in_shift->out_shift`.
     pub shifts: Vec<String>,
+    /// Face width, pixels.
     pub face_w: usize,
+    /// Face height, pixels.
     pub face_h: usize,
+    /// The blob's saliency threshold, sigma units.
     pub threshold: f32,
+    /// The blob's smallest detection, pixels.
     pub min_area: u16,
     /// Head poses the fidelity was measured over.
     pub poses: usize,
+    /// PSNR of the fixed-point decoder against the float one (peak 255), dB.
     pub psnr_db: f64,
+    /// Largest absolute difference between the two decoders' faces, grey levels.
     pub max_abs_grey: f64,
 }
 
@@ -219,14 +228,21 @@ struct ManifestReach {
 /// The published model, as float.
 #[derive(Clone, Debug)]
 pub struct Published {
+    /// The decoder's dense layers.
     pub decoder: DenseDecoder,
-    /// Mean and standard deviation of the error per pixel, grey levels, row-major.
+    /// Mean error per pixel, grey levels, row-major.
     pub mu: Vec<f64>,
+    /// Standard deviation of the error per pixel, grey levels, row-major.
     pub sigma: Vec<f64>,
+    /// The face template the crops are matched against.
     pub template: GrayImage,
+    /// The reach network with its scaling.
     pub reach: Reach,
+    /// Saliency threshold, sigma units (the manifest's training threshold unless overridden).
     pub threshold: f32,
+    /// Two-sided (the published code) or one-sided saliency.
     pub sided: Sided,
+    /// Smallest blob that counts as a detection, pixels.
     pub min_area: u16,
     /// The recorded head angles of the training frames, when the manifest lists them.
     pub head_angles: Option<Vec<[f32; 2]>>,

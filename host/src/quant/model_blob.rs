@@ -1,5 +1,5 @@
-//! A model blob from a training folder and a reach network, for the demo and the end-to-end
-//! tests: the quantizer of `msr quantize`, without its report.
+//! A model blob from a training folder and a reach network, quantized with `quantize::choose`
+//! and without a report.
 use crate::quant::quantize;
 use crate::train::reach::{self as train_reach, ReachModel};
 use anyhow::{ensure, Result};

@@ -9,9 +9,9 @@
 //! a joint state there that is not a number (never interpolated across), the head moving faster
 //! than the speed limit there, or (second pass) an image that does not decode whole (a cut JPEG is
 //! damaged, not a picture with grey rows) or has no face where the template looks. The second pass
-//! decodes the kept images and writes them into a temporary folder beside `--out`, renamed to
-//! `--out` at the end: a failed import leaves nothing, and the temporary folders of imports that
-//! were killed are removed by the next import beside them.
+//! decodes the kept images and writes them into a temporary folder beside the output folder,
+//! renamed to it at the end: a failed import leaves nothing, and the temporary folders of
+//! imports that were killed are removed by the next import beside them.
 use super::msgs::{self, CompressedImage, Image, JointState};
 use super::read::{Bag, Topic};
 use crate::data::crop::{self, CropMode, Cropper};
@@ -22,25 +22,37 @@ use msr_sim::layout::{self, DatasetIndex, FrameRecord, Split};
 use rand::{Rng, SeedableRng};
 use std::path::{Path, PathBuf};
 
+/// What to import, and what to keep.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ImportConfig {
+    /// The bag folder, or one `.mcap` / `.db3` file.
     pub bag: PathBuf,
+    /// The camera topic (`sensor_msgs/msg/Image` or `sensor_msgs/msg/CompressedImage`).
     pub image_topic: String,
+    /// The `sensor_msgs/msg/JointState` topic the head angles come from.
     pub joints_topic: String,
     /// The names of the yaw and pitch joints in the JointState messages.
     pub joint_names: [String; 2],
+    /// The face template (grey PNG) that finds the face in each image.
     pub template: PathBuf,
+    /// The dataset folder to make: new, or empty.
     pub out: PathBuf,
     /// Images taken while either head joint moved faster than this (rad/s) are skipped.
     pub max_speed: f64,
     /// Images without a joint state this close (ns) before and after their stamp are skipped.
     pub max_gap_ns: u64,
+    /// Share of the kept frames drawn for the test split (0 to 1).
     pub test_fraction: f64,
+    /// Seed of the train/test split.
     pub seed: u64,
+    /// Shows a progress bar on stderr.
     pub progress: bool,
 }
 
 impl ImportConfig {
+    /// An import with the defaults: joints `HeadYaw` and `HeadPitch`, at most 5 deg/s of head
+    /// speed, a joint state within 100 ms on both sides, a fifth of the frames for testing,
+    /// seed 0.
     pub fn new(bag: &Path, image_topic: &str, joints_topic: &str, template: &Path, out: &Path) -> ImportConfig {
         ImportConfig {
             bag: bag.into(),
@@ -61,27 +73,38 @@ impl ImportConfig {
 /// What an import did.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 pub struct Imported {
+    /// Messages on the image topic.
     pub images: usize,
+    /// Messages on the joint state topic.
     pub joint_states: usize,
+    /// Images kept as frames of the dataset.
     pub frames: usize,
+    /// Frames in the train split.
     pub train: usize,
+    /// Frames in the test split.
     pub test: usize,
+    /// Images taken while the head moved faster than the speed limit.
     pub skipped_moving: usize,
+    /// Images without a joint state within the gap limit on both sides of their stamp.
     pub skipped_no_joint_state: usize,
     /// Images whose head pose would come from a joint state that is not a number.
     pub skipped_invalid_joint_state: usize,
     /// Images that do not decode whole (a cut or damaged JPEG or PNG).
     pub skipped_damaged: usize,
+    /// Images whose crop does not look like the template (no face where it looks).
     pub skipped_no_face: usize,
     /// What was wrong with the first damaged image.
     pub first_damage: Option<String>,
+    /// Wall-clock time of the import, seconds.
     pub seconds: f64,
 }
 
 /// Why an image is not kept.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Skip {
+    /// The head moved faster than the speed limit around the image's stamp.
     Moving,
+    /// No joint state within the gap limit before and after the stamp.
     NoJointState,
     /// A joint state around the stamp holds a head angle that is not a number.
     InvalidJointState,
@@ -230,6 +253,7 @@ fn decode_jpeg(data: &[u8]) -> Result<DynamicImage> {
     img.context("the decoder gave fewer pixels than its image size")
 }
 
+/// A CompressedImage (JPEG or PNG) decoded whole: grey stays grey, anything else becomes RGB.
 pub fn decode_compressed(m: &CompressedImage) -> Result<DynamicImage> {
     let f = compressed_format(&m.format)?;
     let img = match f {

@@ -5,13 +5,17 @@
 use anyhow::{bail, Result};
 use serde::{Deserialize, Serialize};
 
+/// `builtin_interfaces/msg/Time`: a time as whole seconds and nanoseconds.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Time {
+    /// Whole seconds.
     pub sec: i32,
+    /// Nanoseconds past `sec`, below 10^9.
     pub nanosec: u32,
 }
 
 impl Time {
+    /// A time of `ns` nanoseconds split into seconds and nanoseconds.
     pub fn from_ns(ns: u64) -> Time {
         Time { sec: (ns / 1_000_000_000) as i32, nanosec: (ns % 1_000_000_000) as u32 }
     }
@@ -21,21 +25,31 @@ impl Time {
     }
 }
 
+/// `std_msgs/msg/Header`: when the data was taken and in which coordinate frame.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Header {
+    /// When the data was taken.
     pub stamp: Time,
+    /// The coordinate frame the data is in (`camera`, `face`; empty for joint states).
     pub frame_id: String,
 }
 
 /// `sensor_msgs/msg/Image`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Image {
+    /// The frame's time and camera frame.
     pub header: Header,
+    /// Rows, pixels.
     pub height: u32,
+    /// Columns, pixels.
     pub width: u32,
+    /// The pixel layout (`mono8`, `rgb8`, `bgr8`, `yuv422`, ...).
     pub encoding: String,
+    /// 1 when multi-byte pixel values are big-endian.
     pub is_bigendian: u8,
+    /// Bytes from the start of one row to the start of the next.
     pub step: u32,
+    /// The pixels, row by row, `step` bytes a row.
     #[serde(with = "serde_bytes")]
     pub data: Vec<u8>,
 }
@@ -43,8 +57,11 @@ pub struct Image {
 /// `sensor_msgs/msg/CompressedImage`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct CompressedImage {
+    /// The frame's time and camera frame.
     pub header: Header,
+    /// The compression (`jpeg`, `png`, or image_transport's `bgr8; jpeg compressed bgr8`).
     pub format: String,
+    /// The compressed file's bytes.
     #[serde(with = "serde_bytes")]
     pub data: Vec<u8>,
 }
@@ -52,76 +69,110 @@ pub struct CompressedImage {
 /// `sensor_msgs/msg/JointState`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct JointState {
+    /// When the joints were measured or commanded.
     pub header: Header,
+    /// The joints' names; the arrays below, when not empty, hold one value per name.
     pub name: Vec<String>,
+    /// Joint angles, radians.
     pub position: Vec<f64>,
+    /// Joint speeds, rad/s (empty when not measured).
     pub velocity: Vec<f64>,
+    /// Joint torques, N m (empty when not measured).
     pub effort: Vec<f64>,
 }
 
 /// `foxglove_msgs/msg/Point2`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Point2 {
+    /// Column, pixels from the image's left edge.
     pub x: f64,
+    /// Row, pixels from the image's top edge.
     pub y: f64,
 }
 
 /// `foxglove_msgs/msg/Color`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct Color {
+    /// Red, 0 to 1.
     pub r: f64,
+    /// Green, 0 to 1.
     pub g: f64,
+    /// Blue, 0 to 1.
     pub b: f64,
+    /// Opacity, 0 (transparent) to 1.
     pub a: f64,
 }
 
 /// `foxglove_msgs/msg/CircleAnnotation`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct CircleAnnotation {
+    /// The image time the circle belongs to.
     pub timestamp: Time,
+    /// The centre, in image pixels.
     pub position: Point2,
+    /// Pixels.
     pub diameter: f64,
+    /// The outline's width, pixels.
     pub thickness: f64,
+    /// The inside's colour.
     pub fill_color: Color,
+    /// The outline's colour.
     pub outline_color: Color,
 }
 
 /// `foxglove_msgs/msg/PointsAnnotation`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct PointsAnnotation {
+    /// The image time the points belong to.
     pub timestamp: Time,
     /// 1 points, 2 line loop, 3 line strip, 4 line list.
     pub r#type: u8,
+    /// The points, in image pixels.
     pub points: Vec<Point2>,
+    /// The colour of every point or line, unless `outline_colors` gives one per point.
     pub outline_color: Color,
+    /// One colour per point, or per segment for lines (empty: `outline_color` for all).
     pub outline_colors: Vec<Color>,
+    /// The colour inside a closed shape.
     pub fill_color: Color,
+    /// Line width or point size, pixels.
     pub thickness: f64,
 }
 
 /// `foxglove_msgs/msg/TextAnnotation`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct TextAnnotation {
+    /// The image time the text belongs to.
     pub timestamp: Time,
+    /// The text's bottom-left corner, in image pixels.
     pub position: Point2,
+    /// What is written.
     pub text: String,
+    /// Pixels.
     pub font_size: f64,
+    /// The letters' colour.
     pub text_color: Color,
+    /// The colour of the box behind the text.
     pub background_color: Color,
 }
 
 /// `foxglove_msgs/msg/ImageAnnotations`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct ImageAnnotations {
+    /// Circles (a blob's centroid).
     pub circles: Vec<CircleAnnotation>,
+    /// Outlines and point sets (the crop box, the mark's and the blob's boxes).
     pub points: Vec<PointsAnnotation>,
+    /// Labels.
     pub texts: Vec<TextAnnotation>,
 }
 
 /// `diagnostic_msgs/msg/KeyValue`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct KeyValue {
+    /// What the value is (`host_link.crc_errors`).
     pub key: String,
+    /// The value, as text.
     pub value: String,
 }
 
@@ -130,23 +181,34 @@ pub struct KeyValue {
 pub struct DiagnosticStatus {
     /// 0 OK, 1 WARN, 2 ERROR, 3 STALE.
     pub level: u8,
+    /// What is reported on (`board status`, a trial's name).
     pub name: String,
+    /// A one-line summary (empty when all is well).
     pub message: String,
+    /// The device the status is of.
     pub hardware_id: String,
+    /// The figures, one per key.
     pub values: Vec<KeyValue>,
 }
 
 /// `diagnostic_msgs/msg/DiagnosticArray`.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct DiagnosticArray {
+    /// When the statuses were taken.
     pub header: Header,
+    /// One status per reported part.
     pub status: Vec<DiagnosticStatus>,
 }
 
+/// The ROS 2 type name of [`Image`].
 pub const IMAGE: &str = "sensor_msgs/msg/Image";
+/// The ROS 2 type name of [`CompressedImage`].
 pub const COMPRESSED_IMAGE: &str = "sensor_msgs/msg/CompressedImage";
+/// The ROS 2 type name of [`JointState`].
 pub const JOINT_STATE: &str = "sensor_msgs/msg/JointState";
+/// The ROS 2 type name of [`ImageAnnotations`].
 pub const IMAGE_ANNOTATIONS: &str = "foxglove_msgs/msg/ImageAnnotations";
+/// The ROS 2 type name of [`DiagnosticArray`].
 pub const DIAGNOSTIC_ARRAY: &str = "diagnostic_msgs/msg/DiagnosticArray";
 
 const TIME_DEF: &str = "int32 sec\nuint32 nanosec\n";

@@ -8,22 +8,29 @@ use std::path::{Path, PathBuf};
 /// One topic of a bag.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Topic {
+    /// The topic's name (`/camera/image`).
     pub name: String,
     /// e.g. `sensor_msgs/msg/Image`.
     pub type_name: String,
+    /// Messages on the topic, all storage files together.
     pub messages: u64,
 }
 
+/// The storage format of a bag file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Storage {
+    /// An `.mcap` file.
     Mcap,
+    /// A `.db3` file (rosbag2's SQLite3 storage).
     Sqlite3,
 }
 
 /// An opened bag: its storage files, in order.
 #[derive(Clone, Debug)]
 pub struct Bag {
+    /// The bag folder or the single file as given.
     pub path: PathBuf,
+    /// The storage files read, in the order `metadata.yaml` lists them, with their format.
     pub files: Vec<(PathBuf, Storage)>,
     /// Storage files in the bag's folder that its metadata does not list: not read.
     pub unlisted: Vec<PathBuf>,
@@ -79,6 +86,8 @@ fn yaml_file_list(text: &str) -> Option<Vec<String>> {
 }
 
 impl Bag {
+    /// Opens a bag folder or a single `.mcap` / `.db3` file, checking its metadata and that every
+    /// file it lists is there; no message is read yet.
     pub fn open(path: &Path) -> Result<Bag> {
         if path.is_file() {
             let Some(s) = storage_of(path) else {
@@ -148,6 +157,7 @@ impl Bag {
         Ok(Bag { path: path.into(), files, unlisted })
     }
 
+    /// The bag's storage format (every file of a bag has the same).
     pub fn storage(&self) -> Storage {
         self.files[0].1
     }

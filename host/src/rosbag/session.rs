@@ -1,5 +1,5 @@
-//! What a session (mirror-test trials, `msr run`, `msr record`) saw and did, as ROS 2 messages
-//! for `--mcap FILE` and `--live` ([`crate::live`]). Topics:
+//! What a session (mirror-test trials, a run with a board, a recording) saw and did, as ROS 2
+//! messages for an MCAP file and for the live view ([`crate::live`]). Topics:
 //!
 //! | topic | type | what |
 //! |---|---|---|
@@ -30,9 +30,13 @@ use std::path::Path;
 /// One message, encoded.
 #[derive(Clone, Debug)]
 pub struct Logged {
+    /// When, in nanoseconds from the start of the trial or session.
     pub t_ns: u64,
+    /// The topic it goes on (one of the table above).
     pub topic: &'static str,
+    /// Its ROS 2 type name ([`msgs::IMAGE`], ...).
     pub type_name: &'static str,
+    /// The message in CDR with ROS 2's encapsulation header, stamped from the start as `t_ns` is.
     pub cdr: Vec<u8>,
 }
 
@@ -45,6 +49,7 @@ struct Pending {
 /// The messages of one trial or session, times in nanoseconds from its start.
 #[derive(Default)]
 pub struct SessionLog {
+    /// The messages kept for the MCAP file, as they came (none when published live only).
     pub msgs: Vec<Logged>,
     pending: BTreeMap<u16, Pending>,
     /// Parsed model and the firmware's workspace, for the saliency image.
@@ -201,6 +206,8 @@ impl SessionLog {
         }
     }
 
+    /// A status (the board's, or any serializable value) at `t_us` on `/board/status`, its fields
+    /// flattened into key-value pairs.
     pub fn status<T: Serialize>(&mut self, t_us: u64, s: &T) {
         let t = t_us * 1000;
         match write::diagnostics(t, "board status", "", 0, s) {

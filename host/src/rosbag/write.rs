@@ -1,4 +1,4 @@
-//! Writing a session as MCAP (`--mcap FILE`): profile `ros2`, one channel a topic, schemas in
+//! An MCAP writer for session logs: profile `ros2`, one channel a topic, schemas in
 //! `ros2msg` with the full definitions, messages in CDR, zstd chunks with message indexes and a
 //! summary (what Foxglove seeks with, and what rosbag2's MCAP storage and `rosbags` read).
 //! Written to a temporary file beside the target and renamed over it when finished.
@@ -9,6 +9,7 @@ use std::collections::BTreeMap;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
+/// An MCAP file being written: one channel per topic, each type's schema once.
 pub struct McapLog {
     w: mcap::Writer<BufWriter<std::fs::File>>,
     /// topic -> (channel id, type, messages so far)
@@ -20,6 +21,8 @@ pub struct McapLog {
 }
 
 impl McapLog {
+    /// Starts the file: its folder is made, and it is written to a temporary file beside `path`
+    /// until [`McapLog::finish`].
     pub fn create(path: &Path) -> Result<McapLog> {
         if path.is_dir() {
             bail!("cannot write {}: it is a folder", path.display());
@@ -113,6 +116,8 @@ pub fn mono8(t_ns: u64, frame_id: &str, w: u32, h: u32, data: Vec<u8>) -> msgs::
     }
 }
 
+/// Joint angles (radians, one per name) as a `sensor_msgs/msg/JointState` without speeds or
+/// efforts.
 pub fn joint_state(t_ns: u64, names: &[&str], position: &[f64]) -> msgs::JointState {
     msgs::JointState {
         header: msgs::Header { stamp: msgs::Time::from_ns(t_ns), frame_id: String::new() },
@@ -152,9 +157,13 @@ pub fn diagnostics<T: Serialize>(t_ns: u64, name: &str, message: &str, level: u8
     })
 }
 
+/// The board's detection (blob box, centroid, label).
 pub const RED: msgs::Color = msgs::Color { r: 1.0, g: 0.1, b: 0.1, a: 1.0 };
+/// The mark's true box (sim), and a recorded frame's label.
 pub const GREEN: msgs::Color = msgs::Color { r: 0.1, g: 0.9, b: 0.2, a: 1.0 };
+/// The face crop's box.
 pub const GREY: msgs::Color = msgs::Color { r: 0.6, g: 0.6, b: 0.6, a: 1.0 };
+/// Fully transparent: no fill.
 pub const CLEAR: msgs::Color = msgs::Color { r: 0.0, g: 0.0, b: 0.0, a: 0.0 };
 
 /// An inclusive pixel box `[x0, y0, x1, y1]` as a closed outline around its pixels.
@@ -172,6 +181,7 @@ pub fn box_outline(t_ns: u64, b: [f64; 4], color: msgs::Color) -> msgs::PointsAn
     }
 }
 
+/// A filled circle of `diameter` pixels centred on pixel (`x`, `y`).
 pub fn circle(t_ns: u64, x: f64, y: f64, diameter: f64, color: msgs::Color) -> msgs::CircleAnnotation {
     msgs::CircleAnnotation {
         timestamp: msgs::Time::from_ns(t_ns),
@@ -184,6 +194,7 @@ pub fn circle(t_ns: u64, x: f64, y: f64, diameter: f64, color: msgs::Color) -> m
     }
 }
 
+/// A label at (`x`, `y`) in image pixels, 10 px high, on a half-transparent black box.
 pub fn text(t_ns: u64, x: f64, y: f64, s: &str, color: msgs::Color) -> msgs::TextAnnotation {
     msgs::TextAnnotation {
         timestamp: msgs::Time::from_ns(t_ns),

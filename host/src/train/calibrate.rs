@@ -59,8 +59,11 @@ pub const DEFAULT_POSE_BINS: u8 = 3;
 /// Per-pixel error statistics, row-major `h x w`, grey levels.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ErrorStats {
+    /// Face height, pixels.
     pub h: usize,
+    /// Face width, pixels.
     pub w: usize,
+    /// Mean error per pixel.
     pub mu: Vec<f64>,
     /// Standard deviation (N-1), not floored.
     pub sigma: Vec<f64>,
@@ -74,8 +77,11 @@ pub struct ErrorStats {
 /// grey levels, over the training frames whose head pose falls in it ([`PoseGrid::bin`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct PoseErrorStats {
+    /// The head-pose grid the cells belong to.
     pub grid: PoseGrid,
+    /// Mean error per pixel, one table per cell.
     pub mu: Vec<Vec<f64>>,
+    /// Standard deviation of the error per pixel, one table per cell.
     pub sigma: Vec<Vec<f64>>,
     /// Frames per cell.
     pub frames: Vec<usize>,
@@ -165,6 +171,7 @@ pub struct StatsAccumulator {
 }
 
 impl StatsAccumulator {
+    /// An empty accumulator for `h x w` error maps.
     pub fn new(h: usize, w: usize) -> Self {
         StatsAccumulator { h, w, n: 0, faces: 0, mean: vec![0.0; h * w], m2: vec![0.0; h * w] }
     }
@@ -178,6 +185,7 @@ impl StatsAccumulator {
         Ok(())
     }
 
+    /// Adds one error map (`h x w`, finite), counted as one frame.
     pub fn add(&mut self, e: &[f64]) -> Result<()> {
         ensure!(e.len() == self.h * self.w, "error map has {} pixels, expected {}", e.len(), self.h * self.w);
         ensure!(e.iter().all(|v| v.is_finite()), "error map has non-finite values");
@@ -230,10 +238,15 @@ pub fn error_stats<'a>(
 /// How error becomes a detection. Stored in the model's JSON and the blob header.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct NoveltyParams {
+    /// What the error above the mean is divided by: sigma or sigma squared.
     pub normalisation: Normalisation,
+    /// One-sided `(e - mu) / n` or two-sided `|e - mu| / n` saliency.
     pub sided: Sided,
+    /// Saliency above which a pixel is salient, saliency units.
     pub threshold: f64,
+    /// Floor on sigma before normalising, grey levels.
     pub sigma_floor: f64,
+    /// Smallest blob that counts as a detection, pixels.
     pub min_area: u16,
     /// Fragment merge before the area test; off (the paper) by default and in older files.
     #[serde(default)]
@@ -271,6 +284,8 @@ impl Default for NoveltyParams {
 }
 
 impl NoveltyParams {
+    /// Refuses settings the detection cannot use: a threshold that is not positive, a negative
+    /// floor, a zero area, and a pool, merge or pose region outside what the blob holds.
     pub fn check(&self) -> Result<()> {
         ensure!(self.threshold.is_finite() && self.threshold > 0.0, "threshold must be positive, got {}", self.threshold);
         ensure!(self.sigma_floor.is_finite() && self.sigma_floor >= 0.0, "sigma floor must be >= 0, got {}", self.sigma_floor);

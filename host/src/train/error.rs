@@ -13,13 +13,34 @@ pub enum ConfigError {
     /// `threshold_percentile` outside 0..=100.
     Percentile(f64),
     /// `pose_bins` is neither 0 (off) nor in 2..=`most`.
-    PoseBins { got: u8, most: u8 },
+    PoseBins {
+        /// The cells per angle asked for.
+        got: u8,
+        /// The most cells per angle the blob holds.
+        most: u8,
+    },
     /// `conv_hidden` or `conv_channels` given for the dense (MLP) architecture.
     ConvSizesWithoutConv,
     /// `threshold_percentile` is set but the test split has no unmarked frame to take it from.
-    NoNormalTestFrames { data: PathBuf },
+    NoNormalTestFrames {
+        /// The dataset folder.
+        data: PathBuf,
+    },
     /// A head-pose cell has fewer than 2 unmarked training frames (a standard deviation needs 2).
-    FewFramesPerPoseCell { pose_bins: u8, default: u8, cells: usize, data: PathBuf, fewest: usize, total: usize },
+    FewFramesPerPoseCell {
+        /// The cells per angle asked for.
+        pose_bins: u8,
+        /// The default cells per angle, named in the message.
+        default: u8,
+        /// Cells in the grid (`pose_bins` squared).
+        cells: usize,
+        /// The dataset folder.
+        data: PathBuf,
+        /// Unmarked training frames in the emptiest cell.
+        fewest: usize,
+        /// Unmarked training frames in all cells.
+        total: usize,
+    },
     /// The light copies' gradient is not within 0..0.5 (a share of the grey level).
     LightGradient(f32),
     /// The light copies' gamma is not within 0..0.5.

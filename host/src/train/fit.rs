@@ -12,10 +12,10 @@ use serde::{Deserialize, Serialize};
 use std::time::Instant;
 
 /// Keeps freed tensor buffers in the process for reuse. glibc serves each buffer of a few MB
-/// (a batch's activations, gradients) with a fresh `mmap` and unmaps it when freed, so every
-/// step of the loop page-faulted its memory in again: a third of the single-thread training
-/// time went to the kernel and the conv decoder's probe took 11.3 s where it takes 6.7 s with
-/// this (15 epochs, `timing_probe`; the same losses to the bit). Buffers under 32 MiB come from
+/// (a batch's activations, gradients) with a fresh `mmap` and unmaps it when freed, so without
+/// this every step of the loop page-faults its memory in again: a third of the single-thread
+/// training time goes to the kernel, and the conv decoder's probe takes 11.3 s instead of 6.7 s
+/// (15 epochs, `timing_probe`; the same losses to the bit). Buffers under 32 MiB come from
 /// the heap, and up to 1 GiB of free heap stays mapped. Once per process; other allocators and
 /// libcs are left as they are.
 pub fn keep_freed_memory() {
@@ -34,14 +34,19 @@ pub fn keep_freed_memory() {
 /// Hyper-parameters; the defaults are the paper's.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct HyperParams {
+    /// Passes over the training frames.
     pub epochs: usize,
+    /// Frames per minibatch.
     pub batch: usize,
+    /// Adam's learning rate before any decay.
     pub lr: f64,
     /// The learning rate is multiplied by `lr_decay` every `lr_step` epochs.
     pub lr_step: usize,
+    /// The factor the learning rate is multiplied by every `lr_step` epochs.
     pub lr_decay: f64,
     /// Adam's epsilon (PyTorch's default, which the published code used).
     pub adam_eps: f32,
+    /// Seed of the minibatch shuffle (the training `run` also draws the initial weights from it).
     pub seed: u64,
 }
 
@@ -52,10 +57,13 @@ impl Default for HyperParams {
 }
 
 impl HyperParams {
+    /// The learning rate of epoch `epoch` (counted from 0), after its step decays.
     pub fn lr_at(&self, epoch: usize) -> f64 {
         self.lr * self.lr_decay.powi((epoch / self.lr_step.max(1)) as i32)
     }
 
+    /// Refuses values the loop cannot train with (zero counts, a learning rate or decay that is
+    /// not positive and finite).
     pub fn check(&self) -> Result<()> {
         ensure!(self.epochs > 0, "epochs must be at least 1");
         ensure!(self.batch > 0, "batch size must be at least 1");
@@ -70,15 +78,20 @@ impl HyperParams {
 /// minibatches (as PyTorch loops report it), test is the whole test split after the epoch.
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 pub struct History {
+    /// Training loss of each epoch.
     pub train_loss: Vec<f64>,
+    /// Test loss after each epoch (NaN without test frames).
     pub test_loss: Vec<f64>,
+    /// Wall-clock seconds the whole training took.
     pub seconds: f64,
 }
 
 /// Training pairs: head angles and face crops (grey/255, row-major, all the same length).
 #[derive(Clone, Debug, Default)]
 pub struct Samples {
+    /// Head angles (yaw, pitch) of each frame, radians.
     pub heads: Vec<[f32; 2]>,
+    /// Face crop of each frame, grey/255, row-major.
     pub faces: Vec<Vec<f32>>,
     /// Per-pixel loss weights (0 on mark pixels, 1 elsewhere), for test frames that carry a mark:
     /// the test loss measures how well the face is predicted, not the mark. None: all 1.
@@ -86,16 +99,20 @@ pub struct Samples {
 }
 
 impl Samples {
+    /// The number of frames.
     pub fn len(&self) -> usize {
         self.heads.len()
     }
+    /// Whether there are no frames.
     pub fn is_empty(&self) -> bool {
         self.heads.is_empty()
     }
+    /// The head angles as an `[n, 2]` tensor on `device`.
     pub fn heads_tensor(&self, device: &Device) -> Tensor<2> {
         let v: Vec<f32> = self.heads.iter().flatten().copied().collect();
         Tensor::from_data(TensorData::new(v, [self.len(), 2]), device)
     }
+    /// The faces as an `[n, h w]` tensor on `device`.
     pub fn faces_tensor(&self, device: &Device) -> Tensor<2> {
         rows_tensor(&self.faces, device)
     }
@@ -103,6 +120,8 @@ impl Samples {
 
 /// A model the loop can train: predicts faces from head angles and/or faces.
 pub trait FaceNet: Module + Sized {
+    /// Predicted faces `[n, h w]` from head angles `[n, 2]` and observed faces `[n, h w]`
+    /// (each model reads the input it needs).
     fn predict(&self, heads: Tensor<2>, faces: Tensor<2>) -> Tensor<2>;
 }
 

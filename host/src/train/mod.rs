@@ -55,6 +55,7 @@ pub enum ModelKind {
 }
 
 impl ModelKind {
+    /// The stem of the model's files in a training folder (`decoder`, `autoencoder`).
     pub fn name(self) -> &'static str {
         match self {
             ModelKind::Decoder => "decoder",
@@ -94,8 +95,10 @@ pub struct TrainConfig {
     pub data: PathBuf,
     /// Output folder.
     pub out: PathBuf,
+    /// What to train: the decoder or the autoencoder.
     #[config(default = "ModelKind::Decoder")]
     pub model: ModelKind,
+    /// The decoder family: convolutional or the published dense (MLP) one.
     #[config(default = "ArchKind::Conv")]
     pub arch: ArchKind,
     /// Conv decoder only: dense units after the input (default 32).
@@ -105,19 +108,25 @@ pub struct TrainConfig {
     /// Face crop: sub-pixel (refined and resampled) or pixel (the published code).
     #[config(default = "CropMode::Subpixel")]
     pub crop: CropMode,
+    /// Passes over the training frames.
     #[config(default = 50)]
     pub epochs: usize,
+    /// Frames per minibatch.
     #[config(default = 128)]
     pub batch: usize,
+    /// Adam's learning rate before any decay.
     #[config(default = 0.005)]
     pub lr: f64,
     /// Multiply the learning rate by `lr_decay` every this many epochs.
     #[config(default = 10)]
     pub lr_step: usize,
+    /// The factor the learning rate is multiplied by every `lr_step` epochs.
     #[config(default = 0.5)]
     pub lr_decay: f64,
+    /// Seed of the initial weights, the minibatch shuffle and the light copies.
     #[config(default = 0)]
     pub seed: u64,
+    /// What the saliency divides the error above the mean by.
     #[config(default = "NormArg::Std")]
     pub normalisation: NormArg,
     /// Two-sided saliency |e - mu| / n (the published code); default one-sided (e - mu) / n.
@@ -154,6 +163,7 @@ pub struct TrainConfig {
     /// The copies' largest change of the tone curve's exponent.
     #[config(default = "light_copies::LightCopies::DEFAULT.gamma")]
     pub light_gamma: f32,
+    /// Where burn trains.
     #[config(default = "DeviceArg::Cpu")]
     pub device: DeviceArg,
     /// No progress bars.
@@ -166,40 +176,58 @@ pub struct TrainConfig {
 pub struct ThresholdPolicy {
     /// "fixed", "percentile", or "calibrated" (`policy::apply`, which `msr demo` runs).
     pub kind: String,
+    /// The percentile of the unmarked test frames' detection scores (percentile only).
     pub percentile: Option<f64>,
     /// The frames whose detection scores were used (percentile only).
     pub frames: Option<String>,
+    /// How many frames the threshold was chosen from (0 for a fixed threshold).
     pub n_frames: usize,
 }
 
 /// `{name}.json`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModelInfo {
+    /// What was trained.
     pub model: ModelKind,
+    /// The network's architecture.
     pub arch: ArchKind,
+    /// Face crop height, pixels.
     pub face_h: usize,
+    /// Face crop width, pixels.
     pub face_w: usize,
     /// How the training faces were cropped (and so how the host must crop for this model);
-    /// files from before the sub-pixel crop cropped whole pixels.
+    /// a file without the field was cropped to whole pixels.
     #[serde(default)]
     pub crop: CropMode,
+    /// The decoder's layers: face size, dense widths and conv stack.
     pub spec: DecoderSpec,
     /// Multiply-accumulates of one decoder inference.
     pub decoder_macs: u64,
+    /// The training loop's hyper-parameters.
     pub hyper: HyperParams,
+    /// The burn backend it trained on (`cpu`, `cuda`, `wgpu`).
     pub device: String,
+    /// The dataset folder it trained on.
     pub data: String,
+    /// Unmarked training frames the model was fitted to.
     pub train_frames: usize,
+    /// Test frames the test loss was measured on (marked ones included, their mark pixels not).
     pub test_frames: usize,
+    /// Training loss of each epoch (MSE of grey/255 values).
     pub train_loss: Vec<f64>,
     /// NaN (JSON null) for each epoch when the dataset has no test frames.
     #[serde(deserialize_with = "nan_if_null::vec")]
     pub test_loss: Vec<f64>,
+    /// The last epoch's training loss.
     pub final_train_mse: f64,
+    /// The last epoch's test loss (NaN, JSON null, without test frames).
     #[serde(deserialize_with = "nan_if_null::one")]
     pub final_test_mse: f64,
+    /// Wall-clock seconds of the training loop.
     pub training_seconds: f64,
+    /// How the error becomes a detection: normaliser, threshold, floor, area, pool, pose grid.
     pub novelty: NoveltyParams,
+    /// How the threshold was chosen.
     pub threshold_policy: ThresholdPolicy,
     /// The calibrated novelty policy's choice near the observe posture (`policy::apply`), when
     /// it was applied.
@@ -210,12 +238,13 @@ pub struct ModelInfo {
     pub general_policy: Option<policy::Choice>,
     /// Frames the error statistics were made from (their light copies not counted).
     pub stats_frames: usize,
-    /// The light copies the statistics took in; none in files from before them.
+    /// The light copies the statistics took in; none in a file without the field.
     #[serde(default = "light_copies::LightCopies::none")]
     pub light_copies: light_copies::LightCopies,
+    /// The names of the files beside this description.
     pub files: Files,
     /// CRC-32 of every part this run wrote (file name -> checksum): a folder whose parts come
-    /// from two runs is refused when it is read. Absent in files from before it.
+    /// from two runs is refused when it is read. A file without the field checks nothing.
     #[serde(default)]
     pub parts: std::collections::BTreeMap<String, u32>,
 }
@@ -271,15 +300,21 @@ pub fn lock_out(dir: &Path) -> Result<OutLock> {
     }
 }
 
+/// The file names of a training output folder's parts (see the module doc).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Files {
+    /// The burn record (`{name}.mpk`).
     pub record: String,
+    /// Mean error per pixel, `.npy` (`{name}_mu.npy`).
     pub mu: String,
+    /// Standard deviation of the error per pixel, `.npy` (`{name}_sigma.npy`).
     pub sigma: String,
+    /// The loss curves (`{name}_loss.png`).
     pub loss_png: String,
+    /// The face template the crops were made with (`template.png`).
     pub template: String,
     /// Per-pose-cell statistics (`novelty.pose_grid`): `2 K` tables of `h x w` stacked, cell
-    /// `k`'s mu then sigma; absent without a grid and in older files.
+    /// `k`'s mu then sigma; absent without a grid.
     #[serde(default)]
     pub pose_stats: Option<String>,
 }
@@ -309,6 +344,8 @@ mod nan_if_null {
     }
 }
 
+/// The burn device for `d`; a backend this build was compiled without is an error that names its
+/// cargo feature.
 pub fn device(d: DeviceArg) -> Result<Device> {
     match d {
         DeviceArg::Cpu => Ok(Device::flex()),
@@ -593,7 +630,9 @@ impl Outputs<'_> {
 /// A trained network, on an inference device.
 #[derive(Debug)]
 pub enum Trained {
+    /// A decoder: head angles to face.
     Decoder(Decoder),
+    /// An autoencoder: face to face.
     Autoencoder(Autoencoder),
 }
 
@@ -602,11 +641,14 @@ pub enum Trained {
 pub struct TrainedModel {
     /// None only while training.
     pub info: Option<ModelInfo>,
+    /// The network.
     pub net: Trained,
+    /// The device it runs on.
     pub device: Device,
 }
 
 impl TrainedModel {
+    /// Its description, or an error for a model still in training.
     pub fn info(&self) -> Result<&ModelInfo> {
         self.info.as_ref().context("model has no info")
     }
@@ -677,6 +719,7 @@ pub fn load(dir: &Path, name: &str) -> Result<TrainedModel> {
     load_on(dir, name, Device::flex())
 }
 
+/// [`load`] onto `device`.
 pub fn load_on(dir: &Path, name: &str, device: Device) -> Result<TrainedModel> {
     let json = dir.join(format!("{name}.json"));
     let text = std::fs::read_to_string(&json).with_context(|| format!("cannot read {}", json.display()))?;

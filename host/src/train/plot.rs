@@ -5,6 +5,7 @@ use anyhow::{anyhow, Result};
 use plotters::prelude::*;
 use std::path::Path;
 
+/// Writes the train and test loss curves of `h` to `path` as an 800 x 500 PNG titled `title`.
 pub fn loss_png(h: &History, title: &str, path: &Path) -> Result<()> {
     // Through a temporary file and a rename, as every output.
     crate::fsio::write_with(path, |tmp| match draw(h, title, tmp, true) {

@@ -1,5 +1,5 @@
-//! The calibrated novelty policy (the demo applies it; training alone keeps the paper's
-//! settings): per robot, a threshold and a fragment merge chosen from a fixed list of
+//! The calibrated novelty policy (applied to a trained model by [`apply`]; training alone keeps
+//! the paper's settings): per robot, a threshold and a fragment merge chosen from a fixed list of
 //! candidates, twice, on frames rendered with a seed of their own ([`frames`]: normal frames,
 //! and frames with random marks drawn as in the episodes):
 //! - over the training poses ([`Poses::Range`]): the model's own settings, for any head pose;
@@ -7,7 +7,7 @@
 //!   within [`REGION_RADIUS`] of it): the model's [`PoseRegion`], which the board uses while the
 //!   head is there ([`settle`]).
 //!
-//! Each calibration ([`calibrate`]):
+//! Each calibration ([`calibrate`](fn@calibrate)):
 //! 1. A candidate `(t, merge)` is admissible when no normal frame gives a detection at
 //!    `t / SAFETY` (a margin of [`SAFETY`] over the worst normal frame), nor at `t` itself:
 //!    with a merge, detection is not monotone in the threshold (a frame with more fragments
@@ -63,7 +63,9 @@ pub const REGION_RADIUS: f32 = 0.01;
 /// One candidate's result on the held-out frames.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Scored {
+    /// The candidate's threshold, saliency units.
     pub threshold: f64,
+    /// The candidate's fragment merge.
     pub merge: Merge,
     /// Marked frames found (centroid inside the mark's box).
     pub hits: usize,
@@ -74,20 +76,28 @@ pub struct Scored {
 /// What one calibration chose and from what.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Choice {
+    /// The chosen threshold, saliency units.
     pub threshold: f64,
+    /// The chosen fragment merge.
     pub merge: Merge,
     /// The head poses its frames were rendered at ([`Poses::describe`]).
     #[serde(default)]
     pub poses: String,
+    /// Frames with a mark it was chosen on.
     pub marked_frames: usize,
+    /// Frames without a mark it was chosen on.
     pub normal_frames: usize,
+    /// The margin normal frames had to stay quiet by ([`SAFETY`]).
     pub safety: f64,
+    /// Every candidate's score.
     pub candidates: Vec<Scored>,
 }
 
 /// A held-out frame's saliency and, for a marked frame, the mark's box in face pixels.
 pub struct Frame {
+    /// Saliency per face pixel, row-major.
     pub saliency: Vec<f64>,
+    /// The mark's box `[x0, y0, x1, y1]` in face pixels; `None` for a normal frame.
     pub mark_box: Option<[f64; 4]>,
 }
 
@@ -113,6 +123,7 @@ impl Poses {
         }
     }
 
+    /// The poses in words, for reports.
     pub fn describe(self) -> String {
         match self {
             Poses::Observe => format!("head within {:.2} deg of the observe posture", REGION_RADIUS.to_degrees()),
@@ -131,19 +142,24 @@ pub fn calibrate(frames: &[Frame], h: usize, w: usize, base: &NoveltyParams, pos
 /// What [`calibrate_scored`] found.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Scores {
-    /// [`calibrate`]'s answer.
+    /// [`calibrate`](fn@calibrate)'s answer.
     pub choice: Option<Choice>,
     /// Every candidate's score (none without normal or marked frames).
     pub candidates: Vec<Scored>,
+    /// Frames without a mark.
     pub normal_frames: usize,
+    /// Frames with a mark.
     pub marked_frames: usize,
 }
 
 /// How near a calibration that chose nothing came: its [`quietest`] candidate, of how many frames.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Near {
+    /// The candidate with the fewest normal frames detected.
     pub quietest: Scored,
+    /// Frames without a mark it was scored on.
     pub normal_frames: usize,
+    /// Frames with a mark it was scored on.
     pub marked_frames: usize,
 }
 
@@ -156,7 +172,7 @@ impl Scores {
     }
 }
 
-/// [`calibrate`] and every candidate's score: what a report says when no candidate was
+/// [`calibrate`](fn@calibrate) and every candidate's score: what a report says when no candidate was
 /// admissible ([`Scores::near`]).
 pub fn calibrate_scored(frames: &[Frame], h: usize, w: usize, base: &NoveltyParams, poses: Poses) -> Result<Scores> {
     base.check()?;
@@ -240,8 +256,9 @@ pub fn settle(base: &NoveltyParams, general: Option<&Choice>, observe: Option<&C
     Ok(p)
 }
 
-/// Normal and marked frames each calibration uses.
+/// Normal frames each calibration uses.
 pub const NORMAL_FRAMES: usize = 256;
+/// Marked frames each calibration uses.
 pub const MARKED_FRAMES: usize = 160;
 
 /// Frames at `poses`, where the robot looks for marks: `normal` without a mark and `marked`
@@ -342,6 +359,8 @@ pub struct Applied {
     pub observe: Option<Choice>,
     /// Where a calibration chose nothing (general, observe): how near it came.
     pub near: [Option<Near>; 2],
+    /// The model's novelty settings with the choices settled in (written to `{name}.json` when
+    /// either calibration chose).
     pub novelty: NoveltyParams,
 }
 

@@ -57,10 +57,13 @@ pub struct ReachConfig {
     pub targets: PathBuf,
     /// Output safetensors file; the scaling and report go to the same name with .json.
     pub out: PathBuf,
+    /// Full-batch Adam iterations of each training.
     #[config(default = "DEFAULT_ITERATIONS")]
     pub iterations: usize,
+    /// Adam's learning rate.
     #[config(default = 0.01)]
     pub lr: f64,
+    /// Seed of the initial weights (restart `r` uses `seed + r`).
     #[config(default = 0)]
     pub seed: u64,
     /// Train from this many seeds and keep the lowest (penalised) training loss (1: the
@@ -79,9 +82,13 @@ pub struct ReachConfig {
 /// Weights of the 2-10-5 network, PyTorch layout (`[out][in]`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Net {
+    /// Hidden layer weights, one row of 2 per hidden unit.
     pub w1: [[f64; I]; H],
+    /// Hidden layer biases.
     pub b1: [f64; H],
+    /// Output layer weights, one row of 10 per joint.
     pub w2: [[f64; H]; O],
+    /// Output layer biases.
     pub b2: [f64; O],
 }
 
@@ -175,13 +182,18 @@ impl Net {
 /// Min-max scaling of inputs and outputs, from the training pairs.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Scaling {
+    /// Smallest mark position over the training pairs (x, y), pixels.
     pub input_min: [f64; I],
+    /// Largest mark position over the training pairs (x, y), pixels.
     pub input_max: [f64; I],
+    /// Smallest angle of each joint over the training pairs, radians.
     pub output_min: [f64; O],
+    /// Largest angle of each joint over the training pairs, radians.
     pub output_max: [f64; O],
 }
 
 impl Scaling {
+    /// The ranges of the pairs' columns; a constant column is an error.
     pub fn fit(xs: &[[f64; I]], ys: &[[f64; O]]) -> Result<Scaling> {
         fn range<const N: usize>(rows: &[[f64; N]], what: &str) -> Result<([f64; N], [f64; N])> {
             let mut lo = [f64::INFINITY; N];
@@ -202,12 +214,15 @@ impl Scaling {
         Ok(Scaling { input_min, input_max, output_min, output_max })
     }
 
+    /// A mark position (pixels) scaled to the network's input range.
     pub fn scale_in(&self, x: &[f64; I]) -> [f64; I] {
         std::array::from_fn(|c| (x[c] - self.input_min[c]) / (self.input_max[c] - self.input_min[c]))
     }
+    /// Joint angles (radians) scaled to the network's output range.
     pub fn scale_out(&self, y: &[f64; O]) -> [f64; O] {
         std::array::from_fn(|c| (y[c] - self.output_min[c]) / (self.output_max[c] - self.output_min[c]))
     }
+    /// A network output scaled back to joint angles (radians).
     pub fn unscale_out(&self, y: &[f64; O]) -> [f64; O] {
         std::array::from_fn(|c| y[c] * (self.output_max[c] - self.output_min[c]) + self.output_min[c])
     }
@@ -216,7 +231,9 @@ impl Scaling {
 /// A trained reach network with its scaling.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ReachModel {
+    /// The weights, on scaled inputs and outputs.
     pub net: Net,
+    /// The scaling of the training pairs.
     pub scaling: Scaling,
 }
 
@@ -281,9 +298,13 @@ pub fn train_once(xs: &[[f64; I]], ys: &[[f64; O]], iterations: usize, lr: f64, 
 /// (penalised) training loss. [`Opts::paper`] is the published recipe.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Opts {
+    /// Full-batch Adam iterations of each training.
     pub iterations: usize,
+    /// Adam's learning rate.
     pub lr: f64,
+    /// Seed of the first restart's initial weights.
     pub seed: u64,
+    /// Trainings from consecutive seeds; the lowest penalised loss is kept.
     pub restarts: usize,
     /// `None`: chosen by [`FOLDS`]-fold cross-validation over [`WEIGHT_DECAY_GRID`].
     pub weight_decay: Option<f64>,
@@ -314,6 +335,7 @@ pub enum DecayChoice {
     TooFewPairs,
 }
 
+/// Trains the network on mark positions `xs` (pixels) and joint angles `ys` (radians) as `o` says.
 pub fn train(xs: &[[f64; I]], ys: &[[f64; O]], o: &Opts) -> Result<ReachModel> {
     Ok(train_chosen(xs, ys, o)?.0)
 }
@@ -441,31 +463,49 @@ pub fn read_rows<const N: usize>(path: &Path) -> Result<Vec<[f64; N]>> {
 /// The JSON beside the weights.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Sidecar {
+    /// Names of the inputs (`x`, `y`).
     pub inputs: Vec<String>,
+    /// What the inputs are, in words (full-frame pixels).
     pub input_units: String,
+    /// Names of the joints, in output order ([`JOINTS`]).
     pub outputs: Vec<String>,
+    /// The outputs' unit (radians).
     pub output_units: String,
+    /// The min-max scaling, as top-level fields.
     #[serde(flatten)]
     pub scaling: Scaling,
+    /// How an input is scaled, as a formula.
     pub input_scaling: String,
+    /// How an output is unscaled, as a formula.
     pub output_scaling: String,
+    /// Training pairs.
     pub pairs: usize,
+    /// Adam iterations of each training.
     pub iterations: usize,
+    /// Adam's learning rate.
     pub lr: f64,
+    /// Seed of the first restart.
     pub seed: u64,
+    /// Trainings from consecutive seeds, of which the lowest loss was kept.
     pub restarts: usize,
+    /// Per-joint RMS error on the training pairs, radians.
     pub fit_rms_rad: [f64; O],
+    /// Per-joint leave-one-out RMS error, radians; `None` when not run.
     pub loo_rms_rad: Option<[f64; O]>,
+    /// The published network's per-joint RMS error on its own pairs, radians ([`PUBLISHED_FIT_RMS`]).
     pub published_fit_rms_rad: [f64; O],
+    /// Wall-clock seconds of the training, the weight decay's cross-validation included and the
+    /// leave-one-out report not.
     pub training_seconds: f64,
-    /// The L2 penalty on the weights of the model written (0 in sidecars from before it).
+    /// The L2 penalty on the weights of the model written (0 in a sidecar without it).
     #[serde(default)]
     pub weight_decay: f64,
-    /// How it was set (`None` in sidecars from before it).
+    /// How it was set (`None` in a sidecar without it).
     #[serde(default)]
     pub weight_decay_choice: Option<DecayChoice>,
 }
 
+/// The sidecar's path beside a weights file: the same name with `.json`.
 pub fn sidecar_path(weights: &Path) -> PathBuf {
     weights.with_extension("json")
 }
