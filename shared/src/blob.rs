@@ -59,7 +59,7 @@
 //! Bit 2 (version 4): a [`PoseRegion`], novelty settings of their own for head poses near one
 //! pose (the observe posture). The writer uses version 4 only for a blob with bit 1 or 2.
 //! Bit 3 (version 5): a [`SelfGate`], the test that the face moves with the robot's own head
-//! before a reach; the section comes last, so [`set_self_gate`] adds or removes it without
+//! before a reach; it comes last, so the writer's `set_self_gate` adds or removes it without
 //! touching the rest, and a blob without it is byte for byte what the writer makes. Its
 //! `layout` byte (0 before): 0, one tolerance (`rest_tol`) bounds the rest, hold and level
 //! statistics; 1 (what the writer makes), `hold_tol` and `level_tol` of their own follow (each
