@@ -2,7 +2,7 @@
 //!
 //! 2-10-5 in f32, sigmoid on both layers, min-max scaling on both sides, as published:
 //! `u = (v - in_min) / (in_max - in_min)`, `h = sig(W1 u + b1)`, `o = sig(W2 h + b2)`,
-//! `angle = o * (out_max - out_min) + out_min`, in [`REACH_JOINTS`] order. `e^x` is [`exp`]:
+//! `angle = o * (out_max - out_min) + out_min`, in [`REACH_JOINTS`] order. `e^x` is `exp` below:
 //! f32 arithmetic only, so host and board compute the same bits. The result is clamped to the
 //! joint limits before anything uses it.
 

@@ -1,12 +1,15 @@
 //! The board driven through its two byte streams, as the sim and QEMU drive it.
 
 use super::*;
-use crate::model::RamStore;
+use crate::model::{RamStore, UploadError};
 use crate::testkit::mlp_spec;
-use msr_shared::blob::CRC32;
+use msr_shared::blob::{Model, CRC32};
 use msr_shared::frame::{encode_message, FrameAccumulator, MAX_WIRE_FRAME};
-use msr_shared::joints::HOME_POSTURE;
-use msr_shared::msg::{ChunkSet, JointState, CHUNK};
+use msr_shared::joints::{HOME_POSTURE, REACH_JOINTS};
+use msr_shared::msg::{
+    BoardToServo, ChunkSet, Config, FrameAck, FrameHeader, FrameState, JointState, RoomCommand,
+    ServoBusKind, CHUNK,
+};
 use proptest::prelude::*;
 use std::collections::VecDeque;
 

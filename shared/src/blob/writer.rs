@@ -1,5 +1,12 @@
 //! The blob writer (std only): models built on the host, written in the layout the parser reads.
-use super::*;
+use super::{
+    BLOCK, CRC32, FLAG_POOL, FLAG_POSE, FLAG_REGION, FLAG_SELF_GATE, FLAG_SUBPIXEL,
+    FLAG_TEMPLATE, HEADER_LEN, MAGIC, MAX_POOL, REACH_FLOATS, REACH_HIDDEN, REACH_IN, REACH_OUT,
+};
+use super::error::BlobError;
+use super::model::Model;
+use super::settings::{Normalisation, Novelty, PoseGrid, PoseRegion, SelfGate, Sided};
+use super::view::{Activation, CropMode, LayerKind, Reach, Shape};
 
 /// Weights of a layer being written.
 #[derive(Clone, Debug, PartialEq)]
@@ -10,32 +17,32 @@ pub enum Weights {
     I16(Vec<i16>),
 }
 
-/// A layer to write; fields as in [`Layer`].
+/// A layer to write; fields as in [`Layer`](super::view::Layer).
 #[derive(Clone, Debug, PartialEq)]
 pub struct LayerSpec {
-    /// As [`Layer::kind`].
+    /// As [`Layer::kind`](super::view::Layer::kind).
     pub kind: LayerKind,
-    /// As [`Layer::activation`].
+    /// As [`Layer::activation`](super::view::Layer::activation).
     pub activation: Activation,
-    /// As [`Layer::input`].
+    /// As [`Layer::input`](super::view::Layer::input).
     pub input: Shape,
-    /// As [`Layer::output`].
+    /// As [`Layer::output`](super::view::Layer::output).
     pub output: Shape,
-    /// As [`Layer::kernel`].
+    /// As [`Layer::kernel`](super::view::Layer::kernel).
     pub kernel: u8,
-    /// As [`Layer::stride`].
+    /// As [`Layer::stride`](super::view::Layer::stride).
     pub stride: u8,
-    /// As [`Layer::padding`].
+    /// As [`Layer::padding`](super::view::Layer::padding).
     pub padding: u8,
-    /// As [`Layer::crop_top`].
+    /// As [`Layer::crop_top`](super::view::Layer::crop_top).
     pub crop_top: u16,
-    /// As [`Layer::crop_left`].
+    /// As [`Layer::crop_left`](super::view::Layer::crop_left).
     pub crop_left: u16,
-    /// As [`Layer::w_shift`].
+    /// As [`Layer::w_shift`](super::view::Layer::w_shift).
     pub w_shift: i8,
-    /// As [`Layer::in_shift`].
+    /// As [`Layer::in_shift`](super::view::Layer::in_shift).
     pub in_shift: i8,
-    /// As [`Layer::out_shift`].
+    /// As [`Layer::out_shift`](super::view::Layer::out_shift).
     pub out_shift: i8,
     /// In PyTorch order; the writer chooses the stored order.
     pub weights: Weights,
