@@ -9,7 +9,7 @@
 //!   `LDRD` of 8 weights split by `SXTB16` against the input re-paired), the four results are
 //!   stored as two packed words (tanh step rounded by `SHADD16` when `out_shift` is 14, not
 //!   rounded at all when it is 15). i8 weights in PyTorch order (blobs written before the
-//!   blocked order) take the 2-row kernel of `arm` writing every fourth halfword.
+//!   blocked order) take the 2-row kernel of `decoder::arm` writing every fourth halfword.
 //! - The convolution computes four adjacent outputs of a row per pass (`msr_convt4_grey`): both
 //!   column phases, each output 16 MACs (2 x 2 taps x 4 channels) as 8 `SMLAD` on channel pairs;
 //!   the pass reads 4 pixels of 2 input rows. The grey step is `y - (y >> 8)` then `+32640` on

@@ -40,7 +40,6 @@ pub struct Args {
     pub seed: u64,
 }
 
-/// `--joint-names YAW,PITCH`.
 /// An [`UnnamedJoints`](crate::rosbag::import::UnnamedJoints) in the words of the flag.
 pub(crate) fn flag_text(e: &crate::rosbag::import::UnnamedJoints) -> String {
     let [yaw, pitch] = &e.names;
@@ -50,6 +49,7 @@ pub(crate) fn flag_text(e: &crate::rosbag::import::UnnamedJoints) -> String {
     )
 }
 
+/// Parses `--joint-names YAW,PITCH`: two different, non-empty names.
 pub fn joint_names(s: &str) -> Result<[String; 2]> {
     match s.split(',').map(str::trim).collect::<Vec<_>>().as_slice() {
         [y, p] if !y.is_empty() && !p.is_empty() && y != p => Ok([y.to_string(), p.to_string()]),

@@ -504,7 +504,7 @@ mod tests {
     }
 
     #[test]
-    fn crops_of_a_whole_dataset_equal_the_previous_implementation() {
+    fn crops_of_a_whole_dataset_equal_the_matrix_product_oracles() {
         let dir = tempfile::tempdir().unwrap();
         let cfg = msr_sim::dataset::DatasetConfig::paper(msr_sim::Robot::Red, 0);
         let index = msr_sim::dataset::write_dataset(&cfg, dir.path()).unwrap();
@@ -515,7 +515,7 @@ mod tests {
     }
 
     #[test]
-    fn crops_of_the_real_frames_equal_the_previous_implementation() {
+    fn crops_of_the_real_frames_equal_the_matrix_product_oracles() {
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data/nao-red-real");
         if !dir.exists() {
             eprintln!("skipping: {} not found", dir.display());

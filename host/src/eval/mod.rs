@@ -242,7 +242,6 @@ pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, came
         let float = match found {
             Ok(Some(f)) => Ok(f),
             Ok(None) if name == "decoder" => blob_float_decoder(&model),
-            Ok(None) if name == "decoder" => blob_float_decoder(&model),
             Ok(None) => Err(format!(
                 "no trained {name} next to {} (the training output folder holds {name}.json and \
                  {name}.mpk)",
