@@ -19,9 +19,8 @@ pub struct Args {
     /// One JSON object: `{"store": ..., "status": ...}`
     #[arg(long)]
     pub json: bool,
-    /// First tell the board's online self-calibration (what it learns of the room's light):
-    /// freeze (stop learning, keep what was learnt), resume, reset (back to the model's own
-    /// statistics, the saved ones dropped), save (into its flash store now)
+    /// First tell the board's online self-calibration (what it learns of the room's light) to
+    /// freeze, resume, reset or save
     #[arg(long, value_name = "ACTION")]
     pub room: Option<RoomAction>,
 }
