@@ -338,6 +338,16 @@ fn mirror_test_refuses_trial_counts_it_cannot_hold() {
 }
 
 #[test]
+fn mirror_test_refuses_arm_errors_and_touch_radii_it_does_not_know() {
+    for level in ["3", "1.5", "x"] {
+        fails_with(&["mirror-test", "--model", "m.msrm", "--arm-error", level], "--arm-error");
+    }
+    for r in ["0", "0.5", "101", "NaN", "inf"] {
+        fails_with(&["mirror-test", "--model", "m.msrm", "--touch-radius-mm", r], "a touch radius between 1 and 100 mm");
+    }
+}
+
+#[test]
 fn run_refuses_frame_rates_and_line_rates_that_never_finish() {
     // Was: a panic (the frame period overflowed a Duration) and waits for ever.
     for fps in ["1e-20", "1e-9", "0", "-5", "inf", "NaN"] {

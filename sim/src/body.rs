@@ -130,12 +130,21 @@ pub struct BodyPose {
     pub left_arm: LeftArm,
     /// The right arm's joints, in the left arm's convention mirrored across the torso's x-z plane.
     pub right_arm: LeftArm,
+    /// How the left arm differs from its drawing (the right arm, which never reaches, is drawn
+    /// exact).
+    pub arm_error: kin::ArmError,
 }
 
 impl BodyPose {
     /// Head at the given angles, both arms at home.
     pub fn head(yaw: f64, pitch: f64) -> Self {
-        BodyPose { head_yaw: yaw, head_pitch: pitch, left_arm: LeftArm::home(), right_arm: LeftArm::home() }
+        BodyPose {
+            head_yaw: yaw,
+            head_pitch: pitch,
+            left_arm: LeftArm::home(),
+            right_arm: LeftArm::home(),
+            arm_error: kin::ArmError::EXACT,
+        }
     }
 }
 
@@ -158,8 +167,8 @@ pub fn ellipsoids(pose: &BodyPose) -> Vec<Ellipsoid> {
         Ellipsoid::new(Part::Neck, torso, [0.0, 0.0, 0.115], [0.025, 0.025, 0.03]),
         Ellipsoid::new(Part::Torso, torso, [0.0, 0.0, 0.03], [0.055, 0.080, 0.095]),
     ];
-    for (arm, side) in [(&pose.left_arm, 1.0), (&pose.right_arm, -1.0)] {
-        let p = kin::arm_points(arm, side);
+    for (arm, side, e) in [(&pose.left_arm, 1.0, pose.arm_error), (&pose.right_arm, -1.0, kin::ArmError::EXACT)] {
+        let p = kin::arm_points_of(arm, side, &e);
         v.push(Ellipsoid::new(
             Part::Shoulder,
             Isometry3::translation(p.shoulder.x, p.shoulder.y, p.shoulder.z),

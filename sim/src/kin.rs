@@ -10,6 +10,8 @@
 //! values tried (0 to -pi/2) it is the one that reaches the whole mark area (`body::FACE_Y`,
 //! `body::FACE_Z`) within the limits. LWristYaw = 0. The end effector is the URDF hand point (`LWristYaw` + (57.75, 0, -12.31) mm),
 //! called the fingertip here.
+mod arm_error;
+pub use self::arm_error::{ArmError, ArmErrorBound};
 use msr_shared::joints::{Joint, HOME_POSTURE};
 use nalgebra::{Isometry3, Point3, Translation3, UnitQuaternion, Vector3};
 
@@ -139,11 +141,18 @@ pub struct ArmPoints {
 /// Forward kinematics of the left arm. `side` is +1 for the left arm, -1 for a right arm given as
 /// [`LeftArm::mirrored`] angles (its offsets have y negated).
 pub fn arm_points(a: &LeftArm, side: f64) -> ArmPoints {
-    let s = |v: [f64; 3]| [v[0], side * v[1], v[2]];
-    let shoulder = iso(s(SHOULDER_OFFSET), rot_y(a.shoulder_pitch) * rot_z(a.shoulder_roll));
-    let elbow = shoulder * iso(s(UPPER_ARM), rot_x(a.elbow_yaw) * rot_z(a.elbow_roll));
-    let wrist = elbow * iso([LOWER_ARM_X, 0.0, 0.0], rot_x(a.wrist_yaw));
-    let hand = wrist * Point3::from(Vector3::from(s(HAND_OFFSET)));
+    arm_points_of(a, side, &ArmError::EXACT)
+}
+
+/// [`arm_points`] of an arm that is not its drawing: each joint at its angle plus its zero
+/// offset, each link scaled.
+pub fn arm_points_of(a: &LeftArm, side: f64, e: &ArmError) -> ArmPoints {
+    let s = |v: [f64; 3], k: f64| [k * v[0], k * side * v[1], k * v[2]];
+    let z = e.zero_rad;
+    let shoulder = iso(s(SHOULDER_OFFSET, 1.0), rot_y(a.shoulder_pitch + z[0]) * rot_z(a.shoulder_roll + z[1]));
+    let elbow = shoulder * iso(s(UPPER_ARM, e.length[0]), rot_x(a.elbow_yaw + z[2]) * rot_z(a.elbow_roll + z[3]));
+    let wrist = elbow * iso([e.length[1] * LOWER_ARM_X, 0.0, 0.0], rot_x(a.wrist_yaw + z[4]));
+    let hand = wrist * Point3::from(Vector3::from(s(HAND_OFFSET, e.length[2])));
     ArmPoints {
         shoulder: shoulder * Point3::origin(),
         elbow: elbow * Point3::origin(),
@@ -154,7 +163,12 @@ pub fn arm_points(a: &LeftArm, side: f64) -> ArmPoints {
 
 /// The left fingertip in the torso frame.
 pub fn fingertip(q: &Reach) -> Point3<f64> {
-    arm_points(&LeftArm::from_reach(q), 1.0).fingertip
+    fingertip_of(q, &ArmError::EXACT)
+}
+
+/// The left fingertip of an arm that is not its drawing.
+pub fn fingertip_of(q: &Reach, e: &ArmError) -> Point3<f64> {
+    arm_points_of(&LeftArm::from_reach(q), 1.0, e).fingertip
 }
 
 /// A point given in the head frame, in the torso frame at these head angles.
@@ -164,7 +178,12 @@ pub fn head_to_torso(p_head: &Point3<f64>, yaw: f64, pitch: f64) -> Point3<f64> 
 
 /// Fingertip-to-mark distance for a posture; the mark moves with the head.
 pub fn touch_distance(q: &Reach, mark_head: &Point3<f64>) -> f64 {
-    (fingertip(q) - head_to_torso(mark_head, q[0], q[1])).norm()
+    touch_distance_of(q, mark_head, &ArmError::EXACT)
+}
+
+/// [`touch_distance`] for an arm that is not its drawing.
+pub fn touch_distance_of(q: &Reach, mark_head: &Point3<f64>, e: &ArmError) -> f64 {
+    (fingertip_of(q, e) - head_to_torso(mark_head, q[0], q[1])).norm()
 }
 
 /// Judges a reach from the measured joint angles of the five reach joints, sampled while the
@@ -172,9 +191,14 @@ pub fn touch_distance(q: &Reach, mark_head: &Point3<f64>) -> f64 {
 /// too. No samples is no touch.
 /// A sample that is not finite (a NaN angle) is no touch, and the worst distance is NaN.
 pub fn judge_touch(held: &[Reach], mark_head: &Point3<f64>) -> (bool, f64) {
+    judge_touch_of(held, mark_head, &ArmError::EXACT, TOUCH_RADIUS_M)
+}
+
+/// [`judge_touch`] for an arm that is not its drawing, with a touch radius of `radius_m` metres.
+pub fn judge_touch_of(held: &[Reach], mark_head: &Point3<f64>, e: &ArmError, radius_m: f64) -> (bool, f64) {
     let mut worst = f64::NEG_INFINITY;
     for q in held {
-        let d = touch_distance(q, mark_head);
+        let d = touch_distance_of(q, mark_head, e);
         if !d.is_finite() {
             return (false, f64::NAN);
         }
@@ -183,7 +207,7 @@ pub fn judge_touch(held: &[Reach], mark_head: &Point3<f64>) -> (bool, f64) {
     if held.is_empty() {
         return (false, f64::NAN);
     }
-    (worst <= TOUCH_RADIUS_M, worst)
+    (worst <= radius_m, worst)
 }
 
 /// Why the IK found no posture.

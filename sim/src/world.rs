@@ -41,6 +41,8 @@ pub struct WorldConfig {
     /// Simulated seconds per wall-clock second, for talking to real-time peers (a PTY);
     /// `None` runs as fast as it can.
     pub pace: Option<f64>,
+    /// How the left arm differs from its drawing (what the camera sees of it).
+    pub arm_error: crate::kin::ArmError,
 }
 
 impl Default for WorldConfig {
@@ -52,6 +54,7 @@ impl Default for WorldConfig {
             servo: ServoConfig::default(),
             dynamixel: None,
             pace: None,
+            arm_error: crate::kin::ArmError::EXACT,
         }
     }
 }
@@ -74,6 +77,8 @@ pub struct World {
     /// The world's end of the host link; the scenario sends and receives on it.
     pub host: LinkEnd,
     servo_end: LinkEnd,
+    /// How the left arm differs from its drawing.
+    pub arm_error: crate::kin::ArmError,
 }
 
 impl World {
@@ -103,6 +108,7 @@ impl World {
             head_pitch: s.position(HeadPitch),
             left_arm: arm(LShoulderPitch, LShoulderRoll, LElbowYaw, LElbowRoll, LWristYaw),
             right_arm: arm(RShoulderPitch, RShoulderRoll, RElbowYaw, RElbowRoll, RWristYaw),
+            arm_error: self.arm_error,
         }
     }
 
@@ -174,6 +180,7 @@ where
         servos,
         host: host_world,
         servo_end: servo_world,
+        arm_error: cfg.arm_error,
     };
     let barrier = TickBarrier::default();
     let failed: Mutex<Option<(u64, String)>> = Mutex::new(None);

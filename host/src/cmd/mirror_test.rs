@@ -40,6 +40,13 @@ pub struct Args {
     /// The camera's imperfections, on every frame
     #[command(flatten)]
     pub imperfect: super::imperfect::CameraFlags,
+    /// The sim's arm against its drawing
+    #[command(flatten)]
+    pub arm: super::ArmFlags,
+    /// A touch: every held sample of the fingertip within this distance of the mark, mm
+    /// (1..=100)
+    #[arg(long, default_value_t = 20.0, value_parser = super::touch_radius)]
+    pub touch_radius_mm: f64,
     /// Run the trials one after another as one long run of robot time: the light's plan spans
     /// the whole run (see --light turn) and each trial's board takes over the previous one's
     /// clock and what it learnt of the room; the world is fresh each trial (in-process only)
@@ -195,6 +202,8 @@ pub fn config(a: &Args) -> Result<EpisodeConfig> {
     c.scene = a.scene;
     c.light = a.light.into();
     c.camera = a.imperfect.imperfections(a.seed);
+    c.arm_error = a.arm.arm(a.robot, a.seed);
+    c.touch_radius_mm = a.touch_radius_mm;
     c.log_bus = a.bus_log.is_some();
     c.learn_room = a.learn_room == OnOff::On;
     c.servo = msr_sim::servo::ServoConfig { encoder_noise: a.encoder_noise, ..a.servos.config() };

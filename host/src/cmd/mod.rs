@@ -174,6 +174,29 @@ impl ServoHold {
     }
 }
 
+/// The sim's arm against its drawing: the flag `msr mirror-test`, `msr serve` and `msr run --sim`
+/// share.
+#[derive(clap::Args, Debug, Clone)]
+pub struct ArmFlags {
+    /// How the sim's arm differs from its drawing, which the board and the trainer know: 0
+    /// exact; 1 joint zeros within +-1.5 deg and link lengths within +-2.5 %; 2 within +-3 deg and
+    /// +-5 % (drawn for the robot from --seed)
+    #[arg(long, value_name = "LEVEL", default_value_t = 0, value_parser = clap::value_parser!(u8).range(0..=2))]
+    pub arm_error: u8,
+}
+
+impl ArmFlags {
+    /// The arm of `robot` these flags ask for, drawn from `seed`.
+    pub fn arm(&self, robot: msr_sim::Robot, seed: u64) -> msr_sim::kin::ArmError {
+        crate::episode::arm_of(robot, self.arm_error, seed).unwrap_or(msr_sim::kin::ArmError::EXACT)
+    }
+}
+
+/// A touch radius, mm, 1..=100 (a clap value parser).
+fn touch_radius(s: &str) -> Result<f64, String> {
+    number_within(s, 1.0..=100.0, "a touch radius between 1 and 100 mm")
+}
+
 /// A servo's dead band, counts, 0..=3 (a clap value parser).
 fn dead_band(s: &str) -> Result<f64, String> {
     number_within(s, 0.0..=3.0, "a dead band between 0 and 3 counts")

@@ -1,6 +1,7 @@
 //! How trials run: the firmware's backend, the servo bus, the faults, the light and the timings.
 use super::scene::Scene;
 use msr_shared::msg::{Config, ServoBusKind};
+use msr_sim::kin::ArmError;
 use msr_sim::imperfect::Imperfections;
 use msr_sim::light::LightPlan;
 use msr_sim::link::FaultConfig;
@@ -120,6 +121,18 @@ pub struct EpisodeConfig {
     /// The camera's imperfections (`msr mirror-test`'s camera flags); each trial draws its noise
     /// from its own seed, and the motion blur follows the head's speed between frames.
     pub camera: Imperfections,
+    /// How the sim's left arm differs from its drawing, which the board and the trainer know:
+    /// the camera sees this arm and the touch judge measures its fingertip.
+    pub arm_error: ArmError,
+    /// A touch: every held sample of the fingertip within this distance of the mark, mm.
+    pub touch_radius_mm: f64,
+}
+
+/// `robot`'s arm at an arm-error `level` (0 exact, 1 or 2: [`ArmError::LEVELS`]), drawn for the
+/// robot from a run's `seed`: each robot its own arm, the same for every trial of the run. `None`
+/// for a level that does not exist.
+pub fn arm_of(robot: Robot, level: u8, seed: u64) -> Option<ArmError> {
+    ArmError::draw(level, seed.wrapping_mul(0x9E37_79B9_7F4A_7C15).wrapping_add(robot as u64))
 }
 
 /// A light plan drawn once for a run of trials, and where in it a trial starts.
@@ -161,7 +174,15 @@ impl EpisodeConfig {
             learn_room: true,
             servo: ServoConfig::default(),
             camera: Imperfections::NONE,
+            arm_error: ArmError::EXACT,
+            touch_radius_mm: msr_sim::kin::TOUCH_RADIUS_M * 1000.0,
         }
+    }
+
+    /// This robot's arm at an arm-error `level` ([`arm_of`]), the same in every trial.
+    pub fn with_arm_error(mut self, level: u8, seed: u64) -> Option<Self> {
+        self.arm_error = arm_of(self.robot, level, seed)?;
+        Some(self)
     }
 
     /// Faults on both directions of the chosen links: `f`'s rates and bursts replace theirs, its
@@ -204,6 +225,7 @@ impl EpisodeConfig {
         w.servo_link.a_to_b = self.servo_faults.clone();
         w.servo_link.b_to_a = self.servo_faults.clone();
         w.pace = self.pace;
+        w.arm_error = self.arm_error;
         w.servo = ServoConfig { noise_seed: seed, ..self.servo };
         if self.servo_bus == ServoBus::Dynamixel {
             w.servo_link.baud = 1_000_000;

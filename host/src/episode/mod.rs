@@ -28,7 +28,7 @@ pub mod scene;
 pub mod sim_board;
 mod summary;
 
-pub use config::{Backend, EpisodeConfig, FaultLinks, LightSpan, ServoBus};
+pub use config::{arm_of, Backend, EpisodeConfig, FaultLinks, LightSpan, ServoBus};
 pub use msr_firmware::model::HeapStore;
 pub use runners::{
     inproc_board, run_inproc, run_one_board, run_trial_inproc, trial_seed, InprocBoard, Tee,

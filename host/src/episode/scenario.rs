@@ -362,7 +362,8 @@ impl Scenario<'_> {
             self.trial.failure = Some("other: reached for its own face; the mark is on the other robot".into());
             return;
         }
-        let (touched, worst) = msr_sim::kin::judge_touch(&self.held, &m.point_head());
+        let radius_m = self.cfg.touch_radius_mm / 1000.0;
+        let (touched, worst) = msr_sim::kin::judge_touch_of(&self.held, &m.point_head(), &self.cfg.arm_error, radius_m);
         self.trial.touched = touched;
         self.trial.touch_error_mm = Some(worst * 1000.0);
         if !touched {
@@ -459,6 +460,7 @@ pub fn run_trial_with<F: world::Firmware>(
             scene: cfg.scene.name().into(),
             delay_ms: (cfg.scene == Scene::Delayed).then(|| delay_us as f64 / 1000.0),
             other_babbles: (cfg.scene == Scene::Other).then_some(babbles),
+            arm_error: (!cfg.arm_error.is_exact()).then_some(cfg.arm_error),
             ..Default::default()
         },
         error: None,

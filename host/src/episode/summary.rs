@@ -111,10 +111,13 @@ pub struct Trial {
     pub reached: bool,
     /// A reach while no mark was on the face.
     pub false_reach: bool,
-    /// The held reach touched the mark (every judged sample within 20 mm of it).
+    /// The held reach touched the mark (every judged sample within the touch radius of it).
     pub touched: bool,
     /// Worst fingertip-to-mark distance while held (marked trials with a held reach).
     pub touch_error_mm: Option<f64>,
+    /// How the sim's arm differed from its drawing (absent: the drawing itself).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub arm_error: Option<msr_sim::kin::ArmError>,
     /// Simulated time from the mark appearing to the reach starting.
     pub latency_ms: Option<f64>,
     /// The reach target the board streamed, when it reached.

@@ -116,3 +116,31 @@ fn ik_is_deterministic() {
     let p = body::face_point(0.02, 0.07).unwrap();
     assert_eq!(ik_touch(&p).unwrap(), ik_touch(&p).unwrap());
 }
+
+#[test]
+fn an_arm_unlike_its_drawing_by_hand() {
+    // Arm straight forward (all zero): shoulder -> elbow along x by the upper arm, then the
+    // forearm, then the hand offset.
+    let a = arm(0.0, 0.0, 0.0, 0.0);
+    let exact = arm_points(&a, 1.0);
+    let same = arm_points_of(&a, 1.0, &ArmError::EXACT);
+    assert_eq!((exact.elbow, exact.fingertip), (same.elbow, same.fingertip));
+    // The forearm 10 % longer: the fingertip 5.595 mm further forward, the elbow unmoved.
+    let long = ArmError { length: [1.0, 1.1, 1.0], ..ArmError::EXACT };
+    let p = arm_points_of(&a, 1.0, &long);
+    close(p.elbow, exact.elbow.coords.into(), 1e-12);
+    close(p.fingertip, (exact.fingertip.coords + Vector3::new(0.1 * LOWER_ARM_X, 0.0, 0.0)).into(), 1e-12);
+    // A shoulder-roll zero off by 1 degree: the arm as if commanded 1 degree more.
+    let z = 1f64.to_radians();
+    let off = ArmError { zero_rad: [0.0, z, 0.0, 0.0, 0.0], ..ArmError::EXACT };
+    let turned = arm_points(&arm(0.0, z, 0.0, 0.0), 1.0);
+    close(arm_points_of(&a, 1.0, &off).fingertip, turned.fingertip.coords.into(), 1e-12);
+    // The judge measures the arm's own fingertip, with its radius.
+    let q: Reach = [0.3, -0.2, 0.0, 0.0, -0.0349066 - 1e-3];
+    let mark = head_pose(q[0], q[1]).inverse() * fingertip(&q);
+    assert!(judge_touch_of(&[q], &mark, &ArmError::EXACT, 0.001).0);
+    let (touched, worst) = judge_touch_of(&[q], &mark, &long, 0.010);
+    assert!((worst - (fingertip_of(&q, &long) - fingertip(&q)).norm()).abs() < 1e-12);
+    assert_eq!(touched, worst <= 0.010);
+    assert!(worst > 0.004, "a 10 % longer forearm moves the fingertip {worst} m");
+}
