@@ -14,7 +14,7 @@ use std::io::{ErrorKind, Read, Write};
 use std::os::unix::net::UnixStream;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 /// Servos that report the home posture every 5 ms (and on request) and log the targets' times.
 fn servos(mut link: UnixStream, stop: Arc<AtomicBool>, times: Arc<Mutex<Vec<u32>>>) -> std::thread::JoinHandle<()> {
@@ -50,12 +50,16 @@ fn servos(mut link: UnixStream, stop: Arc<AtomicBool>, times: Arc<Mutex<Vec<u32>
     })
 }
 
-fn wait_for(host: &mut UnixStream, port: &mut HostPort, limit: Duration, want: impl Fn(&BoardToHost) -> bool) -> Option<BoardToHost> {
+/// The first message from the board that `want` takes; `None` when the board's UART closes
+/// first. QEMU runs in `-icount` mode, slower or faster than the wall clock with the machine's
+/// load, so there is no time limit: a board that never answers is a hang, which the test runner
+/// stops.
+fn wait_for(host: &mut UnixStream, port: &mut HostPort, want: impl Fn(&BoardToHost) -> bool) -> Option<BoardToHost> {
     host.set_read_timeout(Some(Duration::from_millis(50))).unwrap();
-    let t0 = Instant::now();
     let mut buf = [0u8; 1024];
-    while t0.elapsed() < limit {
+    loop {
         let n = match host.read(&mut buf) {
+            Ok(0) => return None,
             Ok(n) => n,
             Err(e) if matches!(e.kind(), ErrorKind::WouldBlock | ErrorKind::TimedOut) => continue,
             Err(e) => panic!("UART0: {e}"),
@@ -64,7 +68,6 @@ fn wait_for(host: &mut UnixStream, port: &mut HostPort, limit: Duration, want: i
             return Some(m);
         }
     }
-    None
 }
 
 #[test]
@@ -86,9 +89,8 @@ fn servo_targets_keep_their_period_while_a_model_is_written_to_flash() {
     let mut port = HostPort::default();
     host.write_all(&port.encode(&HostToBoard::UseServoBus(ServoBusKind::Framed))).unwrap();
     // Streaming first.
-    let t0 = Instant::now();
     while times.lock().unwrap().len() < 20 {
-        assert!(t0.elapsed() < Duration::from_secs(30), "the board streams no targets");
+        assert!(!t.is_finished(), "the servo link closed before 20 servo targets");
         std::thread::sleep(Duration::from_millis(10));
     }
     let before = times.lock().unwrap().len();
@@ -96,7 +98,7 @@ fn servo_targets_keep_their_period_while_a_model_is_written_to_flash() {
     // the chunks and the commit.
     let crc32 = msr_shared::blob::CRC32.checksum(&blob);
     host.write_all(&port.encode(&HostToBoard::ModelBegin { len: blob.len() as u32, crc32 })).unwrap();
-    let ack = wait_for(&mut host, &mut port, Duration::from_secs(60), |m| matches!(m, BoardToHost::UploadAck { .. }));
+    let ack = wait_for(&mut host, &mut port, |m| matches!(m, BoardToHost::UploadAck { .. }));
     assert_eq!(ack, Some(BoardToHost::UploadAck { next: 0 }));
     let mut bytes = Vec::new();
     for (i, data) in blob.chunks(msr_shared::msg::CHUNK).enumerate() {
@@ -105,7 +107,7 @@ fn servo_targets_keep_their_period_while_a_model_is_written_to_flash() {
     bytes.extend(port.encode(&HostToBoard::ModelCommit));
     let mut w = host.try_clone().unwrap();
     let writer = std::thread::spawn(move || w.write_all(&bytes));
-    let verdict = wait_for(&mut host, &mut port, Duration::from_secs(300), |m| {
+    let verdict = wait_for(&mut host, &mut port, |m| {
         matches!(m, BoardToHost::ModelAccepted { .. } | BoardToHost::Error { .. })
     });
     writer.join().unwrap().unwrap();
@@ -128,7 +130,7 @@ fn servo_targets_keep_their_period_while_a_model_is_written_to_flash() {
     assert!(longest <= 20, "servo targets stopped for {longest} ms during the upload");
     // The store: uploaded into a slot, and still there after a reset.
     host.write_all(&port.encode(&HostToBoard::GetStore)).unwrap();
-    let r = wait_for(&mut host, &mut port, Duration::from_secs(10), |m| matches!(m, BoardToHost::Store(_)));
+    let r = wait_for(&mut host, &mut port, |m| matches!(m, BoardToHost::Store(_)));
     let Some(BoardToHost::Store(r)) = r else { panic!("no store report: {r:?}") };
     assert_eq!(r.model_crc, want, "{r:?}");
     assert!(matches!(r.source, ModelSource::Flash { slot: 0, .. }), "{r:?}");
