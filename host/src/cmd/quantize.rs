@@ -50,13 +50,12 @@ impl Args {
 pub fn run(args: Args) -> Result<()> {
     let quantized = quantize::quantize(&args.config())?;
     let gated = if args.no_self_gate {
-        let r = GatedReport::ungated(quantized);
-        r.write()?;
-        r
+        GatedReport::ungated(quantized)
     } else {
         self_gate::gate_quantized(quantized, &GateCalibration::default())
             .context("calibrating the self gate (--no-self-gate leaves it out)")?
     };
+    gated.write()?;
     if args.json {
         println!("{}", serde_json::to_string_pretty(&gated)?);
     } else {

@@ -179,12 +179,6 @@ impl EpisodeConfig {
         }
     }
 
-    /// This robot's arm at an arm-error `level` ([`arm_of`]), the same in every trial.
-    pub fn with_arm_error(mut self, level: u8, seed: u64) -> Option<Self> {
-        self.arm_error = arm_of(self.robot, level, seed)?;
-        Some(self)
-    }
-
     /// Faults on both directions of the chosen links: `f`'s rates and bursts replace theirs, its
     /// disconnects are added to theirs.
     pub fn with_faults(mut self, f: &FaultConfig, on: FaultLinks) -> Self {

@@ -3,7 +3,7 @@
 //! `msr quantize --train DIR --reach FILE [--threshold T] [--weights auto|i8|i16] [--data DIR]
 //! --out MODEL.msrm` reads the decoder of a `msr train` output folder (`decoder.json`, `.mpk`,
 //! `_mu.npy`, `_sigma.npy`, `template.png`) and a `msr train-reach` network, and writes the blob
-//! plus a report `MODEL.msrm.json` (written with the self gate's step).
+//! plus a report `MODEL.msrm.json` (written once the self gate is attached or left out, `train::self_gate::GatedReport`).
 //!
 //! Fixed point (semantics in `msr_shared::blob`):
 //! - the head angles enter with [`HEAD_IN_SHIFT`] fraction bits;
@@ -505,7 +505,7 @@ pub struct Report {
 }
 
 /// Quantizes, writes the blob and returns the report; the report is written beside the blob
-/// (`{out}.json`) by the step that ends the model, the self gate's (`train::self_gate::GatedReport`).
+/// (`{out}.json`) once the self gate is attached or left out (`train::self_gate::GatedReport::write`).
 pub fn quantize(args: &QuantizeConfig) -> Result<Report> {
     let model = train::load(&args.train, "decoder")
         .with_context(|| format!("loading the trained decoder from {}", args.train.display()))?;

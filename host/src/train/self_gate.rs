@@ -333,9 +333,10 @@ impl GatedReport {
     }
 }
 
-/// The step after quantization: calibrates a self gate on the robot of the report's dataset,
-/// rewrites the report's blob with it (its size and CRC in the report follow) and writes the report
-/// beside the blob. The dataset must be of a sim robot: the calibration renders its frames.
+/// The step after quantization: calibrates a self gate on the robot of the report's dataset and
+/// rewrites the report's blob with it (its size and CRC in the report follow); the caller writes
+/// the report ([`GatedReport::write`]). The dataset must be of a sim robot: the calibration
+/// renders its frames.
 pub fn gate_quantized(mut quantized: crate::quant::quantize::Report, c: &GateCalibration) -> Result<GatedReport> {
     let robot: Robot = quantized.robot.parse().map_err(|_| {
         anyhow::anyhow!(
@@ -344,15 +345,13 @@ pub fn gate_quantized(mut quantized: crate::quant::quantize::Report, c: &GateCal
         )
     })?;
     let path = std::path::PathBuf::from(&quantized.blob);
-    let blob = crate::fsio::read(&path)?;
+    let blob = crate::fsio::read_blob(&path)?;
     let (gated, report) = attach(&blob, robot, c)?;
     crate::fsio::write(&path, &gated)?;
     let model = Model::parse(&gated).map_err(|e| anyhow::anyhow!("model blob: {e}"))?;
     quantized.blob_bytes = gated.len();
     quantized.crc32 = format!("{:08x}", model.crc32);
-    let out = GatedReport { quantized, self_gate: Some(report) };
-    out.write()?;
-    Ok(out)
+    Ok(GatedReport { quantized, self_gate: Some(report) })
 }
 
 /// `blob` without a self gate: the paper's behaviour, a confirmed mark reached at once.
