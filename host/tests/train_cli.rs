@@ -105,6 +105,9 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     let blob = out.join("model.msrm");
     let report = ok(&["quantize", "--train", p(&out), "--reach", p(&reach), "--json", "--out", p(&blob)]);
     let r: Value = serde_json::from_str(&report).unwrap();
+    // The report beside the blob is the one printed, the gate's calibration included.
+    let beside: Value = serde_json::from_str(&std::fs::read_to_string(out.join("model.msrm.json")).unwrap()).unwrap();
+    assert_eq!(beside, r);
     assert!(r["psnr_db"].as_f64().unwrap() >= 40.0, "{report}");
     assert!(r["detection_agreement"].as_f64().unwrap() >= 0.9, "{report}");
     let bytes = std::fs::read(&blob).unwrap();
@@ -134,6 +137,8 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     let plain = out.join("plain.msrm");
     let report = ok(&["quantize", "--train", p(&out), "--reach", p(&reach), "--json", "--no-self-gate", "--out", p(&plain)]);
     assert!(serde_json::from_str::<Value>(&report).unwrap()["self_gate"].is_null());
+    let beside: Value = serde_json::from_str(&std::fs::read_to_string(out.join("plain.msrm.json")).unwrap()).unwrap();
+    assert_eq!(beside, serde_json::from_str::<Value>(&report).unwrap());
     let plain = std::fs::read(&plain).unwrap();
     assert_eq!(msr_shared::blob::Model::parse(&plain).unwrap().self_gate, None);
     assert_eq!(msr_shared::blob::set_self_gate(&bytes, None).unwrap(), plain);
