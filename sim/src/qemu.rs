@@ -445,13 +445,15 @@ fn capture(mut r: impl Read + Send + 'static, live: Arc<Mutex<Vec<u8>>>) -> Join
     })
 }
 
-/// Runs `image` to its end with nothing on the UARTs but what `drive` does with them.
+/// Runs `image`, started as `opts` say, to its end with nothing on the UARTs but what `drive`
+/// does with them.
 pub fn run_image(
     image: &Path,
+    opts: &Options,
     timeout: Duration,
     drive: impl FnOnce(&mut UnixStream, &mut UnixStream) -> Result<()>,
 ) -> Result<QemuExit> {
-    let q = Qemu::start(image)?;
+    let q = Qemu::start_opts(image, opts)?;
     let (mut host, mut servo) = (q.host.try_clone()?, q.servo.try_clone()?);
     if let Err(e) = drive(&mut host, &mut servo) {
         let out = q.kill();

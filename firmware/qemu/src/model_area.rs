@@ -95,6 +95,43 @@ pub const PRELOAD_ADDR: usize = 0x2100_0000;
 pub const PRELOAD_MAGIC: u32 = 0x4D53_5250;
 const PRELOAD_HEADER: usize = 16;
 
+/// The preload header's length and CRC-32, when its magic and check word hold.
+fn preload_header() -> Option<(u32, u32)> {
+    let base = PRELOAD_ADDR as *const u32;
+    // SAFETY: PSRAM on mps2-an385/386/500/511, always mapped under QEMU; any bit pattern is a
+    // valid u32, and a fresh machine's zeroes fail the magic.
+    let [magic, len, crc, check] = core::array::from_fn(|i| unsafe { core::ptr::read_volatile(base.add(i)) });
+    (magic == PRELOAD_MAGIC && check == magic ^ len ^ crc).then_some((len, crc))
+}
+
+/// Why a preloaded blob was not taken by [`preloaded_blob`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PreloadError {
+    /// Longer than a model slot.
+    TooLarge,
+    /// Its bytes do not have the header's CRC-32.
+    Crc,
+}
+
+/// The preloaded blob in place, for an image that reads its model without the store (the
+/// benchmark image): `None` without a preload header, an error when it is longer than a slot or
+/// its CRC-32 is not the header's.
+pub fn preloaded_blob() -> Result<Option<&'static [u8]>, PreloadError> {
+    let Some((len, crc)) = preload_header() else {
+        return Ok(None);
+    };
+    if len as usize > SLOT {
+        return Err(PreloadError::TooLarge);
+    }
+    // SAFETY: a slot's length of mapped PSRAM after the header (a slot is smaller than the
+    // 8 MiB before the flash region), not written while the image runs.
+    let blob = unsafe { core::slice::from_raw_parts((PRELOAD_ADDR + PRELOAD_HEADER) as *const u8, len as usize) };
+    if msr_shared::blob::CRC32.checksum(blob) != crc {
+        return Err(PreloadError::Crc);
+    }
+    Ok(Some(blob))
+}
+
 /// What [`take_preload`] did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Preload {
@@ -112,13 +149,9 @@ pub enum Preload {
 /// Takes a preloaded model into the slots when none is active there, through [`Upload`] (CRC and
 /// blob validation as for `ModelCommit`). Call once at start-up, before the board uses its store.
 pub fn take_preload(store: &mut FlashStore) -> Preload {
-    let base = PRELOAD_ADDR as *const u32;
-    // SAFETY: PSRAM on mps2-an385/386/500/511, always mapped under QEMU; any bit pattern is a
-    // valid u32, and a fresh machine's zeroes fail the magic.
-    let [magic, len, crc, check] = core::array::from_fn(|i| unsafe { core::ptr::read_volatile(base.add(i)) });
-    if magic != PRELOAD_MAGIC || check != magic ^ len ^ crc {
+    let Some((len, crc)) = preload_header() else {
         return Preload::None;
-    }
+    };
     store.start();
     if matches!(store.source(), ModelSource::Flash { .. }) {
         return Preload::Kept;
