@@ -512,8 +512,8 @@ fn qemu_episodes(
     let model = msr_shared::blob::Model::parse(blob).map_err(|e| anyhow::anyhow!("model blob: {e}"))?;
     let cropper = crate::detect::cropper_of(&model)?;
     let renderer = msr_sim::render::Renderer::new(cfg.robot);
-    let mut board = crate::episode::qemu::QemuBoard::start_preloaded(blob)?;
-    let upload_s = board.upload_s;
+    let mut board = crate::episode::qemu::QemuBoard::start(blob)?;
+    let upload_s = board.start_s;
     let mut done = Vec::new();
     // A trial starts only if one as slow as the slowest so far still ends within the budget.
     let mut slowest = std::time::Duration::ZERO;

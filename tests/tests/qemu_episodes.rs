@@ -6,9 +6,9 @@
 //! Skips with a message when `qemu-system-arm` or the board image is missing (the image is built
 //! by `cargo xtask test` / `cargo xtask images`).
 //!
-//! The model is the demo's kind, a small convolutional decoder (about 180 KB): QEMU's emulated
-//! UART takes 20 to 40 KB/s, so the shared test model (the fully connected decoder, 1.2 MB) would
-//! spend a minute uploading.
+//! The model is the demo's kind, a small convolutional decoder, preloaded into the board's
+//! memory by QEMU's loader ([`QemuBoard::start`]); uploads over the host link have their tests
+//! with `msr serve` (`flash_cli`, `upload_cli`) and in `qemu_firmware` and `qemu_flash`.
 
 mod common;
 
@@ -75,7 +75,7 @@ fn qemu_episodes_touch_marks_and_match_in_process() {
     let plan = [(&marked, 0usize), (&marked, 1), (&unmarked, 2), (&cut, 3), (&marked, 4), (&dxl, 5), (&step, 6), (&drift, 7)];
 
     let mut board = QemuBoard::start(&blob).unwrap();
-    eprintln!("model upload ({} bytes): {:.1} s", blob.len(), board.upload_s);
+    eprintln!("QEMU running the preloaded model ({} bytes) after {:.1} s", blob.len(), board.start_s);
     let mut qemu_trials = Vec::new();
     for (cfg, i) in plan {
         let camera = Camera { renderer: &renderer, cropper: &cropper };
@@ -136,8 +136,8 @@ fn qemu_trial_log_has_the_board_status() {
     assert!(d.status[0].values.iter().any(|kv| kv.key == "frames"), "{d:?}");
 }
 
-/// The demo's way in: the model preloaded into the board's PSRAM by QEMU's generic loader, taken
-/// at start-up through the upload's checks. It runs as an uploaded one (the same trial as
+/// The way in of every QEMU trial: the model preloaded into the board's PSRAM by QEMU's generic
+/// loader, taken at start-up through the upload's checks. It runs (the same trials as
 /// in-process), survives the resets between trials, and damaged bytes are refused by the board.
 #[test]
 fn qemu_preloaded_model_runs_and_a_damaged_one_is_refused() {
@@ -150,8 +150,8 @@ fn qemu_preloaded_model_runs_and_a_damaged_one_is_refused() {
     let mut cfg = EpisodeConfig::new(robot);
     cfg.no_mark_share = 0.0;
 
-    let mut board = QemuBoard::start_preloaded(&blob).unwrap();
-    eprintln!("QEMU running the preloaded model ({} bytes) after {:.1} s", blob.len(), board.upload_s);
+    let mut board = QemuBoard::start(&blob).unwrap();
+    eprintln!("QEMU running the preloaded model ({} bytes) after {:.1} s", blob.len(), board.start_s);
     let mut qemu_trials = Vec::new();
     for i in 0..2 {
         let camera = Camera { renderer: &renderer, cropper: &cropper };
@@ -188,7 +188,7 @@ fn qemu_preloaded_model_runs_and_a_damaged_one_is_refused() {
         assert!(exit.output.contains(said), "expected {said:?} in:\n{}", exit.output);
     }
     // The host refuses a blob that does not parse before starting QEMU.
-    let e = QemuBoard::start_preloaded(&blob[..blob.len() - 100]).err().expect("refused");
+    let e = QemuBoard::start(&blob[..blob.len() - 100]).err().expect("refused");
     assert!(format!("{e:#}").contains("model blob"), "{e:#}");
 }
 
@@ -235,7 +235,7 @@ fn qemu_self_gate_refuses_another_robot_and_a_delayed_picture() {
     plan.extend(trials_where(Scene::Delayed, 1, short).into_iter().map(|(i, s)| (&delayed, i, s)));
     assert_eq!(plan.len(), 2);
 
-    let mut board = QemuBoard::start_preloaded(&blob).unwrap();
+    let mut board = QemuBoard::start(&blob).unwrap();
     let mut qemu_trials = Vec::new();
     for &(cfg, i, seed) in &plan {
         let camera = Camera { renderer: &renderer, cropper: &cropper };
