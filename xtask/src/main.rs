@@ -4,7 +4,7 @@
 //!    `ffmpeg` and headless Chromium, and makes the Python venv `target/pyenv` with `rosbags` and
 //!    `mcap` (pip);
 //! 2. builds `msr-shared` and `msr-firmware` for the bare-metal target without std;
-//! 3. builds the QEMU and NUCLEO-F429ZI firmware images;
+//! 3. builds the QEMU and NUCLEO-F429ZI firmware images, side by side;
 //! 4. runs every test of the workspace (the QEMU tests use the image from step 3), with
 //!    cargo-nextest where it is installed (`.config/nextest.toml`; then the doctests with
 //!    `cargo test --doc`), else with `cargo test`; `XTASK_RUNNER=cargo` asks for `cargo test`.
@@ -209,14 +209,38 @@ fn build_images() -> Result<(), String> {
         &["build", "--release", "--target", TARGET, "-p", "msr-shared", "-p", "msr-firmware"],
     )?;
     for (dir, what) in IMAGES {
-        let path = root.join(dir);
-        if !path.join("Cargo.toml").exists() {
+        if !root.join(dir).join("Cargo.toml").exists() {
             return Err(format!("{dir}/Cargo.toml is missing: cannot build the {what}"));
         }
-        step(&format!("building the {what} ({dir})"));
-        run(&path, "cargo", &["build", "--release"])?;
     }
-    Ok(())
+    // Each image ends in a fat-LTO link with one codegen unit, which keeps one core busy for
+    // most of a minute: the images build side by side, each printing its output when done.
+    let names: Vec<String> = IMAGES.iter().map(|(dir, what)| format!("the {what} ({dir})")).collect();
+    step(&format!("building {}, side by side", names.join(" and ")));
+    let outputs: Vec<_> = std::thread::scope(|s| {
+        let builds: Vec<_> = IMAGES
+            .iter()
+            .map(|(dir, _)| {
+                let path = root.join(dir);
+                s.spawn(move || Command::new("cargo").args(["build", "--release"]).current_dir(path).output())
+            })
+            .collect();
+        builds.into_iter().map(|b| b.join().expect("the build thread does not panic")).collect()
+    });
+    let mut failed = Vec::new();
+    for ((dir, what), out) in IMAGES.iter().zip(outputs) {
+        println!("\n$ cargo build --release  (in {dir})");
+        let out = out.map_err(|e| format!("could not start `cargo` for the {what}: {e}"))?;
+        print!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+        if !out.status.success() {
+            failed.push(format!("`cargo build --release` in {dir} failed ({})", out.status));
+        }
+    }
+    if failed.is_empty() {
+        Ok(())
+    } else {
+        Err(failed.join("; "))
+    }
 }
 
 fn test(extra: &[String]) -> Result<(), String> {
