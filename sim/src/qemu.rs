@@ -374,21 +374,30 @@ impl Qemu {
         String::from_utf8_lossy(&self.live.lock().unwrap_or_else(|e| e.into_inner())).into_owned()
     }
 
+    /// QEMU's process id, while it runs.
+    pub fn pid(&self) -> Option<u32> {
+        self.child.as_ref().map(Child::id)
+    }
+
     /// Whether QEMU is still running.
     pub fn is_running(&mut self) -> bool {
         self.child.as_mut().is_some_and(|c| matches!(c.try_wait(), Ok(None)))
     }
 
-    /// Waits for the image to end (semihosting exit), killing QEMU after `timeout`.
+    /// Waits for the image to end (semihosting exit), killing QEMU once it has run `timeout`
+    /// more without ending. Where the system tells (Linux), that is QEMU's own processor time,
+    /// not the wall clock's: a machine busy with other work gives QEMU less of each second,
+    /// and a slow QEMU is not a hung one; a hung QEMU (an image spinning forever) still spends
+    /// its allowance.
     pub fn wait(mut self, timeout: Duration) -> Result<QemuExit> {
         let mut child = self.child.take().ok_or_else(|| anyhow!("QEMU already waited for"))?;
-        let deadline = Instant::now() + timeout;
+        let allowance = Allowance::start(Some(child.id()), timeout);
         let mut timed_out = false;
         let status = loop {
             if let Some(s) = child.try_wait()? {
                 break Some(s);
             }
-            if Instant::now() > deadline {
+            if allowance.spent() {
                 timed_out = true;
                 let _ = child.kill();
                 let _ = child.wait();
@@ -428,6 +437,64 @@ impl Drop for Qemu {
         }
         self.tidy();
     }
+}
+
+/// A time QEMU may take for something: its own processor time where the system tells (see
+/// [`Qemu::wait`]), else the wall clock's.
+struct Allowance {
+    pid: Option<u32>,
+    cpu0: Option<Duration>,
+    t0: Instant,
+    limit: Duration,
+}
+
+impl Allowance {
+    fn start(pid: Option<u32>, limit: Duration) -> Allowance {
+        Allowance { pid, cpu0: pid.and_then(cpu_time), t0: Instant::now(), limit }
+    }
+
+    fn spent(&self) -> bool {
+        let ran = match (self.cpu0, self.pid.and_then(cpu_time)) {
+            (Some(a), Some(b)) => b.saturating_sub(a),
+            _ => self.t0.elapsed(),
+        };
+        ran > self.limit
+    }
+}
+
+/// Fills `buf` from `s`, for as long as QEMU (process `pid`) has not spent `limit` of its own
+/// time since the call ([`Allowance`]). A stream that ends is `UnexpectedEof`; an allowance
+/// spent is `TimedOut`.
+fn read_full(mut s: &UnixStream, buf: &mut [u8], pid: Option<u32>, limit: Duration) -> io::Result<()> {
+    let allowance = Allowance::start(pid, limit);
+    s.set_read_timeout(Some(Duration::from_millis(200)))?;
+    let mut got = 0;
+    while got < buf.len() {
+        match s.read(&mut buf[got..]) {
+            Ok(0) => return Err(io::ErrorKind::UnexpectedEof.into()),
+            Ok(n) => got += n,
+            Err(e) if matches!(e.kind(), io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut) => {
+                if allowance.spent() {
+                    return Err(io::Error::new(io::ErrorKind::TimedOut, format!("QEMU ran {limit:?} without sending it")));
+                }
+            }
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(())
+}
+
+/// The processor time (user and system) process `pid` has used, from `/proc/PID/stat`; `None`
+/// where that cannot be read (not Linux, or the process is gone).
+fn cpu_time(pid: u32) -> Option<Duration> {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).ok()?;
+    // The command name (field 2) is in parentheses and may hold spaces: fields are counted after
+    // its closing one. utime and stime are fields 14 and 15, in clock ticks of 1/100 s (Linux's
+    // USER_HZ, the same on every architecture).
+    let rest: Vec<&str> = stat.get(stat.rfind(')')? + 1..)?.split_whitespace().collect();
+    let ticks = rest.get(11)?.parse::<u64>().ok()? + rest.get(12)?.parse::<u64>().ok()?;
+    Some(Duration::from_millis(ticks * 10))
 }
 
 fn capture(mut r: impl Read + Send + 'static, live: Arc<Mutex<Vec<u8>>>) -> JoinHandle<Vec<u8>> {
@@ -474,7 +541,8 @@ pub struct Lockstep {
     host: UnixStream,
     servo: UnixStream,
     clock: UnixStream,
-    /// The longest wait for the image to answer.
+    /// The longest wait for the image to answer, in QEMU's own processor time (see
+    /// [`Qemu::wait`]).
     pub timeout: Duration,
     /// Ticks since the last reset.
     pub ticks: u64,
@@ -552,13 +620,13 @@ impl Lockstep {
 
     fn read_ctl(&mut self, n: usize, what: &str) -> Result<Vec<u8>> {
         let mut b = vec![0u8; n.max(1)];
-        self.clock.set_read_timeout(Some(self.timeout))?;
-        let r = self.clock.read_exact(&mut b[..1]).and_then(|_| {
+        let (pid, limit) = (self.qemu.pid(), self.timeout);
+        let r = read_full(&self.clock, &mut b[..1], pid, limit).and_then(|_| {
             if b[0] == b'E' {
                 // An error answer is two bytes, whatever was asked.
                 b.truncate(2);
             }
-            self.clock.read_exact(&mut b[1..])
+            read_full(&self.clock, &mut b[1..], pid, limit)
         });
         if let Err(e) = r {
             if e.kind() == io::ErrorKind::UnexpectedEof {
@@ -641,8 +709,7 @@ impl Lockstep {
         for (s, n, out) in [(&self.host, nh, host_out), (&self.servo, ns, servo_out)] {
             let start = out.len();
             out.resize(start + n, 0);
-            s.set_read_timeout(Some(self.timeout))?;
-            (&*s).read_exact(&mut out[start..]).context("reading what the board wrote in a tick")?;
+            read_full(s, &mut out[start..], self.qemu.pid(), self.timeout).context("reading what the board wrote in a tick")?;
         }
         self.ticks += 1;
         Ok(())
@@ -658,7 +725,7 @@ impl Lockstep {
         }
         let n = u16::from_le_bytes([h[1], h[2]]) as usize;
         let mut b = vec![0u8; n];
-        self.clock.read_exact(&mut b).context("reading the board's status")?;
+        read_full(&self.clock, &mut b, self.qemu.pid(), self.timeout).context("reading the board's status")?;
         Ok(b)
     }
 
@@ -674,6 +741,25 @@ impl Lockstep {
 mod tests {
     use super::*;
     use std::time::SystemTime;
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn cpu_time_counts_the_processor_time_of_a_process_not_its_sleep() {
+        // A process that sleeps uses next to no processor time; this one, spinning, some.
+        let mut sleeper = Command::new("sleep").arg("30").spawn().unwrap();
+        let before = cpu_time(sleeper.id()).expect("a running process has a stat");
+        let spin_until = Instant::now() + Duration::from_millis(300);
+        let mut x = 0u64;
+        while Instant::now() < spin_until {
+            x = std::hint::black_box(x.wrapping_add(1));
+        }
+        let slept = cpu_time(sleeper.id()).unwrap().saturating_sub(before);
+        assert!(slept < Duration::from_millis(100), "{slept:?}");
+        let _ = sleeper.kill();
+        let _ = sleeper.wait();
+        assert!(cpu_time(std::process::id()).unwrap() > Duration::ZERO);
+        assert_eq!(cpu_time(u32::MAX), None);
+    }
 
     #[test]
     fn a_make_rule_splits_at_spaces_but_not_escaped_ones() {
