@@ -513,7 +513,7 @@ fn qemu_episodes(
     let cropper = crate::detect::cropper_of(&model)?;
     let renderer = msr_sim::render::Renderer::new(cfg.robot);
     let mut board = crate::episode::qemu::QemuBoard::start(blob)?;
-    let upload_s = board.start_s;
+    let start_s = board.start_s;
     let mut done = Vec::new();
     // A trial starts only if one as slow as the slowest so far still ends within the budget.
     let mut slowest = std::time::Duration::ZERO;
@@ -537,7 +537,7 @@ fn qemu_episodes(
         })
         .count();
     let note = format!(
-        "{} of {n} trials in {:.0} s (the model preloaded into the board's memory, checked by the board as an upload: QEMU running it after {upload_s:.1} s), {matching} the same as in-process",
+        "{} of {n} trials in {:.0} s (the model preloaded into the board's memory, checked by the board as an upload: QEMU running it after {start_s:.1} s), {matching} the same as in-process",
         done.len(),
         t0.elapsed().as_secs_f64()
     );
