@@ -497,6 +497,35 @@ fn benchmark_image_checks_pass_and_match_the_host_build() {
     assert!(v["stages"]["saliency"].as_u64().unwrap() > 50_000, "{v}");
 }
 
+/// The benchmark image takes its model only as preloaded and whole: damaged bytes, a header
+/// that claims more than a slot, and no preload at all are each one line and exit code 1.
+#[test]
+fn benchmark_image_refuses_a_damaged_or_missing_preload() {
+    let Some(img) = image("msr-qemu-bench") else { return };
+    let blob = synthetic(ArchKind::Conv).unwrap().blob;
+    let mut flipped = qemu::preload_bytes(&blob);
+    let last = flipped.len() - 1;
+    flipped[last] ^= 0x40;
+    // A header whose check word holds for a length past the 1.5 MiB slot.
+    let len = 2u32 << 20;
+    let crc = msr_shared::blob::CRC32.checksum(&blob);
+    let mut long = Vec::new();
+    for w in [0x4D53_5250u32, len, crc, 0x4D53_5250 ^ len ^ crc] {
+        long.extend(w.to_le_bytes());
+    }
+    long.extend_from_slice(&blob);
+    for (preload, want) in [
+        (Some(&flipped[..]), "MSR-BENCH-ERROR preloaded model refused: Crc"),
+        (Some(&long[..]), "MSR-BENCH-ERROR preloaded model refused: TooLarge"),
+        (None, "MSR-BENCH-ERROR no model: none is built in and none was preloaded"),
+    ] {
+        let opts = qemu::Options { preload, flash_file: None };
+        let exit = qemu::run_image(&img, &opts, Duration::from_secs(60), |_, _| Ok(())).unwrap();
+        assert_eq!(exit.code, Some(1), "{want}: {}", exit.output);
+        assert_eq!(exit.output.lines().filter(|l| l.starts_with("MSR-BENCH")).collect::<Vec<_>>(), [want], "{}", exit.output);
+    }
+}
+
 /// A bad upload is refused with the reason, and the model in use stays: same CRC, same results.
 #[test]
 fn bad_upload_keeps_the_running_model() {
