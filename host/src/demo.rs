@@ -492,10 +492,10 @@ fn qemu_skipped(qemu_available: bool, image: &Result<PathBuf>) -> Option<String>
     }
 }
 
-/// Wall time the QEMU episodes may take: the emulated UART moves 20 to 40 KB/s, so a trial takes
-/// a few seconds (the frames); the model is preloaded, not uploaded. Since the model carries a
-/// self gate a trial takes about 15 s (its probe), and at 75 s one demo in three stopped after 4
-/// of its 5 trials.
+/// Wall time the QEMU episodes may take: a trial takes about 1.4 s on an idle machine (6 s of
+/// the world's time in 1 ms ticks, each tick's bytes through the board image's pipe; the model
+/// preloaded, not uploaded). The budget stops a demo on a machine far slower than that, or
+/// busy, from waiting long for what the in-process trials already showed.
 const QEMU_BUDGET: std::time::Duration = std::time::Duration::from_secs(90);
 
 /// The first `n` trials again with the firmware image in QEMU (same seeds as `inproc`), until

@@ -6,7 +6,9 @@
 //! period) is virtual time, independent of how fast this machine is.
 //!
 //! UART0 (the host link), UART1 (the servo bus) and UART2 (the board image's clock channel) are
-//! unix-domain sockets: this side listens, QEMU connects as a client at start-up. What the image
+//! unix-domain sockets: this side listens, QEMU connects as a client at start-up. QEMU also
+//! inherits the read end of a pipe as its descriptor 3, which the board image reads through
+//! semihosting in lockstep ([`Lockstep`]). What the image
 //! prints through semihosting lands in [`QemuExit::output`]; its semihosting exit code is QEMU's
 //! exit status.
 //!
@@ -81,6 +83,29 @@ fn die_with_parent(cmd: &mut Command) {
     }
     #[cfg(not(target_os = "linux"))]
     let _ = cmd;
+}
+
+/// The descriptor QEMU finds the lockstep pipe's read end at (`firmware/qemu/src/pipe.rs`
+/// opens `/dev/fd/3`).
+const PIPE_FD: i32 = 3;
+
+/// Gives QEMU `read` as its descriptor [`PIPE_FD`].
+fn pass_pipe(cmd: &mut Command, read: &std::io::PipeReader) {
+    use std::os::fd::AsRawFd;
+    use std::os::unix::process::CommandExt;
+    let fd = read.as_raw_fd();
+    // SAFETY: only dup2 and fcntl, which are async-signal-safe, run between fork and exec.
+    unsafe {
+        cmd.pre_exec(move || {
+            // dup2 leaves the new descriptor open across exec; a pipe already at PIPE_FD keeps
+            // its close-on-exec flag, which is cleared instead.
+            let r = if fd == PIPE_FD { libc::fcntl(fd, libc::F_SETFD, 0) } else { libc::dup2(fd, PIPE_FD) };
+            if r < 0 {
+                return Err(io::Error::last_os_error());
+            }
+            Ok(())
+        });
+    }
 }
 
 /// How long QEMU gets to connect its UART sockets.
@@ -237,6 +262,8 @@ pub struct Qemu {
     pub servo: UnixStream,
     /// UART2: the board image's clock channel (see [`Lockstep`]).
     pub clock: UnixStream,
+    /// The write end of the pipe the board image reads its lockstep commands from.
+    pipe: Option<std::io::PipeWriter>,
     stdout: Option<JoinHandle<Vec<u8>>>,
     stderr: Option<JoinHandle<Vec<u8>>>,
     /// Captured output so far, for error messages while running.
@@ -291,6 +318,8 @@ impl Qemu {
             .args(["-semihosting-config", &semihosting])
             .args(["-icount", "shift=0"]);
         die_with_parent(&mut cmd);
+        let (pipe_read, pipe_write) = std::io::pipe().context("making the lockstep pipe")?;
+        pass_pipe(&mut cmd, &pipe_read);
         for (i, p) in paths.iter().enumerate() {
             cmd.arg("-chardev")
                 .arg(format!("socket,id=uart{i},path={}", p.display()))
@@ -308,6 +337,8 @@ impl Qemu {
         let mut child = cmd
             .spawn()
             .with_context(|| format!("starting {} (is qemu-system-arm installed?)", qemu_binary()))?;
+        // QEMU holds the read end: a write after it ended fails instead of waiting.
+        drop(pipe_read);
 
         let live = Arc::new(Mutex::new(Vec::new()));
         let stdout = child.stdout.take().map(|s| capture(s, live.clone()));
@@ -318,6 +349,7 @@ impl Qemu {
             host: UnixStream::pair()?.0,
             servo: UnixStream::pair()?.0,
             clock: UnixStream::pair()?.0,
+            pipe: Some(pipe_write),
             stdout,
             stderr,
             live,
@@ -535,12 +567,17 @@ pub fn run_image(
 /// [`Lockstep::reset`] into lockstep the image runs on its own clock (free running), e.g. for a
 /// model upload.
 ///
-/// The protocol on UART2 is documented in `firmware/qemu/src/main.rs` (module `ctl`).
+/// The commands go on UART2 while the image runs free and through the pipe in lockstep, one
+/// write a tick with the tick's bytes; the answers and what the board writes come back on the
+/// UARTs. The protocol is documented in `firmware/qemu/src/main.rs` (module `ctl`).
 pub struct Lockstep {
     qemu: Qemu,
     host: UnixStream,
     servo: UnixStream,
     clock: UnixStream,
+    pipe: std::io::PipeWriter,
+    /// Whether the image runs in lockstep, so that its commands go through the pipe.
+    lockstep: bool,
     /// The longest wait for the image to answer, in QEMU's own processor time (see
     /// [`Qemu::wait`]).
     pub timeout: Duration,
@@ -565,11 +602,13 @@ impl Lockstep {
 
     /// As [`Lockstep::start`], as `opts` say.
     pub fn start_opts(image: &Path, opts: &Options) -> Result<(Lockstep, u32)> {
-        let qemu = Qemu::start_opts(image, opts)?;
+        let mut qemu = Qemu::start_opts(image, opts)?;
         let mut ls = Lockstep {
             host: qemu.host.try_clone()?,
             servo: qemu.servo.try_clone()?,
             clock: qemu.clock.try_clone()?,
+            pipe: qemu.pipe.take().ok_or_else(|| anyhow!("the lockstep pipe is taken"))?,
+            lockstep: false,
             qemu,
             timeout: Duration::from_secs(60),
             ticks: 0,
@@ -659,8 +698,9 @@ impl Lockstep {
         self.drain()?;
         let mut cmd = vec![b'R'];
         cmd.extend(lockstep_tick_us.unwrap_or(0).to_le_bytes());
-        self.clock.write_all(&cmd)?;
+        self.command(&cmd)?;
         let crc = self.hello()?;
+        self.lockstep = lockstep_tick_us.is_some_and(|t| t > 0);
         // What the board wrote between the drain above and its reset (a running-free board
         // keeps asking its servos) is in the sockets by now: QEMU writes a UART's bytes as they
         // are sent, and the start-up message came after them. In lockstep the board writes only
@@ -695,12 +735,16 @@ impl Lockstep {
                 servo_in.len()
             );
         }
-        self.host.write_all(host_in)?;
-        self.servo.write_all(servo_in)?;
-        let mut cmd = [b'T', 0, 0, 0, 0];
-        cmd[1..3].copy_from_slice(&(host_in.len() as u16).to_le_bytes());
-        cmd[3..5].copy_from_slice(&(servo_in.len() as u16).to_le_bytes());
-        self.clock.write_all(&cmd)?;
+        if !self.lockstep {
+            bail!("a tick while the board runs free: reset it into lockstep first");
+        }
+        let mut cmd = Vec::with_capacity(5 + host_in.len() + servo_in.len());
+        cmd.push(b'T');
+        cmd.extend((host_in.len() as u16).to_le_bytes());
+        cmd.extend((servo_in.len() as u16).to_le_bytes());
+        cmd.extend_from_slice(host_in);
+        cmd.extend_from_slice(servo_in);
+        self.command(&cmd)?;
         let a = self.read_ctl(5, "a tick")?;
         if a[0] != b'T' {
             bail!("the board image answered a tick with {a:?}");
@@ -718,7 +762,7 @@ impl Lockstep {
     /// The board's status message, read out of band on the clock channel: the framed
     /// `BoardToHost::Status` bytes (decode them like the host link's).
     pub fn status_frame(&mut self) -> Result<Vec<u8>> {
-        self.clock.write_all(b"S")?;
+        self.command(b"S")?;
         let h = self.read_ctl(3, "a status request")?;
         if h[0] != b'S' {
             bail!("the board image answered a status request with {h:?}");
@@ -732,8 +776,15 @@ impl Lockstep {
     /// Ends the run: the image prints its status and exits.
     pub fn exit(mut self, timeout: Duration) -> Result<QemuExit> {
         let _ = self.drain();
-        self.clock.write_all(b"X")?;
+        self.command(b"X")?;
         self.qemu.wait(timeout)
+    }
+
+    /// Sends a clock-channel command where the image reads them now: the pipe in lockstep,
+    /// UART2 otherwise.
+    fn command(&mut self, bytes: &[u8]) -> Result<()> {
+        let sent = if self.lockstep { self.pipe.write_all(bytes) } else { self.clock.write_all(bytes) };
+        sent.map_err(|e| anyhow!("the board image takes no more commands ({e}); it printed:\n{}", self.qemu.output_so_far()))
     }
 }
 

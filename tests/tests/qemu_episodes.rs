@@ -1,6 +1,6 @@
 //! Mirror-test episodes with the real thumbv7em firmware image in QEMU (mps2-an386): the sim's
 //! host link and servo bus bridged to the board's UART0 and UART1, the board's clock driven by
-//! the sim (lockstep on UART2). The same trials run in-process must come out the same, field for
+//! the sim (lockstep: each tick's bytes through the image's pipe). The same trials run in-process must come out the same, field for
 //! field: the same firmware, the same world, one clock.
 //!
 //! Skips with a message when `qemu-system-arm` or the board image is missing (the image is built

@@ -6,11 +6,11 @@
 //!   Under `-icount shift=0` that is QEMU's virtual time; the image sleeps (`wfi`) when it has
 //!   nothing to do, so virtual time follows real time while idle (see [`uart::idle`]).
 //! - **lockstep** (after a reset asked for with `R tick` on UART2, see [`ctl`]): the simulation
-//!   drives the clock. Each `T` command is one tick: it says how many bytes the host wrote to
-//!   UART0 and UART1 during the tick; the image reads exactly those, runs one `Board::poll` at the
-//!   tick's time, and answers with how many bytes the board wrote. The simulated world and the
-//!   board then share one time base whatever the host's load, exactly as the in-process firmware
-//!   does.
+//!   drives the clock. Its commands then come through the host's pipe ([`msr_qemu::pipe`]),
+//!   not UART2. Each `T` command is one tick and carries the bytes that reached UART0 and UART1
+//!   during it; the image runs one `Board::poll` at the tick's time and answers on UART2 with how
+//!   many bytes the board wrote on each UART. The simulated world and the board then share one
+//!   time base whatever the host's load, exactly as the in-process firmware does.
 //!
 //! The servo bus is the host's choice (`UseServoBus`; see `Board::await_servo_bus`): the image
 //! says nothing on UART1 until then, and a host that starts without choosing gets the framed bus.
@@ -37,6 +37,7 @@ use msr_qemu::clock::{Clock, RELOAD_1MS};
 use msr_qemu::exit::exit;
 use msr_qemu::memory;
 use msr_qemu::model_area::{self, FlashStore};
+use msr_qemu::pipe::Pipe;
 use msr_qemu::uart::{self, Uart, UART0, UART1, UART2};
 use msr_shared::frame::{encode_message, LinkCounters, MAX_WIRE_FRAME};
 use msr_shared::msg::{BoardToHost, Mode};
@@ -63,9 +64,10 @@ fn boot_request() -> Option<u64> {
 // SAFETY (model_area::store): the one store of this image.
 static mut BOARD: Board<FlashStore> = Board::new(unsafe { model_area::store() });
 
-/// The clock channel on UART2. Host to board, one opcode byte then little-endian fields:
-/// - `T host:u16 servo:u16`: one tick; the host wrote `host` bytes to UART0 and `servo` to UART1
-///   since the last tick. Answered `T host:u16 servo:u16` with the bytes the board wrote.
+/// The clock channel. Host to board, on UART2 while the board runs free and through the pipe in
+/// lockstep, one opcode byte then little-endian fields:
+/// - `T host:u16 servo:u16`, then `host` bytes for UART0 and `servo` bytes for UART1: one tick
+///   (lockstep only). Answered `T host:u16 servo:u16` with the bytes the board wrote.
 /// - `S`: the board's status, out of band (the links are not touched, so a frame the sim cut off
 ///   at the end of a trial costs no error): answered `S len:u16` and one framed
 ///   `BoardToHost::Status` message of `len` bytes.
@@ -74,9 +76,10 @@ static mut BOARD: Board<FlashStore> = Board::new(unsafe { model_area::store() })
 ///   first, so a lockstep run starts from the board's power-on state), free running otherwise.
 /// - `X`: print the status and exit with code 0.
 ///
-/// Board to host at every start: `H crc:u32`, the CRC of the model in use (0: none).
-/// A command it cannot take is answered `E code:u8` (1: unknown opcode, 3: a tick while free running, 2: more bytes announced
-/// than fit the receive buffer).
+/// Board to host, always on UART2: the answers, and at every start `H crc:u32`, the CRC of the
+/// model in use (0: none). A command it cannot take is answered `E code:u8` (1: unknown opcode,
+/// 3: a tick while free running, 2: more bytes than fit the receive buffer). A board asked to
+/// start in lockstep without a pipe says so and exits with code 4.
 mod ctl {
     pub const TICK: u8 = b'T';
     pub const RESET: u8 = b'R';
@@ -101,7 +104,7 @@ mod ctl {
 const FIFO: usize = 1024;
 
 /// One UART as the board sees it: read straight from the UART (free running) or from what the
-/// tick brought (lockstep); bytes written are counted for the tick's answer.
+/// ticks brought (lockstep); bytes written are counted for the tick's answer.
 struct Port {
     uart: Uart,
     buf: &'static mut [u8; FIFO],
@@ -119,26 +122,28 @@ impl Port {
         Port { uart, buf, head: 0, len: 0, lockstep: false, written: 0, recent: [0xFF; 12], exit: false }
     }
 
-    /// Moves up to `n` bytes from the UART into the buffer, sleeping while they are on their
-    /// way. Returns false when they do not fit.
-    fn take(&mut self, mut n: usize) -> bool {
+    /// Moves a tick's `n` bytes from the pipe into the buffer. Returns `Some(false)` when they
+    /// do not fit (they are read and dropped, so the next command is read whole), `None` when
+    /// the pipe ended.
+    fn take(&mut self, pipe: &mut Pipe, mut n: usize) -> Option<bool> {
         if n > FIFO - self.len {
-            return false;
+            let mut sink = [0u8; 64];
+            while n > 0 {
+                let k = n.min(sink.len());
+                pipe.read_exact(&mut sink[..k]).then_some(())?;
+                n -= k;
+            }
+            return Some(false);
         }
         while n > 0 {
-            match self.uart.try_read() {
-                Some(b) => {
-                    self.buf[(self.head + self.len) % FIFO] = b;
-                    self.len += 1;
-                    n -= 1;
-                }
-                None => {
-                    let u = &self.uart;
-                    uart::idle(|| u.rx_ready());
-                }
-            }
+            // The free part after the newest byte, up to the buffer's end.
+            let at = (self.head + self.len) % FIFO;
+            let k = n.min(FIFO - at);
+            pipe.read_exact(&mut self.buf[at..at + k]).then_some(())?;
+            self.len += k;
+            n -= k;
         }
-        true
+        Some(true)
     }
 }
 
@@ -212,6 +217,21 @@ impl Ctl {
         None
     }
 
+    /// The next complete command from the pipe, waiting for it; `None` when the pipe ended.
+    fn read(&mut self, pipe: &mut Pipe) -> Option<[u8; 5]> {
+        let mut cmd = [0u8; 5];
+        loop {
+            pipe.read_exact(&mut cmd[..1]).then_some(())?;
+            match ctl::args(cmd[0]) {
+                Some(n) => {
+                    pipe.read_exact(&mut cmd[1..1 + n]).then_some(())?;
+                    return Some(cmd);
+                }
+                None => self.send(&[ctl::ERROR, 1]),
+            }
+        }
+    }
+
     fn send(&mut self, bytes: &[u8]) {
         embedded_io::Write::write_all(&mut self.uart, bytes).ok();
     }
@@ -263,8 +283,10 @@ fn main() -> ! {
     hello[1..].copy_from_slice(&crc.to_le_bytes());
     ctl.send(&hello);
 
-    // Lockstep state: the next tick's time and the tick length.
+    // Lockstep state: the next tick's time and the tick length, and the pipe its commands come
+    // through.
     let mut lockstep: Option<(u64, u64)> = boot_request().map(|tick| (0, tick));
+    let mut pipe = lockstep.map(|_| Pipe::open().unwrap_or_else(|| no_pipe()));
     host.lockstep = lockstep.is_some();
     servo.lockstep = lockstep.is_some();
     loop {
@@ -276,22 +298,28 @@ fn main() -> ! {
         if host.exit {
             finish(board, "exit sequence on UART0");
         }
-        let Some(cmd) = ctl.poll() else {
-            let (h, s, c) = (&host.uart, &servo.uart, &ctl.uart);
-            if lockstep.is_some() {
-                uart::idle(|| c.rx_ready());
-            } else {
-                uart::idle(|| h.rx_ready() || s.rx_ready() || c.rx_ready());
-            }
-            continue;
+        let cmd = match pipe.as_mut() {
+            Some(p) => ctl.read(p).unwrap_or_else(|| finish(board, "the lockstep pipe ended")),
+            None => match ctl.poll() {
+                Some(cmd) => cmd,
+                None => {
+                    let (h, s, c) = (&host.uart, &servo.uart, &ctl.uart);
+                    uart::idle(|| h.rx_ready() || s.rx_ready() || c.rx_ready());
+                    continue;
+                }
+            },
         };
         match cmd[0] {
             ctl::TICK => {
-                let Some((now_us, tick)) = lockstep else {
+                let (Some((now_us, tick)), Some(p)) = (lockstep, pipe.as_mut()) else {
                     ctl.send(&[ctl::ERROR, 3]);
                     continue;
                 };
-                if !host.take(u16_at(&cmd, 1) as usize) || !servo.take(u16_at(&cmd, 3) as usize) {
+                let (fit_host, fit_servo) = (host.take(p, u16_at(&cmd, 1) as usize), servo.take(p, u16_at(&cmd, 3) as usize));
+                let (Some(fit_host), Some(fit_servo)) = (fit_host, fit_servo) else {
+                    finish(board, "the lockstep pipe ended");
+                };
+                if !(fit_host && fit_servo) {
                     ctl.send(&[ctl::ERROR, 2]);
                     continue;
                 }
@@ -310,12 +338,22 @@ fn main() -> ! {
                 let tick = u32::from_le_bytes([cmd[1], cmd[2], cmd[3], cmd[4]]);
                 // SAFETY: a plain store; read once after the reset.
                 unsafe { core::ptr::write_volatile(core::ptr::addr_of_mut!(BOOT_REQUEST) as *mut [u32; 2], [BOOT_MAGIC, tick]) };
+                if let Some(p) = pipe.take() {
+                    p.close();
+                }
                 cortex_m::peripheral::SCB::sys_reset()
             }
             ctl::EXIT => finish(board, "exit command on UART2"),
             _ => {}
         }
     }
+}
+
+/// A lockstep start without the host's pipe: nothing could drive the clock.
+#[inline(never)]
+fn no_pipe() -> ! {
+    hprintln!("msr-qemu: lockstep asked for, but QEMU was started without the lockstep pipe (descriptor 3)");
+    exit(4)
 }
 
 /// One board step, kept out of line: inlined at both call sites, its frame would add to
