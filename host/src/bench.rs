@@ -380,7 +380,7 @@ pub fn bench_qemu(m: &BenchModel) -> Result<Value> {
     // The model goes into the board's PSRAM with QEMU's loader, not over the emulated UART
     // (one byte per turn of QEMU's event loop: the demo's model took 16 s there).
     let preload = qemu::preload_bytes(&m.blob);
-    let opts = qemu::Options { preload: Some(&preload), flash_file: None };
+    let opts = qemu::Options { preload: Some(&preload), ..qemu::Options::default() };
     let exit = qemu::run_image(&bench_image, &opts, Duration::from_secs(300), |_, _| Ok(()))?;
     if let Some(l) = exit.output.lines().find(|l| l.starts_with("MSR-BENCH-ERROR")) {
         bail!("the benchmark image refused: {l}");

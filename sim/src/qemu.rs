@@ -63,6 +63,9 @@ pub struct Options<'a> {
     /// `firmware/qemu/src/flash_file.rs`): read at start-up, every program and erase written
     /// through.
     pub flash_file: Option<&'a Path>,
+    /// Starts QEMU without the lockstep pipe (see [`Lockstep`]): the image then refuses to run
+    /// in lockstep, which its tests check.
+    pub without_lockstep_pipe: bool,
 }
 
 /// QEMU is killed when the thread that started it ends: a `msr serve` killed with SIGKILL takes
@@ -282,7 +285,7 @@ impl Qemu {
     /// Starts `image` with `preload` (see [`preload_bytes`]) loaded at [`PRELOAD_ADDR`] by
     /// QEMU's generic loader, if given: the board image finds it there at start-up.
     pub fn start_with(image: &Path, preload: Option<&[u8]>) -> Result<Qemu> {
-        Qemu::start_opts(image, &Options { preload, flash_file: None })
+        Qemu::start_opts(image, &Options { preload, ..Options::default() })
     }
 
     /// Starts `image` as `opts` say.
@@ -306,20 +309,29 @@ impl Qemu {
             .collect::<Result<Vec<_>>>()?;
 
         let mut cmd = Command::new(qemu_binary());
-        let mut semihosting = String::from("enable=on,target=native");
+        // The image's command line: `msr-qemu [lockstep-pipe] [flash=PATH]`
+        // (`firmware/qemu/src/cmdline.rs`; the path runs to the end of the line).
+        let mut semihosting = String::from("enable=on,target=native,arg=msr-qemu");
+        if !opts.without_lockstep_pipe {
+            semihosting += ",arg=lockstep-pipe";
+        }
         if let Some(f) = opts.flash_file {
             let f = std::path::absolute(f).with_context(|| format!("the flash file {}", f.display()))?;
             let f = f.to_str().ok_or_else(|| anyhow!("the flash file's path {} is not UTF-8", f.display()))?;
-            // The image's command line becomes `msr-qemu flash=PATH` (QEMU doubles a comma
-            // inside an option's value).
-            semihosting += &format!(",arg=msr-qemu,arg=flash={}", f.replace(',', ",,"));
+            // QEMU doubles a comma inside an option's value.
+            semihosting += &format!(",arg=flash={}", f.replace(',', ",,"));
         }
         cmd.args(["-machine", "mps2-an386", "-cpu", "cortex-m4", "-nographic", "-monitor", "none"])
             .args(["-semihosting-config", &semihosting])
             .args(["-icount", "shift=0"]);
         die_with_parent(&mut cmd);
-        let (pipe_read, pipe_write) = std::io::pipe().context("making the lockstep pipe")?;
-        pass_pipe(&mut cmd, &pipe_read);
+        let pipe = if opts.without_lockstep_pipe {
+            None
+        } else {
+            let (read, write) = std::io::pipe().context("making the lockstep pipe")?;
+            pass_pipe(&mut cmd, &read);
+            Some((read, write))
+        };
         for (i, p) in paths.iter().enumerate() {
             cmd.arg("-chardev")
                 .arg(format!("socket,id=uart{i},path={}", p.display()))
@@ -338,7 +350,7 @@ impl Qemu {
             .spawn()
             .with_context(|| format!("starting {} (is qemu-system-arm installed?)", qemu_binary()))?;
         // QEMU holds the read end: a write after it ended fails instead of waiting.
-        drop(pipe_read);
+        let pipe = pipe.map(|(_, write)| write);
 
         let live = Arc::new(Mutex::new(Vec::new()));
         let stdout = child.stdout.take().map(|s| capture(s, live.clone()));
@@ -349,7 +361,7 @@ impl Qemu {
             host: UnixStream::pair()?.0,
             servo: UnixStream::pair()?.0,
             clock: UnixStream::pair()?.0,
-            pipe: Some(pipe_write),
+            pipe,
             stdout,
             stderr,
             live,
@@ -575,7 +587,7 @@ pub struct Lockstep {
     host: UnixStream,
     servo: UnixStream,
     clock: UnixStream,
-    pipe: std::io::PipeWriter,
+    pipe: Option<std::io::PipeWriter>,
     /// Whether the image runs in lockstep, so that its commands go through the pipe.
     lockstep: bool,
     /// The longest wait for the image to answer, in QEMU's own processor time (see
@@ -597,7 +609,7 @@ impl Lockstep {
 
     /// As [`Lockstep::start`], with `preload` (see [`preload_bytes`]) in the board's PSRAM.
     pub fn start_with(image: &Path, preload: Option<&[u8]>) -> Result<(Lockstep, u32)> {
-        Lockstep::start_opts(image, &Options { preload, flash_file: None })
+        Lockstep::start_opts(image, &Options { preload, ..Options::default() })
     }
 
     /// As [`Lockstep::start`], as `opts` say.
@@ -607,7 +619,7 @@ impl Lockstep {
             host: qemu.host.try_clone()?,
             servo: qemu.servo.try_clone()?,
             clock: qemu.clock.try_clone()?,
-            pipe: qemu.pipe.take().ok_or_else(|| anyhow!("the lockstep pipe is taken"))?,
+            pipe: qemu.pipe.take(),
             lockstep: false,
             qemu,
             timeout: Duration::from_secs(60),
@@ -783,7 +795,11 @@ impl Lockstep {
     /// Sends a clock-channel command where the image reads them now: the pipe in lockstep,
     /// UART2 otherwise.
     fn command(&mut self, bytes: &[u8]) -> Result<()> {
-        let sent = if self.lockstep { self.pipe.write_all(bytes) } else { self.clock.write_all(bytes) };
+        let sent = match (self.lockstep, self.pipe.as_mut()) {
+            (false, _) => self.clock.write_all(bytes),
+            (true, Some(pipe)) => pipe.write_all(bytes),
+            (true, None) => bail!("the board runs in lockstep, and QEMU was started without its pipe"),
+        };
         sent.map_err(|e| anyhow!("the board image takes no more commands ({e}); it printed:\n{}", self.qemu.output_so_far()))
     }
 }

@@ -519,11 +519,25 @@ fn benchmark_image_refuses_a_damaged_or_missing_preload() {
         (Some(&long[..]), "MSR-BENCH-ERROR preloaded model refused: TooLarge"),
         (None, "MSR-BENCH-ERROR no model: none is built in and none was preloaded"),
     ] {
-        let opts = qemu::Options { preload, flash_file: None };
+        let opts = qemu::Options { preload, ..qemu::Options::default() };
         let exit = qemu::run_image(&img, &opts, Duration::from_secs(60), |_, _| Ok(())).unwrap();
         assert_eq!(exit.code, Some(1), "{want}: {}", exit.output);
         assert_eq!(exit.output.lines().filter(|l| l.starts_with("MSR-BENCH")).collect::<Vec<_>>(), [want], "{}", exit.output);
     }
+}
+
+/// The board image runs free without the lockstep pipe, but asked to start in lockstep without
+/// it, where nothing could drive its clock, it says so and ends instead of waiting.
+#[test]
+fn board_image_refuses_lockstep_without_its_pipe() {
+    let Some(img) = image(qemu::BOARD_IMAGE) else { return };
+    let opts = qemu::Options { without_lockstep_pipe: true, ..qemu::Options::default() };
+    let (mut ls, crc) = Lockstep::start_opts(&img, &opts).unwrap();
+    assert_eq!(crc, 0, "a fresh board has no model");
+    assert!(!ls.status_frame().unwrap().is_empty(), "running free, it answers");
+    let e = format!("{:#}", ls.reset(Some(TICK_US)).unwrap_err());
+    assert!(e.contains("ended before answering start-up"), "{e}");
+    assert!(e.contains("lockstep asked for, but QEMU was started without the lockstep pipe (descriptor 3)"), "{e}");
 }
 
 /// A bad upload is refused with the reason, and the model in use stays: same CRC, same results.

@@ -1,6 +1,6 @@
 //! The board's flash kept in a file on the host (`msr serve --backend qemu --flash FILE`), through
 //! semihosting: QEMU's `-semihosting-config enable=on,target=native,arg=msr-qemu,arg=flash=PATH`
-//! makes the image's command line `msr-qemu flash=PATH`.
+//! makes the image's command line `msr-qemu flash=PATH` ([`crate::cmdline`]).
 //!
 //! At every start the image reads the file into the flash region (so the file, not QEMU's
 //! PSRAM, is the flash), and from then on every program and erase is written through to the file
@@ -13,7 +13,7 @@
 //! Without the argument nothing changes: the flash is the PSRAM alone.
 
 use core::sync::atomic::{AtomicI32, AtomicU32, Ordering};
-use cortex_m_semihosting::{nr, syscall, syscall1};
+use cortex_m_semihosting::{nr, syscall};
 
 /// The file's semihosting handle, -1 without one.
 static HANDLE: AtomicI32 = AtomicI32::new(-1);
@@ -38,28 +38,13 @@ pub enum Attach {
 /// `region` and writes later changes through to it. Call once at start-up, before the store
 /// reads the flash.
 pub fn attach(region: &mut [u8]) -> Attach {
-    let mut line = [0u8; 512];
-    // The block is read and written by the host: buffer, then its length (in), the string's
-    // length (out).
-    let mut block = [line.as_mut_ptr() as usize, line.len()];
-    let block_ptr = block.as_mut_ptr();
-    // SAFETY: GET_CMDLINE writes at most `line.len()` bytes into `line` and the length into the
-    // block, both alive across the call. Passed as a raw pointer and read back volatile: through
-    // a shared reference the compiler may keep the length it stored.
-    if unsafe { syscall1(nr::GET_CMDLINE, block_ptr as usize) } != 0 {
-        return Attach::None;
-    }
-    // SAFETY: the block's second word, written by the host.
-    let len = unsafe { core::ptr::read_volatile(block_ptr.add(1)) };
-    if len >= line.len() {
-        return Attach::Failed("the command line is too long");
-    }
-    const KEY: &[u8] = b"msr-qemu flash=";
-    if !line[..len].starts_with(KEY) {
-        return Attach::None;
-    }
-    // The path runs to the end of the line (it may hold spaces); `line[len]` is its NUL.
-    let (path, path_len) = (line[KEY.len()..].as_ptr() as usize, len - KEY.len());
+    let line = match crate::cmdline::Line::read() {
+        Ok(line) => line,
+        Err(why) => return Attach::Failed(why),
+    };
+    let Some(path) = line.args().flash else { return Attach::None };
+    // `path` ends in the line's NUL.
+    let (path, path_len) = (path.as_ptr() as usize, path.len() - 1);
     // SAFETY: OPEN reads the NUL-terminated path; the block lives across the call.
     let handle = unsafe { syscall(nr::OPEN, &[path, MODE_READ_WRITE, path_len]) } as isize;
     if handle < 0 {

@@ -278,15 +278,15 @@ fn main() -> ! {
     // The store finds its committed model (if any) before anything asks for it.
     board.store_mut().start();
     report_preload(model_area::take_preload(board.store_mut()));
+    // Lockstep state: the next tick's time and the tick length, and the pipe its commands come
+    // through (a start that cannot have one ends before it says hello).
+    let mut lockstep: Option<(u64, u64)> = boot_request().map(|tick| (0, tick));
+    let mut pipe = lockstep.map(|_| Pipe::open().unwrap_or_else(|| no_pipe()));
     let crc = announce(board);
     let mut hello = [ctl::HELLO, 0, 0, 0, 0];
     hello[1..].copy_from_slice(&crc.to_le_bytes());
     ctl.send(&hello);
 
-    // Lockstep state: the next tick's time and the tick length, and the pipe its commands come
-    // through.
-    let mut lockstep: Option<(u64, u64)> = boot_request().map(|tick| (0, tick));
-    let mut pipe = lockstep.map(|_| Pipe::open().unwrap_or_else(|| no_pipe()));
     host.lockstep = lockstep.is_some();
     servo.lockstep = lockstep.is_some();
     loop {

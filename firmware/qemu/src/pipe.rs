@@ -1,7 +1,9 @@
 //! The lockstep channel's commands, read from a pipe through semihosting.
 //!
-//! The host starts QEMU with the read end of a pipe as its file descriptor 3 (`msr_sim::qemu`);
-//! the image opens it as `/dev/fd/3`. A semihosting read takes a whole command with its bytes
+//! The host starts QEMU with the read end of a pipe as its file descriptor 3 (`msr_sim::qemu`)
+//! and says so on the image's command line (`lockstep-pipe`, [`crate::cmdline`]); the image
+//! opens it as `/dev/fd/3`. Without that word it opens nothing: descriptor 3 is then one of
+//! QEMU's own files. A semihosting read takes a whole command with its bytes
 //! in one call, where the emulated UART moves one byte per turn of QEMU's event loop (a tick's
 //! 40 bytes took about 2 ms that way). What the board writes still goes out on its UARTs.
 //!
@@ -20,8 +22,13 @@ pub struct Pipe {
 }
 
 impl Pipe {
-    /// Opens the pipe; `None` when QEMU was started without one.
+    /// Opens the pipe; `None` when QEMU was started without one. Out of line: the command
+    /// line's buffer is on the stack only here.
+    #[inline(never)]
     pub fn open() -> Option<Pipe> {
+        if !crate::cmdline::Line::read().is_ok_and(|l| l.args().lockstep_pipe) {
+            return None;
+        }
         // SAFETY: OPEN reads the NUL-terminated path and the three-word block, both alive
         // across the call.
         let h = unsafe { syscall(nr::OPEN, &[PATH.as_ptr() as usize, MODE_READ_BINARY, PATH.len() - 1]) } as isize;

@@ -61,7 +61,7 @@ pub fn start_lockstep(blob: Option<&[u8]>, flash_file: Option<&std::path::Path>)
         }
         None => None,
     };
-    let opts = qemu::Options { preload: preload.as_deref(), flash_file };
+    let opts = qemu::Options { preload: preload.as_deref(), flash_file, ..qemu::Options::default() };
     let (mut ls, _) = Lockstep::start_opts(&image, &opts)?;
     let got = ls.reset(Some(TICK_US))?;
     if let (Some(b), None) = (blob, flash_file) {
