@@ -3,7 +3,7 @@
 //! The frames are made from the model itself (its predicted face at a few head poses, plus
 //! deterministic noise and square marks), so any blob works and nothing has to be shipped.
 //! Every intermediate result that matters goes into a CRC-32: the predicted face, the
-//! photometric fit, the mask, the winning blob, the centroid and reach bits. Four frames are
+//! photometric fit, the frame's spread and floor, the mask, the winning blob, the centroid and reach bits. Four frames are
 //! under another exposure and one is black, so that the fit and its verdict are compared too. Run it on the host and on the board with the
 //! same blob: equal digests mean bit-identical pipelines.
 
@@ -129,6 +129,7 @@ pub fn run(
             l.samples as u32 | (l.inliers as u32) << 16,
             l.correlation_milli as u32,
             l.verdict as u32,
+            ws.spread()[0] as u32 | (ws.spread()[1] as u32) << 16,
         ] {
             digest.update(&v.to_le_bytes());
         }

@@ -117,6 +117,7 @@ pub mod confirm;
 pub mod decoder;
 pub mod dynamixel;
 pub mod extent;
+pub mod floor;
 pub mod golden;
 pub mod light;
 pub mod link;

@@ -481,7 +481,7 @@ fn kept_sums(xs: &[u8], ys: &[u16], g: i32, k: i32, cut2: u32) -> Sums {
 
 /// `floor(sqrt(n))`, exactly: two bits of the root a step, 16 steps at most (core's
 /// `u32::isqrt` took 700 bytes more of the board's code).
-fn isqrt(n: u32) -> u32 {
+pub(crate) fn isqrt(n: u32) -> u32 {
     let (mut rem, mut root, mut bit) = (n, 0u32, 1u32 << 30);
     while bit > n {
         bit >>= 2;

@@ -8,6 +8,7 @@
 use crate::blobs::merge;
 use crate::blobs::{Blob, FaceLabeller, Summary};
 use crate::decoder::{DecodeError, Decoder};
+use crate::floor;
 use crate::light::{self, LightFit, Verdict};
 use crate::reach;
 use crate::room::Room;
@@ -79,6 +80,8 @@ pub struct Workspace {
     /// The last frame's photometric fit, and its table `v(I)`.
     light: LightFit,
     lut: light::Lut,
+    /// The last frame's spread and floor, Q8.8 ([`crate::floor`]).
+    spread: [u16; 2],
     /// Fit the light of each frame ([`light::fit`]; the default). Off: `v(I) = I << 8` and no
     /// frame refused, the error as the paper defines it (for comparisons).
     pub fit_light: bool,
@@ -108,6 +111,7 @@ impl Workspace {
             row_counts: None,
             light: LightFit::IDENTITY,
             lut: light::Lut::IDENTITY,
+            spread: [0; 2],
             fit_light: true,
             room: Room::new(),
             room_applied: None,
@@ -139,6 +143,13 @@ impl Workspace {
         Ok(self.decoder.face().unwrap_or(&[]))
     }
 
+    /// The last [`saliency`](Self::saliency)'s frame: its spread and the floor it took, Q8.8
+    /// grey levels ([`crate::floor`]; 0 and 0 for a frame the fit refused, or for a model
+    /// without a reference).
+    pub fn spread(&self) -> [u16; 2] {
+        self.spread
+    }
+
     /// Whether the last [`decode`](Self::decode) ran the network (a new head pose, model or
     /// room) rather than taking the cached face: such a frame has paid for a prediction, so
     /// the board neither learns from it nor settles a batch on it ([`crate::room`], rules 1
@@ -163,14 +174,12 @@ impl Workspace {
         if !s.is_valid() {
             return Err(DetectError::Settings);
         }
-        self.thresholds.prepare(model, s, self.head);
         let (mu, _, _) = model.stats_at(self.head);
         let (face, mask) = self.decoder.face_and_scratch();
         let face = face.ok_or(DetectError::Decode(DecodeError::BadInput))?;
         if face.len() != crop.len() || mask.len() < crop.len() {
             return Err(DetectError::CropSize);
         }
-        let tn = self.thresholds.table();
         let (w, pool) = (model.face_w as usize, model.novelty.pool);
         self.row_counts = None;
         if !self.fit_light {
@@ -181,11 +190,23 @@ impl Workspace {
             if self.light.verdict != Verdict::Face {
                 mask[..crop.len()].fill(0);
                 self.row_counts = Some([0; MAX_FACE_H]);
+                self.spread = [0; 2];
                 return Ok(0);
             }
             self.light.lut(&mut self.lut);
         }
         let lut = &self.lut;
+        // The frame's own floor ([`crate::floor`]), for a model that carries its reference.
+        self.spread = match floor::reference(model) {
+            Some(r) => {
+                let spread = floor::spread(crop, face, lut, w, pool);
+                [spread, floor::floor(spread, r)]
+            }
+            None => [0; 2],
+        };
+        let f = self.spread[1];
+        self.thresholds.prepare(model, s, self.head, f);
+        let tn = self.thresholds.table();
         Ok(match (pool, s.sided) {
             (0, _) => saliency::saliency(crop, face, lut, mu, tn, s.sided, mask),
             (_, Sided::One) => {

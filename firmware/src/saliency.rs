@@ -90,9 +90,9 @@ impl Settings {
 pub struct Thresholds {
     tn: Table,
     len: usize,
-    /// (model CRC, threshold bits, normalisation, statistics cell, combined) the table was made
-    /// for.
-    key: Option<(u32, u32, Normalisation, u8, bool)>,
+    /// (model CRC, threshold bits, normalisation, statistics cell, combined, frame floor) the
+    /// table was made for.
+    key: Option<(u32, u32, Normalisation, u8, bool, u16)>,
     /// (model CRC, its largest sigma over every cell): found once per model (a pass over all
     /// its statistics, at its first frame), it lets [`pool::combined_table`] skip every
     /// per-pixel range check.
@@ -135,14 +135,16 @@ impl Thresholds {
     }
 
     /// Makes the table for `model` and `threshold`/`normalisation` at head pose `head` (the
-    /// statistics of its pose cell, [`Model::stats_at`]), unless it is already made. A pooled
-    /// model's one-sided test gets the combined table (`mu + tn`, [`pool::Combine`]), any
-    /// other test `tn` alone ([`threshold_q88`]). Returns true when it was recomputed: with
-    /// pose statistics, once per change of cell.
-    pub fn prepare(&mut self, model: &Model, s: &Settings, head: [f32; 2]) -> bool {
+    /// statistics of its pose cell, [`Model::stats_at`]) with each sigma widened by the frame's
+    /// floor `floor` (Q8.8, [`crate::floor`]; 0: the statistics as they are), unless it is
+    /// already made. A pooled model's one-sided test gets the combined table (`mu + tn`,
+    /// [`pool::Combine`]), any other test `tn` alone ([`threshold_q88`]). Returns true when it
+    /// was recomputed: with pose statistics and a floor of 0, once per change of cell; with a
+    /// floor, whenever it changes.
+    pub fn prepare(&mut self, model: &Model, s: &Settings, head: [f32; 2], floor: u16) -> bool {
         let (mu, sigma, cell) = model.stats_at(head);
         let combined = model.novelty.pool > 0 && s.sided == Sided::One;
-        let key = (model.crc32, s.threshold.to_bits(), s.normalisation, cell, combined);
+        let key = (model.crc32, s.threshold.to_bits(), s.normalisation, cell, combined, floor);
         let n = model.face_pixels().min(MAX_FACE_PIXELS).min(sigma.len()).min(mu.len());
         if self.key == Some(key) && self.len == n {
             return false;
@@ -152,6 +154,16 @@ impl Thresholds {
         // Blobs are 4-byte aligned, so the tables are normally u16 slices; else read bytes.
         let aligned = (bytemuck::try_cast_slice::<u8, u16>(sigma.0), bytemuck::try_cast_slice::<u8, u16>(mu.0));
         match (combined, aligned) {
+            (true, (Ok(sigma), Ok(mu))) if floor > 0 => {
+                pool::widened_table(sigma, mu, &pool::Combine::new(s.threshold, s.normalisation), floor, out)
+            }
+            _ if floor > 0 => {
+                let c = pool::Combine::new(s.threshold, s.normalisation);
+                for (i, t) in out.iter_mut().enumerate() {
+                    let sigma = crate::floor::widen(sigma.get(i), floor);
+                    *t = if combined { c.at(sigma, mu.get(i)) } else { threshold_q88(sigma, s.threshold, s.normalisation) };
+                }
+            }
             (true, (Ok(sigma), Ok(mu))) => {
                 pool::combined_table(sigma, mu, &pool::Combine::new(s.threshold, s.normalisation), sigma_max, out)
             }

@@ -111,6 +111,7 @@ fn spec(face_h: u16, face_w: u16, layers: Vec<LayerSpec>, rng: &mut Lcg) -> Mode
             sigma_floor: 0.5,
             merge: msr_shared::blob::Merge::OFF,
             pool: 0,
+            spread_ref: None,
         },
         layers,
         mu: (0..n)

@@ -26,6 +26,7 @@
 //! pose statistics (if flags bit 5): bins_yaw u8, bins_pitch u8, reserved u16 (0),
 //!   yaw_lo f32, yaw_hi f32, pitch_lo f32, pitch_hi f32, then per bin (bin = pitch index x
 //!   bins_yaw + yaw index) mu then sigma, face_h*face_w u16 each, Q8.8 (each padded to 4)
+//! frame spread (if flags bit 6): spread_ref f32
 //! self gate (if flags bit 3): amplitude f32, gain f32, gain_tol f32, rest_tol f32,
 //!   latency_ms u16, timeout_ms u16, min_frames u8, layout u8, reserved u8 x2 (0),
 //!   then for layout 1: hold_tol f32, level_tol f32; for layout 2: hold_tol f32, level_tol f32,
@@ -82,6 +83,13 @@
 //! The writer uses version 5 only for a blob with bit 3, 4 or 5, and a version-5 blob has one
 //! of them.
 //!
+//! Bit 6 (version 6): the spread of the pooled error over the frames the statistics came from
+//! ([`Novelty::spread_ref`], grey levels, 0..=255), after the pose statistics and before the
+//! self gate. The board widens each pixel's sigma by how much more a frame's own error spreads
+//! (the firmware's `floor`): a camera the statistics never saw (noise, blur, compression, another
+//! tone curve) pays for itself. The writer uses version 6 only for a blob with bit 6, and a
+//! version-6 blob has it.
+//!
 //! Fragment merge (version 3; bytes 36..40 are zero before): `merge_margin` 0 is the paper's
 //! blob stage. Otherwise 8-connected components of at least `merge_fragment` pixels whose
 //! boxes, one grown by `merge_margin` pixels on every side, overlap are merged (repeatedly, as
@@ -95,8 +103,8 @@
 pub const MAGIC: [u8; 4] = *b"MSRM";
 /// The newest version this build reads and writes (version 1 has no weight order byte,
 /// versions 1 and 2 no fragment merge, versions 1 to 3 no sub-pixel crop flag or pose region,
-/// versions 1 to 4 no self gate or error pooling).
-pub const VERSION: u16 = 5;
+/// versions 1 to 4 no self gate or error pooling, versions 1 to 5 no frame spread).
+pub const VERSION: u16 = 6;
 /// Largest [`Novelty::pool`] radius: a 7 x 7 window.
 pub const MAX_POOL: u8 = 3;
 /// Largest [`Merge::margin`].
@@ -152,6 +160,9 @@ pub const MAX_GATE_TIMEOUT_MS: u16 = 3000;
 pub const MAX_GATE_FRAMES: u8 = 8;
 const FLAG_POOL: u16 = 16;
 const FLAG_POSE: u16 = 32;
+const FLAG_SPREAD: u16 = 64;
+/// Largest [`Novelty::spread_ref`], grey levels.
+pub const MAX_SPREAD_REF: f32 = 255.0;
 /// Most cells of a [`PoseGrid`] along one angle.
 pub const MAX_POSE_BINS: u8 = 4;
 /// Bytes of the pose-statistics section before its tables.

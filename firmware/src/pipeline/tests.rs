@@ -252,3 +252,50 @@ fn saliency_takes_the_pose_cells_statistics() {
         assert_eq!(ws.thresholds.table()[0], crate::saliency::threshold_q88(sigma.get(0), 4.59, Normalisation::StdDev), "cell {cell}");
     }
 }
+
+/// A model that carries a spread reference widens each sigma by the frame's own floor: its
+/// masks are those of the same model with every sigma widened by that floor and no reference,
+/// for every test (per pixel and pooled, one- and two-sided); a frame within the reference
+/// keeps the statistics alone.
+#[test]
+fn the_frame_floor_acts_as_widened_statistics() {
+    let mut checked = 0;
+    for (pool, sided) in [(0, Sided::Two), (0, Sided::One), (2, Sided::One), (2, Sided::Two)] {
+        for spread_ref in [0.0f32, 0.5, 40.0] {
+            let mut spec = conv_spec(5, false);
+            spec.novelty.pool = pool;
+            spec.novelty.sided = sided;
+            spec.novelty.spread_ref = Some(spread_ref);
+            let bytes = spec.to_bytes().unwrap();
+            let m = Model::parse(&bytes).unwrap();
+            let s = Settings::of(&m);
+            let mut ws = Box::new(Workspace::new());
+            let head = [0.02, -0.01];
+            let mut r = Lcg(5);
+            let crop: Vec<u8> = face_of(&mut ws, &m, head)
+                .iter()
+                .map(|&p| (p as f64 + r.unit() * 8.0).round().clamp(0.0, 255.0) as u8)
+                .collect();
+            let n = ws.saliency(&m, &s, &crop).unwrap();
+            let mask = ws.mask(crop.len()).to_vec();
+            let [spread, f] = ws.spread();
+            assert_eq!(ws.light().verdict, crate::light::Verdict::Face);
+            assert!(spread > 0, "a noisy frame spreads");
+            assert_eq!(f, crate::floor::floor(spread, crate::floor::reference_q88(spread_ref)));
+            assert_eq!(f == 0, spread_ref >= 40.0, "pool {pool}: spread {spread}, floor {f}");
+
+            let mut widened = spec.clone();
+            widened.novelty.spread_ref = None;
+            widened.sigma = spec.sigma.iter().map(|&sg| crate::floor::widen(sg, f)).collect();
+            let wb = widened.to_bytes().unwrap();
+            let wm = Model::parse(&wb).unwrap();
+            let mut wws = Box::new(Workspace::new());
+            wws.decode(&wm, head).unwrap();
+            assert_eq!(wws.saliency(&wm, &s, &crop).unwrap(), n);
+            assert_eq!(wws.mask(crop.len()), &mask[..], "pool {pool} {sided:?} ref {spread_ref}");
+            assert_eq!(wws.spread(), [0, 0], "no reference, no floor");
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, 12);
+}

@@ -492,6 +492,28 @@ pub fn combined_table(sigma: &[u16], mu: &[u16], c: &Combine, sigma_max: u16, ou
     }
 }
 
+/// [`combined_table`] with each sigma widened by the frame's floor `f` (Q8.8,
+/// [`crate::floor::widen`]): `T = Combine::at(widen(sigma, f), mu)`, the same value for every
+/// pixel. The standard-deviation rule whose `tq` fits 32 bits (every threshold up to 65535)
+/// takes one 32 x 32 multiply a pixel, its `T` unsaturated until the end; any other the general
+/// rule.
+pub fn widened_table(sigma: &[u16], mu: &[u16], c: &Combine, f: u16, out: &mut [u16]) {
+    let ff = f as f32 * f as f32;
+    let pairs = out.iter_mut().zip(sigma.iter().zip(mu));
+    if c.normalisation == Normalisation::StdDev && c.tq <= u32::MAX as u64 {
+        let tq = c.tq;
+        for (o, (&s, &m)) in pairs {
+            let w = crate::floor::widen_sq(s, ff);
+            // w < 2^16 and tq < 2^32: the product fits 48 bits, the sum 33.
+            *o = (((w as u64 * tq) >> 16) + m as u64).min(0xFFFF) as u16;
+        }
+    } else {
+        for (o, (&s, &m)) in pairs {
+            *o = c.at(crate::floor::widen(s, f), m);
+        }
+    }
+}
+
 /// The pooled one-sided mask of a `w`-wide face (rows: the shortest input / `w`) against the
 /// table `thr` ([`combined_table`]); returns the salient pixels and writes each row's
 /// count to `row_counts` (as many rows as it holds). `ring` needs `(2 pool + 1) w` words. A

@@ -52,7 +52,8 @@ pub fn detect_with(
     let (mu, sigma, _) = model.stats_at(head);
     let mu: Vec<f32> = mu.iter().map(q).collect();
     let sigma: Vec<f32> = sigma.iter().map(q).collect();
-    let sal = saliency(face_error(&face.grey, &predicted, model.face_w as usize, model.novelty.pool), &mu, &sigma, 0.0, settings.normalisation, settings.sided);
+    let spread = ws.spread().map(|v| v as f32 / 256.0);
+    let sal = saliency(face_error(&face.grey, &predicted, model.face_w as usize, model.novelty.pool), &mu, &sigma, 0.0, spread[1], settings.normalisation, settings.sided);
     Ok(Detection {
         crop: c,
         predicted,
@@ -61,5 +62,6 @@ pub fn detect_with(
         blob: det.blob.map(|b| Blob::from(&b).offset(c.x, c.y)),
         joints: det.reach,
         light: det.light,
+        spread,
     })
 }

@@ -42,6 +42,7 @@ pub fn float_engine_of(model: &Model) -> FloatEngine {
         reach: Some(model.reach),
         face_w: model.face_w as usize,
         pool: model.novelty.pool,
+        spread_ref: model.novelty.spread_ref,
         pose: model.pose.map(|p| {
             let cells: Vec<_> = (0..p.grid.len()).filter_map(|k| p.tables(k)).collect();
             crate::detect::pipeline::PoseTables {

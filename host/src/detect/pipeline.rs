@@ -15,9 +15,11 @@ pub use msr_firmware::Settings;
 pub const MIN_SIGMA: f64 = 1e-5;
 
 /// The normaliser of one pixel: `s = max(sigma, floor, 1e-5)` ([`MIN_SIGMA`], so a floor of 0
-/// never divides by zero), or `s^2` with [`Normalisation::Variance`].
-pub fn normaliser<T: Float>(sigma: T, floor: T, normalisation: Normalisation) -> T {
+/// never divides by zero) widened by the frame's floor `f` ([`frame_floor`]: `sqrt(s^2 +
+/// f^2)`), or its square with [`Normalisation::Variance`].
+pub fn normaliser<T: Float>(sigma: T, floor: T, f: T, normalisation: Normalisation) -> T {
     let s = sigma.max(floor).max(T::from(MIN_SIGMA).unwrap_or_else(T::epsilon));
+    let s = if f > T::zero() { (s * s + f * f).sqrt() } else { s };
     match normalisation {
         Normalisation::StdDev => s,
         Normalisation::Variance => s * s,
@@ -26,13 +28,16 @@ pub fn normaliser<T: Float>(sigma: T, floor: T, normalisation: Normalisation) ->
 
 /// Per-pixel saliency in threshold units, the float definition every host step uses: `(e - mu)
 /// / n` (one-sided) or `|e - mu| / n`, with the error `e` in grey levels and `n` =
-/// [`normaliser`]`(sigma, floor)`. A pixel is salient when its score exceeds the threshold. f32
-/// for the detection engines, f64 for calibration.
+/// [`normaliser`]`(sigma, floor, f)` (`f` the frame's floor, [`frame_floor`]; 0: the
+/// statistics alone). A pixel is salient when its score exceeds the threshold. f32 for the
+/// detection engines, f64 for calibration.
+#[allow(clippy::too_many_arguments)]
 pub fn saliency<T: Float>(
     e: impl IntoIterator<Item = T>,
     mu: &[T],
     sigma: &[T],
     floor: T,
+    f: T,
     normalisation: Normalisation,
     sided: Sided,
 ) -> Vec<T> {
@@ -43,7 +48,7 @@ pub fn saliency<T: Float>(
                 Sided::One => e - m,
                 Sided::Two => (e - m).abs(),
             };
-            d / normaliser(s, floor, normalisation)
+            d / normaliser(s, floor, f, normalisation)
         })
         .collect()
 }
@@ -82,8 +87,28 @@ pub fn censored_error<T: Float>(v: &[f32; 256], clip: [u8; 2], i: u8, p: T) -> T
 /// ([`msr_firmware::light::fit`]) on the prediction in Q8.8, as the board holds it. The one
 /// definition the float engine, calibration and evaluation share with the board.
 pub fn light_fit(face: &[u8], predicted: &[f32], w: usize) -> LightFit {
-    let q: Vec<u16> = predicted.iter().map(|&p| (p * 65280.0).round().clamp(0.0, 65535.0) as u16).collect();
-    msr_firmware::light::fit(face, &q, w)
+    msr_firmware::light::fit(face, &q88(predicted), w)
+}
+
+/// A prediction in 0..1 as the board holds it, Q8.8 grey levels.
+fn q88(predicted: &[f32]) -> Vec<u16> {
+    predicted.iter().map(|&p| (p * 65280.0).round().clamp(0.0, 65535.0) as u16).collect()
+}
+
+/// The frame's spread and its floor, grey levels: the board's rules
+/// ([`msr_firmware::floor`]) on `face` against the prediction (0..1) through the fit `fit`,
+/// for a model whose reference is `spread_ref`; `[0, 0]` without one (the statistics alone)
+/// or for a face the fit refused.
+pub fn frame_floor(face: &[u8], predicted: &[f32], w: usize, pool: u8, fit: &LightFit, spread_ref: Option<f32>) -> [f32; 2] {
+    let Some(r) = spread_ref else { return [0.0; 2] };
+    if fit.verdict != Verdict::Face {
+        return [0.0; 2];
+    }
+    let mut lut = msr_firmware::light::Lut::IDENTITY;
+    fit.lut(&mut lut);
+    let s = msr_firmware::floor::spread(face, &q88(predicted), &lut, w, pool);
+    let f = msr_firmware::floor::floor(s, msr_firmware::floor::reference_q88(r));
+    [s as f32 / 256.0, f as f32 / 256.0]
 }
 
 /// `v(I)` of a fit in grey levels, for each grey level `I` (the board's table over 256).
@@ -138,6 +163,9 @@ pub struct Detection {
     pub joints: Option<[f32; REACH_OUT]>,
     /// The frame's photometric fit; a verdict other than [`Verdict::Face`] detects nothing.
     pub light: LightFit,
+    /// The frame's spread and the floor its sigmas were widened by, grey levels
+    /// ([`frame_floor`]; 0 and 0 for a model without a reference).
+    pub spread: [f32; 2],
 }
 
 /// The reach network in float: mark position in full-frame pixels -> 5 joint angles.
@@ -187,6 +215,9 @@ pub struct FloatEngine {
     /// Statistics per head-pose cell (the blob's `PoseStats`), used in place of `mu` and
     /// `sigma` where the head pose is finite.
     pub pose: Option<PoseTables>,
+    /// The spread of the statistics' frames (the blob's `Novelty::spread_ref`): each frame's
+    /// sigma is widened by its own floor ([`frame_floor`]); `None`: the statistics alone.
+    pub spread_ref: Option<f32>,
 }
 
 /// mu and sigma (grey levels, floor applied) per cell of a head-pose grid.
@@ -221,7 +252,8 @@ impl FloatEngine {
         let s = &self.settings_at(head);
         let (mu, sigma) = self.stats_at(head);
         let (e, light) = face_error_fitted(face, &predicted, self.face_w, self.pool);
-        let saliency = saliency(e, mu, sigma, 0.0, s.normalisation, s.sided);
+        let spread = frame_floor(face, &predicted, self.face_w, self.pool, &light, self.spread_ref);
+        let saliency = saliency(e, mu, sigma, 0.0, spread[1], s.normalisation, s.sided);
         let face_seen = light.verdict == Verdict::Face;
         let mask: Vec<bool> = saliency.iter().map(|&v| face_seen && v > s.threshold).collect();
         let h = mask.len() / self.face_w.max(1);
@@ -237,7 +269,7 @@ impl FloatEngine {
         // Pooled one-sided, as the board (`msr_firmware::extent`): the pooled mask decides, the
         // extent reported is the salient pixels whose own error passes too.
         let mask = if self.pool > 0 && s.sided == Sided::One {
-            let own = self::saliency(face_error(face, &predicted, self.face_w, 0), mu, sigma, 0.0, s.normalisation, s.sided);
+            let own = self::saliency(face_error(face, &predicted, self.face_w, 0), mu, sigma, 0.0, spread[1], s.normalisation, s.sided);
             mask.iter().zip(own).map(|(&m, o)| m && o > s.threshold).collect()
         } else {
             mask
@@ -250,6 +282,7 @@ impl FloatEngine {
             blob,
             joints,
             light,
+            spread,
         }
     }
 }
@@ -265,7 +298,7 @@ mod tests {
         let (w, h) = (10, 6);
         let region = PoseRegion { centre: [0.0, 0.0], radius: 0.01, threshold: 1.5, merge: Merge { margin: 2, fragment: 2 } };
         let own = Settings { threshold: 4.0, normalisation: Normalisation::StdDev, sided: Sided::One, min_area: 4, merge: Merge::OFF };
-        let eng = FloatEngine { mu: vec![0.0; w * h], sigma: vec![1.0; w * h], settings: own, region: Some(region), reach: None, face_w: w, pool: 0, pose: None };
+        let eng = FloatEngine { mu: vec![0.0; w * h], sigma: vec![1.0; w * h], settings: own, region: Some(region), reach: None, face_w: w, pool: 0, pose: None, spread_ref: None };
         assert_eq!(eng.settings_at([0.005, -0.005]), Settings { threshold: 1.5, merge: region.merge, ..own });
         assert_eq!(eng.settings_at([0.0, 0.02]), own);
         // A 2 x 2 patch 3 grey levels off the prediction: salient at 1.5, not at 4.0. (A

@@ -13,6 +13,14 @@ pub fn to_json(d: &Detection) -> String {
         reason: Option<&'static str>,
         /// The photometric fit: the prediction's grey per observed grey, and the offset.
         light: Light,
+        /// What the frame's own error spreads, and the floor its sigmas were widened by
+        /// (`msr_firmware::floor`), grey levels.
+        camera: Camera,
+    }
+    #[derive(serde::Serialize)]
+    struct Camera {
+        spread: f32,
+        floor: f32,
     }
     #[derive(serde::Serialize)]
     struct Light {
@@ -53,6 +61,7 @@ pub fn to_json(d: &Detection) -> String {
             inliers: d.light.inliers,
             clip: d.light.clip,
         },
+        camera: Camera { spread: d.spread[0], floor: d.spread[1] },
     };
     // Plain structs and finite floats: serialising cannot fail.
     serde_json::to_string(&out).unwrap_or_default()
@@ -101,6 +110,9 @@ pub fn readable(d: &Detection) -> String {
                 s += &format!("; reach: {}", parts.join(", "));
             }
         }
+    }
+    if d.spread[1] > 0.0 {
+        s += &format!(" (camera: sigma widened by {:.1} grey levels, the frame spreads {:.1})", d.spread[1], d.spread[0]);
     }
     s
 }

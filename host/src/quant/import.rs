@@ -370,6 +370,8 @@ impl Published {
                 sigma_floor: SIGMA_FLOOR,
                 merge: msr_shared::blob::Merge::OFF,
                 pool: 0,
+                // The published statistics' frames are not known: a frame's whole spread counts.
+                spread_ref: Some(0.0),
             },
             layers: quantize_dense_stack(&self.decoder.layers, (h, w))?,
             mu: self.mu.iter().map(|&v| q8_8(v)).collect(),

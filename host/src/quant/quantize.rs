@@ -371,6 +371,7 @@ pub fn blob_of(layers: Vec<LayerSpec>, x: &Extras) -> Result<Vec<u8>> {
             sigma_floor: p.sigma_floor as f32,
             merge: p.merge,
             pool: p.pool,
+            spread_ref: p.spread_ref.map(|s| s as f32),
         },
         layers,
         mu: x.stats.mu.iter().map(|&v| q8_8(v)).collect(),
@@ -540,7 +541,8 @@ pub fn quantize(args: &QuantizeConfig) -> Result<Report> {
     let (mut agree, mut nf, mut nq, mut diffs) = (0usize, 0usize, 0usize, Vec::new());
     for ((s, f), p) in ds.samples.iter().zip(&faces).zip(&preds) {
         let novelty = x.novelty.at(s.head);
-        let sal = calibrate::saliency_at(&calibrate::error_map(f, p, w, novelty.pool), &x.stats, &novelty, s.head);
+        let floor = calibrate::frame_floor(f, p, w, novelty.pool, novelty.spread_ref);
+        let sal = calibrate::saliency_at(&calibrate::error_map(f, p, w, novelty.pool), &x.stats, &novelty, s.head, floor);
         let fl = calibrate::detect(&sal, h, w, &novelty);
         let fx = crate::detect::fixed::detect_with(&mut ws, &blob_model, &s.face, s.head)?;
         let fx = fx.blob.map(|b| [b.centroid[0] - s.face.crop.x as f64, b.centroid[1] - s.face.crop.y as f64]);
@@ -597,7 +599,7 @@ mod tests {
         Extras {
             face: (h, w),
             novelty: NoveltyParams { normalisation: Normalisation::StdDev, sided: Sided::One, ..Default::default() },
-            stats: ErrorStats { h, w, mu: vec![3.0; h * w], sigma: vec![2.0; h * w], frames: 10, pose: None },
+            stats: ErrorStats { h, w, mu: vec![3.0; h * w], sigma: vec![2.0; h * w], frames: 10, pose: None, spreads: Vec::new() },
             reach,
             template: None,
             crop: CropMode::Pixel,

@@ -12,6 +12,9 @@
 //! - floor: the normaliser uses `s = max(sigma, sigma_floor)` (default [`DEFAULT_SIGMA_FLOOR`] grey
 //!   levels: pixels that never vary would otherwise flag any change at all, and the board stores
 //!   sigma in Q8.8, whose smallest step is 1/256);
+//! - the frame's floor: `s` widened to `sqrt(s^2 + f^2)`, `f` what the frame's own error spreads
+//!   beyond the statistics' frames ([`frame_floor`], the board's `msr_firmware::floor`), for a
+//!   model that carries that reference ([`NoveltyParams::spread_ref`], [`spread_reference`]);
 //! - saliency: `(e - mu) / n` (one-sided, the default) or `|e - mu| / n` (two-sided, the published
 //!   code), with `n = s` (standard deviation, the published code) or `n = s^2` (variance, the
 //!   paper's text);
@@ -55,6 +58,10 @@ pub const DEFAULT_POOL: u8 = 2;
 /// paper; `--pose-bins 0`) is one set of statistics for all poses; every cell needs at least 2
 /// training frames, so a small dataset needs `--pose-bins 0` or fewer cells.
 pub const DEFAULT_POSE_BINS: u8 = 3;
+/// The quantile of the statistics' frames' spreads that is the model's reference
+/// ([`spread_reference`]): frames within the spread of nearly all of them (their light copies
+/// included) keep the statistics alone, and one odd frame does not set it.
+pub const SPREAD_QUANTILE: f64 = 0.99;
 
 /// Per-pixel error statistics, row-major `h x w`, grey levels.
 #[derive(Clone, Debug, PartialEq)]
@@ -71,6 +78,9 @@ pub struct ErrorStats {
     pub frames: usize,
     /// The same statistics per cell of a head-pose grid (the blob's flag bit 5), when made.
     pub pose: Option<PoseErrorStats>,
+    /// The spread of each error map the statistics were made from, grey levels
+    /// ([`frame_spread`]), in the order added.
+    pub spreads: Vec<f64>,
 }
 
 /// Error statistics per cell of a [`PoseGrid`]: cell `k`'s mu and sigma (N-1, not floored),
@@ -139,11 +149,41 @@ pub fn error_stats_by_pose<'a>(
     Ok(stats)
 }
 
-/// The error maps of one training face and of its light copies ([`LightCopies`]), face first.
-fn face_maps(obs: &[f32], pred: &[f32], w: usize, pool: u8, copies: &LightCopies, rng: &mut ChaCha8Rng) -> Vec<Vec<f64>> {
-    std::iter::once(error_map(obs, pred, w, pool))
-        .chain(copies.of(obs, w, rng).iter().map(|copy| error_map(copy, pred, w, pool)))
+/// The error maps of one training face and of its light copies ([`LightCopies`]), face first,
+/// each with its spread ([`frame_spread`]).
+fn face_maps(obs: &[f32], pred: &[f32], w: usize, pool: u8, copies: &LightCopies, rng: &mut ChaCha8Rng) -> Vec<(Vec<f64>, f64)> {
+    std::iter::once(obs.to_vec())
+        .chain(copies.of(obs, w, rng))
+        .map(|o| (error_map(&o, pred, w, pool), frame_spread(&o, pred, w, pool)))
         .collect()
+}
+
+/// A face (grey/255) as the camera's whole grey levels.
+fn grey_of(observed: &[f32]) -> Vec<u8> {
+    observed.iter().map(|&i| (i * 255.0).round().clamp(0.0, 255.0) as u8).collect()
+}
+
+/// The spread of a face's error against the prediction, grey levels: the board's
+/// (`msr_firmware::floor::spread`), through the board's photometric fit.
+pub fn frame_spread(observed: &[f32], predicted: &[f32], w: usize, pool: u8) -> f64 {
+    let grey = grey_of(observed);
+    let fit = pipeline::light_fit(&grey, predicted, w);
+    pipeline::frame_floor(&grey, predicted, w, pool, &fit, Some(0.0))[0] as f64
+}
+
+/// The floor a face's sigmas are widened by for a model whose reference is `spread_ref`
+/// ([`pipeline::frame_floor`]), grey levels; 0 without one.
+pub fn frame_floor(observed: &[f32], predicted: &[f32], w: usize, pool: u8, spread_ref: Option<f64>) -> f64 {
+    let Some(r) = spread_ref else { return 0.0 };
+    let grey = grey_of(observed);
+    let fit = pipeline::light_fit(&grey, predicted, w);
+    pipeline::frame_floor(&grey, predicted, w, pool, &fit, Some(r as f32))[1] as f64
+}
+
+/// The model's reference from the spreads of its statistics' frames: their
+/// [`SPREAD_QUANTILE`] (by [`percentile`]); 0 without frames.
+pub fn spread_reference(spreads: &[f64]) -> f64 {
+    percentile(spreads, 100.0 * SPREAD_QUANTILE).unwrap_or(0.0)
 }
 
 /// `e = |v(I) - 255 I_hat|` per pixel (censored where clipped: [`pipeline::censored_error`]), or pooled over the model's window
@@ -151,7 +191,7 @@ fn face_maps(obs: &[f32], pred: &[f32], w: usize, pool: u8, copies: &LightCopies
 /// photometric fit ([`pipeline::light_fit`], the board's), so that the statistics measure what
 /// the fit leaves. `observed` is grey/255 (whole grey levels).
 pub fn error_map(observed: &[f32], predicted: &[f32], w: usize, pool: u8) -> Vec<f64> {
-    let grey: Vec<u8> = observed.iter().map(|&i| (i * 255.0).round().clamp(0.0, 255.0) as u8).collect();
+    let grey = grey_of(observed);
     let fit = pipeline::light_fit(&grey, predicted, w);
     let v = pipeline::fitted_values(&fit);
     let signed: Vec<f64> = grey.iter().zip(predicted).map(|(&i, &p)| pipeline::censored_error(&v, fit.clip, i, 255.0 * p as f64)).collect();
@@ -168,18 +208,20 @@ pub struct StatsAccumulator {
     faces: usize,
     mean: Vec<f64>,
     m2: Vec<f64>,
+    spreads: Vec<f64>,
 }
 
 impl StatsAccumulator {
     /// An empty accumulator for `h x w` error maps.
     pub fn new(h: usize, w: usize) -> Self {
-        StatsAccumulator { h, w, n: 0, faces: 0, mean: vec![0.0; h * w], m2: vec![0.0; h * w] }
+        StatsAccumulator { h, w, n: 0, faces: 0, mean: vec![0.0; h * w], m2: vec![0.0; h * w], spreads: Vec::new() }
     }
 
     /// One training face's error maps: its own and its light copies' ([`face_maps`]).
-    fn add_maps(&mut self, maps: &[Vec<f64>]) -> Result<()> {
-        for e in maps {
+    fn add_maps(&mut self, maps: &[(Vec<f64>, f64)]) -> Result<()> {
+        for (e, spread) in maps {
             self.add(e)?;
+            self.spreads.push(*spread);
         }
         self.faces += 1;
         Ok(())
@@ -213,6 +255,7 @@ impl StatsAccumulator {
             mu: self.mean,
             frames,
             pose: None,
+            spreads: self.spreads,
         })
     }
 }
@@ -265,6 +308,12 @@ pub struct NoveltyParams {
     /// `msr train` makes a [`DEFAULT_POSE_BINS`] grid.
     #[serde(default)]
     pub pose_grid: Option<PoseGrid>,
+    /// The spread of the error over the statistics' frames, grey levels (the blob's
+    /// `Novelty::spread_ref`, [`spread_reference`]): a frame's sigma is widened by what its
+    /// own error spreads beyond it. None (the statistics alone) in older files and in
+    /// `NoveltyParams::default()`; `msr train` measures it.
+    #[serde(default)]
+    pub spread_ref: Option<f64>,
 }
 
 impl Default for NoveltyParams {
@@ -279,6 +328,7 @@ impl Default for NoveltyParams {
             region: None,
             pool: 0,
             pose_grid: None,
+            spread_ref: None,
         }
     }
 }
@@ -332,16 +382,16 @@ impl NoveltyParams {
 
 /// Saliency per pixel from an error map: the one float saliency
 /// ([`crate::detect::pipeline::saliency`]) with this model's floor and its pose-independent
-/// statistics.
+/// statistics, no frame floor.
 pub fn saliency(e: &[f64], stats: &ErrorStats, p: &NoveltyParams) -> Vec<f64> {
-    pipeline::saliency(e.iter().copied(), &stats.mu, &stats.sigma, p.sigma_floor, p.normalisation, p.sided)
+    pipeline::saliency(e.iter().copied(), &stats.mu, &stats.sigma, p.sigma_floor, 0.0, p.normalisation, p.sided)
 }
 
 /// [`saliency`] of a face seen with the head at `head`, with the statistics of its pose cell
-/// when the model has them ([`ErrorStats::at`]).
-pub fn saliency_at(e: &[f64], stats: &ErrorStats, p: &NoveltyParams, head: [f32; 2]) -> Vec<f64> {
+/// when the model has them ([`ErrorStats::at`]) and the frame's floor `f` ([`frame_floor`]).
+pub fn saliency_at(e: &[f64], stats: &ErrorStats, p: &NoveltyParams, head: [f32; 2], f: f64) -> Vec<f64> {
     let (mu, sigma) = stats.at(head);
-    pipeline::saliency(e.iter().copied(), mu, sigma, p.sigma_floor, p.normalisation, p.sided)
+    pipeline::saliency(e.iter().copied(), mu, sigma, p.sigma_floor, f, p.normalisation, p.sided)
 }
 
 /// The float detection: saliency above the threshold, then the board's blob stage
@@ -410,6 +460,58 @@ mod tests {
         assert!(error_stats(1, 1, 0, &LightCopies::NONE, obs.iter().zip(&pred).take(1).map(|(o, p)| (&o[..], &p[..]))).is_err());
     }
 
+    /// A shaded 30 x 24 face (grey/255) with noise of about `sd` grey levels from `seed`.
+    fn noisy_face(sd: f32, seed: u32) -> (Vec<f32>, Vec<f32>) {
+        let (w, h) = (30usize, 24usize);
+        let clean: Vec<f32> = (0..w * h).map(|i| (60.0 + 3.0 * (i % w) as f32 + 2.0 * (i / w) as f32) / 255.0).collect();
+        let mut x = seed.wrapping_mul(2_654_435_761) | 1;
+        let seen = clean
+            .iter()
+            .map(|&c| {
+                // A sum of three uniforms, sd about `sd`.
+                let n: f32 = (0..3)
+                    .map(|_| {
+                        x ^= x << 13;
+                        x ^= x >> 17;
+                        x ^= x << 5;
+                        (x % 1000) as f32 / 1000.0 - 0.5
+                    })
+                    .sum::<f32>()
+                    * sd * 2.0;
+                ((c * 255.0 + n).round().clamp(0.0, 255.0)) / 255.0
+            })
+            .collect();
+        (seen, clean)
+    }
+
+    /// Each error map the statistics take, the light copies' too, gives its spread; the
+    /// reference is their 99th percentile; a frame that spreads beyond it gets a floor.
+    #[test]
+    fn the_statistics_frames_spreads_make_the_reference() {
+        let faces: Vec<(Vec<f32>, Vec<f32>)> = (0..20).map(|k| noisy_face(2.0, k)).collect();
+        let pairs = || faces.iter().map(|(o, p)| (&o[..], &p[..]));
+        let s = error_stats(24, 30, 0, &LightCopies::NONE, pairs()).unwrap();
+        assert_eq!(s.spreads.len(), 20);
+        let copies = LightCopies { copies: 2, ..LightCopies::default() };
+        assert_eq!(error_stats(24, 30, 0, &copies, pairs()).unwrap().spreads.len(), 60);
+        for (sp, (o, p)) in s.spreads.iter().zip(&faces) {
+            assert_eq!(*sp, frame_spread(o, p, 30, 0));
+            assert!((1.0..4.0).contains(sp), "noise of sd 2: spread {sp}");
+        }
+        let r = spread_reference(&s.spreads);
+        assert_eq!(r, percentile(&s.spreads, 99.0).unwrap());
+        assert_eq!(spread_reference(&[]), 0.0);
+        // A frame like them keeps the statistics alone; a noisier one gets a floor.
+        let (o, p) = noisy_face(2.0, 99);
+        assert!(frame_floor(&o, &p, 30, 0, Some(r)) < 1.5);
+        let (o, p) = noisy_face(8.0, 99);
+        let f = frame_floor(&o, &p, 30, 0, Some(r));
+        let spread = frame_spread(&o, &p, 30, 0);
+        let exact = (spread * spread - r * r).sqrt();
+        assert!(spread > 6.0 && f <= exact && f > exact - 0.26, "spread {spread} ref {r} floor {f}: a quarter level under {exact}");
+        assert_eq!(frame_floor(&o, &p, 30, 0, None), 0.0, "no reference, no floor");
+    }
+
     /// A recording under one light: a shaded face with a little sensor noise. A lamp the
     /// recording never saw (a tone curve and a gradient within the copies' amplitudes) fires
     /// with the faces' statistics alone and not with their light copies.
@@ -449,7 +551,7 @@ mod tests {
 
     #[test]
     fn saliency_both_normalisations_and_sides() {
-        let stats = ErrorStats { h: 1, w: 3, mu: vec![10.0, 10.0, 10.0], sigma: vec![2.0, 0.0, 4.0], frames: 5, pose: None };
+        let stats = ErrorStats { h: 1, w: 3, mu: vec![10.0, 10.0, 10.0], sigma: vec![2.0, 0.0, 4.0], frames: 5, pose: None, spreads: Vec::new() };
         let e = [16.0, 10.3, 2.0];
         let mut p = NoveltyParams { sigma_floor: 0.5, ..Default::default() };
         // std, one-sided: 6/2, 0.3/0.5 (floored), -8/4.

@@ -401,6 +401,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
         region: None,
         pool: args.pool,
         pose_grid: None,
+        spread_ref: None,
     };
     novelty.check()?;
     ensure!(
@@ -529,6 +530,7 @@ pub fn run(args: TrainConfig) -> Result<()> {
         }
         None => calibrate::error_stats(h, w, novelty.pool, &copies, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?,
     };
+    novelty.spread_ref = Some(calibrate::spread_reference(&stats.spreads));
 
     let policy = match args.threshold_percentile {
         None => ThresholdPolicy { kind: "fixed".into(), percentile: None, frames: None, n_frames: 0 },
@@ -543,7 +545,8 @@ pub fn run(args: TrainConfig) -> Result<()> {
                 .zip(&preds)
                 .zip(&heads)
                 .map(|((f, p), &head)| {
-                    let sal = calibrate::saliency_at(&calibrate::error_map(f, p, w, novelty.pool), &stats, &novelty, head);
+                    let floor = calibrate::frame_floor(f, p, w, novelty.pool, novelty.spread_ref);
+                    let sal = calibrate::saliency_at(&calibrate::error_map(f, p, w, novelty.pool), &stats, &novelty, head, floor);
                     calibrate::detection_score(&sal, h, w, novelty.min_area)
                 })
                 .collect();

@@ -305,7 +305,13 @@ pub fn frames(
         .zip(faces)
         .zip(&heads)
         .map(|(((u, pr), (_, mark_box)), &head)| Frame {
-            saliency: calibrate::saliency_at(&calibrate::error_map(u, pr, stats.w, p.pool), stats, p, head),
+            saliency: calibrate::saliency_at(
+                &calibrate::error_map(u, pr, stats.w, p.pool),
+                stats,
+                p,
+                head,
+                calibrate::frame_floor(u, pr, stats.w, p.pool, p.spread_ref),
+            ),
             mark_box,
         })
         .collect())
@@ -442,7 +448,7 @@ mod tests {
         let (h, w) = (58, 75);
         let template = image::imageops::crop_imm(&grey, 122, 90, w as u32, h as u32).to_image();
         let cropper = crate::data::crop::Cropper::new(template, crate::data::crop::CropMode::Pixel);
-        let stats = ErrorStats { h, w, mu: vec![0.0; h * w], sigma: vec![0.05; h * w], frames: 2, pose: None };
+        let stats = ErrorStats { h, w, mu: vec![0.0; h * w], sigma: vec![0.05; h * w], frames: 2, pose: None, spreads: Vec::new() };
         let p = NoveltyParams::default();
         // A seed no other test renders with.
         let seed = 0x18_0DD_5EED;

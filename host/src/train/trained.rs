@@ -163,5 +163,6 @@ pub fn load_stats(dir: &Path, info: &ModelInfo) -> Result<ErrorStats> {
         }
         _ => bail!("{}: a pose grid needs its statistics file and the other way round", info.files.mu),
     };
-    Ok(ErrorStats { h, w, mu, sigma, frames: info.stats_frames, pose })
+    // The frames' spreads are not stored: the model's reference is in its novelty settings.
+    Ok(ErrorStats { h, w, mu, sigma, frames: info.stats_frames, pose, spreads: Vec::new() })
 }

@@ -3,7 +3,7 @@
 use super::{
     MAGIC, VERSION, MAX_POOL, BLOCK, HEADER_LEN, MAX_FACE_H, MAX_FACE_W, MAX_LAYERS,
     MAX_ACTIVATION_LEN, MAX_TEMPLATE_PIXELS, REACH_FLOATS, FLAG_TEMPLATE, FLAG_SUBPIXEL,
-    FLAG_REGION, FLAG_SELF_GATE, FLAG_POOL, FLAG_POSE, CRC32,
+    FLAG_REGION, FLAG_SELF_GATE, FLAG_POOL, FLAG_POSE, FLAG_SPREAD, MAX_SPREAD_REF, CRC32,
 };
 use super::error::BlobError;
 use super::settings::{
@@ -139,10 +139,13 @@ impl<'a> Model<'a> {
             return Err(BlobError::TooManyLayers);
         }
         let flags = r.u16()?;
-        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION | FLAG_SELF_GATE | FLAG_POOL | FLAG_POSE) != 0
+        let v5 = FLAG_SELF_GATE | FLAG_POOL | FLAG_POSE;
+        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION | v5 | FLAG_SPREAD) != 0
             || (flags & FLAG_SUBPIXEL != 0 && (version < 4 || flags & FLAG_TEMPLATE == 0))
             || (flags & FLAG_REGION != 0 && version < 4)
-            || (flags & (FLAG_SELF_GATE | FLAG_POOL | FLAG_POSE) != 0) != (version >= 5)
+            || (flags & v5 != 0 && version < 5)
+            || (version == 5 && flags & v5 == 0)
+            || (flags & FLAG_SPREAD != 0) != (version >= 6)
         {
             return Err(BlobError::BadHeader);
         }
@@ -269,6 +272,15 @@ impl<'a> Model<'a> {
         } else {
             None
         };
+        let spread_ref = if flags & FLAG_SPREAD != 0 {
+            let s = r.f32()?;
+            if !(0.0..=MAX_SPREAD_REF).contains(&s) {
+                return Err(BlobError::Novelty);
+            }
+            Some(s)
+        } else {
+            None
+        };
         let gate_at = r.pos;
         let self_gate = if flags & FLAG_SELF_GATE != 0 {
             let (amplitude, gain, gain_tol, rest_tol) = (r.f32()?, r.f32()?, r.f32()?, r.f32()?);
@@ -298,7 +310,7 @@ impl<'a> Model<'a> {
         Ok(Model {
             face_h,
             face_w,
-            novelty: Novelty { threshold, normalisation, sided, min_area, sigma_floor, merge, pool },
+            novelty: Novelty { threshold, normalisation, sided, min_area, sigma_floor, merge, pool, spread_ref },
             layers,
             mu,
             sigma,

@@ -43,6 +43,10 @@ pub struct Novelty {
     /// Radius of the window the signed error is averaged over before its magnitude is taken
     /// (flag bit 4); 0: per pixel, the paper's error.
     pub pool: u8,
+    /// The spread of the error over the frames the statistics came from, grey levels (flag
+    /// bit 6): each frame's sigma is widened by what its own error spreads beyond it (the
+    /// firmware's `floor`). `None`: the statistics alone, as before.
+    pub spread_ref: Option<f32>,
 }
 
 /// Merging of nearby components before the minimum-area test (a deviation from the paper, for

@@ -60,6 +60,7 @@ fn mlp_spec() -> ModelSpec {
             sigma_floor: 1.0,
             merge: Merge::OFF,
             pool: 0,
+            spread_ref: None,
         },
         layers: vec![
             dense(sh(2, 1, 1), sh(5, 1, 1), Activation::Tanh, false),
@@ -225,7 +226,8 @@ fn header_checks() {
     };
     assert_eq!(edit(0, b"MSRX"), Err(BlobError::BadMagic));
     assert_eq!(edit(4, &[0, 0]), Err(BlobError::UnsupportedVersion(0)));
-    assert_eq!(edit(4, &[6, 0]), Err(BlobError::UnsupportedVersion(6)));
+    assert_eq!(edit(4, &[7, 0]), Err(BlobError::UnsupportedVersion(7)));
+    assert_eq!(edit(4, &[6, 0]), Err(BlobError::BadHeader), "version 6 carries the frame spread");
     assert_eq!(edit(4, &[5, 0]), Err(BlobError::BadHeader), "version 5 carries a self gate or pooling");
     // Versions 2 to 4 read version 1's layout too.
     assert!(edit(4, &[2, 0]).is_ok());
@@ -1000,5 +1002,61 @@ fn a_layout_3_self_gate_carries_the_joint_bound_after_the_line_tolerance() {
     assert_eq!(Model::parse(&short), Err(BlobError::Truncated));
     for cut in plain.len()..gated.len() {
         assert!(Model::parse(&gated[..cut]).is_err());
+    }
+}
+
+#[test]
+fn frame_spread_is_a_literal_section_after_the_pose_statistics_and_before_the_self_gate() {
+    let posed = pose_spec().to_bytes().unwrap();
+    let mut spec = pose_spec();
+    spec.novelty.spread_ref = Some(4.75);
+    let bytes = spec.to_bytes().unwrap();
+    assert_eq!(&bytes[4..6], &[6, 0], "the frame spread is version 6");
+    assert_eq!(&bytes[22..24], &[33 | 64, 0], "template, pose and spread flags");
+    assert_eq!(bytes.len(), posed.len() + 4);
+    assert_eq!(&bytes[24..posed.len()], &posed[24..]);
+    assert_eq!(&bytes[posed.len()..], &4.75f32.to_le_bytes());
+    let m = Model::parse(&bytes).unwrap();
+    assert_eq!(m.novelty.spread_ref, Some(4.75));
+    assert_eq!(m.pose, Model::parse(&posed).unwrap().pose);
+    assert_eq!(Model::parse(&posed).unwrap().novelty.spread_ref, None);
+    // Alone on a plain blob, too.
+    let mut plain = mlp_spec();
+    plain.novelty.spread_ref = Some(0.0);
+    let p = plain.to_bytes().unwrap();
+    assert_eq!((&p[4..6], Model::parse(&p).unwrap().novelty.spread_ref), (&[6u8, 0][..], Some(0.0)));
+    // A self gate goes after it and comes off again; the version stays 6.
+    let gated = set_self_gate(&bytes, Some(gate())).unwrap();
+    assert_eq!(&gated[4..6], &[6, 0]);
+    assert_eq!(&gated[24..bytes.len()], &bytes[24..]);
+    let g = Model::parse(&gated).unwrap();
+    assert_eq!((g.novelty.spread_ref, g.self_gate), (Some(4.75), Some(gate())));
+    assert_eq!(set_self_gate(&gated, None).unwrap(), bytes);
+}
+
+#[test]
+fn frame_spread_is_checked_and_needs_version_6() {
+    let mut spec = mlp_spec();
+    spec.novelty.spread_ref = Some(2.5);
+    let bytes = spec.to_bytes().unwrap();
+    let at = bytes.len() - 4;
+    let edit = |at_: usize, v: &[u8]| {
+        let mut b = bytes.clone();
+        b[at_..at_ + v.len()].copy_from_slice(v);
+        recrc(&mut b);
+        Model::parse(&b).map(|m| m.novelty.spread_ref)
+    };
+    assert_eq!(edit(at, &255.0f32.to_le_bytes()), Ok(Some(255.0)));
+    for bad in [-0.5f32, 255.5, f32::NAN, f32::INFINITY] {
+        assert_eq!(edit(at, &bad.to_le_bytes()), Err(BlobError::Novelty), "{bad}");
+    }
+    assert_eq!(edit(4, &[5, 0]), Err(BlobError::BadHeader), "the flag needs version 6");
+    assert_eq!(edit(22, &[1, 0]), Err(BlobError::BadHeader), "version 6 needs the flag");
+    for cut in 0..bytes.len() {
+        assert!(Model::parse(&bytes[..cut]).is_err(), "accepted {cut} of {}", bytes.len());
+    }
+    for bad in [-1.0f32, 300.0, f32::NAN] {
+        spec.novelty.spread_ref = Some(bad);
+        assert_eq!(spec.to_bytes(), Err(BlobError::Novelty), "the writer refuses {bad} too");
     }
 }

@@ -1,6 +1,6 @@
 //! The blob writer (std only): models built on the host, written in the layout the parser reads.
 use super::{
-    BLOCK, CRC32, FLAG_POOL, FLAG_POSE, FLAG_REGION, FLAG_SELF_GATE, FLAG_SUBPIXEL,
+    BLOCK, CRC32, FLAG_POOL, FLAG_POSE, FLAG_REGION, FLAG_SELF_GATE, FLAG_SPREAD, FLAG_SUBPIXEL,
     FLAG_TEMPLATE, HEADER_LEN, MAGIC, MAX_POOL, REACH_FLOATS, REACH_HIDDEN, REACH_IN, REACH_OUT,
 };
 use super::error::BlobError;
@@ -95,7 +95,12 @@ impl ModelSpec {
         if self.novelty.pool > MAX_POOL {
             return Err(BlobError::Novelty);
         }
-        let version: u16 = if self.novelty.pool > 0 || self.pose.is_some() {
+        if self.novelty.spread_ref.is_some_and(|s| !(0.0..=super::MAX_SPREAD_REF).contains(&s)) {
+            return Err(BlobError::Novelty);
+        }
+        let version: u16 = if self.novelty.spread_ref.is_some() {
+            6
+        } else if self.novelty.pool > 0 || self.pose.is_some() {
             5
         } else if subpixel || self.region.is_some() {
             4
@@ -126,6 +131,9 @@ impl ModelSpec {
         }
         if self.pose.is_some() {
             flags |= FLAG_POSE;
+        }
+        if self.novelty.spread_ref.is_some() {
+            flags |= FLAG_SPREAD;
         }
         o.extend_from_slice(&flags.to_le_bytes());
         let n = &self.novelty;
@@ -228,6 +236,9 @@ impl ModelSpec {
                 pad(&mut o);
             }
         }
+        if let Some(s) = self.novelty.spread_ref {
+            o.extend_from_slice(&s.to_le_bytes());
+        }
         seal(o)
     }
 }
@@ -263,13 +274,19 @@ pub fn set_self_gate(bytes: &[u8], gate: Option<SelfGate>) -> Result<Vec<u8>, Bl
                 o.extend_from_slice(&f.to_le_bytes());
             }
             flags |= FLAG_SELF_GATE;
-            5
+            if flags & FLAG_SPREAD != 0 {
+                6
+            } else {
+                5
+            }
         }
         // The version the writer picks for the other sections.
         None => {
             let merge = u16::from_le_bytes([o[36], 0]) != 0;
             let blocked = m.layers.iter().any(|l| !l.torch_order());
-            if flags & (FLAG_POOL | FLAG_POSE) != 0 {
+            if flags & FLAG_SPREAD != 0 {
+                6
+            } else if flags & (FLAG_POOL | FLAG_POSE) != 0 {
                 5
             } else if flags & (FLAG_SUBPIXEL | FLAG_REGION) != 0 {
                 4

@@ -463,7 +463,7 @@ fn main() -> ! {
         // these poses is in another one), then the frame's own work.
         let t1 = clock.instructions();
         ws.thresholds.invalidate();
-        ws.thresholds.prepare(&model, &settings, *head);
+        ws.thresholds.prepare(&model, &settings, *head, 0);
         let t1t = clock.instructions();
         let salient = ws.saliency(&model, &settings, frame);
         let t2 = clock.instructions();
