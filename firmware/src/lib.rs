@@ -69,8 +69,9 @@
 //! # Stages (one module each)
 //! [`model`] validates and stages blobs; [`decoder`]; [`saliency`]; [`blobs`]; [`winner`];
 //! [`confirm`]; [`reach`]; [`motion`]; [`link`] (framing, reassembly, watchdogs); [`board`];
-//! [`light`] (the per-frame photometric fit); [`room`] (online self-calibration: what the board
-//! learns of the room's light as it runs).
+//! [`light`] (the per-frame photometric fit); [`floor`] (the frame's own floor: sigma widened by
+//! what a camera adds beyond the statistics' frames); [`room`] (online self-calibration: what
+//! the board learns of the room's light as it runs).
 //!
 //! # Memory
 //! [`Workspace`] (two `MAX_ACTIVATION_LEN` i16 activation buffers, the threshold table, the
@@ -103,8 +104,10 @@
 //! one assembly routine a row, [`saliency::pool`]): saliency about 117 k at a held head pose
 //! and 24 k more when the frame changes pose cell (the threshold table made again), blobs
 //! 0.5 k on an empty mask and 10-11 k with a mark, reach about 2.5 k: 29.3 per pixel over the
-//! bench's four held frames, 31.2 the costliest (marked), 34.9 at a new pose cell (target 30;
-//! `docs/performance.md`). The paper's per-pixel error (`--pool 0`, measured before the fit):
+//! bench's four held frames, 31.2 the costliest (marked), 34.9 at a new pose cell; the frame's
+//! floor ([`floor`], a model with a spread reference) adds about 50 k a frame and, on a frame
+//! whose floor changed, about 180 k for the table made again: the costliest frame of the demo's
+//! models about 0.58 M, within the 1.2 M budget (`docs/performance.md`). The paper's per-pixel error (`--pool 0`, measured before the fit):
 //! saliency about 74 k, blobs about 26 k: about 23.5 per pixel.
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
 // Index loops read best in the numeric kernels.

@@ -531,6 +531,14 @@ pub fn run(args: TrainConfig) -> Result<()> {
         None => calibrate::error_stats(h, w, novelty.pool, &copies, train.faces.iter().map(|f| &f[..]).zip(preds.iter().map(|p| &p[..])))?,
     };
     novelty.spread_ref = Some(calibrate::spread_reference(&stats.spreads));
+    if !args.quiet {
+        eprintln!(
+            "spread reference {:.2} grey levels: the {}th percentile of the frame spreads of the statistics' {} error maps",
+            novelty.spread_ref.unwrap_or(0.0),
+            100.0 * calibrate::SPREAD_QUANTILE,
+            stats.spreads.len()
+        );
+    }
 
     let policy = match args.threshold_percentile {
         None => ThresholdPolicy { kind: "fixed".into(), percentile: None, frames: None, n_frames: 0 },
