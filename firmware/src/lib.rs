@@ -107,7 +107,7 @@
 //! bench's four held frames, 31.2 the costliest (marked), 34.9 at a new pose cell; the frame's
 //! floor ([`floor`], a model with a spread reference) adds about 50 k a frame and, on a frame
 //! whose floor changed, about 180 k for the table made again: the costliest frame of the demo's
-//! models about 0.58 M, within the 1.2 M budget (`docs/performance.md`). The paper's per-pixel error (`--pool 0`, measured before the fit):
+//! models about 0.57 M, within the 1.2 M budget (`docs/performance.md`). The paper's per-pixel error (`--pool 0`, measured before the fit):
 //! saliency about 74 k, blobs about 26 k: about 23.5 per pixel.
 #![cfg_attr(not(any(feature = "std", test)), no_std)]
 // Index loops read best in the numeric kernels.

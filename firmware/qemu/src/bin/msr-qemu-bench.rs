@@ -32,6 +32,9 @@ use msr_shared::blob::{Model, MAX_FACE_PIXELS};
 /// Head poses of the benchmark frames (HeadYaw, HeadPitch), inside the +-5 degree training range.
 const POSES: [[f32; 2]; 4] = [[0.0, 0.0], [0.05, -0.03], [-0.07, 0.02], [0.02, 0.06]];
 const MARK: usize = 15;
+/// The frame floor the widened table is timed with, Q8.8 (4 grey levels; any non-zero floor
+/// costs the same).
+const WIDEN_PROBE: u16 = 4 * 256;
 const MARK_GREY: u8 = 226;
 
 static mut WS: Workspace = Workspace::new();
@@ -41,6 +44,9 @@ static mut FRAME: [u8; MAX_FACE_PIXELS] = [0; MAX_FACE_PIXELS];
 struct Stages {
     decoder: u64,
     table: u64,
+    /// The same table with each sigma widened by a frame floor ([`WIDEN_PROBE`]): what a frame
+    /// whose floor changed pays.
+    table_widened: u64,
     saliency: u64,
     blobs: u64,
     reach: u64,
@@ -461,6 +467,10 @@ fn main() -> ! {
         let decoded = ws.decoder.predict_uncached(&model, *head).is_ok();
         // The threshold table of the pose's cell (cached until the head changes cell; each of
         // these poses is in another one), then the frame's own work.
+        let tw0 = clock.instructions();
+        ws.thresholds.invalidate();
+        ws.thresholds.prepare(&model, &settings, *head, WIDEN_PROBE);
+        let tw1 = clock.instructions();
         let t1 = clock.instructions();
         ws.thresholds.invalidate();
         ws.thresholds.prepare(&model, &settings, *head, 0);
@@ -484,7 +494,14 @@ fn main() -> ! {
             d.finalize()
         });
         lines[k] = Line {
-            stages: Stages { decoder: t1 - t0, table: t1t - t1, saliency: t2 - t1t, blobs: t3 - t2, reach: t4 - t3 },
+            stages: Stages {
+                decoder: tw0 - t0,
+                table: t1t - t1,
+                table_widened: tw1 - tw0,
+                saliency: t2 - t1t,
+                blobs: t3 - t2,
+                reach: t4 - t3,
+            },
             salient: salient.unwrap_or(0),
             components: summary.components,
             blob: blob.map(|b| (b.area, [b.x0, b.y0, b.x1, b.y1])),
@@ -524,6 +541,7 @@ fn main() -> ! {
         );
         sum.decoder += s.decoder;
         sum.table += s.table;
+        sum.table_widened += s.table_widened;
         sum.saliency += s.saliency;
         sum.blobs += s.blobs;
         sum.reach += s.reach;
@@ -531,12 +549,13 @@ fn main() -> ! {
     let f = POSES.len() as u64;
     let sizes = memory::sizes();
     hprintln!(
-        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"table\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"held_max\":{},\"held_clear_max\":{},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}],\"golden_digest\":{},\"golden_detections\":{},\"room\":{{\"learn\":{},\"update\":{},\"apply\":{},\"digest\":{}}}}}",
+        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"table\":{},\"table_widened\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"held_max\":{},\"held_clear_max\":{},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}],\"golden_digest\":{},\"golden_detections\":{},\"room\":{{\"learn\":{},\"update\":{},\"apply\":{},\"digest\":{}}}}}",
         f,
         found,
         model.decoder_macs(),
         sum.decoder / f,
         sum.table / f,
+        sum.table_widened / f,
         sum.saliency / f,
         sum.blobs / f,
         sum.reach / f,
