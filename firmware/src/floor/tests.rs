@@ -112,3 +112,52 @@ fn reference_rounds_to_q88() {
     assert_eq!(reference_q88(f32::NAN), 0);
     assert_eq!(reference_q88(1e9), u16::MAX);
 }
+
+/// Rule 1 by its definition: every window's mean of the censored error, then the median.
+fn spread_reference(frame: &[u8], pred: &[u16], lut: &Lut, w: usize, pool: u8) -> u16 {
+    let h = frame.len().min(pred.len()) / w;
+    let (sx, sy) = light::steps(w, h);
+    let r = pool as i64;
+    let mut v = std::vec::Vec::new();
+    for y in (sy / 2..h).step_by(ROW_STEP * sy) {
+        for x in (sx / 2..w).step_by(sx) {
+            let (mut sum, mut k) = (0i32, 0i32);
+            for yy in (y as i64 - r).max(0)..=(y as i64 + r).min(h as i64 - 1) {
+                for xx in (x as i64 - r).max(0)..=(x as i64 + r).min(w as i64 - 1) {
+                    let i = yy as usize * w + xx as usize;
+                    sum += light::error(lut, frame[i], pred[i]);
+                    k += 1;
+                }
+            }
+            v.push((sum / k).unsigned_abs() as u16);
+        }
+    }
+    v.sort_unstable();
+    let med = v[v.len() / 2] as u64;
+    ((med * MAD_Q10 + 512) >> 10) as u16
+}
+
+#[test]
+fn spread_is_its_definition_with_clipped_pixels_censored() {
+    let mut rng = Lcg(21);
+    let (w, h) = (75, 58);
+    for case in 0..40u32 {
+        let frame: std::vec::Vec<u8> = (0..w * h).map(|_| (rng.next_u32() % 256) as u8).collect();
+        let pred: std::vec::Vec<u16> = frame.iter().map(|&f| ((f as u32 * 256 + rng.next_u32() % 4096) as u16).saturating_sub(2048)).collect();
+        let mut lut = Lut::IDENTITY;
+        // Clip levels of every kind: none, a plateau's, none left between them.
+        let (lo, hi) = match case % 4 {
+            0 => (0, 255),
+            1 => (20 + (case % 30) as u8, 200 + (case % 50) as u8),
+            2 => (100, 101),
+            _ => (128, 128),
+        };
+        (lut.lo, lut.hi) = (lo, hi);
+        for (i, v) in lut.v.iter_mut().enumerate() {
+            *v = ((i as u32 * 250 + case * 97) as u16).min(255 << 8);
+        }
+        for pool in 0..=MAX_POOL {
+            assert_eq!(spread(&frame, &pred, &lut, w, pool), spread_reference(&frame, &pred, &lut, w, pool), "case {case} pool {pool}");
+        }
+    }
+}
