@@ -145,7 +145,7 @@ impl Workspace {
 
     /// The last [`saliency`](Self::saliency)'s frame: its spread and the floor it took, Q8.8
     /// grey levels ([`crate::floor`]; 0 and 0 for a frame the fit refused, or for a model
-    /// without a reference).
+    /// without a reference; a frame refused for its floor keeps them, to say why).
     pub fn spread(&self) -> [u16; 2] {
         self.spread
     }
@@ -205,6 +205,13 @@ impl Workspace {
             None => [0; 2],
         };
         let f = self.spread[1];
+        if f > floor::MAX_FLOOR {
+            // Not this face through a camera ([`floor`], rule 5).
+            self.light.verdict = Verdict::NoFace;
+            mask[..crop.len()].fill(0);
+            self.row_counts = Some([0; MAX_FACE_H]);
+            return Ok(0);
+        }
         self.thresholds.prepare(model, s, self.head, f);
         let tn = self.thresholds.table();
         Ok(match (pool, s.sided) {

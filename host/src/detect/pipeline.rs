@@ -95,6 +95,12 @@ fn q88(predicted: &[f32]) -> Vec<u16> {
     predicted.iter().map(|&p| (p * 65280.0).round().clamp(0.0, 65535.0) as u16).collect()
 }
 
+/// Whether a frame's floor (grey levels) is one a camera explains: past
+/// `msr_firmware::floor::MAX_FLOOR` the board calls the frame no face (its rule 5).
+pub fn floor_holds(f: f32) -> bool {
+    f * 256.0 <= msr_firmware::floor::MAX_FLOOR as f32
+}
+
 /// The frame's spread and its floor, grey levels: the board's rules
 /// ([`msr_firmware::floor`]) on `face` against the prediction (0..1) through the fit `fit`,
 /// for a model whose reference is `spread_ref`; `[0, 0]` without one (the statistics alone)
@@ -254,6 +260,10 @@ impl FloatEngine {
         let (e, light) = face_error_fitted(face, &predicted, self.face_w, self.pool);
         let spread = frame_floor(face, &predicted, self.face_w, self.pool, &light, self.spread_ref);
         let saliency = saliency(e, mu, sigma, 0.0, spread[1], s.normalisation, s.sided);
+        let mut light = light;
+        if !floor_holds(spread[1]) {
+            light.verdict = Verdict::NoFace;
+        }
         let face_seen = light.verdict == Verdict::Face;
         let mask: Vec<bool> = saliency.iter().map(|&v| face_seen && v > s.threshold).collect();
         let h = mask.len() / self.face_w.max(1);

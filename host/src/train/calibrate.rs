@@ -390,6 +390,10 @@ pub fn saliency(e: &[f64], stats: &ErrorStats, p: &NoveltyParams) -> Vec<f64> {
 /// [`saliency`] of a face seen with the head at `head`, with the statistics of its pose cell
 /// when the model has them ([`ErrorStats::at`]) and the frame's floor `f` ([`frame_floor`]).
 pub fn saliency_at(e: &[f64], stats: &ErrorStats, p: &NoveltyParams, head: [f32; 2], f: f64) -> Vec<f64> {
+    if !pipeline::floor_holds(f as f32) {
+        // No face, as the board says of it: nothing salient.
+        return vec![0.0; e.len()];
+    }
     let (mu, sigma) = stats.at(head);
     pipeline::saliency(e.iter().copied(), mu, sigma, p.sigma_floor, f, p.normalisation, p.sided)
 }
