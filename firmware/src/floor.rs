@@ -7,12 +7,14 @@
 //!
 //! 1. The frame's spread `s`: the pooled error `|mean of v(I) - pred|` over the test's own window
 //!    at each pixel of every second row of the photometric fit's sample grid
-//!    ([`crate::light::steps`], [`ROW_STEP`]: about 100 pixels), and `s = 1.4826 median` of them (a Gaussian error's standard deviation from its
-//!    median magnitude). A mark, the arm or a highlight on fewer than half of the samples does
-//!    not move a median, so the floor never rises because of the mark it must keep.
+//!    ([`crate::light::steps`], [`ROW_STEP`]: about 100 pixels), and `s = 1.4826 median` of
+//!    them (a Gaussian error's standard deviation from its median magnitude). A mark, the arm
+//!    or a highlight on fewer than half of the samples does not move a median, so the floor
+//!    never rises because of the mark it must keep.
 //! 2. The model's reference `s_ref` (blob, [`msr_shared::blob::Novelty::spread_ref`]): the
-//!    spread its own statistics' frames show, measured when the statistics were made (0 for a
-//!    model without one: then the whole spread counts).
+//!    spread its own statistics' frames show, measured when the statistics were made (0 for an
+//!    imported model, whose frames are unknown: then the whole spread counts). A model without
+//!    one keeps its statistics alone, as before.
 //! 3. The floor `f = sqrt(max(0, s^2 - s_ref^2))`, rounded down to a quarter grey level
 //!    ([`FLOOR_STEP`]): the standard deviation of an error, independent of the model's, that
 //!    takes the spread from `s_ref` to `s`. A frame like the calibration's gets 0 and the
@@ -20,7 +22,6 @@
 //! 4. Each pixel's sigma becomes `sqrt(sigma^2 + f^2)` ([`widen`]): independent errors add
 //!    their variances, so a pixel the model predicts tightly gets most of the camera's error and
 //!    a pixel it predicts loosely little more than it had.
-//!
 //! 5. A frame whose floor would pass [`MAX_FLOOR`] is not the model's face through a camera
 //!    (another robot's face spreads 45 to 75 grey levels against a model; the imperfections
 //!    measured, a tone curve of 1.25 the worst, up to 21): its verdict is `NoFace` and it
