@@ -67,7 +67,6 @@ pub fn spread(frame: &[u8], pred: &[u16], lut: &Lut, w: usize, pool: u8) -> u16 
     let (frame, pred) = (&frame[..h * w], &pred[..h * w]);
     let (sx, sy) = light::steps(w, h);
     let r = pool as usize;
-    let (lo, hi) = (lut.lo, lut.hi);
     let mut v = [0u16; MAX_SAMPLES];
     let mut n = 0;
     for y in (sy / 2..h).step_by(ROW_STEP * sy) {
@@ -77,16 +76,7 @@ pub fn spread(frame: &[u8], pred: &[u16], lut: &Lut, w: usize, pool: u8) -> u16 
             let mut sum = 0i32;
             for row in y0..y1 {
                 let (f, p) = (&frame[row * w + x0..row * w + x1], &pred[row * w + x0..row * w + x1]);
-                for (&f, &p) in f.iter().zip(p) {
-                    let e = lut.v[f as usize] as i32 - p as i32;
-                    sum += if f >= hi {
-                        e.max(0)
-                    } else if f <= lo {
-                        e.min(0)
-                    } else {
-                        e
-                    };
-                }
+                sum += f.iter().zip(p).map(|(&f, &p)| light::error(lut, f, p)).sum::<i32>();
             }
             let k = ((y1 - y0) * (x1 - x0)) as i32;
             if let Some(slot) = v.get_mut(n) {

@@ -182,36 +182,31 @@ impl Workspace {
         }
         let (w, pool) = (model.face_w as usize, model.novelty.pool);
         self.row_counts = None;
+        self.spread = [0; 2];
         if !self.fit_light {
             self.light = LightFit::IDENTITY;
             self.lut = light::Lut::IDENTITY;
         } else {
             self.light = light::fit(crop, face, w);
-            if self.light.verdict != Verdict::Face {
-                mask[..crop.len()].fill(0);
-                self.row_counts = Some([0; MAX_FACE_H]);
-                self.spread = [0; 2];
-                return Ok(0);
+            if self.light.verdict == Verdict::Face {
+                self.light.lut(&mut self.lut);
             }
-            self.light.lut(&mut self.lut);
         }
-        let lut = &self.lut;
-        // The frame's own floor ([`crate::floor`]), for a model that carries its reference.
-        self.spread = match floor::reference(model) {
-            Some(r) => {
-                let spread = floor::spread(crop, face, lut, w, pool);
-                [spread, floor::floor(spread, r)]
+        // The frame's own floor ([`crate::floor`]), for a model that carries its reference; a
+        // floor past its bound is not this face through a camera (rule 5).
+        if let (Verdict::Face, Some(r)) = (self.light.verdict, floor::reference(model)) {
+            let spread = floor::spread(crop, face, &self.lut, w, pool);
+            self.spread = [spread, floor::floor(spread, r)];
+            if self.spread[1] > floor::MAX_FLOOR {
+                self.light.verdict = Verdict::NoFace;
             }
-            None => [0; 2],
-        };
-        let f = self.spread[1];
-        if f > floor::MAX_FLOOR {
-            // Not this face through a camera ([`floor`], rule 5).
-            self.light.verdict = Verdict::NoFace;
+        }
+        if self.light.verdict != Verdict::Face {
             mask[..crop.len()].fill(0);
             self.row_counts = Some([0; MAX_FACE_H]);
             return Ok(0);
         }
+        let (lut, f) = (&self.lut, self.spread[1]);
         self.thresholds.prepare(model, s, self.head, f);
         let tn = self.thresholds.table();
         Ok(match (pool, s.sided) {

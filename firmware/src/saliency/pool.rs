@@ -493,10 +493,10 @@ pub fn combined_table(sigma: &[u16], mu: &[u16], c: &Combine, sigma_max: u16, ou
 }
 
 /// [`combined_table`] with each sigma widened by the frame's floor `f` (Q8.8,
-/// [`crate::floor::widen`]): `T = Combine::at(widen(sigma, f), mu)`, the same value for every
-/// pixel. The standard-deviation rule whose `tq` fits 32 bits (every threshold up to 65535)
-/// takes one 32 x 32 multiply a pixel, its `T` unsaturated until the end; any other the general
-/// rule.
+/// [`crate::floor::widen`]): `T = Combine::at(widen(sigma, f), mu)`. The standard-deviation
+/// rule whose `tq` fits 32 bits (every threshold up to 65535) skips `at`'s saturating 64-bit
+/// multiply, which no product of a 16-bit sigma reaches: on the board 179 k instructions for a
+/// 58 x 75 face against 257 k through `at`.
 pub fn widened_table(sigma: &[u16], mu: &[u16], c: &Combine, f: u16, out: &mut [u16]) {
     let ff = f as f32 * f as f32;
     let pairs = out.iter_mut().zip(sigma.iter().zip(mu));
@@ -509,7 +509,7 @@ pub fn widened_table(sigma: &[u16], mu: &[u16], c: &Combine, f: u16, out: &mut [
         }
     } else {
         for (o, (&s, &m)) in pairs {
-            *o = c.at(crate::floor::widen(s, f), m);
+            *o = c.at(crate::floor::widen_sq(s, ff), m);
         }
     }
 }

@@ -204,3 +204,24 @@ fn spread_is_salient_without_its_own_error() {
         }
     }
 }
+
+/// The widened table's shortcut for the standard deviation is `Combine::at` of the widened
+/// sigma, for every sigma, thresholds whose `tq` is under and over 32 bits, and both
+/// normalisations.
+#[test]
+fn widened_table_is_combine_at_the_widened_sigma() {
+    let sigma: Vec<u16> = (0..=u16::MAX).collect();
+    for normalisation in [Normalisation::StdDev, Normalisation::Variance] {
+        for t in [4.59f32, 0.5, 255.9, 65535.0, 1e5, 1e30] {
+            for (mu, f) in [(0u16, 1u16), (700, 1024), (65535, 64), (3000, 65535)] {
+                let c = Combine::new(t, normalisation);
+                let mus = vec![mu; sigma.len()];
+                let mut out = vec![0u16; sigma.len()];
+                widened_table(&sigma, &mus, &c, f, &mut out);
+                for (&s, &o) in sigma.iter().zip(&out) {
+                    assert_eq!(o, c.at(crate::floor::widen(s, f), mu), "{normalisation:?} t {t} mu {mu} f {f} sigma {s}");
+                }
+            }
+        }
+    }
+}
