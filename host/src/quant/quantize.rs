@@ -541,8 +541,8 @@ pub fn quantize(args: &QuantizeConfig) -> Result<Report> {
     let (mut agree, mut nf, mut nq, mut diffs) = (0usize, 0usize, 0usize, Vec::new());
     for ((s, f), p) in ds.samples.iter().zip(&faces).zip(&preds) {
         let novelty = x.novelty.at(s.head);
-        let floor = calibrate::frame_floor(f, p, w, novelty.pool, novelty.spread_ref);
-        let sal = calibrate::saliency_at(&calibrate::error_map(f, p, w, novelty.pool), &x.stats, &novelty, s.head, floor);
+        let (e, [_, floor]) = calibrate::error_map_floor(f, p, w, novelty.pool, novelty.spread_ref);
+        let sal = calibrate::saliency_at(&e, &x.stats, &novelty, s.head, floor);
         let fl = calibrate::detect(&sal, h, w, &novelty);
         let fx = crate::detect::fixed::detect_with(&mut ws, &blob_model, &s.face, s.head)?;
         let fx = fx.blob.map(|b| [b.centroid[0] - s.face.crop.x as f64, b.centroid[1] - s.face.crop.y as f64]);

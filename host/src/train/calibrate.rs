@@ -13,7 +13,7 @@
 //!   levels: pixels that never vary would otherwise flag any change at all, and the board stores
 //!   sigma in Q8.8, whose smallest step is 1/256);
 //! - the frame's floor: `s` widened to `sqrt(s^2 + f^2)`, `f` what the frame's own error spreads
-//!   beyond the statistics' frames ([`frame_floor`], the board's `msr_firmware::floor`), for a
+//!   beyond the statistics' frames ([`error_map_floor`], the board's `msr_firmware::floor`), for a
 //!   model that carries that reference ([`NoveltyParams::spread_ref`], [`spread_reference`]);
 //! - saliency: `(e - mu) / n` (one-sided, the default) or `|e - mu| / n` (two-sided, the published
 //!   code), with `n = s` (standard deviation, the published code) or `n = s^2` (variance, the
@@ -79,7 +79,7 @@ pub struct ErrorStats {
     /// The same statistics per cell of a head-pose grid (the blob's flag bit 5), when made.
     pub pose: Option<PoseErrorStats>,
     /// The spread of each error map the statistics were made from, grey levels
-    /// ([`frame_spread`]), in the order added.
+    /// ([`error_map_floor`]), in the order added.
     pub spreads: Vec<f64>,
 }
 
@@ -150,34 +150,15 @@ pub fn error_stats_by_pose<'a>(
 }
 
 /// The error maps of one training face and of its light copies ([`LightCopies`]), face first,
-/// each with its spread ([`frame_spread`]).
+/// each with its spread ([`error_map_floor`] against a reference of 0).
 fn face_maps(obs: &[f32], pred: &[f32], w: usize, pool: u8, copies: &LightCopies, rng: &mut ChaCha8Rng) -> Vec<(Vec<f64>, f64)> {
     std::iter::once(obs.to_vec())
         .chain(copies.of(obs, w, rng))
-        .map(|o| (error_map(&o, pred, w, pool), frame_spread(&o, pred, w, pool)))
+        .map(|o| {
+            let (map, [spread, _]) = error_map_floor(&o, pred, w, pool, Some(0.0));
+            (map, spread)
+        })
         .collect()
-}
-
-/// A face (grey/255) as the camera's whole grey levels.
-fn grey_of(observed: &[f32]) -> Vec<u8> {
-    observed.iter().map(|&i| (i * 255.0).round().clamp(0.0, 255.0) as u8).collect()
-}
-
-/// The spread of a face's error against the prediction, grey levels: the board's
-/// (`msr_firmware::floor::spread`), through the board's photometric fit.
-pub fn frame_spread(observed: &[f32], predicted: &[f32], w: usize, pool: u8) -> f64 {
-    let grey = grey_of(observed);
-    let fit = pipeline::light_fit(&grey, predicted, w);
-    pipeline::frame_floor(&grey, predicted, w, pool, &fit, Some(0.0))[0] as f64
-}
-
-/// The floor a face's sigmas are widened by for a model whose reference is `spread_ref`
-/// ([`pipeline::frame_floor`]), grey levels; 0 without one.
-pub fn frame_floor(observed: &[f32], predicted: &[f32], w: usize, pool: u8, spread_ref: Option<f64>) -> f64 {
-    let Some(r) = spread_ref else { return 0.0 };
-    let grey = grey_of(observed);
-    let fit = pipeline::light_fit(&grey, predicted, w);
-    pipeline::frame_floor(&grey, predicted, w, pool, &fit, Some(r as f32))[1] as f64
 }
 
 /// The model's reference from the spreads of its statistics' frames: their
@@ -191,11 +172,19 @@ pub fn spread_reference(spreads: &[f64]) -> f64 {
 /// photometric fit ([`pipeline::light_fit`], the board's), so that the statistics measure what
 /// the fit leaves. `observed` is grey/255 (whole grey levels).
 pub fn error_map(observed: &[f32], predicted: &[f32], w: usize, pool: u8) -> Vec<f64> {
-    let grey = grey_of(observed);
+    error_map_floor(observed, predicted, w, pool, None).0
+}
+
+/// [`error_map`], and through the same photometric fit the frame's spread and the floor its
+/// sigmas are widened by for a model whose reference is `spread_ref`, grey levels (the board's
+/// rules, [`pipeline::frame_floor`]; 0 and 0 without a reference).
+pub fn error_map_floor(observed: &[f32], predicted: &[f32], w: usize, pool: u8, spread_ref: Option<f64>) -> (Vec<f64>, [f64; 2]) {
+    let grey: Vec<u8> = observed.iter().map(|&i| (i * 255.0).round().clamp(0.0, 255.0) as u8).collect();
     let fit = pipeline::light_fit(&grey, predicted, w);
     let v = pipeline::fitted_values(&fit);
     let signed: Vec<f64> = grey.iter().zip(predicted).map(|(&i, &p)| pipeline::censored_error(&v, fit.clip, i, 255.0 * p as f64)).collect();
-    pipeline::pooled_error(&signed, w, pool)
+    let floor = pipeline::frame_floor(&grey, predicted, w, pool, &fit, spread_ref.map(|r| r as f32));
+    (pipeline::pooled_error(&signed, w, pool), floor.map(f64::from))
 }
 
 /// Accumulates error maps one at a time (Welford's update: stable, one pass, no frame kept).
@@ -388,7 +377,7 @@ pub fn saliency(e: &[f64], stats: &ErrorStats, p: &NoveltyParams) -> Vec<f64> {
 }
 
 /// [`saliency`] of a face seen with the head at `head`, with the statistics of its pose cell
-/// when the model has them ([`ErrorStats::at`]) and the frame's floor `f` ([`frame_floor`]).
+/// when the model has them ([`ErrorStats::at`]) and the frame's floor `f` ([`error_map_floor`]).
 pub fn saliency_at(e: &[f64], stats: &ErrorStats, p: &NoveltyParams, head: [f32; 2], f: f64) -> Vec<f64> {
     if !pipeline::floor_holds(f as f32) {
         // No face, as the board says of it: nothing salient.
@@ -499,7 +488,7 @@ mod tests {
         let copies = LightCopies { copies: 2, ..LightCopies::default() };
         assert_eq!(error_stats(24, 30, 0, &copies, pairs()).unwrap().spreads.len(), 60);
         for (sp, (o, p)) in s.spreads.iter().zip(&faces) {
-            assert_eq!(*sp, frame_spread(o, p, 30, 0));
+            assert_eq!(*sp, error_map_floor(o, p, 30, 0, Some(0.0)).1[0]);
             assert!((1.0..4.0).contains(sp), "noise of sd 2: spread {sp}");
         }
         let r = spread_reference(&s.spreads);
@@ -507,13 +496,13 @@ mod tests {
         assert_eq!(spread_reference(&[]), 0.0);
         // A frame like them keeps the statistics alone; a noisier one gets a floor.
         let (o, p) = noisy_face(2.0, 99);
-        assert!(frame_floor(&o, &p, 30, 0, Some(r)) < 1.5);
+        assert!(error_map_floor(&o, &p, 30, 0, Some(r)).1[1] < 1.5);
         let (o, p) = noisy_face(8.0, 99);
-        let f = frame_floor(&o, &p, 30, 0, Some(r));
-        let spread = frame_spread(&o, &p, 30, 0);
+        let (map, [spread, f]) = error_map_floor(&o, &p, 30, 0, Some(r));
+        assert_eq!(map, error_map(&o, &p, 30, 0));
         let exact = (spread * spread - r * r).sqrt();
         assert!(spread > 6.0 && f <= exact && f > exact - 0.26, "spread {spread} ref {r} floor {f}: a quarter level under {exact}");
-        assert_eq!(frame_floor(&o, &p, 30, 0, None), 0.0, "no reference, no floor");
+        assert_eq!(error_map_floor(&o, &p, 30, 0, None).1, [0.0, 0.0], "no reference, no floor");
     }
 
     /// A recording under one light: a shaded face with a little sensor noise. A lamp the

@@ -553,8 +553,8 @@ pub fn run(args: TrainConfig) -> Result<()> {
                 .zip(&preds)
                 .zip(&heads)
                 .map(|((f, p), &head)| {
-                    let floor = calibrate::frame_floor(f, p, w, novelty.pool, novelty.spread_ref);
-                    let sal = calibrate::saliency_at(&calibrate::error_map(f, p, w, novelty.pool), &stats, &novelty, head, floor);
+                    let (e, [_, floor]) = calibrate::error_map_floor(f, p, w, novelty.pool, novelty.spread_ref);
+                    let sal = calibrate::saliency_at(&e, &stats, &novelty, head, floor);
                     calibrate::detection_score(&sal, h, w, novelty.min_area)
                 })
                 .collect();

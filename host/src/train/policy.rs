@@ -304,15 +304,9 @@ pub fn frames(
         .zip(&preds)
         .zip(faces)
         .zip(&heads)
-        .map(|(((u, pr), (_, mark_box)), &head)| Frame {
-            saliency: calibrate::saliency_at(
-                &calibrate::error_map(u, pr, stats.w, p.pool),
-                stats,
-                p,
-                head,
-                calibrate::frame_floor(u, pr, stats.w, p.pool, p.spread_ref),
-            ),
-            mark_box,
+        .map(|(((u, pr), (_, mark_box)), &head)| {
+            let (e, [_, floor]) = calibrate::error_map_floor(u, pr, stats.w, p.pool, p.spread_ref);
+            Frame { saliency: calibrate::saliency_at(&e, stats, p, head, floor), mark_box }
         })
         .collect())
 }
