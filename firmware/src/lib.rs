@@ -71,7 +71,8 @@
 //! [`confirm`]; [`reach`]; [`motion`]; [`link`] (framing, reassembly, watchdogs); [`board`];
 //! [`light`] (the per-frame photometric fit); [`floor`] (the frame's own floor: sigma widened by
 //! what a camera adds beyond the statistics' frames); [`room`] (online self-calibration: what
-//! the board learns of the room's light as it runs).
+//! the board learns of the room's light as it runs); [`chroma`] (the marks that only colour
+//! shows, for a model with chroma and a frame with its chroma planes).
 //!
 //! # Memory
 //! [`Workspace`] (two `MAX_ACTIVATION_LEN` i16 activation buffers, the threshold table, the
@@ -116,6 +117,7 @@
 
 pub mod blobs;
 pub mod board;
+pub mod chroma;
 pub mod confirm;
 pub mod decoder;
 pub mod dynamixel;
@@ -139,5 +141,5 @@ mod testkit;
 
 pub use board::Board;
 pub use model::{ModelStore, RamStore};
-pub use pipeline::{detect, DetectError, FaceDetection, Workspace};
+pub use pipeline::{detect, detect_colour, DetectError, FaceDetection, Workspace};
 pub use saliency::Settings;

@@ -7,6 +7,7 @@
 
 use crate::blobs::merge;
 use crate::blobs::{Blob, FaceLabeller, Summary};
+use crate::chroma;
 use crate::decoder::{DecodeError, Decoder};
 use crate::floor;
 use crate::light::{self, LightFit, Verdict};
@@ -20,6 +21,8 @@ use msr_shared::blob::{Model, Sided, MAX_FACE_H, REACH_OUT};
 pub enum DetectError {
     /// The crop is not `face_h * face_w` bytes.
     CropSize,
+    /// The chroma planes are not two of the model's chroma blocks.
+    ChromaSize,
     /// The novelty settings are out of range.
     Settings,
     /// The decoder refused the model (see [`DecodeError`]).
@@ -31,6 +34,9 @@ impl core::fmt::Display for DetectError {
         match self {
             DetectError::CropSize => {
                 f.write_str("face crop size differs from the model's face size")
+            }
+            DetectError::ChromaSize => {
+                f.write_str("chroma planes' size differs from the model's chroma blocks")
             }
             DetectError::Settings => f.write_str("novelty settings out of range"),
             DetectError::Decode(e) => write!(f, "decoder: {e}"),
@@ -61,6 +67,8 @@ pub struct FaceDetection {
     pub blobs: Summary,
     /// The frame's photometric fit and verdict: anything but [`Verdict::Face`] finds nothing.
     pub light: LightFit,
+    /// What the frame's colour gave, for a model with chroma and a frame with its planes.
+    pub chroma: Option<chroma::Frame>,
 }
 
 /// Scratch and caches for [`detect`]; about 55 KiB.
@@ -82,6 +90,8 @@ pub struct Workspace {
     lut: light::Lut,
     /// The last frame's spread and floor, Q8.8 ([`crate::floor`]).
     spread: [u16; 2],
+    /// The last frame's colour ([`crate::chroma`]).
+    chroma: Option<chroma::Frame>,
     /// Fit the light of each frame ([`light::fit`]; the default). Off: `v(I) = I << 8` and no
     /// frame refused, the error as the paper defines it (for comparisons).
     pub fit_light: bool,
@@ -112,6 +122,7 @@ impl Workspace {
             light: LightFit::IDENTITY,
             lut: light::Lut::IDENTITY,
             spread: [0; 2],
+            chroma: None,
             fit_light: true,
             room: Room::new(),
             room_applied: None,
@@ -183,6 +194,7 @@ impl Workspace {
         let (w, pool) = (model.face_w as usize, model.novelty.pool);
         self.row_counts = None;
         self.spread = [0; 2];
+        self.chroma = None;
         if !self.fit_light {
             self.light = LightFit::IDENTITY;
             self.lut = light::Lut::IDENTITY;
@@ -223,6 +235,39 @@ impl Workspace {
             }
             (_, Sided::Two) => saliency::pooled(crop, face, lut, mu, tn, s.sided, mask, w, pool),
         })
+    }
+
+    /// Stage 2b, after [`saliency`](Self::saliency) on the same `crop`: the blocks whose colour
+    /// the face does not have ([`crate::chroma`]) join the mask; returns the pixels they add.
+    /// Nothing for a model without chroma or a frame the fit refused.
+    pub fn chroma(&mut self, model: &Model, crop: &[u8], planes: &[u8]) -> Result<u32, DetectError> {
+        let Some(c) = model.chroma else { return Ok(0) };
+        let (h, w) = (model.face_h as usize, model.face_w as usize);
+        if planes.len() != 2 * c.blocks() {
+            return Err(DetectError::ChromaSize);
+        }
+        if crop.len() != h * w {
+            return Err(DetectError::CropSize);
+        }
+        if self.light.verdict != Verdict::Face {
+            return Ok(0);
+        }
+        let (_, scratch) = self.decoder.face_and_scratch();
+        let (mask, rest) = scratch.split_at_mut(crop.len());
+        // The errors in the scratch after the mask: 4 bytes a block, 6 KiB at most.
+        let (_, e, _) = bytemuck::pod_align_to_mut::<u8, [i16; 2]>(rest);
+        let Some(f) = chroma::errors(&c, crop, planes, h, w, e) else {
+            return Err(DetectError::ChromaSize);
+        };
+        let rows = self.row_counts.as_mut().map(|r| &mut r[..]);
+        let (f, added) = chroma::mark(&c, f, e, h, w, mask, rows);
+        self.chroma = Some(f);
+        Ok(added)
+    }
+
+    /// What the last [`chroma`](Self::chroma) call found of the frame's colour.
+    pub fn chroma_frame(&self) -> Option<chroma::Frame> {
+        self.chroma
     }
 
     /// Online self-calibration ([`crate::room`], rules 2 and 3) from the last frame through
@@ -274,12 +319,30 @@ pub fn detect(
     offset: [u16; 2],
     head: [f32; 2],
 ) -> Result<FaceDetection, DetectError> {
+    detect_colour(ws, model, settings, crop, None, offset, head)
+}
+
+/// [`detect`] with the frame's chroma planes (`Cb` then `Cr`, one byte a 2 x 2 block:
+/// [`msr_shared::blob::chroma`]): a model with chroma also finds what only colour shows. A
+/// model without chroma ignores them; `None` runs any model on grey alone.
+pub fn detect_colour(
+    ws: &mut Workspace,
+    model: &Model,
+    settings: &Settings,
+    crop: &[u8],
+    planes: Option<&[u8]>,
+    offset: [u16; 2],
+    head: [f32; 2],
+) -> Result<FaceDetection, DetectError> {
     if crop.len() != model.face_pixels() {
         return Err(DetectError::CropSize);
     }
     let settings = settings.at(model, head);
     ws.decode(model, head)?;
-    let salient_pixels = ws.saliency(model, &settings, crop)?;
+    let mut salient_pixels = ws.saliency(model, &settings, crop)?;
+    if let Some(p) = planes {
+        salient_pixels += ws.chroma(model, crop, p)?;
+    }
     let (blob, blobs) = ws.blobs(model, &settings);
     let centroid = blob.map(|b| {
         let c = b.centroid();
@@ -294,6 +357,7 @@ pub fn detect(
         salient_pixels,
         blobs,
         light: ws.light,
+        chroma: ws.chroma,
     })
 }
 

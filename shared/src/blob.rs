@@ -27,6 +27,9 @@
 //!   yaw_lo f32, yaw_hi f32, pitch_lo f32, pitch_hi f32, then per bin (bin = pitch index x
 //!   bins_yaw + yaw index) mu then sigma, face_h*face_w u16 each, Q8.8 (each padded to 4)
 //! frame spread (if flags bit 6): spread_ref f32
+//! chroma (if flags bit 7): threshold f32, spread_ref f32, then per 2 x 2 block of the face
+//!   (blocks = ceil(face_h / 2) x ceil(face_w / 2)) mu_u i8, then mu_v i8, then spread u8,
+//!   each table padded to 4
 //! self gate (if flags bit 3): amplitude f32, gain f32, gain_tol f32, rest_tol f32,
 //!   latency_ms u16, timeout_ms u16, min_frames u8, layout u8, reserved u8 x2 (0),
 //!   then for layout 1: hold_tol f32, level_tol f32; for layout 2: hold_tol f32, level_tol f32,
@@ -99,12 +102,19 @@
 //! [`Model::parse`] checks all of it (magic, version, lengths, CRC, every shape and the chaining of
 //! layers) and borrows the tables from the input bytes, so a blob in flash costs no RAM.
 
+//! Bit 7 (version 7): the face's colour ([`Chroma`]): each 2 x 2 block's normalised chroma
+//! and its spread over the statistics' frames, after the frame spread and before the self
+//! gate. The board finds a mark whose hue the face does not have even where its grey level
+//! matches. The writer adds or removes it with [`set_chroma`]; a blob without it is read and
+//! run as a grey model, whatever its version.
+
 /// The first 4 bytes of every blob.
 pub const MAGIC: [u8; 4] = *b"MSRM";
 /// The newest version this build reads and writes (version 1 has no weight order byte,
 /// versions 1 and 2 no fragment merge, versions 1 to 3 no sub-pixel crop flag or pose region,
-/// versions 1 to 4 no self gate or error pooling, versions 1 to 5 no frame spread).
-pub const VERSION: u16 = 6;
+/// versions 1 to 4 no self gate or error pooling, versions 1 to 5 no frame spread, versions 1
+/// to 6 no chroma).
+pub const VERSION: u16 = 7;
 /// Largest [`Novelty::pool`] radius: a 7 x 7 window.
 pub const MAX_POOL: u8 = 3;
 /// Largest [`Merge::margin`].
@@ -161,6 +171,7 @@ pub const MAX_GATE_FRAMES: u8 = 8;
 const FLAG_POOL: u16 = 16;
 const FLAG_POSE: u16 = 32;
 const FLAG_SPREAD: u16 = 64;
+const FLAG_CHROMA: u16 = 128;
 /// Largest [`Novelty::spread_ref`], grey levels.
 pub const MAX_SPREAD_REF: f32 = 255.0;
 /// Most cells of a [`PoseGrid`] along one angle.
@@ -175,11 +186,15 @@ pub const MAX_REGION_RADIUS: f32 = 0.5;
 /// CRC of the blob body: CRC-32/ISO-HDLC (the zlib one).
 pub const CRC32: crc::Crc<u32> = crc::Crc::<u32>::new(&crc::CRC_32_ISO_HDLC);
 
+pub mod chroma;
 mod error;
 mod model;
 mod settings;
 mod view;
 
+pub use chroma::Chroma;
+#[cfg(any(feature = "std", test))]
+pub use chroma::ChromaSpec;
 pub use error::BlobError;
 pub use model::Model;
 pub use settings::{Merge, Normalisation, Novelty, PoseGrid, PoseRegion, PoseStats, SelfGate, Sided};

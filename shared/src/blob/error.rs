@@ -45,6 +45,8 @@ pub enum BlobError {
     SelfGate,
     /// A pose-statistics grid out of range.
     PoseStats,
+    /// Chroma threshold or reference out of range, or a zero spread.
+    Chroma,
 }
 
 impl BlobError {
@@ -70,6 +72,7 @@ impl BlobError {
             BlobError::TrailingBytes => 17,
             BlobError::SelfGate => 18,
             BlobError::PoseStats => 19,
+            BlobError::Chroma => 20,
         }
     }
 }
@@ -102,6 +105,7 @@ impl fmt::Display for BlobError {
             BlobError::TrailingBytes => f.write_str("bytes left over after the last section"),
             BlobError::SelfGate => f.write_str("self-gate parameters out of range"),
             BlobError::PoseStats => f.write_str("pose-statistics grid out of range"),
+            BlobError::Chroma => f.write_str("chroma threshold or reference out of range, or a zero spread"),
         }
     }
 }

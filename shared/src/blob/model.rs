@@ -3,8 +3,9 @@
 use super::{
     MAGIC, VERSION, MAX_POOL, BLOCK, HEADER_LEN, MAX_FACE_H, MAX_FACE_W, MAX_LAYERS,
     MAX_ACTIVATION_LEN, MAX_TEMPLATE_PIXELS, REACH_FLOATS, FLAG_TEMPLATE, FLAG_SUBPIXEL,
-    FLAG_REGION, FLAG_SELF_GATE, FLAG_POOL, FLAG_POSE, FLAG_SPREAD, MAX_SPREAD_REF, CRC32,
+    FLAG_REGION, FLAG_SELF_GATE, FLAG_POOL, FLAG_POSE, FLAG_SPREAD, FLAG_CHROMA, MAX_SPREAD_REF, CRC32,
 };
+use super::chroma::{self, Chroma};
 use super::error::BlobError;
 use super::settings::{
     Merge, Normalisation, Novelty, PoseGrid, PoseRegion, PoseStats, SelfGate, Sided,
@@ -40,8 +41,12 @@ pub struct Model<'a> {
     /// Error statistics per head-pose cell (flag bit 5); `None`: [`Model::mu`] and
     /// [`Model::sigma`] at every pose.
     pub pose: Option<PoseStats<'a>>,
+    /// The face's colour (flag bit 7); `None`: a grey model.
+    pub chroma: Option<Chroma<'a>>,
     /// The CRC-32 from the header: the model's identity.
     pub crc32: u32,
+    /// Where the chroma section starts, or would.
+    pub(super) chroma_at: usize,
     /// Where the self-gate section starts (its length depends on its layout).
     pub(super) gate_at: usize,
 }
@@ -140,12 +145,14 @@ impl<'a> Model<'a> {
         }
         let flags = r.u16()?;
         let v5 = FLAG_SELF_GATE | FLAG_POOL | FLAG_POSE;
-        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION | v5 | FLAG_SPREAD) != 0
+        if flags & !(FLAG_TEMPLATE | FLAG_SUBPIXEL | FLAG_REGION | v5 | FLAG_SPREAD | FLAG_CHROMA) != 0
             || (flags & FLAG_SUBPIXEL != 0 && (version < 4 || flags & FLAG_TEMPLATE == 0))
             || (flags & FLAG_REGION != 0 && version < 4)
             || (flags & v5 != 0 && version < 5)
             || (version == 5 && flags & v5 == 0)
-            || (flags & FLAG_SPREAD != 0) != (version >= 6)
+            || (flags & FLAG_SPREAD != 0 && version < 6)
+            || (version == 6 && flags & FLAG_SPREAD == 0)
+            || (flags & FLAG_CHROMA != 0) != (version >= 7)
         {
             return Err(BlobError::BadHeader);
         }
@@ -281,6 +288,21 @@ impl<'a> Model<'a> {
         } else {
             None
         };
+        let chroma_at = r.pos;
+        let chroma = if flags & FLAG_CHROMA != 0 {
+            let (threshold, spread_ref) = (r.f32()?, r.f32()?);
+            if !chroma::valid_scalars(threshold, spread_ref) {
+                return Err(BlobError::Chroma);
+            }
+            let n = chroma::blocks(face_h as usize, face_w as usize);
+            let (mu_u, mu_v, spread) = (r.take_padded(n)?, r.take_padded(n)?, r.take_padded(n)?);
+            if spread.contains(&0) {
+                return Err(BlobError::Chroma);
+            }
+            Some(Chroma { threshold, spread_ref, mu_u, mu_v, spread })
+        } else {
+            None
+        };
         let gate_at = r.pos;
         let self_gate = if flags & FLAG_SELF_GATE != 0 {
             let (amplitude, gain, gain_tol, rest_tol) = (r.f32()?, r.f32()?, r.f32()?, r.f32()?);
@@ -319,7 +341,9 @@ impl<'a> Model<'a> {
             template,
             self_gate,
             pose,
+            chroma,
             crc32: crc,
+            chroma_at,
             gate_at,
         })
     }

@@ -226,7 +226,8 @@ fn header_checks() {
     };
     assert_eq!(edit(0, b"MSRX"), Err(BlobError::BadMagic));
     assert_eq!(edit(4, &[0, 0]), Err(BlobError::UnsupportedVersion(0)));
-    assert_eq!(edit(4, &[7, 0]), Err(BlobError::UnsupportedVersion(7)));
+    assert_eq!(edit(4, &[8, 0]), Err(BlobError::UnsupportedVersion(8)));
+    assert_eq!(edit(4, &[7, 0]), Err(BlobError::BadHeader), "version 7 carries chroma");
     assert_eq!(edit(4, &[6, 0]), Err(BlobError::BadHeader), "version 6 carries the frame spread");
     assert_eq!(edit(4, &[5, 0]), Err(BlobError::BadHeader), "version 5 carries a self gate or pooling");
     // Versions 2 to 4 read version 1's layout too.
@@ -372,6 +373,7 @@ fn error_codes_are_distinct() {
         BlobError::TrailingBytes,
         BlobError::SelfGate,
         BlobError::PoseStats,
+        BlobError::Chroma,
     ];
     let mut codes: Vec<u32> = all.iter().map(|e| e.code()).collect();
     codes.sort();
@@ -1059,4 +1061,97 @@ fn frame_spread_is_checked_and_needs_version_6() {
         spec.novelty.spread_ref = Some(bad);
         assert_eq!(spec.to_bytes(), Err(BlobError::Novelty), "the writer refuses {bad} too");
     }
+}
+
+fn chroma_of(h: usize, w: usize) -> ChromaSpec {
+    let n = super::chroma::blocks(h, w);
+    ChromaSpec {
+        threshold: 6.0,
+        spread_ref: 1.5,
+        mu: (0..n).map(|b| [(b % 200) as i8 - 100, -((b % 90) as i8)]).collect(),
+        spread: (0..n).map(|b| 1 + (b % 250) as u8).collect(),
+    }
+}
+
+#[test]
+fn chroma_is_a_literal_section_before_the_self_gate_and_comes_off_again() {
+    let mut spec = pose_spec();
+    spec.novelty.spread_ref = Some(4.75);
+    let grey = set_self_gate(&spec.to_bytes().unwrap(), Some(gate())).unwrap();
+    let m = Model::parse(&grey).unwrap();
+    let (h, w) = (m.face_h as usize, m.face_w as usize);
+    let c = chroma_of(h, w);
+    let bytes = set_chroma(&grey, Some(&c)).unwrap();
+    assert_eq!(&bytes[4..6], &[7, 0], "chroma is version 7");
+    assert_eq!(bytes[22] & 128, 128);
+    // Its bytes as the module's layout says, between the frame spread and the self gate.
+    let at = m.gate_at;
+    let n = c.mu.len();
+    let padded = n.div_ceil(4) * 4;
+    assert_eq!(&bytes[24..at], &grey[24..at]);
+    assert_eq!(&bytes[at..at + 4], &6.0f32.to_le_bytes());
+    assert_eq!(&bytes[at + 4..at + 8], &1.5f32.to_le_bytes());
+    assert_eq!(bytes[at + 8 + 3], c.mu[3][0] as u8);
+    assert_eq!(bytes[at + 8 + padded + 3], c.mu[3][1] as u8);
+    assert_eq!(bytes[at + 8 + 2 * padded + 3], c.spread[3]);
+    assert_eq!(&bytes[at + 8 + 3 * padded..], &grey[at..], "the self gate follows unchanged");
+    let p = Model::parse(&bytes).unwrap();
+    let k = p.chroma.unwrap();
+    assert_eq!((k.threshold, k.spread_ref, k.blocks()), (6.0, 1.5, n));
+    for b in [0, 1, n / 2, n - 1] {
+        assert_eq!(k.at(b), Some((c.mu[b], c.spread[b])));
+    }
+    assert_eq!(k.at(n), None);
+    assert_eq!(p.self_gate, Some(gate()));
+    // Replaced, then removed: the grey blob's bytes again.
+    let mut c2 = c.clone();
+    c2.threshold = 3.0;
+    let twice = set_chroma(&bytes, Some(&c2)).unwrap();
+    assert_eq!(Model::parse(&twice).unwrap().chroma.unwrap().threshold, 3.0);
+    assert_eq!(set_chroma(&twice, None).unwrap(), grey);
+    // The self gate comes off and goes on around it.
+    let ungated = set_self_gate(&bytes, None).unwrap();
+    assert_eq!(Model::parse(&ungated).unwrap().chroma, Some(k));
+    assert_eq!(set_self_gate(&ungated, Some(gate())).unwrap(), bytes);
+    // On a version-1 blob too; taking it off gives version 1 back.
+    let plain = mlp_spec().to_bytes().unwrap();
+    let pm = Model::parse(&plain).unwrap();
+    let pc = set_chroma(&plain, Some(&chroma_of(pm.face_h as usize, pm.face_w as usize))).unwrap();
+    assert_eq!(&pc[4..6], &[7, 0]);
+    assert_eq!(set_chroma(&pc, None).unwrap(), plain);
+}
+
+#[test]
+fn chroma_is_checked_and_needs_version_7() {
+    let plain = mlp_spec().to_bytes().unwrap();
+    let pm = Model::parse(&plain).unwrap();
+    let (h, w) = (pm.face_h as usize, pm.face_w as usize);
+    let c = chroma_of(h, w);
+    let bytes = set_chroma(&plain, Some(&c)).unwrap();
+    let at = pm.gate_at;
+    let edit = |at_: usize, v: &[u8]| {
+        let mut b = bytes.clone();
+        b[at_..at_ + v.len()].copy_from_slice(v);
+        recrc(&mut b);
+        Model::parse(&b).map(|m| m.chroma.map(|c| c.threshold))
+    };
+    assert_eq!(edit(at, &64.0f32.to_le_bytes()), Ok(Some(64.0)));
+    for bad in [0.0f32, -1.0, 64.5, f32::NAN, f32::INFINITY] {
+        assert_eq!(edit(at, &bad.to_le_bytes()), Err(BlobError::Chroma), "threshold {bad}");
+        assert_eq!(edit(at + 4, &bad.to_le_bytes()), Err(BlobError::Chroma), "reference {bad}");
+    }
+    let n = c.mu.len();
+    let spread_at = at + 8 + 2 * n.div_ceil(4) * 4;
+    assert_eq!(edit(spread_at + n - 1, &[0]), Err(BlobError::Chroma), "a zero spread divides by 0");
+    assert_eq!(edit(4, &[6, 0]), Err(BlobError::BadHeader), "the flag needs version 7");
+    assert_eq!(edit(22, &[0, 0]), Err(BlobError::BadHeader), "version 7 needs the flag");
+    for cut in plain.len()..bytes.len() {
+        assert!(Model::parse(&bytes[..cut]).is_err(), "accepted {cut} of {}", bytes.len());
+    }
+    let mut short = c.clone();
+    short.spread.pop();
+    assert_eq!(set_chroma(&plain, Some(&short)), Err(BlobError::Chroma), "the writer checks sizes");
+    let mut zero = c.clone();
+    zero.spread[0] = 0;
+    assert_eq!(set_chroma(&plain, Some(&zero)), Err(BlobError::Chroma));
 }

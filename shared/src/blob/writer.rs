@@ -1,8 +1,9 @@
 //! The blob writer (std only): models built on the host, written in the layout the parser reads.
 use super::{
-    BLOCK, CRC32, FLAG_POOL, FLAG_POSE, FLAG_REGION, FLAG_SELF_GATE, FLAG_SPREAD, FLAG_SUBPIXEL,
+    BLOCK, CRC32, FLAG_CHROMA, FLAG_POOL, FLAG_POSE, FLAG_REGION, FLAG_SELF_GATE, FLAG_SPREAD, FLAG_SUBPIXEL,
     FLAG_TEMPLATE, HEADER_LEN, MAGIC, MAX_POOL, REACH_FLOATS, REACH_HIDDEN, REACH_IN, REACH_OUT,
 };
+use super::chroma::ChromaSpec;
 use super::error::BlobError;
 use super::model::Model;
 use super::settings::{Normalisation, Novelty, PoseGrid, PoseRegion, SelfGate, Sided};
@@ -254,51 +255,77 @@ pub fn set_self_gate(bytes: &[u8], gate: Option<SelfGate>) -> Result<Vec<u8>, Bl
         o.truncate(m.gate_at);
     }
     let mut flags = flags & !FLAG_SELF_GATE;
-    let version: u16 = match gate {
-        Some(g) => {
-            if !g.is_valid() {
-                return Err(BlobError::SelfGate);
-            }
-            for f in [g.amplitude, g.gain, g.gain_tol, g.rest_tol] {
-                o.extend_from_slice(&f.to_le_bytes());
-            }
-            o.extend_from_slice(&g.latency_ms.to_le_bytes());
-            o.extend_from_slice(&g.timeout_ms.to_le_bytes());
-            let layout = match (g.line_tol, g.joint_tol) {
-                (None, _) => 1,
-                (Some(_), None) => 2,
-                (Some(_), Some(_)) => 3,
-            };
-            o.extend_from_slice(&[g.min_frames, layout, 0, 0]);
-            for f in [g.hold_tol, g.level_tol].into_iter().chain(g.line_tol).chain(g.joint_tol) {
-                o.extend_from_slice(&f.to_le_bytes());
-            }
-            flags |= FLAG_SELF_GATE;
-            if flags & FLAG_SPREAD != 0 {
-                6
-            } else {
-                5
-            }
+    if let Some(g) = gate {
+        if !g.is_valid() {
+            return Err(BlobError::SelfGate);
         }
-        // The version the writer picks for the other sections.
-        None => {
-            let merge = u16::from_le_bytes([o[36], 0]) != 0;
-            let blocked = m.layers.iter().any(|l| !l.torch_order());
-            if flags & FLAG_SPREAD != 0 {
-                6
-            } else if flags & (FLAG_POOL | FLAG_POSE) != 0 {
-                5
-            } else if flags & (FLAG_SUBPIXEL | FLAG_REGION) != 0 {
-                4
-            } else if merge {
-                3
-            } else if blocked {
-                2
-            } else {
-                1
-            }
+        for f in [g.amplitude, g.gain, g.gain_tol, g.rest_tol] {
+            o.extend_from_slice(&f.to_le_bytes());
         }
-    };
+        o.extend_from_slice(&g.latency_ms.to_le_bytes());
+        o.extend_from_slice(&g.timeout_ms.to_le_bytes());
+        let layout = match (g.line_tol, g.joint_tol) {
+            (None, _) => 1,
+            (Some(_), None) => 2,
+            (Some(_), Some(_)) => 3,
+        };
+        o.extend_from_slice(&[g.min_frames, layout, 0, 0]);
+        for f in [g.hold_tol, g.level_tol].into_iter().chain(g.line_tol).chain(g.joint_tol) {
+            o.extend_from_slice(&f.to_le_bytes());
+        }
+        flags |= FLAG_SELF_GATE;
+    }
+    let version = version_of(flags, &m, &o);
+    o[4..6].copy_from_slice(&version.to_le_bytes());
+    o[22..24].copy_from_slice(&flags.to_le_bytes());
+    seal(o)
+}
+
+/// The version a blob with these `flags` is written at: the oldest that has every section
+/// (`m` and the header bytes `o` for the older distinctions), so taking a section off gives
+/// back the bytes the writer made before it was added.
+fn version_of(flags: u16, m: &Model, o: &[u8]) -> u16 {
+    let merge = u16::from_le_bytes([o[36], 0]) != 0;
+    let blocked = m.layers.iter().any(|l| !l.torch_order());
+    if flags & FLAG_CHROMA != 0 {
+        7
+    } else if flags & FLAG_SPREAD != 0 {
+        6
+    } else if flags & (FLAG_POOL | FLAG_POSE | FLAG_SELF_GATE) != 0 {
+        5
+    } else if flags & (FLAG_SUBPIXEL | FLAG_REGION) != 0 {
+        4
+    } else if merge {
+        3
+    } else if blocked {
+        2
+    } else {
+        1
+    }
+}
+
+/// The blob with its chroma section replaced by `chroma` (`None` removes it; a grey model).
+/// The self gate, which comes after it, is kept.
+pub fn set_chroma(bytes: &[u8], chroma: Option<&ChromaSpec>) -> Result<Vec<u8>, BlobError> {
+    let m = Model::parse(bytes)?;
+    let mut o = bytes[..m.chroma_at].to_vec();
+    let mut flags = u16::from_le_bytes([o[22], o[23]]) & !FLAG_CHROMA;
+    if let Some(c) = chroma {
+        if !c.is_valid(m.face_h as usize, m.face_w as usize) {
+            return Err(BlobError::Chroma);
+        }
+        o.extend_from_slice(&c.threshold.to_le_bytes());
+        o.extend_from_slice(&c.spread_ref.to_le_bytes());
+        o.extend(c.mu.iter().map(|p| p[0] as u8));
+        pad(&mut o);
+        o.extend(c.mu.iter().map(|p| p[1] as u8));
+        pad(&mut o);
+        o.extend_from_slice(&c.spread);
+        pad(&mut o);
+        flags |= FLAG_CHROMA;
+    }
+    o.extend_from_slice(&bytes[m.gate_at..]);
+    let version = version_of(flags, &m, &o);
     o[4..6].copy_from_slice(&version.to_le_bytes());
     o[22..24].copy_from_slice(&flags.to_le_bytes());
     seal(o)

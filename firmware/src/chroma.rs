@@ -1,0 +1,167 @@
+//! Colour: the blocks whose chroma the face does not have ([`msr_shared::blob::chroma`]).
+//!
+//! The rules, in order:
+//! 1. Each 2 x 2 block's normalised chroma ([`chroma::normalise`]) less the model's mean for
+//!    that block is its error `e = (e_u, e_v)`.
+//! 2. The frame's shift, the median of `e_u` and of `e_v` over the face's blocks, is taken out
+//!    of every block's error: a white balance or a tinted light moves every block alike, a mark
+//!    only a few.
+//! 3. Each block's `q = |e|^2 / spread^2`; the median of `q` over the face against the model's
+//!    [`Chroma::spread_ref`] says how much more this camera's chroma spreads than the
+//!    statistics' frames did (noise, compression). Every spread is widened by that ratio, never
+//!    narrowed.
+//! 4. A block is salient when `q > threshold^2 x widening`; its pixels join the grey stage's
+//!    mask as salient, so a mark that grey sees and one that only colour sees make one blob.
+//!
+//! Integer arithmetic only: `q` in sixteenths ([`Q_ONE`]), the widening in 256ths, so the host,
+//! the board and QEMU agree to the bit.
+use msr_shared::blob::chroma::{self, SPREAD_ONE};
+use msr_shared::blob::Chroma;
+
+/// `q`'s unit: `q = 16` is an error of one spread.
+pub const Q_ONE: u32 = 16;
+/// The widening's unit (1.0).
+pub const WIDEN_ONE: u32 = 256;
+
+/// What one frame's chroma gave.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Frame {
+    /// Rule 2: the shift taken out, `[u, v]` normalised chroma units.
+    pub shift: [i16; 2],
+    /// Rule 3: the median `q` over the face (at most [`MAX_MEDIAN_Q`]), in [`Q_ONE`]ths.
+    pub median_q: u16,
+    /// Rule 3: how much the spreads were widened (squared), in [`WIDEN_ONE`]ths, at least 1.0.
+    pub widen: u32,
+    /// Rule 4: salient blocks.
+    pub blocks: u16,
+}
+
+/// Rules 1 to 3 for an `h x w` face: `grey` its bytes, `planes` its `Cb` then `Cr` block
+/// planes. Fills `e` (one entry a block, at least [`chroma::blocks`]) with each block's error
+/// less the frame's shift. `None` when the sizes disagree with each other or the model.
+pub fn errors(c: &Chroma, grey: &[u8], planes: &[u8], h: usize, w: usize, e: &mut [[i16; 2]]) -> Option<Frame> {
+    let n = chroma::blocks(h, w);
+    if grey.len() != h * w || planes.len() != 2 * n || e.len() < n || c.blocks() != n || n == 0 {
+        return None;
+    }
+    let (bh, bw) = (h.div_ceil(2), w.div_ceil(2));
+    let mut hist = [[0u16; 256]; 2];
+    for by in 0..bh {
+        let (y0, y1) = (2 * by, (2 * by + 2).min(h));
+        for bx in 0..bw {
+            let (x0, x1) = (2 * bx, (2 * bx + 2).min(w));
+            let mut sum = 0u32;
+            for y in y0..y1 {
+                for &g in &grey[y * w + x0..y * w + x1] {
+                    sum += g as u32;
+                }
+            }
+            let px = ((y1 - y0) * (x1 - x0)) as u32;
+            let b = by * bw + bx;
+            let (mu, _) = c.at(b)?;
+            let u = chroma::normalise(planes[b], sum, px) as i16 - mu[0] as i16;
+            let v = chroma::normalise(planes[n + b], sum, px) as i16 - mu[1] as i16;
+            e[b] = [u, v];
+            hist[0][(u.clamp(-128, 127) + 128) as usize] += 1;
+            hist[1][(v.clamp(-128, 127) + 128) as usize] += 1;
+        }
+    }
+    let shift = [median(&hist[0], n) as i16 - 128, median(&hist[1], n) as i16 - 128];
+    let mut qs = [0u16; 256];
+    for (b, eb) in e[..n].iter_mut().enumerate() {
+        *eb = [eb[0] - shift[0], eb[1] - shift[1]];
+        let (_, s) = c.at(b)?;
+        qs[q_bin(q16(*eb, s))] += 1;
+    }
+    let median_q = q_of_bin(median(&qs, n));
+    let reference = ((c.spread_ref * Q_ONE as f32) as u32).clamp(1, 255);
+    let widen = (median_q as u32 * WIDEN_ONE / reference).max(WIDEN_ONE);
+    Some(Frame { shift, median_q, widen, blocks: 0 })
+}
+
+/// The histogram bin of `q`: sixteenths below 128, then steps of 16 up to [`MAX_MEDIAN_Q`].
+fn q_bin(q: u32) -> usize {
+    if q < 128 {
+        q as usize
+    } else {
+        128 + ((q - 128) / 16).min(127) as usize
+    }
+}
+
+/// The least `q` of a bin.
+fn q_of_bin(bin: usize) -> u16 {
+    if bin < 128 {
+        bin as u16
+    } else {
+        128 + 16 * (bin as u16 - 128)
+    }
+}
+
+/// The largest median `q` rule 3 tells apart (135 spreads squared); a frame beyond it is
+/// widened as if at it.
+pub const MAX_MEDIAN_Q: u16 = 128 + 16 * 127;
+
+/// Rule 3's `q` of one block's error (after the shift) with spread `s`, in [`Q_ONE`]ths.
+pub fn q16(e: [i16; 2], s: u8) -> u32 {
+    let r = (e[0] as i32 * e[0] as i32 + e[1] as i32 * e[1] as i32) as u32;
+    let s = s.max(1) as u32;
+    // r <= 2 x 382^2 < 2^19: no overflow in 32 bits.
+    (r * Q_ONE * (SPREAD_ONE as u32 * SPREAD_ONE as u32)) / (s * s)
+}
+
+/// Rule 4's test of one block: `q > threshold^2 x widen`, exactly, in 64 bits.
+pub fn salient(c: &Chroma, f: &Frame, e: [i16; 2], s: u8) -> bool {
+    let r = (e[0] as i64 * e[0] as i64 + e[1] as i64 * e[1] as i64) as u64;
+    let s = s.max(1) as u64;
+    let t2 = (c.threshold * c.threshold * Q_ONE as f32) as u64;
+    r * (SPREAD_ONE as u64 * SPREAD_ONE as u64) * Q_ONE as u64 * WIDEN_ONE as u64 > t2 * f.widen as u64 * s * s
+}
+
+/// Rule 4: sets the pixels of every salient block to 1 in the `w`-wide `mask` and counts the
+/// pixels that were 0 (in `rows` too, per row, when the mask's rows are counted). Returns the
+/// frame with its salient blocks, and the pixels added.
+pub fn mark(c: &Chroma, f: Frame, e: &[[i16; 2]], h: usize, w: usize, mask: &mut [u8], mut rows: Option<&mut [u16]>) -> (Frame, u32) {
+    let (bh, bw) = (h.div_ceil(2), w.div_ceil(2));
+    let (mut added, mut blocks) = (0u32, 0u16);
+    if mask.len() < h * w || e.len() < bh * bw {
+        return (f, 0);
+    }
+    for by in 0..bh {
+        for bx in 0..bw {
+            let b = by * bw + bx;
+            let Some((_, s)) = c.at(b) else { return (f, added) };
+            if !salient(c, &f, e[b], s) {
+                continue;
+            }
+            blocks += 1;
+            for y in 2 * by..(2 * by + 2).min(h) {
+                for x in 2 * bx..(2 * bx + 2).min(w) {
+                    let m = &mut mask[y * w + x];
+                    if *m == 0 {
+                        added += 1;
+                        if let Some(r) = rows.as_deref_mut().and_then(|r| r.get_mut(y)) {
+                            *r += 1;
+                        }
+                    }
+                    *m = 1;
+                }
+            }
+        }
+    }
+    (Frame { blocks, ..f }, added)
+}
+
+/// The lower median of `n` values counted in `hist`: the bin holding value `(n - 1) / 2`.
+fn median(hist: &[u16; 256], n: usize) -> usize {
+    let mut seen = 0usize;
+    for (i, &k) in hist.iter().enumerate() {
+        seen += k as usize;
+        if seen > (n - 1) / 2 {
+            return i;
+        }
+    }
+    255
+}
+
+#[cfg(test)]
+mod tests;
