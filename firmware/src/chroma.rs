@@ -13,10 +13,11 @@
 //! 4. A block is salient when `q > threshold^2 x widening`; its pixels join the grey stage's
 //!    mask as salient, so a mark that grey sees and one that only colour sees make one blob.
 //!
-//! Integer arithmetic only: `q` in sixteenths ([`Q_ONE`]), the widening in 256ths, so the host,
+//! The tables are those of the frame's head-pose cell (`Model::chroma_at`), as the grey
+//! statistics are. Integer arithmetic only: `q` in sixteenths ([`Q_ONE`]), the widening in 256ths, so the host,
 //! the board and QEMU agree to the bit.
 use msr_shared::blob::chroma::{self, SPREAD_ONE};
-use msr_shared::blob::Chroma;
+use msr_shared::blob::ChromaCell as Chroma;
 
 /// `q`'s unit: `q = 16` is an error of one spread.
 pub const Q_ONE: u32 = 16;

@@ -241,7 +241,7 @@ impl Workspace {
     /// the face does not have ([`crate::chroma`]) join the mask; returns the pixels they add.
     /// Nothing for a model without chroma or a frame the fit refused.
     pub fn chroma(&mut self, model: &Model, crop: &[u8], planes: &[u8]) -> Result<u32, DetectError> {
-        let Some(c) = model.chroma else { return Ok(0) };
+        let Some(c) = model.chroma_at(self.head) else { return Ok(0) };
         let (h, w) = (model.face_h as usize, model.face_w as usize);
         if planes.len() != 2 * c.blocks() {
             return Err(DetectError::ChromaSize);

@@ -27,9 +27,10 @@
 //!   yaw_lo f32, yaw_hi f32, pitch_lo f32, pitch_hi f32, then per bin (bin = pitch index x
 //!   bins_yaw + yaw index) mu then sigma, face_h*face_w u16 each, Q8.8 (each padded to 4)
 //! frame spread (if flags bit 6): spread_ref f32
-//! chroma (if flags bit 7): threshold f32, spread_ref f32, then per 2 x 2 block of the face
-//!   (blocks = ceil(face_h / 2) x ceil(face_w / 2)) mu_u i8, then mu_v i8, then spread u8,
-//!   each table padded to 4
+//! chroma (if flags bit 7): threshold f32, spread_ref f32, cells u8 (1, or the pose grid's
+//!   cells), reserved u8 x 3 (0), then per cell, per 2 x 2 block of the face (blocks =
+//!   ceil(face_h / 2) x ceil(face_w / 2)): mu_u i8, then mu_v i8, then spread u8, each table
+//!   padded to 4
 //! self gate (if flags bit 3): amplitude f32, gain f32, gain_tol f32, rest_tol f32,
 //!   latency_ms u16, timeout_ms u16, min_frames u8, layout u8, reserved u8 x2 (0),
 //!   then for layout 1: hold_tol f32, level_tol f32; for layout 2: hold_tol f32, level_tol f32,
@@ -192,7 +193,7 @@ mod model;
 mod settings;
 mod view;
 
-pub use chroma::Chroma;
+pub use chroma::{Chroma, ChromaCell};
 #[cfg(any(feature = "std", test))]
 pub use chroma::ChromaSpec;
 pub use error::BlobError;

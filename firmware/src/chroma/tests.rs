@@ -32,7 +32,7 @@ fn spec(s: u8) -> ChromaSpec {
             [chroma::normalise(planes[b], sum, 4), chroma::normalise(planes[n + b], sum, 4)]
         })
         .collect();
-    ChromaSpec { threshold: 6.0, spread_ref: 1.4, mu, spread: vec![s; n] }
+    ChromaSpec { threshold: 6.0, spread_ref: 1.4, cells: vec![(mu, vec![s; n])] }
 }
 
 fn model_bytes(s: u8) -> Vec<u8> {
@@ -42,7 +42,7 @@ fn model_bytes(s: u8) -> Vec<u8> {
 
 fn run(bytes: &[u8], grey: &[u8], planes: &[u8]) -> (Frame, Vec<u8>, u32) {
     let m = Model::parse(bytes).unwrap();
-    let c = m.chroma.unwrap();
+    let c = m.chroma_at([0.0, 0.0]).unwrap();
     let mut e = vec![[0i16; 2]; chroma::blocks(H, W)];
     let f = errors(&c, grey, planes, H, W, &mut e).unwrap();
     let mut mask = vec![0u8; H * W];
@@ -85,7 +85,7 @@ fn a_patch_of_another_hue_and_the_same_grey_is_salient_where_it_is() {
     }
     // The grey stage's pixels stay, and are counted once.
     let m = Model::parse(&bytes).unwrap();
-    let c = m.chroma.unwrap();
+    let c = m.chroma_at([0.0, 0.0]).unwrap();
     let mut e = vec![[0i16; 2]; chroma::blocks(H, W)];
     let f = errors(&c, &grey, &planes, H, W, &mut e).unwrap();
     let mut mask = vec![0u8; H * W];
@@ -139,7 +139,7 @@ fn a_noisier_camera_widens_the_spreads_and_finds_the_patch_still() {
 fn sizes_that_disagree_are_refused() {
     let bytes = model_bytes(16);
     let m = Model::parse(&bytes).unwrap();
-    let c = m.chroma.unwrap();
+    let c = m.chroma_at([0.0, 0.0]).unwrap();
     let (grey, planes) = face();
     let mut e = vec![[0i16; 2]; chroma::blocks(H, W)];
     assert!(errors(&c, &grey[1..], &planes, H, W, &mut e).is_none());
@@ -155,7 +155,7 @@ fn q_and_the_test_are_exact_at_the_threshold() {
     assert_eq!(q16([3, 4], 16), 25 * Q_ONE);
     let bytes = model_bytes(16);
     let m = Model::parse(&bytes).unwrap();
-    let c = m.chroma.unwrap();
+    let c = m.chroma_at([0.0, 0.0]).unwrap();
     let f = Frame { widen: WIDEN_ONE, ..Frame::default() };
     // threshold 6: an error of 6 spreads is not over it, 6.1 is.
     assert!(!salient(&c, &f, [6, 0], 16));
@@ -178,7 +178,7 @@ fn the_pipeline_finds_what_only_colour_shows() {
         ws.decode(&m, head).unwrap().iter().map(|&p| ((p as u32 + 128) >> 8).min(255) as u8).collect();
     // The model's chroma as this face's.
     let n = chroma::blocks(H, W);
-    let c = m.chroma.unwrap();
+    let c = m.chroma_at([0.0, 0.0]).unwrap();
     let mut planes = vec![0u8; 2 * n];
     for b in 0..n {
         let (by, bx) = (b / (W / 2), b % (W / 2));

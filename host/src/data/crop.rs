@@ -23,7 +23,7 @@
 mod correlate;
 
 use anyhow::{bail, Context, Result};
-use image::{DynamicImage, GrayImage};
+use image::{DynamicImage, GrayImage, RgbImage};
 use imageproc::integral_image::{integral_image, sum_image_pixels};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -72,6 +72,9 @@ pub struct Face {
     pub at: [f32; 2],
     /// Grey levels 0..=255, row-major, `crop.height x crop.width`.
     pub grey: Vec<u8>,
+    /// The face's chroma planes, cut where the grey was ([`chroma_planes`]): `Cb` then `Cr`,
+    /// one byte a 2 x 2 block (`msr_shared::blob::chroma`). Empty for a grey source.
+    pub chroma: Vec<u8>,
     /// The `TM_CCOEFF` score of the chosen window.
     pub score: f64,
 }
@@ -125,6 +128,60 @@ pub fn load_through(path: &Path, camera: &msr_sim::imperfect::Imperfections, fra
     let img = image::open(path).with_context(|| format!("cannot read image {}", path.display()))?;
     let rgb = camera.apply(&img.to_rgb8(), frame);
     Ok(to_grey(&DynamicImage::ImageRgb8(rgb)))
+}
+
+/// Reads an image file, takes a colour one through `camera` (frame number `frame` for its
+/// noise), and returns its grey and, for a colour file, its colour; errors name the file.
+pub fn load_colour(path: &Path, camera: &msr_sim::imperfect::Imperfections, frame: u64) -> Result<(GrayImage, Option<RgbImage>)> {
+    let img = image::open(path).with_context(|| format!("cannot read image {}", path.display()))?;
+    let grey_source = matches!(img, DynamicImage::ImageLuma8(_) | DynamicImage::ImageLuma16(_) | DynamicImage::ImageLumaA8(_) | DynamicImage::ImageLumaA16(_));
+    if grey_source && camera.is_none() {
+        return Ok((to_grey(&img), None));
+    }
+    let rgb = img.to_rgb8();
+    let rgb = if camera.is_none() { rgb } else { camera.apply(&rgb, frame) };
+    let grey = grey_of_rgb_bytes(rgb.width(), rgb.height(), rgb.as_raw());
+    Ok((grey, if grey_source { None } else { Some(rgb) }))
+}
+
+/// The chroma planes of `face` in the colour `frame` it was cut from: each pixel's BT.601
+/// full-range `Cb` and `Cr` (128 neutral, as a webcam's YCbCr), resampled at the face's crop
+/// and shift as its grey was, averaged over each 2 x 2 block (one row or column at an odd
+/// edge) and rounded. `Cb` plane then `Cr` plane, `ceil(h / 2) x ceil(w / 2)` each.
+pub fn chroma_planes(frame: &RgbImage, face: &Face) -> Vec<u8> {
+    let c = face.crop;
+    // The planes of a window around the crop with room for the shift's neighbours.
+    let (x0, y0) = (c.x.saturating_sub(2), c.y.saturating_sub(2));
+    let (x1, y1) = ((c.x + c.width + 2).min(frame.width()), (c.y + c.height + 2).min(frame.height()));
+    let (ww, wh) = (x1.saturating_sub(x0), y1.saturating_sub(y0));
+    let (mut cb, mut cr) = (GrayImage::new(ww, wh), GrayImage::new(ww, wh));
+    for y in 0..wh {
+        for x in 0..ww {
+            let [r, g, b] = frame.get_pixel(x0 + x, y0 + y).0.map(f32::from);
+            cb.put_pixel(x, y, image::Luma([(128.0 - 0.168736 * r - 0.331264 * g + 0.5 * b).round().clamp(0.0, 255.0) as u8]));
+            cr.put_pixel(x, y, image::Luma([(128.0 + 0.5 * r - 0.418688 * g - 0.081312 * b).round().clamp(0.0, 255.0) as u8]));
+        }
+    }
+    let local = CropBox { x: c.x - x0, y: c.y - y0, ..c };
+    let (h, w) = (c.height as usize, c.width as usize);
+    let (bh, bw) = (h.div_ceil(2), w.div_ceil(2));
+    let mut out = vec![0u8; 2 * bh * bw];
+    for (k, plane) in [cb, cr].iter().enumerate() {
+        let v = if ww == 0 || wh == 0 { vec![128.0; h * w] } else { resample(plane, local, face.shift) };
+        for by in 0..bh {
+            for bx in 0..bw {
+                let (mut sum, mut n) = (0f32, 0f32);
+                for y in 2 * by..(2 * by + 2).min(h) {
+                    for x in 2 * bx..(2 * bx + 2).min(w) {
+                        sum += v[y * w + x];
+                        n += 1.0;
+                    }
+                }
+                out[k * bh * bw + by * bw + bx] = (sum / n).round().clamp(0.0, 255.0) as u8;
+            }
+        }
+    }
+    out
 }
 
 /// Widest template whose row sums stay exact in f32 (255 * 255 * 258 < 2^24).
@@ -254,7 +311,7 @@ fn crop_from(frame: &GrayImage, tpl: &GrayImage, mode: CropMode, scores: Scores)
             (cut_shifted(frame, crop, shift), shift, align(frame, tpl, crop, shift))
         }
     };
-    Ok(Face { crop, shift, at, grey, score })
+    Ok(Face { crop, shift, at, grey, chroma: Vec::new(), score })
 }
 
 /// Gauss-Newton steps of [`align`] (each moves by under a hundredth of a pixel by the fourth).

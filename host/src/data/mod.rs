@@ -11,7 +11,7 @@
 //! and only the crops are kept.
 pub mod crop;
 pub mod npy;
-use crate::data::crop::{crop_face_with, load_grey, load_through, CropBox, CropMode, Face};
+use crate::data::crop::{chroma_planes, crop_face_with, load_colour, load_grey, CropBox, CropMode, Face};
 use msr_sim::imperfect::Imperfections;
 use anyhow::{anyhow, bail, ensure, Context, Result};
 use image::GrayImage;
@@ -388,14 +388,17 @@ impl Pending {
             "frame {name}: head angles {:?} are not finite",
             self.head
         );
-        let frame = if camera.is_none() { load_grey(&self.file)? } else { load_through(&self.file, camera, index)? };
+        let (frame, colour) = load_colour(&self.file, camera, index)?;
         ensure!(
             frame.dimensions() == (fw, fh),
             "frame {name} is {}x{}, the dataset says {fw}x{fh}",
             frame.width(),
             frame.height()
         );
-        let face = crop_face_with(&frame, template, crop).with_context(|| format!("frame {name}"))?;
+        let mut face = crop_face_with(&frame, template, crop).with_context(|| format!("frame {name}"))?;
+        if let Some(rgb) = &colour {
+            face.chroma = chroma_planes(rgb, &face);
+        }
         let mark = match &self.mark {
             None => None,
             Some(m) => Some(

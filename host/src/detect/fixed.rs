@@ -1,6 +1,7 @@
 //! The fixed-point engine: the firmware's own pipeline (decoder, saliency, blobs, winner, reach),
 //! built for the host, on a face crop. Nothing here re-implements a stage; it only converts the
-//! firmware's results to the host's [`Detection`].
+//! firmware's results to the host's [`Detection`]. A face with chroma planes and a model with
+//! chroma run the colour stage too.
 use crate::data::crop::Face;
 use crate::detect::pipeline::{face_error, saliency, Blob, Detection};
 use anyhow::{anyhow, ensure, Result};
@@ -25,11 +26,14 @@ pub fn detect_with(
         c.x <= u16::MAX as u32 && c.y <= u16::MAX as u32,
         "crop offset out of range"
     );
-    let det = msr_firmware::detect(
+    // The face's chroma planes when it has them; a grey model ignores them.
+    let planes = (!face.chroma.is_empty() && model.chroma.is_some()).then_some(&face.chroma[..]);
+    let det = msr_firmware::detect_colour(
         ws,
         model,
         &settings,
         &face.grey,
+        planes,
         [c.x as u16, c.y as u16],
         head,
     )

@@ -22,6 +22,7 @@
 //!
 //! `quantized_agreement`: the share of test frames where the float and fixed decoder rows (sigma
 //! weighting) agree: both find nothing, or both find a blob with centroids at most 1 px apart.
+pub mod hue;
 pub mod metrics;
 use crate::data::{Dataset, Sample};
 use crate::detect::{dequantized_decoder, float_engine_of, parse_blob};

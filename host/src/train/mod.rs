@@ -38,6 +38,7 @@ pub mod fit;
 pub mod plot;
 pub mod policy;
 pub mod calibrate;
+pub mod chroma;
 pub mod light_copies;
 pub mod reach;
 pub mod self_gate;

@@ -13,7 +13,7 @@
 //! mean over the block's pixels.
 
 /// Units of the normalised chroma per unit ratio `(C - 128) / grey`.
-pub const SCALE: i32 = 32;
+pub const SCALE: i32 = 64;
 /// Grey level added to the block's before the division: the darkest blocks' chroma is mostly
 /// the camera's noise, and the offset keeps their ratio from growing without bound.
 pub const DARK: i32 = 8;
@@ -42,9 +42,42 @@ pub fn normalise(c: u8, grey_sum: u32, n: u32) -> i8 {
     (if num < 0 { -q } else { q }).clamp(-127, 127) as i8
 }
 
-/// The chroma section, borrowed from the blob.
+/// The chroma section, borrowed from the blob: its settings and one set of tables per cell of
+/// the model's pose grid (or one for every pose).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Chroma<'a> {
+    /// As [`ChromaCell::threshold`].
+    pub threshold: f32,
+    /// As [`ChromaCell::spread_ref`].
+    pub spread_ref: f32,
+    /// Every cell's `u`, `v` and spread tables in turn, each padded to 4.
+    pub(super) tables: &'a [u8],
+    /// Blocks per table.
+    pub(super) n: usize,
+    /// Tables' sets: 1, or the pose grid's cells.
+    pub(super) cells: usize,
+}
+
+impl<'a> Chroma<'a> {
+    /// Sets of tables: 1 (every pose) or one per cell of the model's pose grid.
+    pub fn cells(&self) -> usize {
+        self.cells
+    }
+
+    /// Cell `k`'s tables; `None` past the last.
+    pub fn cell(&self, k: usize) -> Option<ChromaCell<'a>> {
+        if k >= self.cells {
+            return None;
+        }
+        let padded = self.n.div_ceil(4) * 4;
+        let at = |i: usize| self.tables.get((3 * k + i) * padded..(3 * k + i) * padded + self.n);
+        Some(ChromaCell { threshold: self.threshold, spread_ref: self.spread_ref, mu_u: at(0)?, mu_v: at(1)?, spread: at(2)? })
+    }
+}
+
+/// One pose cell's chroma tables, with the section's settings: what the board's stage reads.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ChromaCell<'a> {
     /// A block is salient when its chroma error, less the frame's shift, exceeds this many of
     /// its spreads (finite, `0 < threshold <= MAX_THRESHOLD`).
     pub threshold: f32,
@@ -53,20 +86,27 @@ pub struct Chroma<'a> {
     /// noisier camera, compression) widens every spread by the ratio.
     pub spread_ref: f32,
     /// Mean normalised chroma `u` per block, `i8` each.
-    pub(super) mu_u: &'a [u8],
+    mu_u: &'a [u8],
     /// The same of `v`.
-    pub(super) mu_v: &'a [u8],
+    mu_v: &'a [u8],
     /// Spread per block, in `1 / SPREAD_ONE` units, each at least 1.
-    pub(super) spread: &'a [u8],
+    spread: &'a [u8],
 }
 
-impl Chroma<'_> {
+impl<'a> ChromaCell<'a> {
+    /// A cell from its tables (`mu_u`, `mu_v` as `i8` bytes, `spread`), as the parser would
+    /// make it; `None` where the parser would refuse it. For a host that calibrates one.
+    pub fn from_tables(threshold: f32, spread_ref: f32, mu_u: &'a [u8], mu_v: &'a [u8], spread: &'a [u8]) -> Option<Self> {
+        let ok = valid_scalars(threshold, spread_ref)
+            && mu_u.len() == spread.len()
+            && mu_v.len() == spread.len()
+            && !spread.contains(&0);
+        ok.then_some(ChromaCell { threshold, spread_ref, mu_u, mu_v, spread })
+    }
+
     /// Block `b`'s mean `[u, v]` and spread; `None` past the table.
     pub fn at(&self, b: usize) -> Option<([i8; 2], u8)> {
-        Some((
-            [*self.mu_u.get(b)? as i8, *self.mu_v.get(b)? as i8],
-            *self.spread.get(b)?,
-        ))
+        Some(([*self.mu_u.get(b)? as i8, *self.mu_v.get(b)? as i8], *self.spread.get(b)?))
     }
 
     /// Blocks in the tables.
@@ -83,20 +123,19 @@ pub struct ChromaSpec {
     pub threshold: f32,
     /// As [`Chroma::spread_ref`].
     pub spread_ref: f32,
-    /// Mean `[u, v]` per block.
-    pub mu: Vec<[i8; 2]>,
-    /// Spread per block, `1 / SPREAD_ONE` units, each at least 1.
-    pub spread: Vec<u8>,
+    /// Per cell (one, or the pose grid's in its order): the mean `[u, v]` per block and the
+    /// spread per block (`1 / SPREAD_ONE` units, each at least 1).
+    pub cells: Vec<(Vec<[i8; 2]>, Vec<u8>)>,
 }
 
 #[cfg(any(feature = "std", test))]
 impl ChromaSpec {
-    /// Whether the parser would take it for an `h x w` face.
-    pub fn is_valid(&self, h: usize, w: usize) -> bool {
+    /// Whether the parser would take it for an `h x w` face whose pose grid has `grid_cells`
+    /// cells (0 without one).
+    pub fn is_valid(&self, h: usize, w: usize, grid_cells: usize) -> bool {
         valid_scalars(self.threshold, self.spread_ref)
-            && self.mu.len() == blocks(h, w)
-            && self.spread.len() == self.mu.len()
-            && self.spread.iter().all(|&s| s > 0)
+            && (self.cells.len() == 1 || (self.cells.len() == grid_cells && grid_cells > 1))
+            && self.cells.iter().all(|(mu, s)| mu.len() == blocks(h, w) && s.len() == mu.len() && !s.contains(&0))
     }
 }
 
@@ -117,11 +156,11 @@ mod tests {
     fn normalise_is_the_rounded_ratio() {
         // Neutral chroma is 0 at any grey.
         assert_eq!(normalise(128, 400, 4), 0);
-        // 32 * 40 * 4 / (400 + 32) = 11.85 -> 12; the sign follows the chroma.
-        assert_eq!(normalise(168, 400, 4), 12);
-        assert_eq!(normalise(88, 400, 4), -12);
+        // 64 * 40 * 4 / (400 + 32) = 23.7 -> 24; the sign follows the chroma.
+        assert_eq!(normalise(168, 400, 4), 24);
+        assert_eq!(normalise(88, 400, 4), -24);
         // Halving the light halves chroma and grey alike: nearly the same ratio.
-        assert_eq!(normalise(148, 200, 4), 11);
+        assert_eq!(normalise(148, 200, 4), 22);
         // Saturated and dark: clamped.
         assert_eq!(normalise(255, 0, 4), 127);
         assert_eq!(normalise(0, 0, 1), -127);

@@ -294,12 +294,25 @@ impl<'a> Model<'a> {
             if !chroma::valid_scalars(threshold, spread_ref) {
                 return Err(BlobError::Chroma);
             }
-            let n = chroma::blocks(face_h as usize, face_w as usize);
-            let (mu_u, mu_v, spread) = (r.take_padded(n)?, r.take_padded(n)?, r.take_padded(n)?);
-            if spread.contains(&0) {
+            let cells = r.u8()? as usize;
+            if r.take(3)? != [0; 3] {
+                return Err(BlobError::BadHeader);
+            }
+            if cells != 1 && pose.as_ref().is_none_or(|p| p.grid.len() != cells) {
                 return Err(BlobError::Chroma);
             }
-            Some(Chroma { threshold, spread_ref, mu_u, mu_v, spread })
+            let n = chroma::blocks(face_h as usize, face_w as usize);
+            let padded = n.div_ceil(4) * 4;
+            // At most 16 cells of 3 tables of 1536 blocks: no overflow.
+            let tables = r.take(3 * padded * cells)?;
+            let c = Chroma { threshold, spread_ref, tables, n, cells };
+            for k in 0..cells {
+                let cell = c.cell(k).ok_or(BlobError::Truncated)?;
+                if (0..n).any(|b| cell.at(b).is_none_or(|(_, s)| s == 0)) {
+                    return Err(BlobError::Chroma);
+                }
+            }
+            Some(c)
         } else {
             None
         };
@@ -363,6 +376,17 @@ impl<'a> Model<'a> {
             }
         }
         (self.mu, self.sigma, 0)
+    }
+
+    /// The chroma tables for a frame seen with the head at `head`: its pose cell's when the
+    /// section has one per cell, the first for a non-finite pose; `None` for a grey model.
+    pub fn chroma_at(&self, head: [f32; 2]) -> Option<chroma::ChromaCell<'a>> {
+        let c = self.chroma?;
+        let k = match (&self.pose, c.cells()) {
+            (Some(p), n) if n > 1 => p.grid.bin(head).unwrap_or(0),
+            _ => 0,
+        };
+        c.cell(k)
     }
 
     /// Multiply-accumulates of one decoder inference.

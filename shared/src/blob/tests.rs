@@ -1063,13 +1063,17 @@ fn frame_spread_is_checked_and_needs_version_6() {
     }
 }
 
-fn chroma_of(h: usize, w: usize) -> ChromaSpec {
+fn chroma_of(h: usize, w: usize, cells: usize) -> ChromaSpec {
     let n = super::chroma::blocks(h, w);
     ChromaSpec {
         threshold: 6.0,
         spread_ref: 1.5,
-        mu: (0..n).map(|b| [(b % 200) as i8 - 100, -((b % 90) as i8)]).collect(),
-        spread: (0..n).map(|b| 1 + (b % 250) as u8).collect(),
+        cells: (0..cells)
+            .map(|k| {
+                let mu = (0..n).map(|b| [((b + k) % 200) as i8 - 100, -((b % 90) as i8)]).collect();
+                (mu, (0..n).map(|b| 1 + ((b + 3 * k) % 250) as u8).collect())
+            })
+            .collect(),
     }
 }
 
@@ -1080,28 +1084,42 @@ fn chroma_is_a_literal_section_before_the_self_gate_and_comes_off_again() {
     let grey = set_self_gate(&spec.to_bytes().unwrap(), Some(gate())).unwrap();
     let m = Model::parse(&grey).unwrap();
     let (h, w) = (m.face_h as usize, m.face_w as usize);
-    let c = chroma_of(h, w);
+    let cells = m.pose.unwrap().grid.len();
+    let c = chroma_of(h, w, cells);
     let bytes = set_chroma(&grey, Some(&c)).unwrap();
     assert_eq!(&bytes[4..6], &[7, 0], "chroma is version 7");
     assert_eq!(bytes[22] & 128, 128);
     // Its bytes as the module's layout says, between the frame spread and the self gate.
     let at = m.gate_at;
-    let n = c.mu.len();
+    let n = c.cells[0].0.len();
     let padded = n.div_ceil(4) * 4;
     assert_eq!(&bytes[24..at], &grey[24..at]);
     assert_eq!(&bytes[at..at + 4], &6.0f32.to_le_bytes());
     assert_eq!(&bytes[at + 4..at + 8], &1.5f32.to_le_bytes());
-    assert_eq!(bytes[at + 8 + 3], c.mu[3][0] as u8);
-    assert_eq!(bytes[at + 8 + padded + 3], c.mu[3][1] as u8);
-    assert_eq!(bytes[at + 8 + 2 * padded + 3], c.spread[3]);
-    assert_eq!(&bytes[at + 8 + 3 * padded..], &grey[at..], "the self gate follows unchanged");
+    assert_eq!(&bytes[at + 8..at + 12], &[cells as u8, 0, 0, 0]);
+    let t = at + 12 + 3 * padded; // the second cell's tables
+    assert_eq!(bytes[t + 3], c.cells[1].0[3][0] as u8);
+    assert_eq!(bytes[t + padded + 3], c.cells[1].0[3][1] as u8);
+    assert_eq!(bytes[t + 2 * padded + 3], c.cells[1].1[3]);
+    assert_eq!(&bytes[at + 12 + 3 * padded * cells..], &grey[at..], "the self gate follows unchanged");
     let p = Model::parse(&bytes).unwrap();
     let k = p.chroma.unwrap();
-    assert_eq!((k.threshold, k.spread_ref, k.blocks()), (6.0, 1.5, n));
-    for b in [0, 1, n / 2, n - 1] {
-        assert_eq!(k.at(b), Some((c.mu[b], c.spread[b])));
+    assert_eq!((k.threshold, k.spread_ref, k.cells()), (6.0, 1.5, cells));
+    for cell in 0..cells {
+        let kc = k.cell(cell).unwrap();
+        assert_eq!(kc.blocks(), n);
+        for b in [0, 1, n / 2, n - 1] {
+            assert_eq!(kc.at(b), Some((c.cells[cell].0[b], c.cells[cell].1[b])));
+        }
+        assert_eq!(kc.at(n), None);
     }
-    assert_eq!(k.at(n), None);
+    assert_eq!(k.cell(cells), None);
+    // A frame takes its pose cell's tables, the same rule as the grey statistics'.
+    let grid = p.pose.unwrap().grid;
+    for head in [[0.0f32, 0.0], [-0.3, 0.2], [0.3, -0.2]] {
+        assert_eq!(p.chroma_at(head), k.cell(grid.bin(head).unwrap()));
+    }
+    assert_eq!(p.chroma_at([f32::NAN, 0.0]), k.cell(0));
     assert_eq!(p.self_gate, Some(gate()));
     // Replaced, then removed: the grey blob's bytes again.
     let mut c2 = c.clone();
@@ -1116,8 +1134,11 @@ fn chroma_is_a_literal_section_before_the_self_gate_and_comes_off_again() {
     // On a version-1 blob too; taking it off gives version 1 back.
     let plain = mlp_spec().to_bytes().unwrap();
     let pm = Model::parse(&plain).unwrap();
-    let pc = set_chroma(&plain, Some(&chroma_of(pm.face_h as usize, pm.face_w as usize))).unwrap();
+    let pc = set_chroma(&plain, Some(&chroma_of(pm.face_h as usize, pm.face_w as usize, 1))).unwrap();
     assert_eq!(&pc[4..6], &[7, 0]);
+    assert_eq!(Model::parse(&pc).unwrap().chroma_at([0.1, 0.0]), Model::parse(&pc).unwrap().chroma.unwrap().cell(0));
+    // Cells must be one or the pose grid's: none here.
+    assert_eq!(set_chroma(&plain, Some(&chroma_of(pm.face_h as usize, pm.face_w as usize, 2))), Err(BlobError::Chroma));
     assert_eq!(set_chroma(&pc, None).unwrap(), plain);
 }
 
@@ -1126,7 +1147,7 @@ fn chroma_is_checked_and_needs_version_7() {
     let plain = mlp_spec().to_bytes().unwrap();
     let pm = Model::parse(&plain).unwrap();
     let (h, w) = (pm.face_h as usize, pm.face_w as usize);
-    let c = chroma_of(h, w);
+    let c = chroma_of(h, w, 1);
     let bytes = set_chroma(&plain, Some(&c)).unwrap();
     let at = pm.gate_at;
     let edit = |at_: usize, v: &[u8]| {
@@ -1140,18 +1161,20 @@ fn chroma_is_checked_and_needs_version_7() {
         assert_eq!(edit(at, &bad.to_le_bytes()), Err(BlobError::Chroma), "threshold {bad}");
         assert_eq!(edit(at + 4, &bad.to_le_bytes()), Err(BlobError::Chroma), "reference {bad}");
     }
-    let n = c.mu.len();
-    let spread_at = at + 8 + 2 * n.div_ceil(4) * 4;
+    let n = c.cells[0].0.len();
+    let spread_at = at + 12 + 2 * n.div_ceil(4) * 4;
     assert_eq!(edit(spread_at + n - 1, &[0]), Err(BlobError::Chroma), "a zero spread divides by 0");
+    assert_eq!(edit(at + 8, &[2]), Err(BlobError::Chroma), "two cells without a pose grid");
+    assert_eq!(edit(at + 9, &[1]), Err(BlobError::BadHeader), "reserved bytes are zero");
     assert_eq!(edit(4, &[6, 0]), Err(BlobError::BadHeader), "the flag needs version 7");
     assert_eq!(edit(22, &[0, 0]), Err(BlobError::BadHeader), "version 7 needs the flag");
     for cut in plain.len()..bytes.len() {
         assert!(Model::parse(&bytes[..cut]).is_err(), "accepted {cut} of {}", bytes.len());
     }
     let mut short = c.clone();
-    short.spread.pop();
+    short.cells[0].1.pop();
     assert_eq!(set_chroma(&plain, Some(&short)), Err(BlobError::Chroma), "the writer checks sizes");
     let mut zero = c.clone();
-    zero.spread[0] = 0;
+    zero.cells[0].1[0] = 0;
     assert_eq!(set_chroma(&plain, Some(&zero)), Err(BlobError::Chroma));
 }

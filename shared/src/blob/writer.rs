@@ -311,17 +311,21 @@ pub fn set_chroma(bytes: &[u8], chroma: Option<&ChromaSpec>) -> Result<Vec<u8>, 
     let mut o = bytes[..m.chroma_at].to_vec();
     let mut flags = u16::from_le_bytes([o[22], o[23]]) & !FLAG_CHROMA;
     if let Some(c) = chroma {
-        if !c.is_valid(m.face_h as usize, m.face_w as usize) {
+        let grid = m.pose.as_ref().map_or(0, |p| p.grid.len());
+        if !c.is_valid(m.face_h as usize, m.face_w as usize, grid) {
             return Err(BlobError::Chroma);
         }
         o.extend_from_slice(&c.threshold.to_le_bytes());
         o.extend_from_slice(&c.spread_ref.to_le_bytes());
-        o.extend(c.mu.iter().map(|p| p[0] as u8));
-        pad(&mut o);
-        o.extend(c.mu.iter().map(|p| p[1] as u8));
-        pad(&mut o);
-        o.extend_from_slice(&c.spread);
-        pad(&mut o);
+        o.extend_from_slice(&[c.cells.len() as u8, 0, 0, 0]);
+        for (mu, spread) in &c.cells {
+            o.extend(mu.iter().map(|p| p[0] as u8));
+            pad(&mut o);
+            o.extend(mu.iter().map(|p| p[1] as u8));
+            pad(&mut o);
+            o.extend_from_slice(spread);
+            pad(&mut o);
+        }
         flags |= FLAG_CHROMA;
     }
     o.extend_from_slice(&bytes[m.gate_at..]);
