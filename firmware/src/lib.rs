@@ -76,10 +76,10 @@
 //!
 //! # Memory
 //! [`Workspace`] (two `MAX_ACTIVATION_LEN` i16 activation buffers, the threshold table, the
-//! labeller; the saliency mask, and the pooled saliency's ring of error rows behind it, reuse
+//! labeller; the saliency mask, and the pooled saliency's ring of error rows or the chroma errors behind it, reuse
 //! the spare activation buffer) plus the frame buffer and the link buffers make up [`Board`]:
-//! 61 384 bytes for faces up to 64 x 96, whatever the model
-//! (`size_of::<Board<RamStore<0>>>()`, checked by a test against 60 KiB). The model store is
+//! 64 480 bytes for faces up to 64 x 96 and their chroma planes, whatever the model
+//! (`size_of::<Board<RamStore<0>>>()`, checked by a test against 72 KiB). The model store is
 //! separate: a built-in blob stays in flash; uploads need a staging area ([`ModelStore`]).
 //!
 //! # Behaviour worth knowing

@@ -2,9 +2,9 @@
 //! watchdogs. The board ([`crate::board`]) uses these; they hold no policy of their own.
 
 use embedded_io::{Read, ReadReady, Write};
-use msr_shared::blob::{CRC32, MAX_FACE_PIXELS};
+use msr_shared::blob::CRC32;
 use msr_shared::frame::{encode_message, FrameAccumulator, MAX_WIRE_FRAME};
-use msr_shared::msg::{is_older, ChunkSet, FrameAck, FrameHeader, FrameState};
+use msr_shared::msg::{is_older, ChunkSet, FrameAck, FrameHeader, FrameState, MAX_FRAME_BYTES};
 use serde::Serialize;
 
 /// Face watchdog: no complete face frame for this long -> hold still and report.
@@ -136,7 +136,7 @@ pub enum Progress {
 }
 
 /// Reassembles one face frame at a time from chunks in any order (selective repeat; the rules
-/// are in [`msr_shared::msg`]). Bounded: one image buffer of `MAX_FACE_PIXELS` bytes, one
+/// are in [`msr_shared::msg`]). Bounded: one image buffer of `MAX_FRAME_BYTES` bytes, one
 /// header, one [`ChunkSet`] and the id of the last completed frame.
 pub struct Assembly {
     header: Option<FrameHeader>,
@@ -149,7 +149,7 @@ pub struct Assembly {
     pub ignored: u32,
     /// Whole images whose CRC-32 did not match.
     pub crc_errors: u32,
-    buf: [u8; MAX_FACE_PIXELS],
+    buf: [u8; MAX_FRAME_BYTES],
 }
 
 impl Default for Assembly {
@@ -168,7 +168,7 @@ impl Assembly {
             superseded: 0,
             ignored: 0,
             crc_errors: 0,
-            buf: [0; MAX_FACE_PIXELS],
+            buf: [0; MAX_FRAME_BYTES],
         }
     }
 
@@ -196,7 +196,7 @@ impl Assembly {
             self.ignored = self.ignored.saturating_add(1);
             return Ok(());
         }
-        if h.width != face_w || h.height != face_h || !h.is_valid() || h.pixels() > MAX_FACE_PIXELS {
+        if h.width != face_w || h.height != face_h || !h.is_valid() || h.bytes() > MAX_FRAME_BYTES {
             return Err(AssemblyError::Size);
         }
         if self.header.is_some() {
@@ -253,7 +253,7 @@ impl Assembly {
 
     /// All chunks are in: the image must match its CRC-32, else every chunk is asked again.
     fn finish(&mut self, h: FrameHeader, round: u8) -> Progress {
-        if CRC32.checksum(&self.buf[..h.pixels()]) == h.crc32 {
+        if CRC32.checksum(&self.buf[..h.bytes()]) == h.crc32 {
             self.header = None;
             self.done = Some(h.frame);
             return Progress::Complete(h);
@@ -263,9 +263,10 @@ impl Assembly {
         Progress::Ack(self.ack(h.frame, round))
     }
 
-    /// The pixels of the frame just completed.
+    /// The image of the frame just completed: its grey bytes, then its chroma planes when
+    /// the header says it has them.
     pub fn pixels(&self, h: &FrameHeader) -> &[u8] {
-        &self.buf[..h.pixels().min(MAX_FACE_PIXELS)]
+        &self.buf[..h.bytes().min(MAX_FRAME_BYTES)]
     }
 }
 

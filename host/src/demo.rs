@@ -66,6 +66,10 @@ pub struct DemoConfig {
     /// quantize`'s does; `false`: a confirmed mark is reached at once, as the paper.
     #[config(default = true)]
     pub self_gate: bool,
+    /// The model carries the face's colour (`train::chroma`), as `msr quantize`'s does;
+    /// `false`: a grey model, as the paper.
+    #[config(default = true)]
+    pub colour: bool,
     /// How the dataset is lit (`msr_sim::light::LightMode`): by default half the training
     /// frames each under a light of its own, the test frames under the fixed light.
     #[config(default = "msr_sim::light::LightMode::VariedTrain")]
@@ -199,6 +203,13 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
     // 4. Quantize.
     p.start("4/8 quantizing to the fixed-point model blob");
     let blob = crate::quant::model_blob::blob_from_training(&models, "decoder", &reach)?;
+    let (blob, colour) = if a.colour {
+        let (b, cal) = crate::train::chroma::attach(&blob, &data).context("learning the face's colour (--no-colour leaves it out)")?;
+        (b, Some(cal))
+    } else {
+        notes.push("The model is grey (`--no-colour`): a mark whose grey level matches the face's is not seen.".into());
+        (blob, None)
+    };
     // The same default as `msr quantize`: the model carries a gate calibrated for its robot, so
     // that the model the demo hands over does not reach for another robot's face.
     let (blob, gate_line) = if a.self_gate {
@@ -250,6 +261,24 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
         ),
     );
     eprint!("{}", crate::eval::markdown(&eval));
+    let colour = match colour {
+        Some(calibration) => {
+            p.start("   hue patches with the face's grey level on the unmarked test frames (colour, then grey alone)");
+            let none = msr_sim::imperfect::Imperfections::NONE;
+            let hue_marks = crate::eval::hue::hue_marks(&blob, &data, &none, a.seed)?;
+            let grey = msr_shared::blob::set_chroma(&blob, None).map_err(|e| anyhow::anyhow!("{e}"))?;
+            let hue_marks_grey = crate::eval::hue::hue_marks(&grey, &data, &none, a.seed)?;
+            p.done(
+                "hue_marks_s",
+                &format!(
+                    "found {} of {} (grey alone {}), {} of the {} with a strong hue; false alarms {} of {} frames; colour threshold {:.1} spreads over {} pose cells",
+                    hue_marks.found, hue_marks.marks, hue_marks_grey.found, hue_marks.strong_found, hue_marks.strong, hue_marks.false_alarms, hue_marks.frames, calibration.threshold, calibration.cells
+                ),
+            );
+            Some(crate::eval::hue::ColourCheck { calibration, hue_marks, hue_marks_grey })
+        }
+        None => None,
+    };
 
     // 6. Episodes.
     notes.push(format!(
@@ -366,6 +395,7 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
         training: Training { decoder: dec_info, autoencoder: ae_info },
         reach_fit_rms_rad: rms,
         self_gate,
+        colour,
         notes,
     };
     crate::fsio::write(&out.join("report.json"), serde_json::to_vec_pretty(&report)?)?;

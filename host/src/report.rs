@@ -43,6 +43,9 @@ pub struct DemoReport {
     /// The self gate in the three scenes (`None`: not run).
     #[serde(default)]
     pub self_gate: Option<SelfGateReport>,
+    /// The model's colour and the hue patches it finds (`None`: a grey model).
+    #[serde(default)]
+    pub colour: Option<crate::eval::hue::ColourCheck>,
     /// What the demo does differently from the paper's full protocol, and why.
     pub notes: Vec<String>,
 }

@@ -300,7 +300,7 @@ impl Session {
         let c = face.crop;
         let size = [c.width as u16, c.height as u16];
         let at = msr_shared::msg::CropAt::subpixel([c.x as u16, c.y as u16], face.at);
-        let id = self.faces.start(at, size, face.grey.clone(), now(self.t0));
+        let id = self.faces.start(at, size, face.image(), now(self.t0));
         self.frame_id = id;
         let deadline = Instant::now() + timeout;
         let mut got = Vec::new();

@@ -13,10 +13,12 @@ use crate::msg::{ChunkSet, CropAt, FrameAck, FrameHeader, FrameState, HostToBoar
 pub const CHUNK_OVERHEAD: usize = 13;
 
 /// The header of a face image: chunk size `chunk` (clamped to what the protocol allows for this
-/// size) and the image's CRC-32.
+/// size) and the image's CRC-32. `pixels` is the grey face, or the grey face and its chroma
+/// planes ([`crate::blob::chroma`]; the header then says so).
 pub fn face_header(frame: u16, crop: impl Into<CropAt>, size: [u16; 2], chunk: u16, pixels: &[u8]) -> FrameHeader {
     let n = size[0] as usize * size[1] as usize;
-    let least = n.div_ceil(MAX_FRAME_CHUNKS).max(MIN_CHUNK);
+    let colour = pixels.len() == n + 2 * crate::blob::chroma::blocks(size[1] as usize, size[0] as usize);
+    let least = if colour { pixels.len() } else { n }.div_ceil(MAX_FRAME_CHUNKS).max(MIN_CHUNK);
     let crop = crop.into();
     FrameHeader {
         frame,
@@ -27,6 +29,7 @@ pub fn face_header(frame: u16, crop: impl Into<CropAt>, size: [u16; 2], chunk: u
         height: size[1],
         chunk: (chunk as usize).clamp(least, CHUNK) as u16,
         crc32: CRC32.checksum(pixels),
+        colour,
     }
 }
 

@@ -34,8 +34,9 @@ use serde::{Deserialize, Serialize};
 /// level statistics (`GateReport::hold_px`, `level_px`). Version 5: the self gate's return
 /// stage (`GateReport::line_px`, `unlike`). Version 6: `crop_sub` says where the face lies
 /// (the template aligned to it), up to a whole pixel either way; a version-5 board would refuse
-/// such a frame as invalid.
-pub const PROTOCOL_VERSION: u8 = 6;
+/// such a frame as invalid. Version 7: a face frame may carry its chroma planes after its grey
+/// bytes (`FrameHeader::colour`).
+pub const PROTOCOL_VERSION: u8 = 7;
 /// Largest postcard payload in one frame.
 pub const MAX_PAYLOAD: usize = 256;
 /// Version byte and sequence number.
@@ -339,10 +340,10 @@ mod tests {
 
     #[test]
     fn literal_frame() {
-        // version 6, seq 0x0102, payload [0x00, 0x2A]; CRC-16/UMTS of 06 02 01 00 2A.
-        let crc = CRC16.checksum(&[6, 2, 1, 0, 0x2A]).to_le_bytes();
+        // version 7, seq 0x0102, payload [0x00, 0x2A]; CRC-16/UMTS of 07 02 01 00 2A.
+        let crc = CRC16.checksum(&[7, 2, 1, 0, 0x2A]).to_le_bytes();
         let bytes = wire(0x0102, &[0x00, 0x2A]);
-        let mut expect = vec![0x04, 0x06, 0x02, 0x01, 0x04, 0x2A];
+        let mut expect = vec![0x04, 0x07, 0x02, 0x01, 0x04, 0x2A];
         expect.extend_from_slice(&crc);
         expect.push(0x00);
         // COBS: the zero inside the payload splits the frame into two runs.

@@ -55,7 +55,8 @@
 //! Other lost reports (detections, errors, statuses) are not recovered: the next frame brings a
 //! new one.
 //!
-//! Bounds. Board: one image buffer (`MAX_FACE_PIXELS` = 6144 bytes), one [`FrameHeader`], one
+//! Bounds. Board: one image buffer ([`MAX_FRAME_BYTES`] = 9216 bytes: the largest grey face,
+//! 6144 bytes, and its chroma planes), one [`FrameHeader`], one
 //! [`ChunkSet`] (32 bytes), the last completed id, the last reach (one [`Detection`]); the
 //! receive accumulator of [`crate::frame`] (264 bytes) per link; the model staging area of the
 //! store. Host: one frame in flight (its pixels and a [`ChunkSet`]); nothing grows with loss.
@@ -84,7 +85,7 @@ use serde::{Deserialize, Serialize};
 
 pub use face::{
     crop_sub, is_older, ChunkSet, CropAt, FrameAck, FrameHeader, FrameState, BITMAP_BYTES, CHUNK,
-    MAX_FRAME_CHUNKS, MIN_CHUNK, STALE_WINDOW, SUB_MAX, SUB_PER_PX,
+    MAX_FRAME_BYTES, MAX_FRAME_CHUNKS, MIN_CHUNK, STALE_WINDOW, SUB_MAX, SUB_PER_PX,
 };
 pub use servo::{fault, BoardToServo, JointState, JointTarget, ServoToBoard, MAX_BUS_JOINTS};
 

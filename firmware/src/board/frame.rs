@@ -24,6 +24,9 @@ impl<S: ModelStore> Core<S> {
         host: &mut H,
     ) {
         self.counts.frames = self.counts.frames.saturating_add(1);
+        // The grey face, then its chroma planes when the frame carries them.
+        let (pixels, planes) = pixels.split_at(h.pixels().min(pixels.len()));
+        let planes = h.colour.then_some(planes);
         if self.face_wd.feed(now_us) {
             self.motion.go_home();
         }
@@ -34,7 +37,7 @@ impl<S: ModelStore> Core<S> {
                     let head = self.steady.pose([yaw, pitch]);
                     let salient = match (self.settings, self.store.active()) {
                         (Some(s), Some(bytes)) => Model::parse_trusted(bytes).ok().and_then(|m| {
-                            pipeline::detect(ws, &m, &s, pixels, [h.crop_x, h.crop_y], head).ok()
+                            pipeline::detect_colour(ws, &m, &s, pixels, planes, [h.crop_x, h.crop_y], head).ok()
                         }),
                         _ => None,
                     };
@@ -73,7 +76,7 @@ impl<S: ModelStore> Core<S> {
         let result = match (self.settings, self.store.active()) {
             (Some(settings), Some(bytes)) => match Model::parse_trusted(bytes) {
                 Ok(model) => {
-                    pipeline::detect(ws, &model, &settings, pixels, [h.crop_x, h.crop_y], steady)
+                    pipeline::detect_colour(ws, &model, &settings, pixels, planes, [h.crop_x, h.crop_y], steady)
                         .map_err(|_| (ErrorCode::BadFrame, h.frame as u32))
                 }
                 Err(_) => Err((ErrorCode::NoModel, 1)),

@@ -1098,11 +1098,13 @@ fn the_self_gate_hears_each_servo_report_once_however_often_the_board_polls() {
 
 #[test]
 fn the_big_state_fits_the_ram_budget() {
-    // Everything but the model store (a built-in blob stays in flash).
+    // Everything but the model store (a built-in blob stays in flash), within the 96 KiB of
+    // static RAM the bench holds the board image to, leaving room for the stack, the link
+    // buffers and the image's own statics.
     let board = core::mem::size_of::<Board<RamStore<0>>>();
     let ws = core::mem::size_of::<Workspace>();
     println!("Board {board} bytes, of which Workspace {ws}");
-    assert!(board <= 60 * 1024, "Board takes {board} bytes");
+    assert!(board <= 72 * 1024, "Board takes {board} bytes");
 }
 
 /// Polls `ms` milliseconds (framed servo states arriving unasked every 10 ms); returns what the

@@ -55,6 +55,10 @@ pub struct Args {
     /// (by default it carries a gate calibrated for --robot, as `msr quantize`'s)
     #[arg(long)]
     pub no_self_gate: bool,
+    /// Leave out the face's colour: the model sees grey only, as the paper (by default it
+    /// learns each block's colour from the training frames and finds marks only colour shows)
+    #[arg(long)]
+    pub no_colour: bool,
     /// Only rewrite index.html from an earlier run's report.json, model.msrm and dataset in --out
     #[arg(long)]
     pub html_only: bool,
@@ -81,6 +85,7 @@ impl Args {
             .with_pool(self.pool)
             .with_pose_bins(self.pose_bins)
             .with_self_gate(!self.no_self_gate)
+            .with_colour(!self.no_colour)
             .with_light(self.light.into());
         c.real = self.real.clone();
         c

@@ -80,6 +80,12 @@ pub struct Face {
 }
 
 impl Face {
+    /// The image the board is sent: the grey bytes, then the chroma planes when the face has
+    /// them.
+    pub fn image(&self) -> Vec<u8> {
+        [&self.grey[..], &self.chroma[..]].concat()
+    }
+
     /// The crop as grey/255, row-major (what the models take).
     pub fn unit(&self) -> Vec<f32> {
         self.grey.iter().map(|&g| g as f32 / 255.0).collect()
@@ -373,12 +379,30 @@ pub struct Cropper {
     pub template: GrayImage,
     /// Whole-pixel or sub-pixel crops.
     pub mode: CropMode,
+    /// The model reads colour: a face cut from a colour frame carries its chroma planes
+    /// ([`Cropper::crop_colour`]).
+    pub colour: bool,
 }
 
 impl Cropper {
-    /// Crops with `template` in `mode`.
+    /// Crops with `template` in `mode`, grey only.
     pub fn new(template: GrayImage, mode: CropMode) -> Cropper {
-        Cropper { template, mode }
+        Cropper { template, mode, colour: false }
+    }
+
+    /// The same, with the face's chroma planes when `colour`.
+    pub fn with_colour(self, colour: bool) -> Cropper {
+        Cropper { colour, ..self }
+    }
+
+    /// The face in a colour frame whose grey is `grey`: [`Cropper::crop`], with its chroma
+    /// planes when the model reads colour.
+    pub fn crop_colour(&self, grey: &GrayImage, rgb: &RgbImage) -> Result<Face> {
+        let mut face = self.crop(grey)?;
+        if self.colour {
+            face.chroma = chroma_planes(rgb, &face);
+        }
+        Ok(face)
     }
 
     /// The face in the grey `frame`: the best `TM_CCOEFF` window, cut as the mode says.

@@ -28,7 +28,7 @@ pub fn crop_mode_of(model: &Model) -> CropMode {
 
 /// The blob's template and crop mode: how to cut this model's faces from camera frames.
 pub fn cropper_of(model: &Model) -> Result<Cropper> {
-    Ok(Cropper::new(template_of(model)?, crop_mode_of(model)))
+    Ok(Cropper::new(template_of(model)?, crop_mode_of(model)).with_colour(model.chroma.is_some()))
 }
 
 /// The float engine with the blob's statistics and settings.

@@ -82,8 +82,8 @@ impl Camera<'_> {
         if !through.is_none() {
             r.rgb = through.apply(&r.rgb, frame);
         }
-        let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb));
-        let face = self.cropper.crop(&grey)?;
+        let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb.clone()));
+        let face = self.cropper.crop_colour(&grey, &r.rgb)?;
         Ok((grey, face))
     }
 }
@@ -253,7 +253,7 @@ impl Scenario<'_> {
             let size = [c.width as u16, c.height as u16];
             // The sub-pixel part too: the self gate follows the face to a fraction of a pixel.
             let at = msr_shared::msg::CropAt::subpixel([c.x as u16, c.y as u16], face.at);
-            let id = self.faces.start(at, size, face.grey, now);
+            let id = self.faces.start(at, size, face.image(), now);
             if let Some(f) = logged {
                 self.log_frame(now, id, w, &grey, &f, with_mark);
             }

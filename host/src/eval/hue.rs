@@ -6,7 +6,7 @@
 //! `p` becomes `p + k (h - grey(h))` for the hue `h`: grey is linear, so the pixel keeps its
 //! grey level (to the byte's rounding), and `k` is the largest up to 1 that keeps every channel
 //! in range. A patch is found when the winning blob's box meets the patch's box.
-use crate::data::crop::{chroma_planes, grey_of_rgb, load_colour, CropBox};
+use crate::data::crop::{grey_of_rgb, load_colour, CropBox};
 use crate::data::Dataset;
 use crate::detect::cropper_of;
 use crate::detect::fixed::detect_with;
@@ -17,16 +17,19 @@ use msr_sim::imperfect::Imperfections;
 use msr_sim::layout::Split;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// The hues pasted, by name and full-strength colour.
 pub const HUES: [(&str, [u8; 3]); 4] = [("red", [255, 0, 0]), ("green", [0, 255, 0]), ("blue", [0, 0, 255]), ("yellow", [255, 255, 0])];
+/// A patch's mean chroma change (`Cb`, `Cr` distance, levels) from which its hue counts as
+/// strong.
+pub const STRONG: f64 = 20.0;
 /// Side of a patch, pixels (chosen per patch within it, inclusive).
 pub const SIDE: [u32; 2] = [7, 11];
 
 /// What the pasted patches gave.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct HueMarks {
     /// Unmarked test frames used.
     pub frames: usize,
@@ -38,6 +41,12 @@ pub struct HueMarks {
     pub found: usize,
     /// Found and pasted per hue, in [`HUES`]' order.
     pub per_hue: Vec<(String, usize, usize)>,
+    /// Patches whose pixels took a strong hue (a mean chroma change of at least [`STRONG`]):
+    /// a patch on pixels already of its hue, or too dark or bright to take one at their grey
+    /// level, barely changes them.
+    pub strong: usize,
+    /// Of those, found.
+    pub strong_found: usize,
     /// The mean grey change a patch made on its pixels (rounding only), grey levels.
     pub grey_change: f64,
     /// The patches not found.
@@ -45,7 +54,7 @@ pub struct HueMarks {
 }
 
 /// A patch that was not found.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Missed {
     /// The frame's file.
     pub frame: String,
@@ -58,6 +67,17 @@ pub struct Missed {
     pub chroma_change: f64,
     /// Whether anything was detected elsewhere on the frame.
     pub detected_elsewhere: bool,
+}
+
+/// A model's colour: how it was calibrated and what it finds that grey cannot.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ColourCheck {
+    /// The chroma section's calibration (`train::chroma`).
+    pub calibration: crate::train::chroma::ChromaCalibration,
+    /// The hue patches on the unmarked test frames, with the model.
+    pub hue_marks: HueMarks,
+    /// The same patches with the model's grey stage alone (its chroma section taken off).
+    pub hue_marks_grey: HueMarks,
 }
 
 /// `pixel` with the hue `h` at the largest strength up to 1 that keeps the grey level.
@@ -117,15 +137,14 @@ pub fn hue_marks(blob: &[u8], data: &Path, camera: &Imperfections, seed: u64) ->
     ensure!(!clean.is_empty(), "dataset {} has no unmarked test frame", data.display());
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut ws = Box::new(msr_firmware::Workspace::new());
-    let mut out = HueMarks { frames: clean.len(), false_alarms: 0, marks: 0, found: 0, per_hue: HUES.iter().map(|(n, _)| (n.to_string(), 0, 0)).collect(), grey_change: 0.0, missed: Vec::new() };
+    let mut out = HueMarks { frames: clean.len(), false_alarms: 0, marks: 0, found: 0, per_hue: HUES.iter().map(|(n, _)| (n.to_string(), 0, 0)).collect(), grey_change: 0.0, missed: Vec::new(), strong: 0, strong_found: 0 };
     for (i, s) in clean {
         let (_, rgb) = load_colour(&s.file, &Imperfections::NONE, i as u64)?;
         let rgb = rgb.ok_or_else(|| anyhow!("{} is a grey frame: colour marks need colour", s.file.display()))?;
         let rgb = if camera.is_none() { rgb } else { camera.apply(&rgb, i as u64) };
         let mut detect = |frame: &RgbImage| -> Result<Option<[u32; 4]>> {
             let grey = crate::data::crop::to_grey(&image::DynamicImage::ImageRgb8(frame.clone()));
-            let mut face = cropper.crop(&grey)?;
-            face.chroma = chroma_planes(frame, &face);
+            let face = cropper.crop_colour(&grey, frame)?;
             let d = detect_with(&mut ws, &model, &face, s.head)?;
             Ok(d.blob.map(|b| b.box_xyxy))
         };
@@ -143,6 +162,10 @@ pub fn hue_marks(blob: &[u8], data: &Path, camera: &Imperfections, seed: u64) ->
             }
             out.marks += 1;
             out.found += hit as usize;
+            if chroma_change >= STRONG {
+                out.strong += 1;
+                out.strong_found += hit as usize;
+            }
             out.per_hue[k].1 += hit as usize;
             out.per_hue[k].2 += 1;
         }

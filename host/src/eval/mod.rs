@@ -20,6 +20,9 @@
 //!   threshold that still leaves a blob of `min_area`);
 //! - `pixel_auroc`: every face pixel of every test frame, mark vs not, scored by saliency.
 //!
+//! Engine `fixed+colour` (a model with chroma): the fixed-point pipeline with the faces' chroma
+//! planes, as the board runs it on a colour camera's frames; `fixed` is the same on grey alone.
+//!
 //! `quantized_agreement`: the share of test frames where the float and fixed decoder rows (sigma
 //! weighting) agree: both find nothing, or both find a blob with centroids at most 1 px apart.
 pub mod hue;
@@ -296,27 +299,30 @@ pub fn evaluate_lit(blob_path: &Path, data: &Path, manifest: Option<&Path>, came
             dets.push(((name, "float", weighting), d));
         }
     }
-    // Fixed point: the firmware's pipeline on the blob (a decoder: the board runs nothing else).
-    for (weighting, m) in WEIGHTINGS.iter().zip([&model, &none_model]) {
-        let mut d = Vec::with_capacity(test.len());
-        let mut ws = Box::new(msr_firmware::Workspace::new());
-        for s in &test {
-            d.push(
-                crate::detect::fixed::detect_with(&mut ws, m, &s.face, s.head)
-                    .with_context(|| format!("frame {}", s.file.display()))?,
-            );
+    // Fixed point: the firmware's pipeline on the blob (a decoder: the board runs nothing else),
+    // on grey as the paper; for a model with chroma, again with the faces' colour.
+    let engines: &[&str] = if model.chroma.is_some() { &["fixed", "fixed+colour"] } else { &["fixed"] };
+    for &engine in engines {
+        for (weighting, m) in WEIGHTINGS.iter().zip([&model, &none_model]) {
+            let mut d = Vec::with_capacity(test.len());
+            let mut ws = Box::new(msr_firmware::Workspace::new());
+            for s in &test {
+                let grey;
+                let face = if engine == "fixed" {
+                    grey = crate::data::crop::Face { chroma: Vec::new(), ..s.face.clone() };
+                    &grey
+                } else {
+                    &s.face
+                };
+                d.push(
+                    crate::detect::fixed::detect_with(&mut ws, m, face, s.head)
+                        .with_context(|| format!("frame {}", s.file.display()))?,
+                );
+            }
+            let source = format!("{} (firmware pipeline)", blob_path.display());
+            rows.push(row("decoder", weighting, engine, source, &test, &d, m.novelty.min_area));
+            dets.push((("decoder", engine, weighting), d));
         }
-        let source = format!("{} (firmware pipeline)", blob_path.display());
-        rows.push(row(
-            "decoder",
-            weighting,
-            "fixed",
-            source,
-            &test,
-            &d,
-            m.novelty.min_area,
-        ));
-        dets.push((("decoder", "fixed", weighting), d));
     }
     for weighting in WEIGHTINGS {
         absent.push(Absent {

@@ -23,7 +23,7 @@ use msr_firmware::chroma::{self as fw, Q_ONE, WIDEN_ONE};
 use msr_shared::blob::chroma::{blocks, normalise, SPREAD_ONE};
 use msr_shared::blob::{set_chroma, ChromaCell, ChromaSpec, Model, PoseGrid};
 use msr_sim::layout::Split;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::Path;
 
 /// The least spread, in `1 / SPREAD_ONE` units: half a unit of normalised chroma, which comes in
@@ -35,7 +35,7 @@ pub const MARGIN: f64 = 1.25;
 pub const MIN_THRESHOLD: f64 = 5.0;
 
 /// What the calibration found, for the report.
-#[derive(Clone, Debug, PartialEq, Serialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ChromaCalibration {
     /// Frames the statistics came from.
     pub frames: usize,

@@ -9,6 +9,9 @@ pub const MIN_CHUNK: usize = 24;
 pub const MAX_FRAME_CHUNKS: usize = 256;
 /// Bytes of a [`ChunkSet`].
 pub const BITMAP_BYTES: usize = MAX_FRAME_CHUNKS / 8;
+/// Largest face image on the link: the largest grey face and its two chroma planes.
+pub const MAX_FRAME_BYTES: usize = crate::blob::MAX_FACE_PIXELS
+    + 2 * crate::blob::chroma::blocks(crate::blob::MAX_FACE_H, crate::blob::MAX_FACE_W);
 /// A frame id this many or more behind the board's current one is a restarted host, not stale.
 pub const STALE_WINDOW: u16 = 64;
 
@@ -78,12 +81,21 @@ pub struct FrameHeader {
     pub chunk: u16,
     /// CRC-32 (ISO-HDLC, as blobs) of the whole image.
     pub crc32: u32,
+    /// The image carries the face's chroma planes after its grey bytes (`Cb` then `Cr`, one
+    /// byte a 2 x 2 block: [`crate::blob::chroma`]), for a model with chroma.
+    pub colour: bool,
 }
 
 impl FrameHeader {
-    /// Pixels in the image.
+    /// Pixels in the image: its grey bytes.
     pub fn pixels(&self) -> usize {
         self.width as usize * self.height as usize
+    }
+
+    /// Bytes of the image: its grey bytes, then its chroma planes when it has them.
+    pub fn bytes(&self) -> usize {
+        let planes = if self.colour { 2 * crate::blob::chroma::blocks(self.height as usize, self.width as usize) } else { 0 };
+        self.pixels() + planes
     }
 
     /// Chunks the image travels in (0 when `chunk` is 0).
@@ -91,7 +103,7 @@ impl FrameHeader {
         if self.chunk == 0 {
             return 0;
         }
-        self.pixels().div_ceil(self.chunk as usize)
+        self.bytes().div_ceil(self.chunk as usize)
     }
 
     /// Chunk size in range, at most [`MAX_FRAME_CHUNKS`] chunks, a non-empty image, the
@@ -114,7 +126,7 @@ impl FrameHeader {
     /// Where chunk `i` lies in the image.
     pub fn chunk_range(&self, i: usize) -> core::ops::Range<usize> {
         let start = i * self.chunk as usize;
-        start.min(self.pixels())..(start + self.chunk as usize).min(self.pixels())
+        start.min(self.bytes())..(start + self.chunk as usize).min(self.bytes())
     }
 
     /// Is `frame` older than this header's frame by less than [`STALE_WINDOW`]?

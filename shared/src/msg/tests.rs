@@ -105,6 +105,7 @@ fn largest_messages_fit_a_frame() {
         height: u16::MAX,
         chunk: u16::MAX,
         crc32: u32::MAX,
+        colour: true,
     };
     let mut buf = [0u8; MAX_PAYLOAD];
     round_trip(&HostToBoard::FramePoll { header, round: u8::MAX }, &mut buf);
@@ -157,9 +158,9 @@ fn frame_ack_literal() {
 fn frame_start_literal_with_the_sub_pixel_crop() {
     // Variant 1 (FrameStart): frame 3, crop (140, 95) as varints, crop_sub (-5, 32) as two
     // raw bytes (postcard writes an i8 as one two's-complement byte), 75 x 58, chunk 224,
-    // CRC-32 1.
-    let h = FrameHeader { frame: 3, crop_x: 140, crop_y: 95, crop_sub: [-5, 32], width: 75, height: 58, chunk: 224, crc32: 1 };
-    let bytes = [0x01, 0x03, 0x8C, 0x01, 0x5F, 0xFB, 0x20, 0x4B, 0x3A, 0xE0, 0x01, 0x01];
+    // CRC-32 1, grey only (a bool is one byte, 0 or 1).
+    let h = FrameHeader { frame: 3, crop_x: 140, crop_y: 95, crop_sub: [-5, 32], width: 75, height: 58, chunk: 224, crc32: 1, colour: false };
+    let bytes = [0x01, 0x03, 0x8C, 0x01, 0x5F, 0xFB, 0x20, 0x4B, 0x3A, 0xE0, 0x01, 0x01, 0x00];
     assert_eq!(postcard::to_slice(&HostToBoard::FrameStart(h), &mut [0u8; 32]).unwrap(), &bytes);
     assert_eq!(postcard::from_bytes::<HostToBoard>(&bytes).unwrap(), HostToBoard::FrameStart(h));
     assert!(h.is_valid());
@@ -200,12 +201,19 @@ fn crop_sub_rounds_and_clamps() {
 
 #[test]
 fn chunk_geometry() {
-    let h = FrameHeader { frame: 1, crop_x: 0, crop_y: 0, crop_sub: [0; 2], width: 58, height: 75, chunk: 224, crc32: 0 };
+    let h = FrameHeader { frame: 1, crop_x: 0, crop_y: 0, crop_sub: [0; 2], width: 58, height: 75, chunk: 224, crc32: 0, colour: false };
     assert_eq!(h.pixels(), 4350);
     assert_eq!(h.chunks(), 20);
     assert_eq!(h.chunk_range(19), 4256..4350);
     assert_eq!(h.chunk_range(20), 4350..4350);
     assert!(h.is_valid());
+    // With its chroma planes: 38 x 29 blocks, two planes after the grey.
+    let c = FrameHeader { colour: true, ..h };
+    assert_eq!((c.pixels(), c.bytes(), c.chunks()), (4350, 4350 + 2 * 1102, 30));
+    assert_eq!(c.chunk_range(29), 6496..6554);
+    // The largest face in colour needs chunks of 36 to stay within 256 of them.
+    assert!(!FrameHeader { width: 96, height: 64, chunk: 24, ..c }.is_valid());
+    assert!(FrameHeader { width: 96, height: 64, chunk: 36, ..c }.is_valid());
     assert!(!FrameHeader { chunk: MIN_CHUNK as u16 - 1, ..h }.is_valid());
     assert!(!FrameHeader { chunk: CHUNK as u16 + 1, ..h }.is_valid());
     // 96 x 64 in chunks of 24 is exactly 256 chunks; one pixel more is too many.
