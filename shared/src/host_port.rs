@@ -196,7 +196,7 @@ mod tests {
         assert!(port.check_version().is_ok());
         assert!(port.receive(&wire).is_empty());
         let e = port.check_version().unwrap_err().to_string();
-        assert!(e.contains("version 1, this host version 6"), "{e}");
+        assert!(e.contains("version 1, this host version 7"), "{e}");
         // The same message from a board of this version is taken.
         let mut port = HostPort::default();
         let good = encode_message_vec(0, &BoardToHost::Pong { nonce: 5 }).unwrap();
