@@ -47,17 +47,29 @@ pub fn errors(c: &Chroma, grey: &[u8], planes: &[u8], h: usize, w: usize, e: &mu
     }
     let (bh, bw) = (h.div_ceil(2), w.div_ceil(2));
     let mut hist = [[0u16; 256]; 2];
+    // Index loops, not iterator chains: the board's image is built for size, where those cost
+    // several times as much.
     for by in 0..bh {
-        let (y0, y1) = (2 * by, (2 * by + 2).min(h));
+        let y0 = 2 * by;
+        let two_rows = y0 + 1 < h;
+        let r0 = &grey[y0 * w..y0 * w + w];
+        let r1 = if two_rows { &grey[(y0 + 1) * w..(y0 + 2) * w] } else { r0 };
         for bx in 0..bw {
-            let (x0, x1) = (2 * bx, (2 * bx + 2).min(w));
-            let mut sum = 0u32;
-            for y in y0..y1 {
-                for &g in &grey[y * w + x0..y * w + x1] {
-                    sum += g as u32;
+            let x0 = 2 * bx;
+            let two_cols = x0 + 1 < w;
+            let (mut sum, mut px) = (r0[x0] as u32, 1u32);
+            if two_cols {
+                sum += r0[x0 + 1] as u32;
+                px += 1;
+            }
+            if two_rows {
+                sum += r1[x0] as u32;
+                px += 1;
+                if two_cols {
+                    sum += r1[x0 + 1] as u32;
+                    px += 1;
                 }
             }
-            let px = ((y1 - y0) * (x1 - x0)) as u32;
             let b = by * bw + bx;
             let (mu, _) = c.at(b)?;
             let u = chroma::normalise(planes[b], sum, px) as i16 - mu[0] as i16;
@@ -69,10 +81,11 @@ pub fn errors(c: &Chroma, grey: &[u8], planes: &[u8], h: usize, w: usize, e: &mu
     }
     let shift = [median(&hist[0], n) as i16 - 128, median(&hist[1], n) as i16 - 128];
     let mut qs = [0u16; 256];
-    for (b, eb) in e[..n].iter_mut().enumerate() {
-        *eb = [eb[0] - shift[0], eb[1] - shift[1]];
+    for b in 0..n {
+        let eb = [e[b][0] - shift[0], e[b][1] - shift[1]];
+        e[b] = eb;
         let (_, s) = c.at(b)?;
-        qs[q_bin(q16(*eb, s))] += 1;
+        qs[q_bin(q16(eb, s))] += 1;
     }
     let median_q = q_of_bin(median(&qs, n));
     let reference = ((c.spread_ref * Q_ONE as f32) as u32).clamp(1, 255);
@@ -112,10 +125,21 @@ pub fn q16(e: [i16; 2], s: u8) -> u32 {
 
 /// Rule 4's test of one block: `q > threshold^2 x widen`, exactly, in 64 bits.
 pub fn salient(c: &Chroma, f: &Frame, e: [i16; 2], s: u8) -> bool {
-    let r = (e[0] as i64 * e[0] as i64 + e[1] as i64 * e[1] as i64) as u64;
+    over(limit(c, f), e, s)
+}
+
+/// Rule 4's bound for a frame, `threshold^2 x widen` in the units [`over`] compares with: made
+/// once a frame (a float to integer conversion is a library call on the board).
+fn limit(c: &Chroma, f: &Frame) -> u64 {
+    (c.threshold * c.threshold * Q_ONE as f32) as u64 * f.widen as u64
+}
+
+/// Whether a block's error `e` with spread `s` is over the frame's `limit`.
+#[inline(always)]
+fn over(limit: u64, e: [i16; 2], s: u8) -> bool {
+    let r = (e[0] as i32 * e[0] as i32 + e[1] as i32 * e[1] as i32) as u64;
     let s = s.max(1) as u64;
-    let t2 = (c.threshold * c.threshold * Q_ONE as f32) as u64;
-    r * (SPREAD_ONE as u64 * SPREAD_ONE as u64) * Q_ONE as u64 * WIDEN_ONE as u64 > t2 * f.widen as u64 * s * s
+    r * (SPREAD_ONE as u64 * SPREAD_ONE as u64 * Q_ONE as u64 * WIDEN_ONE as u64) > limit * s * s
 }
 
 /// Rule 4: sets the pixels of every salient block to 1 in the `w`-wide `mask` and counts the
@@ -127,11 +151,12 @@ pub fn mark(c: &Chroma, f: Frame, e: &[[i16; 2]], h: usize, w: usize, mask: &mut
     if mask.len() < h * w || e.len() < bh * bw {
         return (f, 0);
     }
+    let limit = limit(c, &f);
     for by in 0..bh {
         for bx in 0..bw {
             let b = by * bw + bx;
             let Some((_, s)) = c.at(b) else { return (f, added) };
-            if !salient(c, &f, e[b], s) {
+            if !over(limit, e[b], s) {
                 continue;
             }
             blocks += 1;

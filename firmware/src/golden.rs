@@ -5,9 +5,12 @@
 //! Every intermediate result that matters goes into a CRC-32: the predicted face, the
 //! photometric fit, the frame's spread and floor, the mask, the winning blob, the centroid and reach bits. Four frames are
 //! under another exposure and one is black, so that the fit and its verdict are compared too. Run it on the host and on the board with the
-//! same blob: equal digests mean bit-identical pipelines.
+//! same blob: equal digests mean bit-identical pipelines. A model with chroma gets each frame's
+//! chroma planes too (its own mean colour with noise, some frames a patch of another hue at the
+//! face's grey), and the colour stage's results go into the digest.
 
-use crate::pipeline::{detect, DetectError, Workspace};
+use crate::pipeline::{detect_colour, DetectError, Workspace};
+use msr_shared::blob::chroma;
 use crate::saliency::Settings;
 use msr_shared::blob::{Model, CRC32};
 
@@ -47,7 +50,13 @@ pub fn head_pose(i: u32) -> [f32; 2] {
     ]
 }
 
-/// Runs the golden frames. `crop` is scratch for one face (at least `face_h * face_w` bytes).
+/// Scratch [`run`] needs for a model: its face, and its chroma planes when it has chroma.
+pub fn scratch_len(model: &Model) -> usize {
+    let (h, w) = (model.face_h as usize, model.face_w as usize);
+    h * w + if model.chroma.is_some() { 2 * chroma::blocks(h, w) } else { 0 }
+}
+
+/// Runs the golden frames. `crop` is scratch for one face and its planes ([`scratch_len`]).
 pub fn run(
     ws: &mut Workspace,
     model: &Model,
@@ -55,7 +64,7 @@ pub fn run(
 ) -> Result<GoldenReport, DetectError> {
     let (h, w) = (model.face_h as usize, model.face_w as usize);
     let n = h * w;
-    let crop = crop.get_mut(..n).ok_or(DetectError::CropSize)?;
+    let (crop, planes) = crop.get_mut(..scratch_len(model)).ok_or(DetectError::CropSize)?.split_at_mut(n);
     let settings = Settings::of(model);
     let mut digest = CRC32.digest();
     let mut detections = 0;
@@ -91,8 +100,20 @@ pub fn run(
         if i == FRAMES - 1 {
             crop.fill(0);
         }
+        let planes = match model.chroma_at(head) {
+            Some(c) => {
+                colour(&c, crop, planes, h, w, i, &mut rng);
+                Some(&planes[..])
+            }
+            None => None,
+        };
         let offset = [(i * 3) as u16, (i * 2) as u16];
-        let det = detect(ws, model, &settings, crop, offset, head)?;
+        let det = detect_colour(ws, model, &settings, crop, planes, offset, head)?;
+        if let Some(f) = det.chroma {
+            for v in [f.shift[0] as u32 | (f.shift[1] as u32) << 16, f.median_q as u32, f.widen, f.blocks as u32] {
+                digest.update(&v.to_le_bytes());
+            }
+        }
         for &m in ws.mask(n) {
             digest.update(&[m]);
         }
@@ -139,6 +160,35 @@ pub fn run(
         detections,
         digest: digest.finalize(),
     })
+}
+
+/// Chroma planes for golden frame `i`: each block's `Cb`, `Cr` near the model's mean ratio at
+/// the crop's grey, with noise; frames 0, 4, 8, 12 (no grey mark) a block patch of another hue
+/// (the grey kept).
+fn colour(c: &msr_shared::blob::ChromaCell, crop: &[u8], planes: &mut [u8], h: usize, w: usize, i: u32, rng: &mut XorShift) {
+    let (bh, bw) = (h.div_ceil(2), w.div_ceil(2));
+    let n = bh * bw;
+    let patch = (i % 4 == 0).then(|| (rng.next() as usize % bh.saturating_sub(3).max(1), rng.next() as usize % bw.saturating_sub(3).max(1)));
+    for by in 0..bh {
+        for bx in 0..bw {
+            let b = by * bw + bx;
+            let (mut sum, mut px) = (0i32, 0i32);
+            for y in 2 * by..(2 * by + 2).min(h) {
+                for x in 2 * bx..(2 * bx + 2).min(w) {
+                    sum += crop[y * w + x] as i32;
+                    px += 1;
+                }
+            }
+            let (mu, _) = c.at(b).unwrap_or(([0, 0], 1));
+            let inside = patch.is_some_and(|(py, pxx)| (py..py + 3).contains(&by) && (pxx..pxx + 3).contains(&bx));
+            for (k, m) in mu.iter().enumerate() {
+                // The inverse of the normalisation, rounded down, with noise of +-1.
+                let base = 128 + (*m as i32 * (sum + chroma::DARK * px)) / (chroma::SCALE * px.max(1));
+                let v = if inside { 128 + if k == 0 { -60 } else { 70 } } else { base + (rng.next() % 3) as i32 - 1 };
+                planes[k * n + b] = v.clamp(0, 255) as u8;
+            }
+        }
+    }
 }
 
 /// What [`room`] gave: its cost (from the caller's counter) and the offsets' digest.

@@ -209,3 +209,21 @@ fn the_pipeline_finds_what_only_colour_shows() {
     let d = detect_colour(&mut ws, &g, &s, &grey, Some(&planes[1..]), [0, 0], head).unwrap();
     assert_eq!((d.blob, d.chroma), (None, None));
 }
+
+#[test]
+fn golden_frames_run_the_colour_stage() {
+    let bytes = model_bytes(16);
+    let m = Model::parse(&bytes).unwrap();
+    let grey_bytes = set_chroma(&bytes, None).unwrap();
+    let g = Model::parse(&grey_bytes).unwrap();
+    let mut crop = vec![0u8; crate::golden::scratch_len(&m)];
+    assert_eq!(crop.len(), H * W + 2 * chroma::blocks(H, W));
+    let mut ws = Box::new(Workspace::new());
+    let a = crate::golden::run(&mut ws, &m, &mut crop).unwrap();
+    let b = crate::golden::run(&mut Box::new(Workspace::new()), &m, &mut crop).unwrap();
+    let grey = crate::golden::run(&mut ws, &g, &mut crop).unwrap();
+    assert_eq!(a, b, "the same frames give the same digest");
+    assert_ne!(a.digest, grey.digest, "the colour stage's results are in the digest");
+    assert!(a.detections > grey.detections, "the hue patches are found: {a:?} against {grey:?}");
+    assert!(crate::golden::run(&mut ws, &m, &mut crop[..H * W]).is_err(), "scratch without room for the planes");
+}

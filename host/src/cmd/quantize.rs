@@ -1,5 +1,6 @@
-//! `msr quantize`: flags to a [`QuantizeConfig`], then [`quantize::quantize`], the self gate
-//! ([`self_gate::gate_quantized`]) unless `--no-self-gate`, then the report.
+//! `msr quantize`: flags to a [`QuantizeConfig`], then [`quantize::quantize`], the face's colour
+//! (`train::chroma`) unless `--no-colour`, the self gate ([`self_gate::gate_quantized`]) unless
+//! `--no-self-gate`, then the report.
 use crate::quant::quantize::{self, QuantizeConfig, WeightArg};
 use crate::train::self_gate::{self, GateCalibration, GatedReport};
 use anyhow::{Context, Result};
@@ -33,6 +34,11 @@ pub struct Args {
     /// the blob carries a gate calibrated on the dataset's robot, see `train::self_gate`)
     #[arg(long)]
     pub no_self_gate: bool,
+    /// Leave out the face's colour: the blob sees grey only, as the paper (by default it learns
+    /// each 2 x 2 block's colour per pose cell from the dataset's training frames, see
+    /// `train::chroma`)
+    #[arg(long)]
+    pub no_colour: bool,
 }
 
 impl Args {
@@ -48,7 +54,15 @@ impl Args {
 
 /// Quantizes, gates (unless `--no-self-gate`) and prints the report, as one line or as JSON.
 pub fn run(args: Args) -> Result<()> {
-    let quantized = quantize::quantize(&args.config())?;
+    let mut quantized = quantize::quantize(&args.config())?;
+    if !args.no_colour {
+        let data = match &args.data {
+            Some(d) => d.clone(),
+            None => PathBuf::from(&crate::train::load(&args.train, "decoder")?.info()?.data),
+        };
+        crate::train::chroma::colour_quantized(&mut quantized, &data)
+            .context("learning the face's colour (--no-colour leaves it out)")?;
+    }
     let gated = if args.no_self_gate {
         GatedReport::ungated(quantized)
     } else {

@@ -204,3 +204,15 @@ pub fn attach(blob: &[u8], data: &Path) -> Result<(Vec<u8>, ChromaCalibration)> 
     let out = set_chroma(blob, Some(&spec)).map_err(|e| anyhow!("chroma section: {e}"))?;
     Ok((out, cal))
 }
+
+/// [`attach`] on the blob a quantization wrote, its report brought up to date (size, CRC).
+pub fn colour_quantized(quantized: &mut crate::quant::quantize::Report, data: &Path) -> Result<ChromaCalibration> {
+    let path = std::path::PathBuf::from(&quantized.blob);
+    let blob = crate::fsio::read_blob(&path)?;
+    let (coloured, cal) = attach(&blob, data)?;
+    crate::fsio::write(&path, &coloured)?;
+    let model = Model::parse(&coloured).map_err(|e| anyhow!("model blob: {e}"))?;
+    quantized.blob_bytes = coloured.len();
+    quantized.crc32 = format!("{:08x}", model.crc32);
+    Ok(cal)
+}

@@ -27,7 +27,8 @@ use msr_firmware::saliency::Settings;
 use msr_qemu::clock::Clock;
 use msr_qemu::exit::exit;
 use msr_qemu::{memory, model_area};
-use msr_shared::blob::{Model, MAX_FACE_PIXELS};
+use msr_shared::blob::Model;
+use msr_shared::msg::MAX_FRAME_BYTES;
 
 /// Head poses of the benchmark frames (HeadYaw, HeadPitch), inside the +-5 degree training range.
 const POSES: [[f32; 2]; 4] = [[0.0, 0.0], [0.05, -0.03], [-0.07, 0.02], [0.02, 0.06]];
@@ -38,7 +39,7 @@ const WIDEN_PROBE: u16 = 4 * 256;
 const MARK_GREY: u8 = 226;
 
 static mut WS: Workspace = Workspace::new();
-static mut FRAME: [u8; MAX_FACE_PIXELS] = [0; MAX_FACE_PIXELS];
+static mut FRAME: [u8; MAX_FRAME_BYTES] = [0; MAX_FRAME_BYTES];
 
 #[derive(Default, Clone, Copy)]
 struct Stages {
@@ -48,6 +49,8 @@ struct Stages {
     /// whose floor changed pays.
     table_widened: u64,
     saliency: u64,
+    /// The colour stage (a model with chroma; 0 otherwise).
+    chroma: u64,
     blobs: u64,
     reach: u64,
 }
@@ -408,7 +411,7 @@ fn main() -> ! {
         }
     };
     // SAFETY: the only references to these statics, taken once in this single-threaded image.
-    let (ws, frame) = unsafe { (&mut *core::ptr::addr_of_mut!(WS), &mut *core::ptr::addr_of_mut!(FRAME)) };
+    let (ws, whole) = unsafe { (&mut *core::ptr::addr_of_mut!(WS), &mut *core::ptr::addr_of_mut!(FRAME)) };
     if let Err(e) = pool_agrees() {
         hprintln!("MSR-BENCH-ERROR the pooled saliency: {}", e);
         exit(1);
@@ -436,7 +439,8 @@ fn main() -> ! {
     let settings = Settings::of(&model);
     let (h, w) = (model.face_h as usize, model.face_w as usize);
     let n = h * w;
-    let frame = &mut frame[..n];
+    let (frame, planes) = whole.split_at_mut(n);
+    let planes = &mut planes[..2 * msr_shared::blob::chroma::blocks(h, w)];
     let mut lines = [Line::default(); POSES.len()];
     let mut rng = 0x1234_5678u32;
     let mut found = 0u32;
@@ -476,6 +480,28 @@ fn main() -> ! {
         ws.thresholds.prepare(&model, &settings, *head, 0);
         let t1t = clock.instructions();
         let salient = ws.saliency(&model, &settings, frame);
+        let tc = clock.instructions();
+        // Colour: neutral planes with noise, the mark's blocks of another hue.
+        let coloured = if model.chroma.is_some() {
+            let (bh, bw) = (h.div_ceil(2), w.div_ceil(2));
+            let nb = bh * bw;
+            for (b, p) in planes.iter_mut().enumerate() {
+                *p = (128 + noise(&mut rng) / 2) as u8;
+                let (by, bx) = ((b % nb) / bw, (b % nb) % bw);
+                if k % 2 == 0 && h >= MARK && w >= MARK {
+                    let (y0, x0) = ((h - MARK) * (k + 1) / 5 / 2, (w - MARK) * (4 - k) / 5 / 2);
+                    if (y0..y0 + MARK / 2).contains(&by) && (x0..x0 + MARK / 2).contains(&bx) {
+                        *p = if b < nb { 70 } else { 190 };
+                    }
+                }
+            }
+            let tc0 = clock.instructions();
+            let r = ws.chroma(&model, frame, planes);
+            (clock.instructions() - tc0, r.is_ok())
+        } else {
+            (0, true)
+        };
+        let _ = tc;
         let t2 = clock.instructions();
         let (blob, summary) = ws.blobs(&model, &settings);
         let t3 = clock.instructions();
@@ -483,7 +509,7 @@ fn main() -> ! {
         let c = blob.map_or([w as f32 / 2.0, h as f32 / 2.0], |b| b.centroid());
         let r = reach::targets(&model.reach, c);
         let t4 = clock.instructions();
-        if !decoded || salient.is_err() {
+        if !decoded || salient.is_err() || !coloured.1 {
             hprintln!("MSR-BENCH-ERROR frame {} failed", k);
             exit(1);
         }
@@ -498,7 +524,8 @@ fn main() -> ! {
                 decoder: tw0 - t0,
                 table: t1t - t1,
                 table_widened: tw1 - tw0,
-                saliency: t2 - t1t,
+                saliency: t2 - t1t - coloured.0,
+                chroma: coloured.0,
                 blobs: t3 - t2,
                 reach: t4 - t3,
             },
@@ -511,14 +538,14 @@ fn main() -> ! {
     }
     // Before anything is printed: formatting takes stack the pipeline does not.
     let stack_peak = memory::stack_peak();
-    let golden = match msr_firmware::golden::run(ws, &model, frame) {
+    let golden = match msr_firmware::golden::run(ws, &model, whole) {
         Ok(g) => g,
         Err(e) => {
             hprintln!("MSR-BENCH-ERROR golden frames: {}", e);
             exit(1);
         }
     };
-    let room = match msr_firmware::golden::room(ws, &model, frame, || clock.instructions()) {
+    let room = match msr_firmware::golden::room(ws, &model, whole, || clock.instructions()) {
         Ok(r) => r,
         Err(e) => {
             hprintln!("MSR-BENCH-ERROR room: {}", e);
@@ -531,25 +558,26 @@ fn main() -> ! {
     let (mut held_max, mut held_clear_max) = (0u64, 0u64);
     for (k, l) in lines.iter().enumerate() {
         let s = l.stages;
-        held_max = held_max.max(s.saliency + s.blobs + s.reach);
+        held_max = held_max.max(s.saliency + s.chroma + s.blobs + s.reach);
         if l.blob.is_none() {
-            held_clear_max = held_clear_max.max(s.saliency + s.blobs + s.reach);
+            held_clear_max = held_clear_max.max(s.saliency + s.chroma + s.blobs + s.reach);
         }
         hprintln!(
-            "frame {}: decoder {} table {} saliency {} blobs {} reach {} (instructions); salient {} components {} blob {:?} reach {:?}",
-            k, s.decoder, s.table, s.saliency, s.blobs, s.reach, l.salient, l.components, l.blob, l.reach
+            "frame {}: decoder {} table {} saliency {} chroma {} blobs {} reach {} (instructions); salient {} components {} blob {:?} reach {:?}",
+            k, s.decoder, s.table, s.saliency, s.chroma, s.blobs, s.reach, l.salient, l.components, l.blob, l.reach
         );
         sum.decoder += s.decoder;
         sum.table += s.table;
         sum.table_widened += s.table_widened;
         sum.saliency += s.saliency;
+        sum.chroma += s.chroma;
         sum.blobs += s.blobs;
         sum.reach += s.reach;
     }
     let f = POSES.len() as u64;
     let sizes = memory::sizes();
     hprintln!(
-        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"table\":{},\"table_widened\":{},\"saliency\":{},\"blobs\":{},\"reach\":{}}},\"held_max\":{},\"held_clear_max\":{},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}],\"golden_digest\":{},\"golden_detections\":{},\"room\":{{\"learn\":{},\"update\":{},\"apply\":{},\"digest\":{}}}}}",
+        "MSR-BENCH {{\"frames\":{},\"marks_found\":{},\"macs\":{},\"stages\":{{\"decoder\":{},\"table\":{},\"table_widened\":{},\"saliency\":{},\"chroma\":{},\"blobs\":{},\"reach\":{}}},\"held_max\":{},\"held_clear_max\":{},\"static_ram_bytes\":{},\"code_bytes\":{},\"model_bytes\":{},\"model_built_in\":{},\"stack_peak_bytes\":{},\"workspace_bytes\":{},\"face_crc32\":[{},{},{},{}],\"golden_digest\":{},\"golden_detections\":{},\"room\":{{\"learn\":{},\"update\":{},\"apply\":{},\"digest\":{}}}}}",
         f,
         found,
         model.decoder_macs(),
@@ -557,6 +585,7 @@ fn main() -> ! {
         sum.table / f,
         sum.table_widened / f,
         sum.saliency / f,
+        sum.chroma / f,
         sum.blobs / f,
         sum.reach / f,
         held_max,
