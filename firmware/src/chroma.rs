@@ -3,9 +3,11 @@
 //! The rules, in order:
 //! 1. Each 2 x 2 block's normalised chroma ([`chroma::normalise`]) less the model's mean for
 //!    that block is its error `e = (e_u, e_v)`.
-//! 2. The frame's shift, the median of `e_u` and of `e_v` over the face's blocks, is taken out
-//!    of every block's error: a white balance or a tinted light moves every block alike, a mark
-//!    only a few.
+//! 2. The frame's line, per axis, is taken out of every block's error: `e = a + g mu` fitted
+//!    by least squares over the blocks within [`TRIM`] of the median error. A white balance or
+//!    a tinted light moves every block alike (`a`); a tone curve scales each block's chroma
+//!    ratio (`g`: a curve of exponent 0.8 makes the ratios about 0.8 times); a mark moves only
+//!    a few blocks, and far.
 //! 3. Each block's `q = |e|^2 / spread^2`; the median of `q` over the face against the model's
 //!    [`Chroma::spread_ref`] says how much more this camera's chroma spreads than the
 //!    statistics' frames did (noise, compression). Every spread is widened by that ratio, never
@@ -29,6 +31,8 @@ pub const WIDEN_ONE: u32 = 256;
 pub struct Frame {
     /// Rule 2: the shift taken out, `[u, v]` normalised chroma units.
     pub shift: [i16; 2],
+    /// Rule 2: the slope taken out with it, `[u, v]` in 256ths of the model's chroma.
+    pub gain: [i16; 2],
     /// Rule 3: the median `q` over the face (at most [`MAX_MEDIAN_Q`]), in [`Q_ONE`]ths.
     pub median_q: u16,
     /// Rule 3: how much the spreads were widened (squared), in [`WIDEN_ONE`]ths, at least 1.0.
@@ -79,19 +83,66 @@ pub fn errors(c: &Chroma, grey: &[u8], planes: &[u8], h: usize, w: usize, e: &mu
             hist[1][(v.clamp(-128, 127) + 128) as usize] += 1;
         }
     }
-    let shift = [median(&hist[0], n) as i16 - 128, median(&hist[1], n) as i16 - 128];
+    let mid = [median(&hist[0], n) as i32 - 128, median(&hist[1], n) as i32 - 128];
+    // Rule 2's line, per axis, over the blocks near the median (a mark lies far from it).
+    let mut sums = [[0i64; 5]; 2];
+    for b in 0..n {
+        let (mu, _) = c.at(b)?;
+        for k in 0..2 {
+            let (x, y) = (mu[k] as i64, e[b][k] as i64);
+            if (y - mid[k] as i64).abs() <= TRIM as i64 {
+                let t = &mut sums[k];
+                (t[0], t[1], t[2], t[3], t[4]) = (t[0] + 1, t[1] + x, t[2] + y, t[3] + x * x, t[4] + x * y);
+            }
+        }
+    }
+    let line = [line_of(&sums[0], mid[0]), line_of(&sums[1], mid[1])];
     let mut qs = [0u16; 256];
     for b in 0..n {
-        let eb = [e[b][0] - shift[0], e[b][1] - shift[1]];
+        let (mu, s) = c.at(b)?;
+        let mut eb = e[b];
+        for k in 0..2 {
+            let (a, g) = line[k];
+            eb[k] -= ((a + g * mu[k] as i32 + 128) >> 8) as i16;
+        }
         e[b] = eb;
-        let (_, s) = c.at(b)?;
         qs[q_bin(q16(eb, s))] += 1;
     }
+    let shift = [((line[0].0 + 128) >> 8) as i16, ((line[1].0 + 128) >> 8) as i16];
+    let gain = [line[0].1 as i16, line[1].1 as i16];
     let median_q = q_of_bin(median(&qs, n));
     let reference = ((c.spread_ref * Q_ONE as f32) as u32).clamp(1, 255);
     let widen = (median_q as u32 * WIDEN_ONE / reference).max(WIDEN_ONE);
-    Some(Frame { shift, median_q, widen, blocks: 0 })
+    Some(Frame { shift, gain, median_q, widen, blocks: 0 })
 }
+
+/// Rule 2's fit of the errors on the model's chroma, `e = a + g mu`, from the sums
+/// `[n, sum mu, sum e, sum mu^2, sum mu e]` of the blocks within [`TRIM`] of the median `m`:
+/// `(a, g)` in 256ths. A face whose model chroma spreads less than [`MIN_SPREAD2`] (a grey
+/// face) has no slope to fit, and a fit outside [`MAX_SLOPE`] is no camera's: those take the
+/// median as the shift alone.
+fn line_of(t: &[i64; 5], m: i32) -> (i32, i32) {
+    let [n, sx, sy, sxx, sxy] = *t;
+    let det = n * sxx - sx * sx;
+    if n < 2 || det < MIN_SPREAD2 * n * n {
+        return (m * 256, 0);
+    }
+    let g = (n * sxy - sx * sy) * 256 / det;
+    if g.abs() > MAX_SLOPE as i64 {
+        return (m * 256, 0);
+    }
+    let a = (sy * 256 - g * sx) / n;
+    (a as i32, g as i32)
+}
+
+/// Rule 2: blocks whose error lies further than this from the median (normalised chroma
+/// units, each axis) are left out of the fit.
+pub const TRIM: i32 = 24;
+/// Rule 2: the least variance of the model's chroma over the fitted blocks (units squared)
+/// for a slope to be fitted.
+pub const MIN_SPREAD2: i64 = 4;
+/// Rule 2: the largest slope, in 256ths (a chroma at most halved or one and a half times).
+pub const MAX_SLOPE: i32 = 128;
 
 /// The histogram bin of `q`: sixteenths below 128, then steps of 16 up to [`MAX_MEDIAN_Q`].
 fn q_bin(q: u32) -> usize {

@@ -110,7 +110,7 @@ pub fn run(
         let offset = [(i * 3) as u16, (i * 2) as u16];
         let det = detect_colour(ws, model, &settings, crop, planes, offset, head)?;
         if let Some(f) = det.chroma {
-            for v in [f.shift[0] as u32 | (f.shift[1] as u32) << 16, f.median_q as u32, f.widen, f.blocks as u32] {
+            for v in [f.shift[0] as u32 | (f.shift[1] as u32) << 16, f.gain[0] as u32 | (f.gain[1] as u32) << 16, f.median_q as u32, f.widen, f.blocks as u32] {
                 digest.update(&v.to_le_bytes());
             }
         }

@@ -227,3 +227,19 @@ fn golden_frames_run_the_colour_stage() {
     assert!(a.detections > grey.detections, "the hue patches are found: {a:?} against {grey:?}");
     assert!(crate::golden::run(&mut ws, &m, &mut crop[..H * W]).is_err(), "scratch without room for the planes");
 }
+
+#[test]
+fn a_tone_curve_scales_the_chroma_and_the_slope_takes_it_out() {
+    // Spreads of half a unit: a chroma 0.6 times the model's leaves the reddish half 5 units
+    // off, ten spreads, where a shift alone would take out only the other half's error.
+    let bytes = model_bytes(8);
+    let (grey, mut planes) = face();
+    for p in planes.iter_mut() {
+        *p = (128.0 + (*p as f64 - 128.0) * 0.6).round() as u8;
+    }
+    let (f, _, added) = run(&bytes, &grey, &planes);
+    assert_eq!((f.blocks, added), (0, 0), "{f:?}");
+    assert!(f.gain[1] < -64, "the slope of v: {f:?}");
+    green_patch(&mut planes);
+    assert_eq!(run(&bytes, &grey, &planes).0.blocks, 6);
+}
