@@ -50,6 +50,8 @@ pub fn errors(c: &Chroma, grey: &[u8], planes: &[u8], h: usize, w: usize, e: &mu
         return None;
     }
     let (bh, bw) = (h.div_ceil(2), w.div_ceil(2));
+    let (mu_u, mu_v, spread) = c.tables();
+    let (mu_u, mu_v, spread, e) = (&mu_u[..n], &mu_v[..n], &spread[..n], &mut e[..n]);
     let mut hist = [[0u16; 256]; 2];
     // Index loops, not iterator chains: the board's image is built for size, where those cost
     // several times as much.
@@ -75,38 +77,42 @@ pub fn errors(c: &Chroma, grey: &[u8], planes: &[u8], h: usize, w: usize, e: &mu
                 }
             }
             let b = by * bw + bx;
-            let (mu, _) = c.at(b)?;
-            let u = chroma::normalise(planes[b], sum, px) as i16 - mu[0] as i16;
-            let v = chroma::normalise(planes[n + b], sum, px) as i16 - mu[1] as i16;
+            let u = chroma::normalise(planes[b], sum, px) as i16 - mu_u[b] as i8 as i16;
+            let v = chroma::normalise(planes[n + b], sum, px) as i16 - mu_v[b] as i8 as i16;
             e[b] = [u, v];
             hist[0][(u.clamp(-128, 127) + 128) as usize] += 1;
             hist[1][(v.clamp(-128, 127) + 128) as usize] += 1;
         }
     }
     let mid = [median(&hist[0], n) as i32 - 128, median(&hist[1], n) as i32 - 128];
-    // Rule 2's line, per axis, over the blocks near the median (a mark lies far from it).
-    let mut sums = [[0i64; 5]; 2];
+    // Rule 2's line, per axis, over the blocks near the median (a mark lies far from it). In
+    // 32 bits: |mu| <= 128 and |e| <= 255 over at most 1 536 blocks.
+    let mut sums = [[0i32; 5]; 2];
     for b in 0..n {
-        let (mu, _) = c.at(b)?;
+        let mu = [mu_u[b] as i8 as i32, mu_v[b] as i8 as i32];
+        let eb = e[b];
         for k in 0..2 {
-            let (x, y) = (mu[k] as i64, e[b][k] as i64);
-            if (y - mid[k] as i64).abs() <= TRIM as i64 {
+            let (x, y) = (mu[k], eb[k] as i32);
+            if (y - mid[k]).abs() <= TRIM {
                 let t = &mut sums[k];
-                (t[0], t[1], t[2], t[3], t[4]) = (t[0] + 1, t[1] + x, t[2] + y, t[3] + x * x, t[4] + x * y);
+                t[0] += 1;
+                t[1] += x;
+                t[2] += y;
+                t[3] += x * x;
+                t[4] += x * y;
             }
         }
     }
     let line = [line_of(&sums[0], mid[0]), line_of(&sums[1], mid[1])];
     let mut qs = [0u16; 256];
+    let ([au, gu], [av, gv]) = (line[0].into(), line[1].into());
     for b in 0..n {
-        let (mu, s) = c.at(b)?;
-        let mut eb = e[b];
-        for k in 0..2 {
-            let (a, g) = line[k];
-            eb[k] -= ((a + g * mu[k] as i32 + 128) >> 8) as i16;
-        }
+        let eb = [
+            e[b][0] - ((au + gu * mu_u[b] as i8 as i32 + 128) >> 8) as i16,
+            e[b][1] - ((av + gv * mu_v[b] as i8 as i32 + 128) >> 8) as i16,
+        ];
         e[b] = eb;
-        qs[q_bin(q16(eb, s))] += 1;
+        qs[q_bin(q16(eb, spread[b]))] += 1;
     }
     let shift = [((line[0].0 + 128) >> 8) as i16, ((line[1].0 + 128) >> 8) as i16];
     let gain = [line[0].1 as i16, line[1].1 as i16];
@@ -121,8 +127,8 @@ pub fn errors(c: &Chroma, grey: &[u8], planes: &[u8], h: usize, w: usize, e: &mu
 /// `(a, g)` in 256ths. A face whose model chroma spreads less than [`MIN_SPREAD2`] (a grey
 /// face) has no slope to fit, and a fit outside [`MAX_SLOPE`] is no camera's: those take the
 /// median as the shift alone.
-fn line_of(t: &[i64; 5], m: i32) -> (i32, i32) {
-    let [n, sx, sy, sxx, sxy] = *t;
+fn line_of(t: &[i32; 5], m: i32) -> (i32, i32) {
+    let [n, sx, sy, sxx, sxy] = t.map(|v| v as i64);
     let det = n * sxx - sx * sx;
     if n < 2 || det < MIN_SPREAD2 * n * n {
         return (m * 256, 0);
@@ -203,11 +209,14 @@ pub fn mark(c: &Chroma, f: Frame, e: &[[i16; 2]], h: usize, w: usize, mask: &mut
         return (f, 0);
     }
     let limit = limit(c, &f);
+    let (_, _, spread) = c.tables();
+    if spread.len() < bh * bw {
+        return (f, 0);
+    }
     for by in 0..bh {
         for bx in 0..bw {
             let b = by * bw + bx;
-            let Some((_, s)) = c.at(b) else { return (f, added) };
-            if !over(limit, e[b], s) {
+            if !over(limit, e[b], spread[b]) {
                 continue;
             }
             blocks += 1;

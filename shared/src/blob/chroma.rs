@@ -113,6 +113,12 @@ impl<'a> ChromaCell<'a> {
     pub fn blocks(&self) -> usize {
         self.spread.len()
     }
+
+    /// The three tables, `mu_u` and `mu_v` (`i8` bytes) and `spread`, each [`Self::blocks`]
+    /// long: for a loop over every block that reads them without a check each.
+    pub fn tables(&self) -> (&'a [u8], &'a [u8], &'a [u8]) {
+        (self.mu_u, self.mu_v, self.spread)
+    }
 }
 
 /// A chroma section to write (`set_chroma`).
