@@ -204,8 +204,7 @@ pub fn run(a: &DemoConfig) -> Result<DemoReport> {
     p.start("4/8 quantizing to the fixed-point model blob");
     let blob = crate::quant::model_blob::blob_from_training(&models, "decoder", &reach)?;
     let (blob, colour) = if a.colour {
-        let (b, cal) = crate::train::chroma::attach(&blob, &data).context("learning the face's colour (--no-colour leaves it out)")?;
-        (b, Some(cal))
+        crate::train::chroma::attach(&blob, &data).context("learning the face's colour (--no-colour leaves it out)")?
     } else {
         notes.push("The model is grey (`--no-colour`): a mark whose grey level matches the face's is not seen.".into());
         (blob, None)

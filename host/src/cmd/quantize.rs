@@ -60,8 +60,15 @@ pub fn run(args: Args) -> Result<()> {
             Some(d) => d.clone(),
             None => PathBuf::from(&crate::train::load(&args.train, "decoder")?.info()?.data),
         };
-        crate::train::chroma::colour_quantized(&mut quantized, &data)
+        let cal = crate::train::chroma::colour_quantized(&mut quantized, &data)
             .context("learning the face's colour (--no-colour leaves it out)")?;
+        match cal {
+            Some(c) => eprintln!(
+                "the face's colour from {} training frames over {} pose cells: threshold {:.1} spreads",
+                c.frames, c.cells, c.threshold
+            ),
+            None => eprintln!("{}: grey frames, so the model stays grey (no colour stage)", data.display()),
+        }
     }
     let gated = if args.no_self_gate {
         GatedReport::ungated(quantized)

@@ -192,27 +192,96 @@ impl Tables {
 }
 
 /// `blob` with the colour of the training frames of the dataset at `data` (rules 1 to 4),
-/// cropped as the blob says.
-pub fn attach(blob: &[u8], data: &Path) -> Result<(Vec<u8>, ChromaCalibration)> {
+/// cropped as the blob says; `None` (the blob as it is, a grey model) for a dataset of grey
+/// frames, as a grey camera records.
+pub fn attach(blob: &[u8], data: &Path) -> Result<(Vec<u8>, Option<ChromaCalibration>)> {
     let m = Model::parse(blob).map_err(|e| anyhow!("model blob: {e}"))?;
     let crop = m.template.map_or(CropMode::Pixel, |t| t.crop);
     let (h, w) = (m.face_h as usize, m.face_w as usize);
     let ds = Dataset::load_split(data, Some(Split::Train), crop)
         .with_context(|| format!("loading the training frames of {} for the face's colour", data.display()))?;
+    if ds.samples.iter().all(|s| s.face.chroma.is_empty()) {
+        return Ok((blob.to_vec(), None));
+    }
     let samples: Vec<(&Face, [f32; 2])> = ds.samples.iter().map(|s| (&s.face, s.head)).collect();
     let (spec, cal) = fit(&samples, h, w, m.novelty.min_area, m.pose.map(|p| p.grid))?;
     let out = set_chroma(blob, Some(&spec)).map_err(|e| anyhow!("chroma section: {e}"))?;
-    Ok((out, cal))
+    Ok((out, Some(cal)))
 }
 
-/// [`attach`] on the blob a quantization wrote, its report brought up to date (size, CRC).
-pub fn colour_quantized(quantized: &mut crate::quant::quantize::Report, data: &Path) -> Result<ChromaCalibration> {
+/// [`attach`] on the blob a quantization wrote, its report brought up to date (size, CRC);
+/// `None` for a grey dataset (the blob left as it is).
+pub fn colour_quantized(quantized: &mut crate::quant::quantize::Report, data: &Path) -> Result<Option<ChromaCalibration>> {
     let path = std::path::PathBuf::from(&quantized.blob);
     let blob = crate::fsio::read_blob(&path)?;
     let (coloured, cal) = attach(&blob, data)?;
+    if cal.is_none() {
+        return Ok(None);
+    }
     crate::fsio::write(&path, &coloured)?;
     let model = Model::parse(&coloured).map_err(|e| anyhow!("model blob: {e}"))?;
     quantized.blob_bytes = coloured.len();
     quantized.crc32 = format!("{:08x}", model.crc32);
     Ok(cal)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::data::crop::CropBox;
+
+    const H: usize = 12;
+    const W: usize = 16;
+
+    /// A face whose left half is reddish, with a little noise from `seed`.
+    fn face(seed: u64) -> Face {
+        let n = blocks(H, W);
+        let mut r = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        let mut noise = move || {
+            r = r.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            ((r >> 33) % 3) as i32 - 1
+        };
+        let grey = (0..H * W).map(|i| (100 + (i % 5) as i32 * 4 + noise()) as u8).collect();
+        let mut chroma = vec![128u8; 2 * n];
+        for b in 0..n {
+            let red = b % (W / 2) < W / 4;
+            chroma[b] = (if red { 120 } else { 128 } + noise()) as u8;
+            chroma[n + b] = (if red { 150 } else { 128 } + noise()) as u8;
+        }
+        Face { crop: CropBox { x: 0, y: 0, width: W as u32, height: H as u32 }, shift: [0.0; 2], at: [0.0; 2], grey, chroma, score: 0.0 }
+    }
+
+    #[test]
+    fn the_training_faces_are_quiet_and_a_hue_patch_is_not() {
+        let faces: Vec<Face> = (0..60).map(face).collect();
+        let samples: Vec<(&Face, [f32; 2])> = faces.iter().map(|f| (f, [0.0, 0.0])).collect();
+        let (spec, cal) = fit(&samples, H, W, 8, None).unwrap();
+        assert_eq!((cal.frames, cal.cells, spec.cells.len()), (60, 1, 1));
+        assert!(cal.threshold >= MIN_THRESHOLD && spec.is_valid(H, W, 0), "{cal:?}");
+        // The reddish blocks' mean is the reddish chroma over their grey.
+        let (mu, spread) = &spec.cells[0];
+        assert!(mu[0][0] < 0 && mu[0][1] > 10 && mu[W / 2 - 1] == [0, 0], "{:?}", &mu[..W / 2]);
+        assert!(spread.iter().all(|&s| s >= SPREAD_FLOOR));
+        let t = Tables::of(&spec, 0);
+        let c = t.view(&spec).unwrap();
+        let mut e = vec![[0i16; 2]; blocks(H, W)];
+        let quiet = saliency(&c, &faces[7], H, W, &mut e).unwrap();
+        assert!(metrics::detection_score(&quiet, W, 8) < cal.threshold);
+        // A green 2 x 2 blocks patch on the neutral half, its grey unchanged.
+        let mut marked = face(99);
+        let n = blocks(H, W);
+        for b in [W / 2 * 2 + 5, W / 2 * 2 + 6, W / 2 * 3 + 5, W / 2 * 3 + 6] {
+            (marked.chroma[b], marked.chroma[n + b]) = (90, 80);
+        }
+        let loud = saliency(&c, &marked, H, W, &mut e).unwrap();
+        assert!(metrics::detection_score(&loud, W, 8) > 2.0 * cal.threshold);
+    }
+
+    #[test]
+    fn faces_without_colour_are_refused() {
+        let mut f = face(1);
+        f.chroma.clear();
+        let err = fit(&[(&f, [0.0, 0.0])], H, W, 8, None).unwrap_err().to_string();
+        assert!(err.contains("colour"), "{err}");
+    }
 }
