@@ -164,7 +164,8 @@ fn frame_pictures(
     let rgb_frame = image::open(data.join(&f.file))
         .with_context(|| format!("frame {}", f.file))?
         .to_rgb8();
-    let face = crate::detect::cropper_of(model)?.crop(&frame)?;
+    // The detection as the board makes it: with the face's colour for a model with colour.
+    let face = crate::detect::cropper_of(model)?.crop_colour(&frame, &rgb_frame)?;
     let head = [f.head_yaw as f32, f.head_pitch as f32];
     let d = crate::detect::fixed::detect(model, &face, head)?;
     let (w, h) = (face.crop.width, face.crop.height);

@@ -1,5 +1,5 @@
 //! `msr detect`: one camera frame through a model blob's pipeline, printed (and drawn).
-use crate::data::crop::{load_grey, load_through};
+use crate::data::crop::load_colour;
 use crate::detect::{cropper_of, detect_face, parse_blob, picture, readable, to_json, EngineArg};
 use crate::fsio::read_blob;
 use anyhow::{Context, Result};
@@ -51,10 +51,15 @@ pub fn run(args: Args) -> Result<()> {
     // and scaled down; never scaled up.
     let size = crate::camera::SourceOptions::default().size;
     let camera = args.imperfect.imperfections(0);
-    let grey = if camera.is_none() { load_grey(&args.image)? } else { load_through(&args.image, &camera, 0)? };
+    let (grey, rgb) = load_colour(&args.image, &camera, 0)?;
     let frame = crate::camera::fit(&grey, size)
         .with_context(|| format!("--image {}", args.image.display()))?;
-    let face = cropper_of(&model)?.crop(&frame)?;
+    // A colour image at the model's frame size carries its chroma to a model with colour; a
+    // scaled or grey one runs on grey.
+    let face = match rgb.filter(|c| c.dimensions() == frame.dimensions()) {
+        Some(c) => cropper_of(&model)?.crop_colour(&frame, &c)?,
+        None => cropper_of(&model)?.crop(&frame)?,
+    };
     let det = detect_face(&model, &face, head, args.engine)?;
     if args.json {
         println!("{}", to_json(&det));

@@ -67,5 +67,10 @@ pub fn detect_with(
         joints: det.reach,
         light: det.light,
         spread,
+        colour: planes.and_then(|p| {
+            let c = model.chroma_at(head)?;
+            let (sal, _) = crate::detect::colour::saliency(&c, &face.grey, p, model.face_h as usize, model.face_w as usize)?;
+            Some(sal.into_iter().map(|v| v / c.threshold).collect())
+        }),
     })
 }

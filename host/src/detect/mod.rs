@@ -2,10 +2,12 @@
 //! on the crop (the firmware's fixed-point code by default).
 //!
 //! [`model`]: what the host takes from a blob (its template, crop, float engine and decoder);
+//! [`colour`]: the colour stage's saliency per pixel;
 //! [`pipeline`]: the float engine and the one definition of the error and the saliency;
 //! [`fixed`]: the firmware's engine; [`blobs`]: the blob stage after the mask; [`report`]: a
 //! detection as JSON and as a line; [`picture`](mod@picture): a detection drawn.
 pub mod blobs;
+pub mod colour;
 pub mod fixed;
 pub mod model;
 pub mod picture;

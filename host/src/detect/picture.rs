@@ -1,8 +1,11 @@
-//! A detection drawn: the frame with its crop and mark, the observed and predicted face, the saliency and the mask.
+//! A detection drawn: the frame with its crop and mark, the observed and predicted face, the
+//! saliency and the mask, and for a model with colour its colour saliency beside them.
 use crate::detect::pipeline::Detection;
 use image::GrayImage;
 
-/// Frame with crop and detection | observed face over predicted face | saliency over mask.
+/// Frame with crop and detection | observed face over predicted face | saliency over mask |
+/// colour saliency (a detection with one; `threshold`'s units are the grey saliency's, the
+/// colour's are its own threshold's).
 pub fn picture(frame: &GrayImage, face: &[u8], d: &Detection, threshold: f32) -> image::RgbImage {
     use image::Rgb;
     use imageproc::drawing::{draw_cross_mut, draw_hollow_rect_mut};
@@ -10,8 +13,12 @@ pub fn picture(frame: &GrayImage, face: &[u8], d: &Detection, threshold: f32) ->
     let (fw, fh) = frame.dimensions();
     let (w, h) = (d.crop.width, d.crop.height);
     let k = 2u32;
-    let mut img =
-        image::RgbImage::from_pixel(fw + 2 * k * w + 8, fh.max(2 * k * h + 4), Rgb([32, 32, 32]));
+    let columns = if d.colour.is_some() { 3 } else { 2 };
+    let mut img = image::RgbImage::from_pixel(
+        fw + columns * (k * w + 4),
+        fh.max(2 * k * h + 4),
+        Rgb([32, 32, 32]),
+    );
     for (x, y, p) in frame.enumerate_pixels() {
         img.put_pixel(x, y, Rgb([p[0]; 3]));
     }
@@ -68,5 +75,16 @@ pub fn picture(frame: &GrayImage, face: &[u8], d: &Detection, threshold: f32) ->
             Rgb([0, 0, 0])
         }
     });
+    // Colour saliency, the same scale against its own threshold (threshold units already).
+    if let Some(c) = &d.colour {
+        panel(x2 + k * w + 4, 0, &|i| {
+            let s = c[i].max(0.0);
+            if s > 1.0 {
+                Rgb([255, 0, 0])
+            } else {
+                Rgb([(s * 255.0) as u8; 3])
+            }
+        });
+    }
     img
 }

@@ -172,6 +172,9 @@ pub struct Detection {
     /// The frame's spread and the floor its sigmas were widened by, grey levels
     /// ([`frame_floor`]; 0 and 0 for a model without a reference).
     pub spread: [f32; 2],
+    /// The colour stage's saliency in threshold units (`detect::colour`), for a model with
+    /// chroma and a face with its planes, run by the firmware's engine; `None` otherwise.
+    pub colour: Option<Vec<f32>>,
 }
 
 /// The reach network in float: mark position in full-frame pixels -> 5 joint angles.
@@ -293,6 +296,7 @@ impl FloatEngine {
             joints,
             light,
             spread,
+            colour: None,
         }
     }
 }

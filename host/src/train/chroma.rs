@@ -19,7 +19,7 @@ use crate::data::Dataset;
 use crate::eval::metrics;
 use crate::train::calibrate;
 use anyhow::{anyhow, ensure, Context, Result};
-use msr_firmware::chroma::{self as fw, Q_ONE, WIDEN_ONE};
+use msr_firmware::chroma::{self as fw, Q_ONE};
 use msr_shared::blob::chroma::{blocks, normalise, SPREAD_ONE};
 use msr_shared::blob::{set_chroma, ChromaCell, ChromaSpec, Model, PoseGrid};
 use msr_sim::layout::Split;
@@ -136,7 +136,7 @@ pub fn fit(samples: &[(&Face, [f32; 2])], h: usize, w: usize, min_area: u16, gri
     let mut max_score = 0f64;
     for (f, hd) in samples {
         let c = tables[cell_of(*hd)].view(&spec)?;
-        let sal = saliency(&c, f, h, w, &mut e)?;
+        let sal = saliency(&c, f, h, w)?;
         max_score = max_score.max(metrics::detection_score(&sal, w, min_area));
     }
     let threshold = (MARGIN * max_score).max(MIN_THRESHOLD).min(msr_shared::blob::chroma::MAX_THRESHOLD as f64);
@@ -154,21 +154,10 @@ pub fn fit(samples: &[(&Face, [f32; 2])], h: usize, w: usize, min_area: u16, gri
     Ok((spec, cal))
 }
 
-/// Each pixel's colour saliency in `face`: its block's error over its widened spread (the
-/// board's rule 4 compares it with the threshold), row-major.
-pub fn saliency(c: &ChromaCell, face: &Face, h: usize, w: usize, e: &mut [[i16; 2]]) -> Result<Vec<f64>> {
-    let fr = fw::errors(c, &face.grey, &face.chroma, h, w, e).context("chroma sizes")?;
-    let widen = fr.widen as f64 / WIDEN_ONE as f64;
-    let bw = w.div_ceil(2);
-    let mut sal = vec![0f64; h * w];
-    for y in 0..h {
-        for x in 0..w {
-            let b = (y / 2) * bw + x / 2;
-            let (_, s) = c.at(b).expect("a block per pixel pair");
-            sal[y * w + x] = (fw::q16(e[b], s) as f64 / Q_ONE as f64 / widen).sqrt();
-        }
-    }
-    Ok(sal)
+/// Each pixel's colour saliency in `face`, in spreads (`detect::colour::saliency`).
+pub fn saliency(c: &ChromaCell, face: &Face, h: usize, w: usize) -> Result<Vec<f64>> {
+    let (sal, _) = crate::detect::colour::saliency(c, &face.grey, &face.chroma, h, w).context("chroma sizes")?;
+    Ok(sal.into_iter().map(f64::from).collect())
 }
 
 /// A [`ChromaSpec`]'s tables as the blob stores them, for the board's functions to read.
@@ -264,8 +253,7 @@ mod tests {
         assert!(spread.iter().all(|&s| s >= SPREAD_FLOOR));
         let t = Tables::of(&spec, 0);
         let c = t.view(&spec).unwrap();
-        let mut e = vec![[0i16; 2]; blocks(H, W)];
-        let quiet = saliency(&c, &faces[7], H, W, &mut e).unwrap();
+        let quiet = saliency(&c, &faces[7], H, W).unwrap();
         assert!(metrics::detection_score(&quiet, W, 8) < cal.threshold);
         // A green 2 x 2 blocks patch on the neutral half, its grey unchanged.
         let mut marked = face(99);
@@ -273,7 +261,7 @@ mod tests {
         for b in [W / 2 * 2 + 5, W / 2 * 2 + 6, W / 2 * 3 + 5, W / 2 * 3 + 6] {
             (marked.chroma[b], marked.chroma[n + b]) = (90, 80);
         }
-        let loud = saliency(&c, &marked, H, W, &mut e).unwrap();
+        let loud = saliency(&c, &marked, H, W).unwrap();
         assert!(metrics::detection_score(&loud, W, 8) > 2.0 * cal.threshold);
     }
 
