@@ -172,13 +172,8 @@ fn colour(c: &msr_shared::blob::ChromaCell, crop: &[u8], planes: &mut [u8], h: u
     for by in 0..bh {
         for bx in 0..bw {
             let b = by * bw + bx;
-            let (mut sum, mut px) = (0i32, 0i32);
-            for y in 2 * by..(2 * by + 2).min(h) {
-                for x in 2 * bx..(2 * bx + 2).min(w) {
-                    sum += crop[y * w + x] as i32;
-                    px += 1;
-                }
-            }
+            let (sum, px) = chroma::block_grey(crop, h, w, b);
+            let (sum, px) = (sum as i32, px as i32);
             let (mu, _) = c.at(b).unwrap_or(([0, 0], 1));
             let inside = patch.is_some_and(|(py, pxx)| (py..py + 3).contains(&by) && (pxx..pxx + 3).contains(&bx));
             for (k, m) in mu.iter().enumerate() {

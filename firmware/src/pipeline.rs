@@ -265,11 +265,6 @@ impl Workspace {
         Ok(added)
     }
 
-    /// What the last [`chroma`](Self::chroma) call found of the frame's colour.
-    pub fn chroma_frame(&self) -> Option<chroma::Frame> {
-        self.chroma
-    }
-
     /// Online self-calibration ([`crate::room`], rules 2 and 3) from the last frame through
     /// [`saliency`](Self::saliency), `crop`, taken at `now_us`: the caller has checked rule 1
     /// (a face, no blob, no candidate, observing) and settled a complete batch first

@@ -56,18 +56,14 @@ impl Args {
 pub fn run(args: Args) -> Result<()> {
     let mut quantized = quantize::quantize(&args.config())?;
     if !args.no_colour {
-        let data = match &args.data {
-            Some(d) => d.clone(),
-            None => PathBuf::from(&crate::train::load(&args.train, "decoder")?.info()?.data),
-        };
-        let cal = crate::train::chroma::colour_quantized(&mut quantized, &data)
+        let cal = crate::train::chroma::colour_quantized(&mut quantized)
             .context("learning the face's colour (--no-colour leaves it out)")?;
         match cal {
             Some(c) => eprintln!(
                 "the face's colour from {} training frames over {} pose cells: threshold {:.1} spreads",
                 c.frames, c.cells, c.threshold
             ),
-            None => eprintln!("{}: grey frames, so the model stays grey (no colour stage)", data.display()),
+            None => eprintln!("{}: grey frames, so the model stays grey (no colour stage)", quantized.data),
         }
     }
     let gated = if args.no_self_gate {

@@ -101,6 +101,11 @@ pub fn grey_of_rgb(r: u8, g: u8, b: u8) -> u8 {
     ((r as u32 * RY + g as u32 * GY + b as u32 * BY + (1 << 14)) >> 15) as u8
 }
 
+/// The grey of a colour frame, as [`to_grey`] makes it, read in place.
+pub fn grey_of(rgb: &RgbImage) -> GrayImage {
+    grey_of_rgb_bytes(rgb.width(), rgb.height(), rgb.as_raw())
+}
+
 /// [`grey_of_rgb`] of packed RGB bytes, `w x h`.
 fn grey_of_rgb_bytes(w: u32, h: u32, rgb: &[u8]) -> GrayImage {
     let grey = rgb.chunks_exact(3).map(|p| grey_of_rgb(p[0], p[1], p[2])).collect();
@@ -128,14 +133,6 @@ pub fn load_grey(path: &Path) -> Result<GrayImage> {
     Ok(to_grey(&img))
 }
 
-/// Reads a colour image file, takes it through `camera` (frame number `frame` for its noise),
-/// and converts it to grey; errors name the file.
-pub fn load_through(path: &Path, camera: &msr_sim::imperfect::Imperfections, frame: u64) -> Result<GrayImage> {
-    let img = image::open(path).with_context(|| format!("cannot read image {}", path.display()))?;
-    let rgb = camera.apply(&img.to_rgb8(), frame);
-    Ok(to_grey(&DynamicImage::ImageRgb8(rgb)))
-}
-
 /// Reads an image file, takes a colour one through `camera` (frame number `frame` for its
 /// noise), and returns its grey and, for a colour file, its colour; errors name the file.
 pub fn load_colour(path: &Path, camera: &msr_sim::imperfect::Imperfections, frame: u64) -> Result<(GrayImage, Option<RgbImage>)> {
@@ -146,8 +143,7 @@ pub fn load_colour(path: &Path, camera: &msr_sim::imperfect::Imperfections, fram
     }
     let rgb = img.to_rgb8();
     let rgb = if camera.is_none() { rgb } else { camera.apply(&rgb, frame) };
-    let grey = grey_of_rgb_bytes(rgb.width(), rgb.height(), rgb.as_raw());
-    Ok((grey, if grey_source { None } else { Some(rgb) }))
+    Ok((grey_of(&rgb), if grey_source { None } else { Some(rgb) }))
 }
 
 /// The chroma planes of `face` in the colour `frame` it was cut from: each pixel's BT.601

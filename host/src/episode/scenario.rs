@@ -5,7 +5,7 @@ use super::scene::{Scene, SceneState};
 use super::summary::{GateRecord, Trial};
 use crate::data::crop;
 use anyhow::{anyhow, Result};
-use image::{DynamicImage, GrayImage};
+use image::GrayImage;
 use msr_shared::deliver::FaceLink;
 use msr_shared::host_port::HostPort;
 use msr_shared::msg::{BoardToHost, Detection, HostToBoard, Status};
@@ -82,7 +82,7 @@ impl Camera<'_> {
         if !through.is_none() {
             r.rgb = through.apply(&r.rgb, frame);
         }
-        let grey = crop::to_grey(&DynamicImage::ImageRgb8(r.rgb.clone()));
+        let grey = crop::grey_of(&r.rgb);
         let face = self.cropper.crop_colour(&grey, &r.rgb)?;
         Ok((grey, face))
     }

@@ -143,7 +143,7 @@ pub fn hue_marks(blob: &[u8], data: &Path, camera: &Imperfections, seed: u64) ->
         let rgb = rgb.ok_or_else(|| anyhow!("{} is a grey frame: colour marks need colour", s.file.display()))?;
         let rgb = if camera.is_none() { rgb } else { camera.apply(&rgb, i as u64) };
         let mut detect = |frame: &RgbImage| -> Result<Option<[u32; 4]>> {
-            let grey = crate::data::crop::to_grey(&image::DynamicImage::ImageRgb8(frame.clone()));
+            let grey = crate::data::crop::grey_of(frame);
             let face = cropper.crop_colour(&grey, frame)?;
             let d = detect_with(&mut ws, &model, &face, s.head)?;
             Ok(d.blob.map(|b| b.box_xyxy))

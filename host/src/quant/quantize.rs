@@ -503,6 +503,9 @@ pub struct Report {
     /// The robot of the dataset the report was measured on (`red`, `skin`, or a real robot's
     /// name): the self gate, a later step (`train::self_gate::gate_quantized`), is calibrated on it.
     pub robot: String,
+    /// The dataset the report was measured on: the face's colour, a later step
+    /// (`train::chroma::colour_quantized`), is learnt from its training frames.
+    pub data: String,
 }
 
 /// Quantizes, writes the blob and returns the report; the report is written beside the blob
@@ -577,6 +580,7 @@ pub fn quantize(args: &QuantizeConfig) -> Result<Report> {
         threshold: x.novelty.threshold,
         psnr_target_db: PSNR_TARGET_DB,
         robot: ds.robot.clone(),
+        data: data_path.display().to_string(),
     };
     Ok(report)
 }

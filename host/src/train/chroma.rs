@@ -20,7 +20,7 @@ use crate::eval::metrics;
 use crate::train::calibrate;
 use anyhow::{anyhow, ensure, Context, Result};
 use msr_firmware::chroma::{self as fw, Q_ONE};
-use msr_shared::blob::chroma::{blocks, normalise, SPREAD_ONE};
+use msr_shared::blob::chroma::{block_grey, blocks, normalise, SPREAD_ONE};
 use msr_shared::blob::{set_chroma, ChromaCell, ChromaSpec, Model, PoseGrid};
 use msr_sim::layout::Split;
 use serde::{Deserialize, Serialize};
@@ -53,15 +53,8 @@ pub struct ChromaCalibration {
 
 /// Block `b`'s normalised chroma `[u, v]` in a face's grey and planes.
 fn block_chroma(grey: &[u8], planes: &[u8], h: usize, w: usize, b: usize) -> [i8; 2] {
-    let (bw, n) = (w.div_ceil(2), blocks(h, w));
-    let (by, bx) = (b / bw, b % bw);
-    let (mut sum, mut px) = (0u32, 0u32);
-    for y in 2 * by..(2 * by + 2).min(h) {
-        for x in 2 * bx..(2 * bx + 2).min(w) {
-            sum += grey[y * w + x] as u32;
-            px += 1;
-        }
-    }
+    let n = blocks(h, w);
+    let (sum, px) = block_grey(grey, h, w, b);
     [normalise(planes[b], sum, px), normalise(planes[n + b], sum, px)]
 }
 
@@ -198,12 +191,12 @@ pub fn attach(blob: &[u8], data: &Path) -> Result<(Vec<u8>, Option<ChromaCalibra
     Ok((out, Some(cal)))
 }
 
-/// [`attach`] on the blob a quantization wrote, its report brought up to date (size, CRC);
-/// `None` for a grey dataset (the blob left as it is).
-pub fn colour_quantized(quantized: &mut crate::quant::quantize::Report, data: &Path) -> Result<Option<ChromaCalibration>> {
+/// [`attach`] on the blob a quantization wrote, with the dataset it measured, its report
+/// brought up to date (size, CRC); `None` for a grey dataset (the blob left as it is).
+pub fn colour_quantized(quantized: &mut crate::quant::quantize::Report) -> Result<Option<ChromaCalibration>> {
     let path = std::path::PathBuf::from(&quantized.blob);
     let blob = crate::fsio::read_blob(&path)?;
-    let (coloured, cal) = attach(&blob, data)?;
+    let (coloured, cal) = attach(&blob, Path::new(&quantized.data))?;
     if cal.is_none() {
         return Ok(None);
     }

@@ -308,7 +308,7 @@ impl<'a> Model<'a> {
             let c = Chroma { threshold, spread_ref, tables, n, cells };
             for k in 0..cells {
                 let cell = c.cell(k).ok_or(BlobError::Truncated)?;
-                if (0..n).any(|b| cell.at(b).is_none_or(|(_, s)| s == 0)) {
+                if cell.tables().2.contains(&0) {
                     return Err(BlobError::Chroma);
                 }
             }
