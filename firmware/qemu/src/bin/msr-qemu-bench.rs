@@ -481,7 +481,8 @@ fn main() -> ! {
         let t1t = clock.instructions();
         let salient = ws.saliency(&model, &settings, frame);
         let tc = clock.instructions();
-        // Colour: neutral planes with noise, the mark's blocks of another hue.
+        // Colour: neutral planes with noise, the mark's blocks of another hue (made outside
+        // the timing: a camera's frame brings them).
         let coloured = if model.chroma.is_some() {
             let (bh, bw) = (h.div_ceil(2), w.div_ceil(2));
             let nb = bh * bw;
@@ -501,7 +502,6 @@ fn main() -> ! {
         } else {
             (0, true)
         };
-        let _ = tc;
         let t2 = clock.instructions();
         let (blob, summary) = ws.blobs(&model, &settings);
         let t3 = clock.instructions();
@@ -524,7 +524,7 @@ fn main() -> ! {
                 decoder: tw0 - t0,
                 table: t1t - t1,
                 table_widened: tw1 - tw0,
-                saliency: t2 - t1t - coloured.0,
+                saliency: tc - t1t,
                 chroma: coloured.0,
                 blobs: t3 - t2,
                 reach: t4 - t3,
