@@ -10,13 +10,16 @@
 //! but does not say how many). Publishing never waits on a client: it is a queue push.
 //!
 //! A client that subscribes gets the channel's latest message at once (the state is latched),
-//! then every message after it.
+//! then every message after it, each once: a message goes only to the clients whose
+//! subscription the listener has seen (the SDK subscribes a client's sink before it tells the
+//! listener, so a message logged to every sink between the two would reach a new client live
+//! and then again as the latched one).
 pub mod relay;
 
 use crate::rosbag::msgs;
 use anyhow::{anyhow, Context as _, Result};
 use foxglove::websocket::{ChannelView, Client, ServerListener};
-use foxglove::{ChannelId, Context, RawChannel, Schema, WebSocketServer, WebSocketServerHandle};
+use foxglove::{ChannelId, Context, RawChannel, Schema, SinkId, WebSocketServer, WebSocketServerHandle};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 use std::net::SocketAddr;
@@ -61,10 +64,17 @@ impl std::fmt::Display for LiveStats {
     }
 }
 
-/// Latest message per channel, and whether any client has subscribed yet.
+/// Per channel: the latest message and the sinks that have been given it.
+struct Latched {
+    channel: Arc<RawChannel>,
+    latest: Option<Vec<u8>>,
+    sinks: Vec<SinkId>,
+}
+
+/// Every channel's latch, and whether any client has subscribed yet.
 #[derive(Default)]
 struct Latch {
-    channels: HashMap<ChannelId, (Arc<RawChannel>, Option<Vec<u8>>)>,
+    channels: HashMap<ChannelId, Latched>,
     subscribed: bool,
 }
 
@@ -74,14 +84,23 @@ impl ServerListener for Listener {
     fn on_subscribe(&self, client: Client, channel: ChannelView) {
         let (latch, cv) = &*self.0;
         let mut l = latch.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some((ch, Some(msg))) = l.channels.get(&channel.id()) {
-            // Only to this client (`None` would be every subscriber).
-            if let Some(sink) = client.sink_id() {
-                ch.log_to_sink(msg, Some(sink));
+        if let (Some(c), Some(sink)) = (l.channels.get_mut(&channel.id()), client.sink_id()) {
+            if let Some(msg) = &c.latest {
+                c.channel.log_to_sink(msg, Some(sink));
+            }
+            if !c.sinks.contains(&sink) {
+                c.sinks.push(sink);
             }
         }
         l.subscribed = true;
         cv.notify_all();
+    }
+
+    fn on_unsubscribe(&self, client: Client, channel: ChannelView) {
+        let mut l = self.0 .0.lock().unwrap_or_else(|e| e.into_inner());
+        if let (Some(c), Some(sink)) = (l.channels.get_mut(&channel.id()), client.sink_id()) {
+            c.sinks.retain(|s| *s != sink);
+        }
     }
 }
 
@@ -125,7 +144,7 @@ impl Live {
                 .schema(Schema::new(ty, "ros2msg", def.into_bytes()))
                 .build_raw()
                 .map_err(|e| anyhow!("the live view: channel {topic}: {e}"))?;
-            latch.channels.insert(ch.id(), (ch.clone(), None));
+            latch.channels.insert(ch.id(), Latched { channel: ch.clone(), latest: None, sinks: Vec::new() });
             by_topic.insert(topic, ch);
         }
         let latch = Arc::new((Mutex::new(latch), Condvar::new()));
@@ -167,11 +186,13 @@ impl Live {
         let ch = self.by_topic.get(topic).ok_or_else(|| anyhow!("the live view: no channel {topic}"))?;
         {
             let mut l = self.latch.0.lock().unwrap_or_else(|e| e.into_inner());
-            if let Some((_, latest)) = l.channels.get_mut(&ch.id()) {
-                *latest = Some(cdr.to_vec());
-            }
             // Under the latch: a client subscribing now gets either the latest or this one.
-            ch.log(cdr);
+            if let Some(c) = l.channels.get_mut(&ch.id()) {
+                c.latest = Some(cdr.to_vec());
+                for sink in &c.sinks {
+                    ch.log_to_sink(cdr, Some(*sink));
+                }
+            }
         }
         self.published.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         Ok(())
