@@ -45,6 +45,8 @@ pub struct Model<'a> {
     pub chroma: Option<Chroma<'a>>,
     /// The CRC-32 from the header: the model's identity.
     pub crc32: u32,
+    /// Where the reach network's floats start.
+    pub(super) reach_at: usize,
     /// Where the chroma section starts, or would.
     pub(super) chroma_at: usize,
     /// Where the self-gate section starts (its length depends on its layout).
@@ -220,6 +222,7 @@ impl<'a> Model<'a> {
         let mu = U16Table(r.take_padded(2 * pixels)?);
         let sigma = U16Table(r.take_padded(2 * pixels)?);
 
+        let reach_at = r.pos;
         let mut floats = [0f32; REACH_FLOATS];
         for f in floats.iter_mut() {
             *f = r.f32()?;
@@ -356,6 +359,7 @@ impl<'a> Model<'a> {
             pose,
             chroma,
             crc32: crc,
+            reach_at,
             chroma_at,
             gate_at,
         })

@@ -1178,3 +1178,28 @@ fn chroma_is_checked_and_needs_version_7() {
     zero.cells[0].1[0] = 0;
     assert_eq!(set_chroma(&plain, Some(&zero)), Err(BlobError::Chroma));
 }
+
+#[test]
+fn reach_is_replaced_in_place() {
+    let plain = mlp_spec().to_bytes().unwrap();
+    let gated = set_self_gate(&plain, Some(gate())).unwrap();
+    let mut other = reach();
+    other.b2 = [0.125; 5];
+    other.in_max = [250.0, 190.0];
+    let swapped = set_reach(&gated, &other).unwrap();
+    assert_eq!(swapped.len(), gated.len());
+    let (a, b) = (Model::parse(&gated).unwrap(), Model::parse(&swapped).unwrap());
+    assert_eq!(b.reach, other);
+    assert_eq!(b.self_gate, a.self_gate);
+    assert_ne!(b.crc32, a.crc32);
+    // Only the reach's 396 bytes and the header's CRC differ.
+    let differ: Vec<usize> = (24..gated.len()).filter(|&i| gated[i] != swapped[i]).collect();
+    assert!(differ.iter().all(|&i| (a.reach_at..a.reach_at + 4 * REACH_FLOATS).contains(&i)), "{differ:?}");
+    // Back to the first reach: the first bytes.
+    assert_eq!(set_reach(&swapped, &reach()).unwrap(), gated);
+    // A reach that cannot scale is refused; a blob that does not parse is refused.
+    let mut bad = reach();
+    bad.in_max = bad.in_min;
+    assert_eq!(set_reach(&gated, &bad), Err(BlobError::Reach));
+    assert!(set_reach(&gated[..gated.len() - 3], &other).is_err());
+}

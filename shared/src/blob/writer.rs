@@ -304,6 +304,20 @@ fn version_of(flags: u16, m: &Model, o: &[u8]) -> u16 {
     }
 }
 
+/// The blob with its reach network replaced by `reach` (every other byte kept, the CRC made
+/// again): a reach the robot taught itself goes into the model it was taught beside.
+pub fn set_reach(bytes: &[u8], reach: &Reach) -> Result<Vec<u8>, BlobError> {
+    let m = Model::parse(bytes)?;
+    if !reach.is_valid() {
+        return Err(BlobError::Reach);
+    }
+    let mut o = bytes.to_vec();
+    for (i, f) in reach.to_floats().iter().enumerate() {
+        o[m.reach_at + 4 * i..m.reach_at + 4 * i + 4].copy_from_slice(&f.to_le_bytes());
+    }
+    seal(o)
+}
+
 /// The blob with its chroma section replaced by `chroma` (`None` removes it; a grey model).
 /// The self gate, which comes after it, is kept.
 pub fn set_chroma(bytes: &[u8], chroma: Option<&ChromaSpec>) -> Result<Vec<u8>, BlobError> {
