@@ -148,14 +148,18 @@ impl BodyPose {
     }
 }
 
-fn segment(part: Part, a: Point3<f64>, b: Point3<f64>, thick: f64) -> Ellipsoid {
+/// An ellipsoid along `a` -> `b`, `thick` across. It reaches `thick / 2` past `a`, and past `b`
+/// too unless `ends_at_b`: the forearm ends at the fingertip, so that what the camera sees touch
+/// the face is the point the touch judge measures.
+fn segment(part: Part, a: Point3<f64>, b: Point3<f64>, thick: f64, ends_at_b: bool) -> Ellipsoid {
     let axis = b - a;
     let len = axis.norm().max(1e-6);
     let rot = nalgebra::UnitQuaternion::rotation_between(&Vector3::x(), &axis)
         .unwrap_or_else(|| nalgebra::UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI));
-    let mid = nalgebra::center(&a, &b);
+    let (past_a, past_b) = (thick * 0.5, if ends_at_b { 0.0 } else { thick * 0.5 });
+    let mid = a + axis * ((len + past_b - past_a) / 2.0 / len);
     let frame = Isometry3::from_parts(mid.coords.into(), rot);
-    Ellipsoid::new(part, frame, [0.0; 3], [len / 2.0 + thick * 0.5, thick, thick])
+    Ellipsoid::new(part, frame, [0.0; 3], [(len + past_a + past_b) / 2.0, thick, thick])
 }
 
 /// The body's ellipsoids at a pose, head first.
@@ -175,8 +179,8 @@ pub fn ellipsoids(pose: &BodyPose) -> Vec<Ellipsoid> {
             [0.0; 3],
             [0.038, 0.036, 0.034],
         ));
-        v.push(segment(Part::UpperArm, p.shoulder, p.elbow, 0.026));
-        v.push(segment(Part::Forearm, p.elbow, p.fingertip, 0.022));
+        v.push(segment(Part::UpperArm, p.shoulder, p.elbow, 0.026, false));
+        v.push(segment(Part::Forearm, p.elbow, p.fingertip, 0.022, true));
     }
     v
 }

@@ -210,6 +210,38 @@ pub fn judge_touch_of(held: &[Reach], mark_head: &Point3<f64>, e: &ArmError, rad
     (worst <= radius_m, worst)
 }
 
+/// What of the left arm meets the head (the head's shell, [`HEAD_ELLIPSOID`]), as the robot feels
+/// it: the skin robot through its head's taxels, a servo through its load.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Contact {
+    /// The fingertip is on or inside the shell.
+    Fingertip,
+    /// The wrist or the elbow is within [`ARM_CONTACT_MARGIN_M`] of the shell (the forearm's
+    /// thickness), before the fingertip.
+    Arm,
+}
+
+/// How close the wrist or the elbow comes to the head's shell before the forearm touches it.
+pub const ARM_CONTACT_MARGIN_M: f64 = 0.010;
+
+/// Whether the arm of `q` (an arm that is not its drawing: `e`) meets the head, and with what.
+pub fn contact_of(q: &Reach, e: &ArmError) -> Option<Contact> {
+    let pts = arm_points_of(&LeftArm::from_reach(q), 1.0, e);
+    let inv = head_pose(q[0], q[1]).inverse();
+    let (c, r) = HEAD_ELLIPSOID;
+    let inside = |p: &Point3<f64>, grow: f64| {
+        let h = inv * p;
+        ((h.x - c[0]) / (r[0] + grow)).powi(2) + ((h.y - c[1]) / (r[1] + grow)).powi(2) + ((h.z - c[2]) / (r[2] + grow)).powi(2) <= 1.0
+    };
+    if inside(&pts.fingertip, 0.0) {
+        Some(Contact::Fingertip)
+    } else if inside(&pts.wrist, ARM_CONTACT_MARGIN_M) || inside(&pts.elbow, ARM_CONTACT_MARGIN_M) {
+        Some(Contact::Arm)
+    } else {
+        None
+    }
+}
+
 /// Why the IK found no posture.
 #[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
 pub enum IkError {
