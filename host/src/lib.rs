@@ -28,3 +28,4 @@ pub mod report;
 pub mod demo;
 pub mod rosbag;
 pub mod live;
+pub mod learn_reach;

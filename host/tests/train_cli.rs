@@ -168,6 +168,16 @@ fn train_writes_the_layout_and_quantize_matches_float() {
     fails(&["quantize", "--train", p(&out), "--reach", p(&tmp.path().join("nope.safetensors")), "--out", p(&blob)], "nope");
     fails(&["quantize", "--train", p(&tmp.path().join("none")), "--reach", p(&reach), "--out", p(&blob)], "decoder");
     fails(&["quantize", "--train", p(&out), "--reach", p(&reach), "--threshold=-1", "--out", p(&blob)], "threshold");
+    // This model, trained on 80 frames for one epoch, does not know the face well enough for the
+    // face check: the robot refuses to teach itself its reach in one line and writes no model.
+    let taught = tmp.path().join("taught.msrm");
+    fails(
+        &["learn-reach", "--model", p(&blob), "--grid", "4", "--refine", "0", "--no-loo", "--out", p(&tmp.path().join("lr")), "--model-out", p(&taught)],
+        "no face in view",
+    );
+    assert!(!taught.exists());
+    fails(&["learn-reach", "--model", p(&blob), "--grid", "1", "--out", p(&tmp.path().join("lr"))], "--grid");
+    fails(&["learn-reach", "--model", p(&blob), "--head-pose", "0.5,0", "--out", p(&tmp.path().join("lr"))], "YAW,PITCH");
     // All test frames marked: no normal frames to take a percentile of.
     let data2 = tmp.path().join("data2");
     ok(&["dataset", "--count", "20", "--seed", "4", "--out", p(&data2)]);

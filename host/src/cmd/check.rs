@@ -231,6 +231,15 @@ pub fn check(c: &Command) -> Result<()> {
                 &[("--out", &a.out), ("--out's .json", &side)],
             )?;
         }
+        Command::LearnReach(a) => {
+            int("--grid", a.grid, 2, 64, " postures")?;
+            int("--refine", a.refine, 0, 6, " halvings")?;
+            int("--max-pairs", a.max_pairs, 10, 100_000, " pairs")?;
+            writable_dir("--out", &a.out)?;
+            if let Some(m) = &a.model_out {
+                outputs(&[("--model", &a.model)], &[("--model-out", m)])?;
+            }
+        }
         Command::Quantize(a) => {
             if let Some(t) = a.threshold {
                 positive("--threshold", t, " (saliency units)")?;

@@ -8,6 +8,7 @@ pub mod check;
 pub mod servos;
 pub mod train;
 pub mod train_reach;
+pub mod learn_reach;
 pub mod quantize;
 pub mod import;
 pub mod detect;
@@ -50,6 +51,8 @@ pub enum Command {
     Train(train::Args),
     /// Train the 2-10-5 reach network from mark positions to joint angles
     TrainReach(train_reach::Args),
+    /// The sim's robot teaches itself its reach in the mirror, then trains the reach network
+    LearnReach(learn_reach::Args),
     /// Turn a trained model into a fixed-point model blob and compare it with float
     Quantize(quantize::Args),
     /// Import the published model (safetensors, npy, template) into a model blob
@@ -278,6 +281,7 @@ pub fn run(cli: Cli) -> Result<()> {
         Command::Dataset(a) => dataset::run(a),
         Command::Train(a) => train::run(a),
         Command::TrainReach(a) => train_reach::run(a),
+        Command::LearnReach(a) => learn_reach::run(a),
         Command::Quantize(a) => quantize::run(a),
         Command::Import(a) => import::run(a),
         Command::Detect(a) => detect::run(a),

@@ -43,6 +43,8 @@ pub const FOLDS: usize = 5;
 /// still tightening LElbowRoll (fit RMS 0.067 rad, 0.064 settled). The penalty, not the
 /// iteration count, keeps it from over-fitting (the paper's 10^4 without a penalty over-fits).
 pub const DEFAULT_ITERATIONS: usize = 8000;
+/// A joint the pairs hold at one angle is scaled over this much either side of it (radians).
+pub const HELD_JOINT_HALF_RANGE: f64 = 1e-3;
 /// Restarts of the final training by default (the cross-validation runs one per candidate).
 pub const DEFAULT_RESTARTS: usize = 3;
 
@@ -193,9 +195,12 @@ pub struct Scaling {
 }
 
 impl Scaling {
-    /// The ranges of the pairs' columns; a constant column is an error.
+    /// The ranges of the pairs' columns. A constant input column is an error; a constant target
+    /// column (a joint the pairs hold still, as the head in pairs the robot taught itself looking
+    /// straight at the mirror) gets [`HELD_JOINT_HALF_RANGE`] either side, so the network gives
+    /// that angle back.
     pub fn fit(xs: &[[f64; I]], ys: &[[f64; O]]) -> Result<Scaling> {
-        fn range<const N: usize>(rows: &[[f64; N]], what: &str) -> Result<([f64; N], [f64; N])> {
+        fn range<const N: usize>(rows: &[[f64; N]]) -> ([f64; N], [f64; N]) {
             let mut lo = [f64::INFINITY; N];
             let mut hi = [f64::NEG_INFINITY; N];
             for r in rows {
@@ -204,13 +209,21 @@ impl Scaling {
                     hi[c] = hi[c].max(r[c]);
                 }
             }
-            for c in 0..N {
-                ensure!(lo[c] < hi[c], "{what} column {} is constant ({}); min-max scaling needs a range", c + 1, lo[c]);
-            }
-            Ok((lo, hi))
+            (lo, hi)
         }
-        let (input_min, input_max) = range(xs, "input")?;
-        let (output_min, output_max) = range(ys, "target")?;
+        ensure!(!xs.is_empty() && xs.len() == ys.len(), "{} inputs and {} targets", xs.len(), ys.len());
+        let (input_min, input_max) = range(xs);
+        for c in 0..I {
+            ensure!(input_min[c] < input_max[c], "input column {} is constant ({}); min-max scaling needs a range", c + 1, input_min[c]);
+        }
+        let (mut output_min, mut output_max) = range(ys);
+        for c in 0..O {
+            ensure!(output_min[c].is_finite() && output_max[c].is_finite(), "target column {} is not finite", c + 1);
+            if output_min[c] == output_max[c] {
+                output_min[c] -= HELD_JOINT_HALF_RANGE;
+                output_max[c] += HELD_JOINT_HALF_RANGE;
+            }
+        }
         Ok(Scaling { input_min, input_max, output_min, output_max })
     }
 
