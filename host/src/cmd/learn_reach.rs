@@ -99,6 +99,16 @@ pub fn run(a: Args) -> Result<()> {
     }
     std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
     crate::fsio::write(&a.out.join("taught.json"), serde_json::to_string_pretty(&taught)?)?;
+    if taught.pairs.len() < 10 {
+        let why: Vec<String> = taught.refused.iter().map(|(k, n)| format!("{n} {k}")).collect();
+        anyhow::bail!(
+            "{} pairs taught from {} sweeps and {} touches (refused: {}); the reach network needs at least 10",
+            taught.pairs.len(),
+            taught.sweeps,
+            taught.touches,
+            if why.is_empty() { "none".to_string() } else { why.join(", ") }
+        );
+    }
     let opts = train_reach::Opts { seed: a.seed, ..Default::default() };
     let (_, keep) = learn_reach::train_robust(&taught.pairs, &opts)?;
     let kept: Vec<_> = keep.iter().map(|&i| taught.pairs[i]).collect();
