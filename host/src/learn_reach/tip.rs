@@ -4,7 +4,8 @@
 //! shoulder in its reaching posture and the elbow open (`open`), and the same with the elbow
 //! bent until the hand met the face (`touch`). A pixel is *changed* where a channel differs from
 //! `rest` by more than the threshold. The forearm at `touch` is what changed in `touch` and not
-//! in `open` (the upper arm, which the elbow does not move, changed in both); its long axis is
+//! in `open` (the upper arm, which the elbow does not move, changed in both), the largest
+//! connected region of them; its long axis is
 //! the principal axis of those pixels, pointing away from the upper arm; the fingertip is the
 //! mean of the forearm pixels within [`END_BAND`] pixels of its far end along that axis.
 use image::RgbImage;
@@ -60,6 +61,41 @@ fn differs(a: &[u8], b: &[u8], threshold: u8) -> bool {
     a.iter().zip(b).any(|(x, y)| x.abs_diff(*y) > threshold)
 }
 
+/// The largest 8-connected region of `pixels` (whole-pixel positions in a `w` x `h` frame): the
+/// forearm, not the specks of noise or shading elsewhere that also passed the threshold.
+fn largest_region(pixels: &[[f64; 2]], w: usize, h: usize) -> Vec<[f64; 2]> {
+    let mut on = vec![false; w * h];
+    for p in pixels {
+        on[p[1] as usize * w + p[0] as usize] = true;
+    }
+    let mut best: Vec<usize> = Vec::new();
+    let mut stack = Vec::new();
+    for start in 0..w * h {
+        if !on[start] {
+            continue;
+        }
+        on[start] = false;
+        stack.push(start);
+        let mut region = Vec::new();
+        while let Some(i) = stack.pop() {
+            region.push(i);
+            let (x, y) = ((i % w) as i64, (i / w) as i64);
+            for (dx, dy) in [(-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)] {
+                let (nx, ny) = (x + dx, y + dy);
+                if nx >= 0 && ny >= 0 && (nx as usize) < w && (ny as usize) < h && on[ny as usize * w + nx as usize] {
+                    on[ny as usize * w + nx as usize] = false;
+                    stack.push(ny as usize * w + nx as usize);
+                }
+            }
+        }
+        if region.len() > best.len() {
+            best = region;
+        }
+    }
+    best.sort_unstable();
+    best.into_iter().map(|i| [(i % w) as f64, (i / w) as f64]).collect()
+}
+
 /// The fingertip at `touch` in full-frame pixels (x right, y down, pixel centres at integers).
 pub fn fingertip(rest: &RgbImage, open: &RgbImage, touch: &RgbImage, threshold: u8) -> Result<[f64; 2], TipError> {
     if rest.dimensions() != open.dimensions() || rest.dimensions() != touch.dimensions() {
@@ -81,6 +117,7 @@ pub fn fingertip(rest: &RgbImage, open: &RgbImage, touch: &RgbImage, threshold: 
             fore.push(p);
         }
     }
+    let fore = largest_region(&fore, w, rest.height() as usize);
     if fore.len() < MIN_FOREARM_PIXELS {
         return Err(TipError::NoForearm(fore.len()));
     }
@@ -167,6 +204,18 @@ mod tests {
         let want = [end[0] + 4.0 * d[0] / l, end[1] + 4.0 * d[1] / l];
         let err = ((tip[0] - want[0]).powi(2) + (tip[1] - want[1]).powi(2)).sqrt();
         assert!(err < 1.5, "tip {tip:?}, the stroke ends at {want:?}");
+    }
+
+    /// A speck that changed elsewhere (a reflection, a shadow) is not the forearm's end.
+    #[test]
+    fn a_speck_elsewhere_is_not_the_forearm() {
+        let rest = frame(&[]);
+        let upper = stroke([80.0, 89.0], [70.0, 50.0], 5.0);
+        let open = frame(&[upper.clone(), stroke([70.0, 50.0], [100.0, 20.0], 4.0)].concat());
+        let arm = [upper, stroke([70.0, 50.0], [30.0, 35.0], 4.0)].concat();
+        let clean = fingertip(&rest, &open, &frame(&arm), 10).unwrap();
+        let specked = frame(&[arm, vec![([5.0, 5.0], 2.0), ([115.0, 85.0], 1.0)]].concat());
+        assert_eq!(fingertip(&rest, &open, &specked, 10).unwrap(), clean);
     }
 
     #[test]
