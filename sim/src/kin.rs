@@ -224,15 +224,18 @@ pub enum Contact {
 /// How close the wrist or the elbow comes to the head's shell before the forearm touches it.
 pub const ARM_CONTACT_MARGIN_M: f64 = 0.010;
 
+/// Where the torso-frame point `p` lies against the head's shell grown by `grow` metres, at the
+/// head angles of `q`: below 1 inside, 1 on it, above 1 outside (the ellipsoid's quadratic form).
+fn head_shell_level(q: &Reach, p: &Point3<f64>, grow: f64) -> f64 {
+    let h = head_pose(q[0], q[1]).inverse() * p;
+    let (c, r) = HEAD_ELLIPSOID;
+    ((h.x - c[0]) / (r[0] + grow)).powi(2) + ((h.y - c[1]) / (r[1] + grow)).powi(2) + ((h.z - c[2]) / (r[2] + grow)).powi(2)
+}
+
 /// Whether the arm of `q` (an arm that is not its drawing: `e`) meets the head, and with what.
 pub fn contact_of(q: &Reach, e: &ArmError) -> Option<Contact> {
     let pts = arm_points_of(&LeftArm::from_reach(q), 1.0, e);
-    let inv = head_pose(q[0], q[1]).inverse();
-    let (c, r) = HEAD_ELLIPSOID;
-    let inside = |p: &Point3<f64>, grow: f64| {
-        let h = inv * p;
-        ((h.x - c[0]) / (r[0] + grow)).powi(2) + ((h.y - c[1]) / (r[1] + grow)).powi(2) + ((h.z - c[2]) / (r[2] + grow)).powi(2) <= 1.0
-    };
+    let inside = |p: &Point3<f64>, grow: f64| head_shell_level(q, p, grow) <= 1.0;
     if inside(&pts.fingertip, 0.0) {
         Some(Contact::Fingertip)
     } else if inside(&pts.wrist, ARM_CONTACT_MARGIN_M) || inside(&pts.elbow, ARM_CONTACT_MARGIN_M) {
@@ -260,14 +263,9 @@ pub enum IkError {
 /// [`HEAD_ELLIPSOID`], slightly grown.
 fn arm_clear_of_head(q: &Reach, margin: f64) -> f64 {
     let pts = arm_points(&LeftArm::from_reach(q), 1.0);
-    let inv = head_pose(q[0], q[1]).inverse();
-    let (c, r) = HEAD_ELLIPSOID;
     let mut pen = 0.0;
     for p in [pts.elbow, pts.wrist] {
-        let h = inv * p;
-        let d = ((h.x - c[0]) / (r[0] + margin)).powi(2)
-            + ((h.y - c[1]) / (r[1] + margin)).powi(2)
-            + ((h.z - c[2]) / (r[2] + margin)).powi(2);
+        let d = head_shell_level(q, &p, margin);
         if d < 1.0 {
             pen += 1.0 - d;
         }

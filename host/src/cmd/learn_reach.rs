@@ -110,7 +110,7 @@ pub fn run(a: Args) -> Result<()> {
         );
     }
     let opts = train_reach::Opts { seed: a.seed, ..Default::default() };
-    let (_, keep) = learn_reach::train_robust(&taught.pairs, &opts)?;
+    let keep = learn_reach::consistent_pairs(&taught.pairs, &opts)?;
     let kept: Vec<_> = keep.iter().map(|&i| taught.pairs[i]).collect();
     learn_reach::write_pairs(&a.out, &kept)?;
     let weights = a.out.join("reach.safetensors");

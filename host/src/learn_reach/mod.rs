@@ -21,13 +21,13 @@
 //!
 //! The head is held at rest throughout, so the pairs hold HeadYaw and HeadPitch at 0: the network
 //! learns to reach with the head looking at the mirror, where the robot sees its hand. Training
-//! ([`train_robust`]) drops pairs that the rest contradict: a touch made with the wrist before
+//! ([`consistent_pairs`]) drops pairs that the rest contradict: a touch made with the wrist before
 //! the fingertip shows the fingertip where it did not touch.
 pub mod sim;
 pub mod tip;
 
 use crate::data::crop::CropBox;
-use crate::train::reach::{self as train_reach, ReachModel};
+use crate::train::reach as train_reach;
 use anyhow::{ensure, Result};
 use image::RgbImage;
 use msr_sim::kin::{self, Reach};
@@ -220,18 +220,19 @@ pub fn learn(
     let mut r = Ok(());
     for (k, &h) in cfg.heads.iter().enumerate() {
         r = (|| -> Result<()> {
+            let turned;
             let (frame, b) = if k == 0 {
-                (rest_frame.clone(), fb)
+                (&rest_frame, fb)
             } else {
                 body.move_to(at_rest(h))?;
-                let f = body.frame()?;
-                match face(&f, h)? {
-                    Some(b) => (f, b),
+                turned = body.frame()?;
+                match face(&turned, h)? {
+                    Some(b) => (&turned, b),
                     // The face left the view at this pose: nothing to learn here.
                     None => return Ok(()),
                 }
             };
-            let view = View { head: h, rest: frame, face: [b.x, b.y, b.width, b.height], first: k == 0, rest_view: rest_frame.clone() };
+            let view = View { head: h, rest: frame, face: [b.x, b.y, b.width, b.height], first: k == 0, rest_view: &rest_frame };
             sweep_all(body, &view, cfg, &mut t, progress)
         })();
         if r.is_err() {
@@ -248,20 +249,20 @@ pub fn learn(
 }
 
 /// The robot's view at one head pose.
-struct View {
+struct View<'a> {
     head: [f64; 2],
     /// The frame with the arm at home.
-    rest: RgbImage,
+    rest: &'a RgbImage,
     /// The face's crop box here.
     face: [u32; 4],
     /// Whether this is the rest pose, whose frame the pairs' pixels are in.
     first: bool,
     /// The rest pose's frame with the arm at home.
-    rest_view: RgbImage,
+    rest_view: &'a RgbImage,
 }
 
 /// Rules 3 to 5 at one head pose.
-fn sweep_all(body: &mut dyn Body, view: &View, cfg: &LearnConfig, t: &mut Taught, progress: &mut dyn FnMut(&Progress)) -> Result<()> {
+fn sweep_all(body: &mut dyn Body, view: &View<'_>, cfg: &LearnConfig, t: &mut Taught, progress: &mut dyn FnMut(&Progress)) -> Result<()> {
     let lim = kin::reach_limits();
     let (sp, sr, er) = (lim[2], lim[3], lim[4]);
     let step = [(sp[1] - sp[0]) / (cfg.grid - 1) as f64, (sr[1] - sr[0]) / (cfg.grid - 1) as f64];
@@ -305,7 +306,7 @@ fn sweep_all(body: &mut dyn Body, view: &View, cfg: &LearnConfig, t: &mut Taught
 
 /// One sweep at shoulder posture (`q[0]`, `q[1]`), the elbow from `q[2]` towards `q[3]`; whether
 /// it made a pair.
-fn sweep(body: &mut dyn Body, view: &View, q: [f64; 4], t: &mut Taught) -> Result<bool> {
+fn sweep(body: &mut dyn Body, view: &View<'_>, q: [f64; 4], t: &mut Taught) -> Result<bool> {
     let h = view.head;
     let open: Reach = [h[0], h[1], q[0], q[1], q[2]];
     if body.move_to(open)?.touched {
@@ -319,12 +320,12 @@ fn sweep(body: &mut dyn Body, view: &View, q: [f64; 4], t: &mut Taught) -> Resul
         t.touches += 1;
         let touch_frame = body.frame()?;
         let f = view.face;
-        let refused = match tip::fingertip(&view.rest, &open_frame, &touch_frame, t.threshold) {
+        let refused = match tip::fingertip(view.rest, &open_frame, &touch_frame, t.threshold) {
             Ok(p) if p[0] >= f[0] as f64 && p[0] < (f[0] + f[2]) as f64 && p[1] >= f[1] as f64 && p[1] < (f[1] + f[3]) as f64 => {
                 // Where on the face, in the rest pose's frame: the face around the fingertip found
                 // there (first guess: the face box's shift).
                 let shift = [t.face[0] as f64 - f[0] as f64, t.face[1] as f64 - f[1] as f64];
-                let pixel = if view.first { Some(p) } else { tip::corresponding(&view.rest, &view.rest_view, p, shift) };
+                let pixel = if view.first { Some(p) } else { tip::corresponding(view.rest, view.rest_view, p, shift) };
                 let covered = |px: [f64; 2]| {
                     t.pairs.iter().any(|o| [o.joints[0], o.joints[1]] == REST_HEAD && (o.pixel[0] - px[0]).hypot(o.pixel[1] - px[1]) < COVERED_PX)
                 };
@@ -350,11 +351,11 @@ fn sweep(body: &mut dyn Body, view: &View, q: [f64; 4], t: &mut Taught) -> Resul
     Ok(made)
 }
 
-/// The reach network on `pairs`, as `msr train-reach` trains it, after dropping the pairs the rest
-/// contradict: trained once, each pair's error (joint angles, scaled to the pairs' ranges, the
-/// largest over the joints) against the median by [`OUTLIER_SIGMAS`] robust deviations, then
-/// trained again on the pairs kept. Returns the model and the indices kept.
-pub fn train_robust(pairs: &[Pair], opts: &train_reach::Opts) -> Result<(ReachModel, Vec<usize>)> {
+/// The pairs the rest do not contradict, by index: the reach network trained on all of them as
+/// `msr train-reach` trains it, each pair's error (joint angles, scaled to the pairs' ranges, the
+/// largest over the joints) within [`OUTLIER_SIGMAS`] robust deviations of the median. The network
+/// is then trained on these (`msr learn-reach` does it with `train_reach::run`, which writes it).
+pub fn consistent_pairs(pairs: &[Pair], opts: &train_reach::Opts) -> Result<Vec<usize>> {
     ensure!(pairs.len() >= 10, "{} pairs taught; the reach network needs at least 10", pairs.len());
     let xs: Vec<[f64; 2]> = pairs.iter().map(|p| p.pixel).collect();
     let ys: Vec<[f64; 5]> = pairs.iter().map(|p| p.joints).collect();
@@ -370,14 +371,7 @@ pub fn train_robust(pairs: &[Pair], opts: &train_reach::Opts) -> Result<(ReachMo
         .collect();
     let med = median(&err);
     let mad = 1.4826 * median(&err.iter().map(|e| (e - med).abs()).collect::<Vec<_>>());
-    let keep: Vec<usize> = (0..pairs.len()).filter(|&i| err[i] <= med + OUTLIER_SIGMAS * mad.max(1e-9)).collect();
-    if keep.len() == pairs.len() {
-        return Ok((first, keep));
-    }
-    let kx: Vec<[f64; 2]> = keep.iter().map(|&i| xs[i]).collect();
-    let ky: Vec<[f64; 5]> = keep.iter().map(|&i| ys[i]).collect();
-    let (model, _, _) = train_reach::train_chosen(&kx, &ky, opts)?;
-    Ok((model, keep))
+    Ok((0..pairs.len()).filter(|&i| err[i] <= med + OUTLIER_SIGMAS * mad.max(1e-9)).collect())
 }
 
 fn median(v: &[f64]) -> f64 {

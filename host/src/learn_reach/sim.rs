@@ -49,35 +49,38 @@ fn inside_limits(q: &Reach) -> bool {
     q.iter().zip(kin::reach_limits()).all(|(v, l)| v.is_finite() && *v >= l[0] && *v <= l[1])
 }
 
-impl Body for SimBody {
-    fn approach(&mut self, to: Reach) -> Result<Approach> {
+impl SimBody {
+    /// Moves towards `to` at `speed`, checking for a touch every [`APPROACH_STEP`], and stops
+    /// at the last posture before one.
+    fn go(&mut self, to: Reach, speed: f64) -> Result<Approach> {
         if !inside_limits(&to) {
             bail!("posture {to:?} is outside the joint limits");
         }
         let from = self.posture;
         let span = from.iter().zip(&to).map(|(a, b)| (b - a).abs()).fold(0.0, f64::max);
         let steps = (span / APPROACH_STEP).ceil().max(1.0) as usize;
+        let at = |k: usize| -> Reach { std::array::from_fn(|i| from[i] + k as f64 / steps as f64 * (to[i] - from[i])) };
         for k in 1..=steps {
-            let t = k as f64 / steps as f64;
-            let q: Reach = std::array::from_fn(|i| from[i] + t * (to[i] - from[i]));
-            if let Some(c) = kin::contact_of(&q, &self.arm) {
-                self.seconds += span * (k - 1) as f64 / steps as f64 / APPROACH_SPEED + SETTLE_S;
-                self.posture = std::array::from_fn(|i| from[i] + (k - 1) as f64 / steps as f64 * (to[i] - from[i]));
+            if let Some(c) = kin::contact_of(&at(k), &self.arm) {
+                self.seconds += span * (k - 1) as f64 / steps as f64 / speed + SETTLE_S;
+                self.posture = at(k - 1);
                 self.contacts.push(c);
                 return Ok(Approach { posture: self.posture, touched: true });
             }
         }
-        self.seconds += span / APPROACH_SPEED + SETTLE_S;
+        self.seconds += span / speed + SETTLE_S;
         self.posture = to;
         Ok(Approach { posture: to, touched: false })
     }
+}
+
+impl Body for SimBody {
+    fn approach(&mut self, to: Reach) -> Result<Approach> {
+        self.go(to, APPROACH_SPEED)
+    }
 
     fn move_to(&mut self, to: Reach) -> Result<Approach> {
-        let before = self.seconds;
-        let a = self.approach(to)?;
-        // A free move runs at the servos' speed, not the feeling one.
-        self.seconds = before + (self.seconds - before - SETTLE_S) * APPROACH_SPEED / MOVE_SPEED + SETTLE_S;
-        Ok(a)
+        self.go(to, MOVE_SPEED)
     }
 
     fn frame(&mut self) -> Result<RgbImage> {

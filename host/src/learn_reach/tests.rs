@@ -70,7 +70,7 @@ fn check_pairs(robot: Robot, share: f64) {
 #[test]
 fn too_few_pairs_train_nothing() {
     let p = Pair { pixel: [150.0, 110.0], joints: [0.0, 0.0, -0.8, 0.0, -1.3] };
-    let e = train_robust(&[p; 9], &train_reach::Opts::default()).unwrap_err();
+    let e = consistent_pairs(&[p; 9], &train_reach::Opts::default()).unwrap_err();
     assert!(format!("{e}").contains("9 pairs taught"), "{e}");
 }
 
@@ -85,7 +85,7 @@ fn contradicted_pairs_are_dropped() {
         p.joints[4] += 0.4;
     }
     let opts = train_reach::Opts { iterations: 3000, restarts: 1, weight_decay: Some(1e-5), ..Default::default() };
-    let (_, keep) = train_robust(&t.pairs, &opts).unwrap();
+    let keep = consistent_pairs(&t.pairs, &opts).unwrap();
     let bad: Vec<usize> = (0..n).step_by(10).collect();
     assert!(bad.iter().all(|i| !keep.contains(i)), "kept a moved pair: {keep:?}");
     assert!(keep.len() + bad.len() + n / 20 >= n, "dropped too many: {} of {n}", n - keep.len());

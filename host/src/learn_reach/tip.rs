@@ -287,7 +287,7 @@ pub fn corresponding(from: &RgbImage, to: &RgbImage, p: [f64; 2], guess: [f64; 2
             return None;
         }
         let c = f.get_pixel(x as u32, y as u32).0;
-        Some(0.299 * c[0] as f64 + 0.587 * c[1] as f64 + 0.114 * c[2] as f64)
+        Some(crate::data::crop::grey_of_rgb(c[0], c[1], c[2]) as f64)
     };
     let (cx, cy) = (p[0].round() as i64, p[1].round() as i64);
     let mut patch = Vec::new();
